@@ -1,0 +1,239 @@
+//! The node API: what a node kind is, and what it gets when it runs.
+//!
+//! A node kind is a Rust type implementing [`Node`]: typed serde args, a `VERSION`, declared
+//! named inputs and outputs, and a `run` function. The engine resolves its inputs to read-only
+//! folders, gives it one scratch folder per declared output, and promotes those folders into
+//! the store only when `run` returns `Ok`.
+
+use serde::{de::DeserializeOwned, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// How many cores a node wants while it runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Threads {
+    /// A light node: one core; the executor may run others beside it.
+    One,
+    /// A heavy node: every core of the executor's budget; nothing else runs beside it.
+    All,
+    /// A fixed number of cores (capped at the executor's budget).
+    Exactly(usize),
+}
+
+/// One declared input of a node kind.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct InputDecl {
+    /// The input's name, as written under `inputs:` in a pipeline.
+    pub name: String,
+    /// Whether the pipeline may omit it.
+    pub optional: bool,
+    /// Whether it takes a list of references (e.g. every member of an ensemble).
+    pub many: bool,
+}
+
+impl InputDecl {
+    /// A required single input.
+    pub fn one(name: &str) -> Self {
+        InputDecl { name: name.into(), optional: false, many: false }
+    }
+    /// An optional single input.
+    pub fn optional(name: &str) -> Self {
+        InputDecl { name: name.into(), optional: true, many: false }
+    }
+    /// A required list input (one or more references).
+    pub fn many(name: &str) -> Self {
+        InputDecl { name: name.into(), optional: false, many: true }
+    }
+}
+
+/// An error raised by a node's `run`. Holds a readable message (with the chain of causes);
+/// the engine shows it, keeps it in the node's log and stores nothing for the node.
+#[derive(Debug)]
+pub struct NodeError {
+    message: String,
+}
+
+impl NodeError {
+    /// An error with this message.
+    pub fn new(message: impl Into<String>) -> Self {
+        NodeError { message: message.into() }
+    }
+    /// The message.
+    pub fn message(&self) -> &str {
+        &self.message
+    }
+    /// Prefixes the message with context ("while reading X: ...").
+    pub fn context(self, ctx: impl std::fmt::Display) -> Self {
+        NodeError { message: format!("{ctx}: {}", self.message) }
+    }
+}
+
+impl std::fmt::Display for NodeError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl<E: std::error::Error> From<E> for NodeError {
+    fn from(e: E) -> Self {
+        let mut message = e.to_string();
+        let mut src = e.source();
+        while let Some(s) = src {
+            let part = s.to_string();
+            if !message.contains(&part) {
+                message.push_str(": ");
+                message.push_str(&part);
+            }
+            src = s.source();
+        }
+        NodeError { message }
+    }
+}
+
+/// Receives progress and log lines from a running node. The executor provides one; tests can
+/// use [`NullSink`].
+pub trait ProgressSink: Send + Sync {
+    /// `done` of `total` units finished, with a short message.
+    fn progress(&self, done: u64, total: u64, message: &str);
+    /// A log line (kept in the node's log in the store).
+    fn log(&self, line: &str);
+}
+
+/// A sink that drops everything.
+pub struct NullSink;
+
+impl ProgressSink for NullSink {
+    fn progress(&self, _: u64, _: u64, _: &str) {}
+    fn log(&self, _: &str) {}
+}
+
+/// What a running node gets: its inputs, its output folders, a seed, a thread budget and a
+/// progress sink.
+pub struct RunContext {
+    /// Resolved inputs by name: each a list of read-only folders (one for single inputs).
+    pub(crate) inputs: Vec<(String, Vec<PathBuf>)>,
+    /// Output folders by name, already created, empty.
+    pub(crate) outputs: Vec<(String, PathBuf)>,
+    /// A folder for temporary files that are not outputs.
+    pub(crate) scratch: PathBuf,
+    pub(crate) seed: u64,
+    pub(crate) threads: usize,
+    pub(crate) sink: Arc<dyn ProgressSink>,
+    pub(crate) node_name: String,
+}
+
+impl RunContext {
+    /// Builds a context by hand, for running a node outside the engine (tests, benchmarks).
+    /// Output folders are created under `outputs_root/<name>`.
+    pub fn standalone(
+        inputs: Vec<(String, Vec<PathBuf>)>,
+        output_names: &[&str],
+        outputs_root: &Path,
+        seed: u64,
+        threads: usize,
+    ) -> std::io::Result<RunContext> {
+        let mut outputs = Vec::new();
+        for name in output_names {
+            let p = outputs_root.join(name);
+            std::fs::create_dir_all(&p)?;
+            outputs.push((name.to_string(), p));
+        }
+        let scratch = outputs_root.join(".scratch");
+        std::fs::create_dir_all(&scratch)?;
+        Ok(RunContext {
+            inputs,
+            outputs,
+            scratch,
+            seed,
+            threads: threads.max(1),
+            sink: Arc::new(NullSink),
+            node_name: "standalone".into(),
+        })
+    }
+
+    /// The folder of single input `name`.
+    pub fn input(&self, name: &str) -> Result<&Path, NodeError> {
+        match self.inputs.iter().find(|(n, _)| n == name) {
+            Some((_, paths)) if paths.len() == 1 => Ok(&paths[0]),
+            Some((_, paths)) => Err(NodeError::new(format!("input `{name}` has {} folders, expected one", paths.len()))),
+            None => Err(NodeError::new(format!("input `{name}` was not connected"))),
+        }
+    }
+    /// The folder of an optional single input, if connected.
+    pub fn optional_input(&self, name: &str) -> Option<&Path> {
+        self.inputs.iter().find(|(n, _)| n == name).and_then(|(_, p)| p.first().map(|p| p.as_path()))
+    }
+    /// The folders of list input `name`, in the order the pipeline lists them.
+    pub fn input_list(&self, name: &str) -> Result<&[PathBuf], NodeError> {
+        self.inputs
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, p)| p.as_slice())
+            .ok_or_else(|| NodeError::new(format!("input `{name}` was not connected")))
+    }
+    /// The (empty, existing) folder to write output `name` into.
+    pub fn output(&self, name: &str) -> Result<&Path, NodeError> {
+        self.outputs
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, p)| p.as_path())
+            .ok_or_else(|| NodeError::new(format!("output `{name}` is not declared")))
+    }
+    /// A scratch folder for temporary files (discarded after the run).
+    pub fn scratch(&self) -> &Path {
+        &self.scratch
+    }
+    /// A seed derived from the node's key: stable for the same args and inputs. Nodes with a
+    /// `seed` arg should mix it in (or use it alone) so users control the stream.
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+    /// The number of threads this node may use. The engine runs `run` inside a rayon pool of
+    /// this size, so plain rayon calls respect it.
+    pub fn threads(&self) -> usize {
+        self.threads
+    }
+    /// The node's instance name in the pipeline.
+    pub fn node_name(&self) -> &str {
+        &self.node_name
+    }
+    /// Reports progress: `done` of `total` units.
+    pub fn progress(&self, done: u64, total: u64, message: &str) {
+        self.sink.progress(done, total, message);
+    }
+    /// Writes a line to the node's log.
+    pub fn log(&self, line: impl AsRef<str>) {
+        self.sink.log(line.as_ref());
+    }
+}
+
+/// A node kind. Implement this for a unit struct and register it with
+/// [`crate::Registry::register`].
+///
+/// Contract: for the same args and the same input bytes, `run` writes the same output bytes,
+/// whatever the thread count (this is what makes early cutoff work).
+pub trait Node: Send + Sync + 'static {
+    /// The kind name used in pipelines (`kind: "OptimizeSplats"`).
+    const KIND: &'static str;
+    /// Bump when the outputs change for the same args and inputs; it is part of every key.
+    const VERSION: u32;
+    /// Typed args. Use `#[serde(default, deny_unknown_fields)]` on the struct so omitted fields
+    /// take their defaults and typos are errors. Maps must be ordered (BTreeMap).
+    type Args: Serialize + DeserializeOwned + Default + Clone + Send + Sync + 'static;
+
+    /// The declared inputs (may depend on the args).
+    fn inputs(args: &Self::Args) -> Vec<InputDecl>;
+    /// The declared output names (may depend on the args). Each becomes a folder.
+    fn outputs(args: &Self::Args) -> Vec<String>;
+    /// How many cores the node wants. Default: one.
+    fn threads(_args: &Self::Args) -> Threads {
+        Threads::One
+    }
+    /// Checks args beyond their types (ranges, consistency). Errors are reported against the
+    /// pipeline file before anything runs. Default: accept.
+    fn validate(_args: &Self::Args) -> Result<(), String> {
+        Ok(())
+    }
+    /// Does the work: reads `ctx.input(..)` folders, writes into `ctx.output(..)` folders.
+    fn run(args: &Self::Args, ctx: &mut RunContext) -> Result<(), NodeError>;
+}

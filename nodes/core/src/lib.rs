@@ -1,0 +1,21 @@
+//! Shared data types of augsplat's 3D nodes.
+//!
+//! Everything that more than one node family needs lives here and nowhere else:
+//! [`camera::Camera`] (OpenCV axes, world-to-camera), [`image::ImageF32`] and its file
+//! formats (PNG/JPEG in, PNG/EXR/NPY out), the on-disk [`scene::Scene`] artifact that the
+//! import node writes and every later stage reads, small fixed-size linear algebra in
+//! [`linalg`], and the deterministic [`rng::Rng`].
+
+pub mod artifacts;
+pub mod camera;
+pub mod error;
+pub mod image;
+pub mod linalg;
+pub mod rng;
+pub mod scene;
+
+pub use camera::Camera;
+pub use error::CoreError;
+pub use image::ImageF32;
+pub use rng::Rng;
+pub use scene::{PointCloud, Scene, SceneView};

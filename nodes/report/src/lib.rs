@@ -1,0 +1,1 @@
+//! augsplat-report

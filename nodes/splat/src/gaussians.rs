@@ -1,0 +1,50 @@
+//! The Gaussian parameter set, structure-of-arrays, raw (pre-activation) values as in the
+//! Inria PLY layout: quaternion (w, x, y, z) normalised before use, scale = exp(log_scale),
+//! opacity = sigmoid(logit), SH coefficients per Gaussian as `sh[(i·K + k)·3 + c]` with
+//! K = (degree + 1)² coefficients and c the colour channel (k = 0 is the DC term).
+
+/// Number of SH coefficients per channel for a degree.
+pub const fn sh_coeffs(degree: u32) -> usize {
+    ((degree + 1) * (degree + 1)) as usize
+}
+
+/// A set of Gaussians (raw parameters).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Gaussians {
+    /// Centres, world frame.
+    pub means: Vec<[f32; 3]>,
+    /// Natural log of the per-axis scales.
+    pub log_scales: Vec<[f32; 3]>,
+    /// Unnormalised rotation quaternions (w, x, y, z).
+    pub quats: Vec<[f32; 4]>,
+    /// Opacity logits.
+    pub opacity_logits: Vec<f32>,
+    /// SH coefficients, `len() · sh_coeffs(sh_degree) · 3` values.
+    pub sh: Vec<f32>,
+    /// The SH degree the coefficients are stored for (0–3).
+    pub sh_degree: u32,
+}
+
+impl Gaussians {
+    /// An empty set with SH storage for `sh_degree`.
+    pub fn empty(sh_degree: u32) -> Self {
+        Gaussians { sh_degree, ..Default::default() }
+    }
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.means.len()
+    }
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.means.is_empty()
+    }
+    /// Coefficients per channel.
+    pub fn coeffs(&self) -> usize {
+        sh_coeffs(self.sh_degree)
+    }
+    /// The SH coefficients of Gaussian i (`coeffs() · 3` values).
+    pub fn sh_of(&self, i: usize) -> &[f32] {
+        let k = self.coeffs() * 3;
+        &self.sh[i * k..(i + 1) * k]
+    }
+}

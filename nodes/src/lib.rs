@@ -1,0 +1,9 @@
+//! Registers every built-in augsplat node kind. Each family lives in its own crate under
+//! `nodes/` and exposes `register(&mut Registry)`.
+
+use augsplat_graph::Registry;
+
+/// Registers the built-in node kinds of every family.
+pub fn register_builtin(registry: &mut Registry) {
+    let _ = registry;
+}

@@ -1,0 +1,15 @@
+//! One module per subcommand. Each has `Args` (clap) and `run`, returning a readable error.
+
+pub mod compare;
+pub mod expand;
+pub mod gc;
+pub mod inspect;
+pub mod metrics;
+pub mod plan;
+pub mod render;
+pub mod run;
+pub mod weights;
+pub mod why;
+
+/// A subcommand's result: `Err` holds the report printed after `error: `.
+pub type CmdResult = Result<(), String>;
