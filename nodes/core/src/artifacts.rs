@@ -130,6 +130,7 @@ pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, CoreError> {
 
 /// Writes a JSON artifact index (pretty, deterministic).
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), CoreError> {
-    let text = serde_json::to_string_pretty(value).map_err(|e| CoreError::format(path, e.to_string()))?;
+    let text =
+        serde_json::to_string_pretty(value).map_err(|e| CoreError::format(path, e.to_string()))?;
     std::fs::write(path, text).map_err(|e| CoreError::io(path, e))
 }

@@ -55,7 +55,11 @@ impl Camera {
     /// and z the depth along the optical axis. u, v are meaningless when z ≤ 0.
     pub fn project(&self, p: Vec3) -> (f64, f64, f64) {
         let c = self.to_camera(p);
-        (self.fx * c[0] / c[2] + self.cx, self.fy * c[1] / c[2] + self.cy, c[2])
+        (
+            self.fx * c[0] / c[2] + self.cx,
+            self.fy * c[1] / c[2] + self.cy,
+            c[2],
+        )
     }
     /// Ray through continuous pixel position (u, v): origin and unit direction in world space.
     pub fn ray(&self, u: f64, v: f64) -> (Vec3, Vec3) {
@@ -93,17 +97,33 @@ impl Camera {
     /// Checks that every number is finite and the intrinsics are positive.
     pub fn validate(&self) -> Result<(), String> {
         if self.width == 0 || self.height == 0 {
-            return Err(format!("image size {}×{} is empty", self.width, self.height));
+            return Err(format!(
+                "image size {}×{} is empty",
+                self.width, self.height
+            ));
         }
-        for (name, v) in [("fx", self.fx), ("fy", self.fy), ("cx", self.cx), ("cy", self.cy)] {
+        for (name, v) in [
+            ("fx", self.fx),
+            ("fy", self.fy),
+            ("cx", self.cx),
+            ("cy", self.cy),
+        ] {
             if !v.is_finite() {
                 return Err(format!("{name} = {v} is not finite"));
             }
         }
         if self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(format!("focal lengths must be positive (fx {}, fy {})", self.fx, self.fy));
+            return Err(format!(
+                "focal lengths must be positive (fx {}, fy {})",
+                self.fx, self.fy
+            ));
         }
-        if self.world_to_camera.iter().flatten().any(|v| !v.is_finite()) {
+        if self
+            .world_to_camera
+            .iter()
+            .flatten()
+            .any(|v| !v.is_finite())
+        {
             return Err("pose contains a non-finite value".into());
         }
         Ok(())

@@ -26,10 +26,16 @@ pub enum CoreError {
 impl CoreError {
     /// Shorthand for an I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        CoreError::Io { path: path.into(), source }
+        CoreError::Io {
+            path: path.into(),
+            source,
+        }
     }
     /// Shorthand for a format error on `path`.
     pub fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
-        CoreError::Format { path: path.into(), message: message.into() }
+        CoreError::Format {
+            path: path.into(),
+            message: message.into(),
+        }
     }
 }

@@ -24,12 +24,26 @@ pub struct ImageF32 {
 impl ImageF32 {
     /// A zero-filled image.
     pub fn new(width: u32, height: u32, channels: u32) -> Self {
-        ImageF32 { width, height, channels, data: vec![0.0; (width * height * channels) as usize] }
+        ImageF32 {
+            width,
+            height,
+            channels,
+            data: vec![0.0; (width * height * channels) as usize],
+        }
     }
     /// Wraps existing data; panics if the length does not match (a programming error).
     pub fn from_vec(width: u32, height: u32, channels: u32, data: Vec<f32>) -> Self {
-        assert_eq!(data.len(), (width * height * channels) as usize, "ImageF32::from_vec size mismatch");
-        ImageF32 { width, height, channels, data }
+        assert_eq!(
+            data.len(),
+            (width * height * channels) as usize,
+            "ImageF32::from_vec size mismatch"
+        );
+        ImageF32 {
+            width,
+            height,
+            channels,
+            data,
+        }
     }
     /// Number of pixels.
     pub fn pixels(&self) -> usize {
@@ -45,7 +59,12 @@ impl ImageF32 {
     }
     /// One channel as a planar vector.
     pub fn channel(&self, c: u32) -> Vec<f32> {
-        self.data.iter().skip(c as usize).step_by(self.channels as usize).copied().collect()
+        self.data
+            .iter()
+            .skip(c as usize)
+            .step_by(self.channels as usize)
+            .copied()
+            .collect()
     }
     /// Area-average downscale by an integer factor (partial edge blocks are averaged over the
     /// pixels they hold). Pixel centres stay consistent with [`crate::Camera::resized`] when the
@@ -89,8 +108,12 @@ pub fn read_rgb(path: &Path) -> Result<ImageF32, CoreError> {
         "exr" => {
             let exr = read_exr(path)?;
             let get = |n: &str| {
-                exr.channel(n)
-                    .ok_or_else(|| CoreError::format(path, format!("EXR has no channel {n} (has {:?})", exr.names())))
+                exr.channel(n).ok_or_else(|| {
+                    CoreError::format(
+                        path,
+                        format!("EXR has no channel {n} (has {:?})", exr.names()),
+                    )
+                })
             };
             let (r, g, b) = (get("R")?, get("G")?, get("B")?);
             let mut data = Vec::with_capacity(r.len() * 3);
@@ -102,7 +125,10 @@ pub fn read_rgb(path: &Path) -> Result<ImageF32, CoreError> {
         "npy" => {
             let img = read_npy(path)?;
             if img.channels != 3 {
-                return Err(CoreError::format(path, format!("expected H×W×3, found {} channels", img.channels)));
+                return Err(CoreError::format(
+                    path,
+                    format!("expected H×W×3, found {} channels", img.channels),
+                ));
             }
             Ok(img)
         }
@@ -138,10 +164,22 @@ pub fn write_png(path: &Path, img: &ImageF32) -> Result<(), CoreError> {
         1 => ::image::ExtendedColorType::L8,
         3 => ::image::ExtendedColorType::Rgb8,
         4 => ::image::ExtendedColorType::Rgba8,
-        c => return Err(CoreError::format(path, format!("cannot write a {c}-channel PNG"))),
+        c => {
+            return Err(CoreError::format(
+                path,
+                format!("cannot write a {c}-channel PNG"),
+            ))
+        }
     };
-    ::image::save_buffer_with_format(path, &bytes, img.width, img.height, color, ::image::ImageFormat::Png)
-        .map_err(|e| CoreError::format(path, format!("cannot write PNG: {e}")))
+    ::image::save_buffer_with_format(
+        path,
+        &bytes,
+        img.width,
+        img.height,
+        color,
+        ::image::ImageFormat::Png,
+    )
+    .map_err(|e| CoreError::format(path, format!("cannot write PNG: {e}")))
 }
 
 /// Quantises a [0, 1] value to 8 bits (clamped, round-half-up; NaN → 0).
@@ -167,7 +205,10 @@ pub struct ExrImage {
 impl ExrImage {
     /// The samples of the channel called `name`.
     pub fn channel(&self, name: &str) -> Option<&[f32]> {
-        self.channels.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
+        self.channels
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
     }
     /// Channel names.
     pub fn names(&self) -> Vec<&str> {
@@ -176,7 +217,12 @@ impl ExrImage {
 }
 
 /// Writes float32 planar channels to an uncompressed... (ZIP-compressed, lossless) EXR.
-pub fn write_exr(path: &Path, width: u32, height: u32, channels: &[(&str, &[f32])]) -> Result<(), CoreError> {
+pub fn write_exr(
+    path: &Path,
+    width: u32,
+    height: u32,
+    channels: &[(&str, &[f32])],
+) -> Result<(), CoreError> {
     use exr::prelude::*;
     let n = (width * height) as usize;
     if channels.is_empty() {
@@ -185,7 +231,10 @@ pub fn write_exr(path: &Path, width: u32, height: u32, channels: &[(&str, &[f32]
     let mut list: Vec<AnyChannel<FlatSamples>> = Vec::with_capacity(channels.len());
     for (name, data) in channels {
         if data.len() != n {
-            return Err(CoreError::format(path, format!("channel {name} has {} samples, expected {n}", data.len())));
+            return Err(CoreError::format(
+                path,
+                format!("channel {name} has {} samples, expected {n}", data.len()),
+            ));
         }
         list.push(AnyChannel::new(*name, FlatSamples::F32(data.to_vec())));
     }
@@ -205,7 +254,10 @@ pub fn write_exr(path: &Path, width: u32, height: u32, channels: &[(&str, &[f32]
 pub fn read_exr(path: &Path) -> Result<ExrImage, CoreError> {
     use exr::prelude::*;
     if !path.exists() {
-        return Err(CoreError::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "file not found")));
+        return Err(CoreError::io(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "file not found"),
+        ));
     }
     let image = read()
         .no_deep_data()
@@ -226,7 +278,11 @@ pub fn read_exr(path: &Path) -> Result<ExrImage, CoreError> {
             (ch.name.to_string(), data)
         })
         .collect();
-    Ok(ExrImage { width: size.0 as u32, height: size.1 as u32, channels })
+    Ok(ExrImage {
+        width: size.0 as u32,
+        height: size.1 as u32,
+        channels,
+    })
 }
 
 /// Writes float32 NPY with shape H×W×C (or H×W for one channel).
@@ -257,9 +313,19 @@ pub fn read_npy(path: &Path) -> Result<ImageF32, CoreError> {
     let (h, w, c) = match shape.as_slice() {
         [h, w] => (*h, *w, 1),
         [h, w, c] => (*h, *w, *c),
-        s => return Err(CoreError::format(path, format!("expected a 2-D or 3-D array, found shape {s:?}"))),
+        s => {
+            return Err(CoreError::format(
+                path,
+                format!("expected a 2-D or 3-D array, found shape {s:?}"),
+            ))
+        }
     };
-    Ok(ImageF32::from_vec(w as u32, h as u32, c as u32, values.into_iter().map(|v| v as f32).collect()))
+    Ok(ImageF32::from_vec(
+        w as u32,
+        h as u32,
+        c as u32,
+        values.into_iter().map(|v| v as f32).collect(),
+    ))
 }
 
 /// Reads a C-order little-endian NPY array of `<f4` or `<f8` values: (shape, values as f64).
@@ -275,12 +341,19 @@ pub fn read_npy_array(path: &Path) -> Result<(Vec<usize>, Vec<f64>), CoreError> 
             if bytes.len() < 12 {
                 return Err(bad("truncated header"));
             }
-            (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12)
+            (
+                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+                12,
+            )
         }
         v => return Err(bad(&format!("version {v}"))),
     };
-    let header = std::str::from_utf8(bytes.get(hstart..hstart + hlen).ok_or_else(|| bad("truncated header"))?)
-        .map_err(|_| bad("header is not text"))?;
+    let header = std::str::from_utf8(
+        bytes
+            .get(hstart..hstart + hlen)
+            .ok_or_else(|| bad("truncated header"))?,
+    )
+    .map_err(|_| bad("header is not text"))?;
     let descr = if header.contains("'<f4'") {
         4
     } else if header.contains("'<f8'") {
@@ -302,10 +375,17 @@ pub fn read_npy_array(path: &Path) -> Result<(Vec<usize>, Vec<f64>), CoreError> 
     let count: usize = shape.iter().product();
     let data = &bytes[hstart + hlen..];
     if data.len() < count * descr {
-        return Err(bad(&format!("{} data bytes, need {}", data.len(), count * descr)));
+        return Err(bad(&format!(
+            "{} data bytes, need {}",
+            data.len(),
+            count * descr
+        )));
     }
     let values = if descr == 4 {
-        data.chunks_exact(4).take(count).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64).collect()
+        data.chunks_exact(4)
+            .take(count)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64)
+            .collect()
     } else {
         data.chunks_exact(8)
             .take(count)
@@ -316,7 +396,10 @@ pub fn read_npy_array(path: &Path) -> Result<(Vec<usize>, Vec<f64>), CoreError> 
 }
 
 fn extension(path: &Path) -> String {
-    path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
 }
 
 #[cfg(test)]

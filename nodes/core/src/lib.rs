@@ -6,6 +6,9 @@
 //! import node writes and every later stage reads, small fixed-size linear algebra in
 //! [`linalg`], and the deterministic [`rng::Rng`].
 
+// Index loops read best in small fixed-size numeric code.
+#![allow(clippy::needless_range_loop)]
+
 pub mod artifacts;
 pub mod camera;
 pub mod error;

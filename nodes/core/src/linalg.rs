@@ -83,7 +83,8 @@ pub fn transpose3(m: &Mat3) -> Mat3 {
 }
 /// Determinant of a 3×3 matrix.
 pub fn det3(m: &Mat3) -> f64 {
-    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
 }
 
@@ -134,9 +135,21 @@ pub fn quat_to_mat3(q: Quat) -> Mat3 {
     }
     let (w, x, y, z) = (q[0] / n, q[1] / n, q[2] / n, q[3] / n);
     [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
     ]
 }
 
@@ -145,20 +158,45 @@ pub fn mat3_to_quat(m: &Mat3) -> Quat {
     let tr = m[0][0] + m[1][1] + m[2][2];
     let q = if tr > 0.0 {
         let s = (tr + 1.0).sqrt() * 2.0;
-        [0.25 * s, (m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s]
+        [
+            0.25 * s,
+            (m[2][1] - m[1][2]) / s,
+            (m[0][2] - m[2][0]) / s,
+            (m[1][0] - m[0][1]) / s,
+        ]
     } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
         let s = (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt() * 2.0;
-        [(m[2][1] - m[1][2]) / s, 0.25 * s, (m[0][1] + m[1][0]) / s, (m[0][2] + m[2][0]) / s]
+        [
+            (m[2][1] - m[1][2]) / s,
+            0.25 * s,
+            (m[0][1] + m[1][0]) / s,
+            (m[0][2] + m[2][0]) / s,
+        ]
     } else if m[1][1] > m[2][2] {
         let s = (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt() * 2.0;
-        [(m[0][2] - m[2][0]) / s, (m[0][1] + m[1][0]) / s, 0.25 * s, (m[1][2] + m[2][1]) / s]
+        [
+            (m[0][2] - m[2][0]) / s,
+            (m[0][1] + m[1][0]) / s,
+            0.25 * s,
+            (m[1][2] + m[2][1]) / s,
+        ]
     } else {
         let s = (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt() * 2.0;
-        [(m[1][0] - m[0][1]) / s, (m[0][2] + m[2][0]) / s, (m[1][2] + m[2][1]) / s, 0.25 * s]
+        [
+            (m[1][0] - m[0][1]) / s,
+            (m[0][2] + m[2][0]) / s,
+            (m[1][2] + m[2][1]) / s,
+            0.25 * s,
+        ]
     };
     let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
     let sign = if q[0] < 0.0 { -1.0 } else { 1.0 };
-    [q[0] * sign / n, q[1] * sign / n, q[2] * sign / n, q[3] * sign / n]
+    [
+        q[0] * sign / n,
+        q[1] * sign / n,
+        q[2] * sign / n,
+        q[3] * sign / n,
+    ]
 }
 
 /// Spherical linear interpolation between unit quaternions along the shorter arc.
@@ -192,9 +230,21 @@ pub fn axis_angle(axis: Vec3, angle: f64) -> Mat3 {
     let (s, c) = angle.sin_cos();
     let t = 1.0 - c;
     [
-        [t * a[0] * a[0] + c, t * a[0] * a[1] - s * a[2], t * a[0] * a[2] + s * a[1]],
-        [t * a[0] * a[1] + s * a[2], t * a[1] * a[1] + c, t * a[1] * a[2] - s * a[0]],
-        [t * a[0] * a[2] - s * a[1], t * a[1] * a[2] + s * a[0], t * a[2] * a[2] + c],
+        [
+            t * a[0] * a[0] + c,
+            t * a[0] * a[1] - s * a[2],
+            t * a[0] * a[2] + s * a[1],
+        ],
+        [
+            t * a[0] * a[1] + s * a[2],
+            t * a[1] * a[1] + c,
+            t * a[1] * a[2] - s * a[0],
+        ],
+        [
+            t * a[0] * a[2] - s * a[1],
+            t * a[1] * a[2] + s * a[0],
+            t * a[2] * a[2] + c,
+        ],
     ]
 }
 
@@ -204,7 +254,10 @@ mod tests {
 
     #[test]
     fn quaternion_round_trip_and_slerp_endpoints() {
-        let r = mat3_mul(&axis_angle([0.3, -1.0, 0.2], 2.5), &axis_angle([1.0, 0.0, 0.0], -0.7));
+        let r = mat3_mul(
+            &axis_angle([0.3, -1.0, 0.2], 2.5),
+            &axis_angle([1.0, 0.0, 0.0], -0.7),
+        );
         let q = mat3_to_quat(&r);
         let r2 = quat_to_mat3(q);
         for i in 0..3 {

@@ -15,6 +15,9 @@ use crate::{camera::Camera, image, linalg::Vec3, CoreError, ImageF32};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// Depth (Z) and confidence (W) planes of one view, row-major.
+pub type DepthPlanes = (Vec<f32>, Vec<f32>);
+
 /// File name of the scene description inside a scene folder.
 pub const SCENE_FILE: &str = "scene.json";
 /// File name of the point cloud inside a scene folder.
@@ -45,18 +48,29 @@ pub struct Normalization {
 
 impl Default for Normalization {
     fn default() -> Self {
-        Normalization { center: [0.0; 3], scale: 1.0 }
+        Normalization {
+            center: [0.0; 3],
+            scale: 1.0,
+        }
     }
 }
 
 impl Normalization {
     /// Original-frame point to normalised frame.
     pub fn apply(&self, p: Vec3) -> Vec3 {
-        [(p[0] - self.center[0]) * self.scale, (p[1] - self.center[1]) * self.scale, (p[2] - self.center[2]) * self.scale]
+        [
+            (p[0] - self.center[0]) * self.scale,
+            (p[1] - self.center[1]) * self.scale,
+            (p[2] - self.center[2]) * self.scale,
+        ]
     }
     /// Normalised-frame point back to the original frame.
     pub fn invert(&self, p: Vec3) -> Vec3 {
-        [p[0] / self.scale + self.center[0], p[1] / self.scale + self.center[1], p[2] / self.scale + self.center[2]]
+        [
+            p[0] / self.scale + self.center[0],
+            p[1] / self.scale + self.center[1],
+            p[2] / self.scale + self.center[2],
+        ]
     }
 }
 
@@ -84,7 +98,8 @@ impl Scene {
     pub fn load(dir: &Path) -> Result<Scene, CoreError> {
         let path = dir.join(SCENE_FILE);
         let text = std::fs::read_to_string(&path).map_err(|e| CoreError::io(&path, e))?;
-        serde_json::from_str(&text).map_err(|e| CoreError::format(&path, format!("invalid scene description: {e}")))
+        serde_json::from_str(&text)
+            .map_err(|e| CoreError::format(&path, format!("invalid scene description: {e}")))
     }
     /// Writes `scene.json` into a scene folder (images and points are written separately).
     pub fn save(&self, dir: &Path) -> Result<(), CoreError> {
@@ -97,12 +112,22 @@ impl Scene {
         image::read_rgb(&dir.join(&self.views[index].image))
     }
     /// Loads the depth (Z) and weight (W) planes of view `index`, if it has depth.
-    pub fn load_depth(&self, dir: &Path, index: usize) -> Result<Option<(Vec<f32>, Vec<f32>)>, CoreError> {
-        let Some(rel) = &self.views[index].depth else { return Ok(None) };
+    pub fn load_depth(
+        &self,
+        dir: &Path,
+        index: usize,
+    ) -> Result<Option<DepthPlanes>, CoreError> {
+        let Some(rel) = &self.views[index].depth else {
+            return Ok(None);
+        };
         let path = dir.join(rel);
         let exr = image::read_exr(&path)?;
-        let z = exr.channel("Z").ok_or_else(|| CoreError::format(&path, "depth EXR has no Z channel"))?;
-        let w = exr.channel("W").ok_or_else(|| CoreError::format(&path, "depth EXR has no W channel"))?;
+        let z = exr
+            .channel("Z")
+            .ok_or_else(|| CoreError::format(&path, "depth EXR has no Z channel"))?;
+        let w = exr
+            .channel("W")
+            .ok_or_else(|| CoreError::format(&path, "depth EXR has no W channel"))?;
         Ok(Some((z.to_vec(), w.to_vec())))
     }
     /// Loads the point cloud, or an empty one when the scene has none.
@@ -169,16 +194,37 @@ impl PointCloud {
         let pos = f32s(&self.positions.concat());
         let col = f32s(&self.colors.concat());
         let err = f32s(&self.errors);
-        let off = if self.track_offsets.is_empty() { vec![0u32; n + 1] } else { self.track_offsets.clone() };
+        let off = if self.track_offsets.is_empty() {
+            vec![0u32; n + 1]
+        } else {
+            self.track_offsets.clone()
+        };
         let offb = u32s(&off);
         let tv = u32s(&self.track_views);
-        let bad = |e: safetensors::SafeTensorError| CoreError::format(path, format!("cannot encode points: {e}"));
+        let bad = |e: safetensors::SafeTensorError| {
+            CoreError::format(path, format!("cannot encode points: {e}"))
+        };
         let tensors = vec![
-            ("positions", TensorView::new(Dtype::F32, vec![n, 3], &pos).map_err(bad)?),
-            ("colors", TensorView::new(Dtype::F32, vec![n, 3], &col).map_err(bad)?),
-            ("errors", TensorView::new(Dtype::F32, vec![n], &err).map_err(bad)?),
-            ("track_offsets", TensorView::new(Dtype::U32, vec![n + 1], &offb).map_err(bad)?),
-            ("track_views", TensorView::new(Dtype::U32, vec![self.track_views.len()], &tv).map_err(bad)?),
+            (
+                "positions",
+                TensorView::new(Dtype::F32, vec![n, 3], &pos).map_err(bad)?,
+            ),
+            (
+                "colors",
+                TensorView::new(Dtype::F32, vec![n, 3], &col).map_err(bad)?,
+            ),
+            (
+                "errors",
+                TensorView::new(Dtype::F32, vec![n], &err).map_err(bad)?,
+            ),
+            (
+                "track_offsets",
+                TensorView::new(Dtype::U32, vec![n + 1], &offb).map_err(bad)?,
+            ),
+            (
+                "track_views",
+                TensorView::new(Dtype::U32, vec![self.track_views.len()], &tv).map_err(bad)?,
+            ),
         ];
         let bytes = safetensors::serialize(tensors, None).map_err(bad)?;
         std::fs::write(path, bytes).map_err(|e| CoreError::io(path, e))
@@ -187,18 +233,32 @@ impl PointCloud {
     /// Reads a cloud written by [`PointCloud::save`].
     pub fn load(path: &Path) -> Result<PointCloud, CoreError> {
         let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
-        let st = safetensors::SafeTensors::deserialize(&bytes)
-            .map_err(|e| CoreError::format(path, format!("not a point-cloud safetensors file: {e}")))?;
+        let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| {
+            CoreError::format(path, format!("not a point-cloud safetensors file: {e}"))
+        })?;
         let get = |name: &str| {
-            st.tensor(name).map_err(|e| CoreError::format(path, format!("missing tensor {name}: {e}")))
+            st.tensor(name)
+                .map_err(|e| CoreError::format(path, format!("missing tensor {name}: {e}")))
         };
         let f32v = |name: &str| -> Result<Vec<f32>, CoreError> {
-            Ok(get(name)?.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+            Ok(get(name)?
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect())
         };
         let u32v = |name: &str| -> Result<Vec<u32>, CoreError> {
-            Ok(get(name)?.data().chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+            Ok(get(name)?
+                .data()
+                .chunks_exact(4)
+                .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect())
         };
-        let triples = |v: Vec<f32>| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+        let triples = |v: Vec<f32>| {
+            v.chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect::<Vec<_>>()
+        };
         let cloud = PointCloud {
             positions: triples(f32v("positions")?),
             colors: triples(f32v("colors")?),
@@ -207,11 +267,18 @@ impl PointCloud {
             track_views: u32v("track_views")?,
         };
         let n = cloud.positions.len();
-        if cloud.colors.len() != n || cloud.errors.len() != n || cloud.track_offsets.len() != n + 1 {
-            return Err(CoreError::format(path, "point-cloud tensors disagree in length"));
+        if cloud.colors.len() != n || cloud.errors.len() != n || cloud.track_offsets.len() != n + 1
+        {
+            return Err(CoreError::format(
+                path,
+                "point-cloud tensors disagree in length",
+            ));
         }
         if cloud.track_offsets.last().copied().unwrap_or(0) as usize != cloud.track_views.len() {
-            return Err(CoreError::format(path, "track offsets do not match track_views"));
+            return Err(CoreError::format(
+                path,
+                "track offsets do not match track_views",
+            ));
         }
         Ok(cloud)
     }
@@ -243,7 +310,10 @@ mod tests {
 
     #[test]
     fn normalization_inverts() {
-        let n = Normalization { center: [1.0, -2.0, 0.5], scale: 0.25 };
+        let n = Normalization {
+            center: [1.0, -2.0, 0.5],
+            scale: 0.25,
+        };
         let p = [3.0, 4.0, -5.0];
         let q = n.invert(n.apply(p));
         for k in 0..3 {
