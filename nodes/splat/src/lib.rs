@@ -1,5 +1,14 @@
 //! Differentiable 3D Gaussian splatting on the CPU.
 
+pub mod backward;
+pub mod constants;
+pub mod error;
+pub mod forward;
 pub mod gaussians;
+pub mod ply;
+pub mod render;
 
+pub use error::SplatError;
 pub use gaussians::Gaussians;
+pub use ply::{read_ply, write_ply};
+pub use render::{backward, render, render_masked, Gradients, RenderOutput, RenderSettings, RenderStats};
