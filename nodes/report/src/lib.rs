@@ -1,1 +1,27 @@
-//! augsplat-report
+//! augsplat-report: how results are judged and shown.
+//!
+//! - [`select`]: best checkpoint of a training curve (lowest average error, PSNR fallback) and
+//!   the lookup of every method at the baseline's best step, as AugSplat reports;
+//! - [`evalset`]: the `eval` folder layout (`metrics.json`, `metrics.csv`, renders, ground truth,
+//!   curve) shared by the `Evaluate` node, the `Report` node and `augsplat compare`;
+//! - [`svg`]: a small deterministic SVG plotting module (line, scatter + Pareto front, bars);
+//! - [`html`]: HTML helpers (escaping, base64 PNG data URIs, tables with the best value per
+//!   column marked);
+//! - [`compare`]: metric deltas across runs (ablation points).
+
+pub mod compare;
+pub mod error;
+pub mod evalset;
+pub mod html;
+pub mod report;
+pub mod report_node;
+pub mod select;
+pub mod svg;
+
+pub use error::ReportError;
+pub use report_node::ReportNode;
+
+/// Registers this family's node kinds (`Report`; `Evaluate`).
+pub fn register(registry: &mut augsplat_graph::Registry) {
+    registry.register::<ReportNode>();
+}

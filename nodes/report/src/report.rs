@@ -1,0 +1,554 @@
+//! The report: one self-contained HTML page (inline SVG plots, base64 PNG images, no scripts,
+//! no external resources) and a Markdown summary, built from eval folders and optionally a
+//! synthetic supervision set.
+//!
+//! Sections: results tables (evaluated checkpoint; best step of each training curve; every
+//! method at the baseline's best step) with the best value per column marked; per-view
+//! metrics; training curves (PSNR, SSIM, LPIPS, average error vs step); ground truth vs methods
+//! side by side with zoomed crops where the first method errs most; synthetic views with their
+//! confidence maps; wall time per stage; run time vs error across runs with the Pareto front.
+
+use crate::compare::display_labels;
+use crate::evalset::{EvalDir, MetricKey, Metrics};
+use crate::html::{self, escape, MetricRow, MetricTable};
+use crate::svg::{self, Chart, LabeledPoint, Series};
+use crate::ReportError;
+use augsplat_core::artifacts::{self, SyntheticSet};
+use augsplat_core::{image, ImageF32};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// What to put in a report.
+#[derive(Clone, Debug)]
+pub struct ReportOptions {
+    /// Page title.
+    pub title: String,
+    /// Test views shown side by side (the first ones of the first run).
+    pub max_views: usize,
+    /// Synthetic views shown (evenly spaced over the set).
+    pub max_synthetic: usize,
+    /// Display width of full images, pixels (images are downscaled to fit).
+    pub image_width: u32,
+    /// Display size of zoomed crops, pixels (approximate: integer zoom).
+    pub crop_size: u32,
+}
+
+impl Default for ReportOptions {
+    fn default() -> Self {
+        ReportOptions {
+            title: "augsplat report".into(),
+            max_views: 3,
+            max_synthetic: 4,
+            image_width: 320,
+            crop_size: 160,
+        }
+    }
+}
+
+/// The built report.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BuiltReport {
+    /// `index.html`.
+    pub html: String,
+    /// `summary.md`.
+    pub markdown: String,
+}
+
+const CSS: &str = "body{font-family:system-ui,sans-serif;margin:24px auto;max-width:1200px;color:#222;padding:0 16px}\
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:4px;margin-top:2em}\
+table.metrics{border-collapse:collapse;margin:12px 0}table.metrics caption{text-align:left;font-weight:bold;margin-bottom:4px}\
+table.metrics th,table.metrics td{border:1px solid #ccc;padding:4px 10px;text-align:right}\
+table.metrics th[scope=row]{text-align:left}td.best{background:#e6f4e6}.detail{color:#777;font-weight:normal;font-size:.9em}\
+.plots{display:flex;flex-wrap:wrap;gap:12px}.note{color:#555;font-size:.92em}\
+figure{margin:0;display:inline-block;vertical-align:top;text-align:center}figcaption{font-size:.85em;color:#444}\
+.row{display:flex;flex-wrap:wrap;gap:8px;align-items:flex-start;margin-bottom:8px}img.px{image-rendering:pixelated}";
+
+/// Builds the report from eval folders (in the order given; the first is the reference for
+/// crops) and an optional synthetic set folder.
+pub fn build_report(
+    opts: &ReportOptions,
+    evals: &[EvalDir],
+    synthetic: Option<&Path>,
+) -> Result<BuiltReport, ReportError> {
+    if evals.is_empty() {
+        return Err(ReportError::Message(
+            "a report needs at least one evaluation (input `evals` is empty)".into(),
+        ));
+    }
+    let labels = display_labels(evals);
+    let mut body = String::new();
+    let mut md = format!("# {}\n\n", opts.title.replace('\n', " "));
+
+    // --- notes -----------------------------------------------------------------------------
+    let mut notes: Vec<String> = Vec::new();
+    for (e, label) in evals.iter().zip(&labels) {
+        for n in &e.metrics.notes {
+            notes.push(format!("{label}: {n}"));
+        }
+        if let Some(b) = &e.metrics.best {
+            if let Some(n) = &b.note {
+                notes.push(format!("{label}: {n}"));
+            }
+        }
+    }
+
+    // --- tables ----------------------------------------------------------------------------
+    let tables = results_tables(evals, &labels);
+    let _ = write!(body, "<h2 id=\"results\">Results</h2>");
+    for t in &tables {
+        body.push_str(&t.to_html());
+        md.push_str(&t.to_markdown());
+        md.push('\n');
+    }
+    body.push_str("<p class=\"note\">Best value per column in bold (when at least two methods have one). ↑: higher is better, ↓: lower is better. Average error = (MSE·√(1−SSIM)·LPIPS)<sup>1/3</sup>.</p>");
+    if !notes.is_empty() {
+        body.push_str("<ul class=\"note\">");
+        md.push_str("Notes:\n\n");
+        for n in &notes {
+            let _ = write!(body, "<li>{}</li>", escape(n));
+            let _ = writeln!(md, "- {n}");
+        }
+        body.push_str("</ul>");
+        md.push('\n');
+    }
+    body.push_str(&per_view_table(evals, &labels));
+
+    // --- curves ----------------------------------------------------------------------------
+    body.push_str("<h2 id=\"curves\">Training curves</h2><div class=\"plots\">");
+    for (key, title) in [
+        (MetricKey::Psnr, "PSNR (dB)"),
+        (MetricKey::Ssim, "SSIM"),
+        (MetricKey::Lpips, "LPIPS"),
+        (MetricKey::AvgError, "Average error"),
+    ] {
+        let series: Vec<Series> = evals
+            .iter()
+            .zip(&labels)
+            .map(|(e, label)| Series {
+                label: label.clone(),
+                points: e
+                    .curve
+                    .as_ref()
+                    .map(|c| {
+                        c.points
+                            .iter()
+                            .filter_map(|p| {
+                                Metrics::from_curve_point(p)
+                                    .get(key)
+                                    .map(|v| (p.step as f64, v))
+                            })
+                            .collect()
+                    })
+                    .unwrap_or_default(),
+            })
+            .collect();
+        body.push_str(&svg::line_chart(
+            &Chart::new(&format!("{title} vs step"), "step", title),
+            &series,
+        ));
+    }
+    body.push_str("</div>");
+
+    // --- images ----------------------------------------------------------------------------
+    body.push_str(&image_section(opts, evals, &labels)?);
+    if let Some(dir) = synthetic {
+        body.push_str(&synthetic_section(opts, dir)?);
+    }
+
+    // --- time ------------------------------------------------------------------------------
+    body.push_str(&time_section(evals, &labels, &mut md));
+
+    let html = format!(
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{t}</title><style>{CSS}</style></head><body><h1>{t}</h1><p class=\"note\">{n} run(s): {runs}. Generated by augsplat; self-contained (no scripts, no external files).</p>{body}</body></html>\n",
+        t = escape(&opts.title),
+        n = evals.len(),
+        runs = escape(&labels.join(", ")),
+    );
+    Ok(BuiltReport { html, markdown: md })
+}
+
+/// The results tables: evaluated checkpoint; best curve step; at the baseline's best step.
+pub fn results_tables(evals: &[EvalDir], labels: &[String]) -> Vec<MetricTable> {
+    let cols = MetricKey::TABLE.to_vec();
+    let values = |m: &Metrics| cols.iter().map(|k| m.get(*k)).collect::<Vec<_>>();
+    let mut tables = Vec::new();
+    tables.push(MetricTable {
+        caption: "Evaluated checkpoint (full resolution, mean over test views)".into(),
+        columns: cols.clone(),
+        rows: evals
+            .iter()
+            .zip(labels)
+            .map(|(e, label)| MetricRow {
+                label: label.clone(),
+                detail: match e.metrics.checkpoint_step {
+                    Some(s) => format!("{} @ step {s}", e.metrics.checkpoint),
+                    None => e.metrics.checkpoint.clone(),
+                },
+                values: values(&e.metrics.mean),
+            })
+            .collect(),
+    });
+    let best_rows: Vec<MetricRow> = evals
+        .iter()
+        .zip(labels)
+        .filter_map(|(e, label)| {
+            let b = e.metrics.best.as_ref()?;
+            Some(MetricRow {
+                label: label.clone(),
+                detail: format!("step {} (by {})", b.step, b.criterion.name()),
+                values: values(&Metrics::from_curve_point(&b.point)),
+            })
+        })
+        .collect();
+    if !best_rows.is_empty() {
+        tables.push(MetricTable {
+            caption: "Best checkpoint of each training curve (lowest average error)".into(),
+            columns: cols.clone(),
+            rows: best_rows,
+        });
+    }
+    // At the baseline's best step: methods evaluated with a baseline, plus the baseline itself
+    // (recognised by its label) at its own best step.
+    if let Some(first) = evals.iter().find_map(|e| e.metrics.at_baseline.as_ref()) {
+        let base_label = &first.baseline_label;
+        let base_step = first.baseline_best.step;
+        let mut rows = Vec::new();
+        for (e, label) in evals.iter().zip(labels) {
+            if let Some(a) = &e.metrics.at_baseline {
+                let mut detail = format!("step {}", a.step);
+                if !a.exact {
+                    detail.push_str(&format!(" (latest before {})", a.baseline_best.step));
+                }
+                rows.push(MetricRow {
+                    label: label.clone(),
+                    detail,
+                    values: values(&Metrics::from_curve_point(&a.point)),
+                });
+            } else if e.metrics.label == *base_label
+                || e.curve
+                    .as_ref()
+                    .is_some_and(|c| c.label == *base_label && !c.label.is_empty())
+            {
+                if let Some(b) = &e.metrics.best {
+                    rows.push(MetricRow {
+                        label: label.clone(),
+                        detail: format!("baseline, step {}", b.step),
+                        values: values(&Metrics::from_curve_point(&b.point)),
+                    });
+                }
+            }
+        }
+        tables.push(MetricTable {
+            caption: format!(
+                "All methods at the baseline's best step ({base_label}, step {base_step})"
+            ),
+            columns: cols,
+            rows,
+        });
+    }
+    tables
+}
+
+fn per_view_table(evals: &[EvalDir], labels: &[String]) -> String {
+    let views: Vec<&str> = evals[0]
+        .metrics
+        .views
+        .iter()
+        .map(|v| v.name.as_str())
+        .collect();
+    if views.is_empty() {
+        return String::new();
+    }
+    let mut out = String::from("<details><summary>Per-view metrics (PSNR / SSIM / LPIPS)</summary><table class=\"metrics\"><thead><tr><th>View</th>");
+    for l in labels {
+        let _ = write!(out, "<th>{}</th>", escape(l));
+    }
+    out.push_str("</tr></thead><tbody>");
+    for name in views {
+        let _ = write!(out, "<tr><th scope=\"row\">{}</th>", escape(name));
+        for e in evals {
+            let cell = match e.metrics.views.iter().find(|v| v.name == name) {
+                Some(v) => format!(
+                    "{} / {} / {}",
+                    MetricKey::Psnr.format(v.metrics.psnr),
+                    MetricKey::Ssim.format(v.metrics.ssim),
+                    v.metrics
+                        .lpips
+                        .map(|l| MetricKey::Lpips.format(l))
+                        .unwrap_or_else(|| "—".into())
+                ),
+                None => "—".into(),
+            };
+            let _ = write!(out, "<td>{}</td>", escape(&cell));
+        }
+        out.push_str("</tr>");
+    }
+    out.push_str("</tbody></table></details>");
+    out
+}
+
+/// Draws a 2-pixel red rectangle outline (in place) to show where a crop was taken.
+fn outline(img: &mut ImageF32, x0: u32, y0: u32, w: u32, h: u32) {
+    if img.channels < 3 || img.width == 0 || img.height == 0 {
+        return;
+    }
+    let x1 = (x0 + w).min(img.width) - 1;
+    let y1 = (y0 + h).min(img.height) - 1;
+    let mut paint = |x: u32, y: u32| {
+        if x < img.width && y < img.height {
+            img.set(x, y, 0, 1.0);
+            img.set(x, y, 1, 0.1);
+            img.set(x, y, 2, 0.1);
+        }
+    };
+    for t in 0..2 {
+        for x in x0..=x1 {
+            paint(x, y0 + t);
+            paint(x, y1.saturating_sub(t));
+        }
+        for y in y0..=y1 {
+            paint(x0 + t, y);
+            paint(x1.saturating_sub(t), y);
+        }
+    }
+}
+
+fn figure(uri: &str, caption: &str, width: u32, class: &str) -> String {
+    format!(
+        "<figure><img class=\"{class}\" src=\"{uri}\" width=\"{width}\" alt=\"{c}\"><figcaption>{c}</figcaption></figure>",
+        c = escape(caption)
+    )
+}
+
+fn image_section(
+    opts: &ReportOptions,
+    evals: &[EvalDir],
+    labels: &[String],
+) -> Result<String, ReportError> {
+    let mut out = String::from("<h2 id=\"images\">Ground truth vs methods</h2>");
+    let first = &evals[0];
+    let views: Vec<&str> = first
+        .metrics
+        .views
+        .iter()
+        .map(|v| v.name.as_str())
+        .filter(|n| first.gt_path(n).is_file())
+        .take(opts.max_views)
+        .collect();
+    if views.is_empty() {
+        out.push_str(
+            "<p class=\"note\">No ground-truth images in the first evaluation folder.</p>",
+        );
+        return Ok(out);
+    }
+    let _ = write!(
+        out,
+        "<p class=\"note\">Crops (red boxes) are placed where {} differs most from the ground truth; zoomed with nearest-neighbour sampling.</p>",
+        escape(&labels[0])
+    );
+    for name in views {
+        let gt = image::read_rgb(&first.gt_path(name))?;
+        let mut renders: Vec<Option<ImageF32>> = Vec::with_capacity(evals.len());
+        for e in evals {
+            let p = e.render_path(name);
+            renders.push(if p.is_file() {
+                let img = image::read_rgb(&p)?;
+                (img.width == gt.width && img.height == gt.height).then_some(img)
+            } else {
+                None
+            });
+        }
+        let win = (gt.width.min(gt.height) / 4).max(1);
+        let (cx, cy) = match &renders[0] {
+            Some(r) => html::worst_window(&gt, r, win),
+            None => ((gt.width - win) / 2, (gt.height - win) / 2),
+        };
+        let zoom = (opts.crop_size / win).max(1);
+        let shown_w = gt.width.min(opts.image_width);
+        let factor = gt.width.div_ceil(opts.image_width.max(1)).max(1);
+        let mut full_row = String::from("<div class=\"row\">");
+        let mut crop_row = String::from("<div class=\"row\">");
+        let mut panels: Vec<(String, Option<&ImageF32>)> = vec![("ground truth".into(), Some(&gt))];
+        for (r, l) in renders.iter().zip(labels) {
+            panels.push((l.clone(), r.as_ref()));
+        }
+        for (caption, img) in panels {
+            match img {
+                Some(img) => {
+                    let mut small = html::fit_width(img, opts.image_width);
+                    outline(
+                        &mut small,
+                        cx / factor,
+                        cy / factor,
+                        win.div_ceil(factor),
+                        win.div_ceil(factor),
+                    );
+                    full_row.push_str(&figure(
+                        &html::png_data_uri(&small)?,
+                        &caption,
+                        shown_w,
+                        "full",
+                    ));
+                    let c = html::upscale_nearest(&html::crop(img, cx, cy, win, win), zoom);
+                    crop_row.push_str(&figure(
+                        &html::png_data_uri(&c)?,
+                        &format!("{caption} (crop)"),
+                        c.width,
+                        "px crop",
+                    ));
+                }
+                None => {
+                    let _ = write!(full_row, "<figure><figcaption>{}: render missing or of another size</figcaption></figure>", escape(&caption));
+                }
+            }
+        }
+        let _ = write!(
+            out,
+            "<h3>{}</h3>{full_row}</div>{crop_row}</div>",
+            escape(name)
+        );
+    }
+    Ok(out)
+}
+
+fn synthetic_section(opts: &ReportOptions, dir: &Path) -> Result<String, ReportError> {
+    let set: SyntheticSet = artifacts::read_json(&dir.join(artifacts::files::SYNTHETIC))?;
+    let mut out = String::from("<h2 id=\"synthetic\">Synthetic views and confidence</h2>");
+    let n = set.views.len();
+    let _ = write!(
+        out,
+        "<p class=\"note\">{n} synthetic views (ensemble median targets); confidence w = (1 − V<sub>norm</sub>)<sup>γ</sup> shown from 0 (dark purple) to 1 (yellow).</p>"
+    );
+    let k = opts.max_synthetic.min(n);
+    for i in 0..k {
+        // Evenly spaced picks, deterministic.
+        let v = &set.views[if k <= 1 { 0 } else { i * (n - 1) / (k - 1) }];
+        let target = image::read_rgb(&dir.join(&v.target))?;
+        let wpath = dir.join(&v.weight);
+        let exr = image::read_exr(&wpath)?;
+        let w = exr.channel("W").ok_or_else(|| {
+            ReportError::invalid(
+                &wpath,
+                format!("weight EXR has no W channel (has {:?})", exr.names()),
+            )
+        })?;
+        if exr.width != target.width || exr.height != target.height {
+            return Err(ReportError::invalid(
+                &wpath,
+                "weight map and target differ in size",
+            ));
+        }
+        let conf = html::confidence_colormap(w, exr.width, exr.height);
+        let mean = if w.is_empty() {
+            0.0
+        } else {
+            v.weight_sum / w.len() as f64
+        };
+        let zoom = (opts.image_width / target.width.max(1)).clamp(1, 8);
+        let show_w = target.width * zoom;
+        let _ = write!(
+            out,
+            "<div class=\"row\">{}{}</div>",
+            figure(
+                &html::png_data_uri(&target)?,
+                &format!("{} target", v.name),
+                show_w,
+                "px"
+            ),
+            figure(
+                &html::png_data_uri(&conf)?,
+                &format!("{} confidence (mean {mean:.2})", v.name),
+                show_w,
+                "px"
+            ),
+        );
+    }
+    Ok(out)
+}
+
+fn time_section(evals: &[EvalDir], labels: &[String], md: &mut String) -> String {
+    let mut out = String::from("<h2 id=\"time\">Wall time</h2><div class=\"plots\">");
+    let train: Vec<f64> = evals
+        .iter()
+        .map(|e| e.metrics.train_seconds.unwrap_or(f64::NAN))
+        .collect();
+    let eval: Vec<f64> = evals.iter().map(|e| e.metrics.eval_seconds).collect();
+    out.push_str(&svg::bar_chart(
+        &Chart::new("Wall time per stage", "seconds", ""),
+        labels,
+        &[
+            ("training".into(), train.clone()),
+            ("evaluation".into(), eval.clone()),
+        ],
+    ));
+    // Run time vs error: average error when every run has it, PSNR otherwise.
+    let use_avg = evals
+        .iter()
+        .all(|e| e.metrics.mean.avg_error.is_some_and(f64::is_finite));
+    let (key, ylabel) = if use_avg {
+        (MetricKey::AvgError, "average error (lower is better)")
+    } else {
+        (MetricKey::Psnr, "PSNR dB (higher is better)")
+    };
+    let points: Vec<LabeledPoint> = evals
+        .iter()
+        .zip(labels)
+        .enumerate()
+        .filter_map(|(i, (e, l))| {
+            Some(LabeledPoint {
+                label: l.clone(),
+                group: i,
+                x: e.metrics.train_seconds?,
+                y: e.metrics.mean.get(key)?,
+            })
+        })
+        .collect();
+    out.push_str(&svg::scatter_chart(
+        &Chart::new(
+            "Run time vs error (Pareto front dashed)",
+            "training seconds",
+            ylabel,
+        ),
+        &points,
+        labels,
+        use_avg,
+    ));
+    // Along each training curve: error vs seconds.
+    let series: Vec<Series> = evals
+        .iter()
+        .zip(labels)
+        .map(|(e, l)| Series {
+            label: l.clone(),
+            points: e
+                .curve
+                .as_ref()
+                .map(|c| {
+                    c.points
+                        .iter()
+                        .filter_map(|p| Some((p.seconds, Metrics::from_curve_point(p).get(key)?)))
+                        .collect()
+                })
+                .unwrap_or_default(),
+        })
+        .collect();
+    out.push_str(&svg::line_chart(
+        &Chart::new(
+            "Error vs training time (curves)",
+            "training seconds",
+            ylabel,
+        ),
+        &series,
+    ));
+    out.push_str("</div>");
+    md.push_str("## Wall time\n\n| Method | training s | evaluation s |\n|---|---:|---:|\n");
+    for ((l, t), ev) in labels.iter().zip(&train).zip(&eval) {
+        let t = if t.is_finite() {
+            format!("{t:.1}")
+        } else {
+            "—".into()
+        };
+        let _ = writeln!(md, "| {} | {t} | {ev:.1} |", l.replace('|', "\\|"));
+    }
+    md.push_str("\nPlots, images and synthetic views: see `index.html`.\n");
+    out
+}

@@ -1,0 +1,97 @@
+//! The `Report` node: a self-contained HTML page and a Markdown summary over several
+//! evaluations (see [`crate::report`]).
+
+use crate::evalset::EvalDir;
+use crate::report::{build_report, ReportOptions};
+use augsplat_graph::{InputDecl, Node, NodeError, RunContext};
+use serde::{Deserialize, Serialize};
+
+/// Args of [`ReportNode`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReportArgs {
+    /// Page title.
+    pub title: String,
+    /// Number of test views shown side by side with zoomed crops.
+    pub max_views: usize,
+    /// Number of synthetic views shown with their confidence maps.
+    pub max_synthetic: usize,
+    /// Display width of full images, pixels.
+    pub image_width: u32,
+}
+
+impl Default for ReportArgs {
+    fn default() -> Self {
+        let o = ReportOptions::default();
+        ReportArgs {
+            title: o.title,
+            max_views: o.max_views,
+            max_synthetic: o.max_synthetic,
+            image_width: o.image_width,
+        }
+    }
+}
+
+/// `Report`: inputs `evals` (a list of `Evaluate` outputs, in display order; the first one
+/// places the zoomed crops) and optional `synthetic` (a synthetic set for example views with
+/// confidence maps); output `report` with `index.html` (self-contained, no scripts) and
+/// `summary.md`.
+pub struct ReportNode;
+
+/// File names of the `report` output.
+pub mod files {
+    /// The HTML page.
+    pub const INDEX: &str = "index.html";
+    /// The Markdown summary.
+    pub const SUMMARY: &str = "summary.md";
+}
+
+impl Node for ReportNode {
+    const KIND: &'static str = "Report";
+    const VERSION: u32 = 1;
+    type Args = ReportArgs;
+
+    fn inputs(_args: &ReportArgs) -> Vec<InputDecl> {
+        vec![InputDecl::many("evals"), InputDecl::optional("synthetic")]
+    }
+    fn outputs(_args: &ReportArgs) -> Vec<String> {
+        vec!["report".into()]
+    }
+    fn validate(args: &ReportArgs) -> Result<(), String> {
+        if args.image_width < 16 || args.image_width > 4096 {
+            return Err(format!(
+                "image_width {} must be within 16..=4096",
+                args.image_width
+            ));
+        }
+        Ok(())
+    }
+    fn run(args: &ReportArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let mut evals = Vec::new();
+        for dir in ctx.input_list("evals")? {
+            evals.push(EvalDir::load(dir)?);
+        }
+        let opts = ReportOptions {
+            title: args.title.clone(),
+            max_views: args.max_views,
+            max_synthetic: args.max_synthetic,
+            image_width: args.image_width,
+            ..ReportOptions::default()
+        };
+        let synthetic = ctx.optional_input("synthetic").map(|p| p.to_path_buf());
+        let built = build_report(&opts, &evals, synthetic.as_deref())?;
+        let out = ctx.output("report")?;
+        let index = out.join(files::INDEX);
+        std::fs::write(&index, built.html)
+            .map_err(|e| NodeError::from(e).context(index.display()))?;
+        let summary = out.join(files::SUMMARY);
+        std::fs::write(&summary, built.markdown)
+            .map_err(|e| NodeError::from(e).context(summary.display()))?;
+        ctx.log(format!(
+            "report over {} evaluation(s) written to {}",
+            evals.len(),
+            index.display()
+        ));
+        Ok(())
+    }
+}
