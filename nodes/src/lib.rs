@@ -5,5 +5,5 @@ use augsplat_graph::Registry;
 
 /// Registers the built-in node kinds of every family.
 pub fn register_builtin(registry: &mut Registry) {
-    let _ = registry;
+    augsplat_augment::register(registry);
 }

@@ -1,1 +1,22 @@
-//! augsplat-augment
+//! augsplat-augment: AugSplat's augmentation stage (DESIGN.md §6).
+//!
+//! - [`poses`]: synthetic camera poses near the training cameras (jittered copies and
+//!   neighbour interpolations, then N drawn), with a report of how near they stay;
+//! - [`aggregate`]: ensemble aggregation kernels — per-pixel median target and variance-based
+//!   confidence weights `(1 − V_norm)^γ`;
+//! - [`nodes`]: the node kinds `SynthesizePoses` and `AggregateEnsemble`.
+//!
+//! Rendering the ensemble at the poses is a separate node (`RenderField`), so changing γ
+//! reruns only the aggregation and what follows it.
+
+pub mod aggregate;
+pub mod nodes;
+pub mod poses;
+
+pub use nodes::{AggregateEnsemble, SynthesizePoses};
+
+/// Registers this family's node kinds.
+pub fn register(registry: &mut augsplat_graph::Registry) {
+    registry.register::<SynthesizePoses>();
+    registry.register::<AggregateEnsemble>();
+}
