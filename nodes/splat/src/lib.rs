@@ -1,10 +1,14 @@
 //! Differentiable 3D Gaussian splatting on the CPU.
 
+pub mod adam;
 pub mod backward;
 pub mod constants;
+pub mod densify;
 pub mod error;
 pub mod forward;
 pub mod gaussians;
+pub mod init;
+pub mod loss;
 pub mod ply;
 pub mod render;
 

@@ -1,0 +1,429 @@
+//! Adam over the Gaussian parameter groups, updating only the Gaussians visible in the step
+//! (gsplat's `SelectiveAdam` semantics: invisible Gaussians keep their parameters *and* their
+//! moments; every group's step counter advances every step, so bias correction follows the
+//! global step).
+//!
+//! Defaults are gsplat `simple_trainer`'s: means 1.6e-4 × scene scale decaying exponentially
+//! to 1 % over the run (`lr_t = lr_0 · 0.01^(t/T)`), log-scales 5e-3, quaternions 1e-3,
+//! opacity logits 5e-2, SH DC 2.5e-3, higher SH 2.5e-3/20, β = (0.9, 0.999), ε = 1e-15.
+//! The update is torch's: `p ← p − (lr / (1−β1ᵗ)) · m / (√v / √(1−β2ᵗ) + ε)`.
+//!
+//! The state is structure-of-arrays, one flat `m`/`v` pair per group aligned with the
+//! [`Gaussians`] layout, so densification can remove and append Gaussians while keeping every
+//! survivor's moments ([`Adam::retain`], [`Adam::append_zeros`]).
+
+use crate::Gaussians;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Gaussians per parallel chunk of the update (fixed; the update is element-wise anyway).
+const CHUNK: usize = 2048;
+
+/// Learning rates of the parameter groups (gsplat simple_trainer defaults).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LearningRates {
+    /// Means, multiplied by the scene scale.
+    pub means: f64,
+    /// Factor the means rate decays to by the last step (exponentially).
+    pub means_final_factor: f64,
+    /// Log-scales.
+    pub scales: f64,
+    /// Raw quaternions.
+    pub quats: f64,
+    /// Opacity logits.
+    pub opacities: f64,
+    /// SH DC coefficients.
+    pub sh0: f64,
+    /// Higher SH coefficients.
+    pub shn: f64,
+    /// Adam β1.
+    pub beta1: f64,
+    /// Adam β2.
+    pub beta2: f64,
+    /// Adam ε.
+    pub eps: f64,
+}
+
+impl Default for LearningRates {
+    fn default() -> Self {
+        LearningRates {
+            means: 1.6e-4,
+            means_final_factor: 0.01,
+            scales: 5e-3,
+            quats: 1e-3,
+            opacities: 5e-2,
+            sh0: 2.5e-3,
+            shn: 2.5e-3 / 20.0,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-15,
+        }
+    }
+}
+
+impl LearningRates {
+    /// Checks that rates are finite and non-negative and betas in [0, 1).
+    pub fn validate(&self) -> Result<(), String> {
+        for (n, v) in [
+            ("means", self.means),
+            ("means_final_factor", self.means_final_factor),
+            ("scales", self.scales),
+            ("quats", self.quats),
+            ("opacities", self.opacities),
+            ("sh0", self.sh0),
+            ("shn", self.shn),
+            ("eps", self.eps),
+        ] {
+            if !v.is_finite() || v < 0.0 {
+                return Err(format!("learning_rates.{n} = {v} must be finite and ≥ 0"));
+            }
+        }
+        for (n, v) in [("beta1", self.beta1), ("beta2", self.beta2)] {
+            if !(0.0..1.0).contains(&v) {
+                return Err(format!("learning_rates.{n} = {v} must be in [0, 1)"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The means learning rate at `step` of a `total`-step run for a scene of `scene_scale`:
+    /// `means · scene_scale · final^(step/total)` (gsplat's ExponentialLR with
+    /// γ = final^(1/total)).
+    pub fn means_at(&self, step: u64, total: u64, scene_scale: f64) -> f64 {
+        let frac = if total == 0 {
+            0.0
+        } else {
+            step as f64 / total as f64
+        };
+        self.means * scene_scale * self.means_final_factor.powf(frac)
+    }
+}
+
+/// Summed gradients of one optimisation step, in the [`Gaussians`] layout, plus the union of
+/// the per-view visibility masks.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ParamGrads {
+    /// dL/d(means).
+    pub means: Vec<[f32; 3]>,
+    /// dL/d(log-scales).
+    pub log_scales: Vec<[f32; 3]>,
+    /// dL/d(raw quaternions).
+    pub quats: Vec<[f32; 4]>,
+    /// dL/d(opacity logits).
+    pub opacity_logits: Vec<f32>,
+    /// dL/d(SH), same layout as [`Gaussians::sh`].
+    pub sh: Vec<f32>,
+    /// Whether the Gaussian was visible (radius > 0) in any render of the step.
+    pub visible: Vec<bool>,
+}
+
+impl ParamGrads {
+    /// Zero gradients for `n` Gaussians with `coeffs` SH coefficients per channel.
+    pub fn zeros(n: usize, coeffs: usize) -> Self {
+        ParamGrads {
+            means: vec![[0.0; 3]; n],
+            log_scales: vec![[0.0; 3]; n],
+            quats: vec![[0.0; 4]; n],
+            opacity_logits: vec![0.0; n],
+            sh: vec![0.0; n * coeffs * 3],
+            visible: vec![false; n],
+        }
+    }
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.means.len()
+    }
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.means.is_empty()
+    }
+}
+
+/// First and second moments of one parameter group.
+#[derive(Clone, Debug, Default, PartialEq)]
+struct Moments {
+    m: Vec<f32>,
+    v: Vec<f32>,
+    /// Values per Gaussian.
+    width: usize,
+}
+
+impl Moments {
+    fn new(width: usize) -> Self {
+        Moments {
+            m: Vec::new(),
+            v: Vec::new(),
+            width,
+        }
+    }
+    fn resize(&mut self, n: usize) {
+        self.m.resize(n * self.width, 0.0);
+        self.v.resize(n * self.width, 0.0);
+    }
+    fn retain(&mut self, keep: &[bool]) {
+        let w = self.width;
+        let mut out = 0;
+        for (i, &k) in keep.iter().enumerate() {
+            if k {
+                if out != i {
+                    self.m.copy_within(i * w..(i + 1) * w, out * w);
+                    self.v.copy_within(i * w..(i + 1) * w, out * w);
+                }
+                out += 1;
+            }
+        }
+        self.m.truncate(out * w);
+        self.v.truncate(out * w);
+    }
+    fn clear(&mut self) {
+        self.m.iter_mut().for_each(|x| *x = 0.0);
+        self.v.iter_mut().for_each(|x| *x = 0.0);
+    }
+}
+
+/// The per-step rates and constants handed to the update kernel.
+#[derive(Clone, Copy, Debug)]
+struct StepConst {
+    /// lr / (1 − β1ᵗ) for the first `split` values of a Gaussian.
+    step_a: f32,
+    /// Same for the values from `split` on.
+    step_b: f32,
+    split: usize,
+    b1: f32,
+    b2: f32,
+    /// 1 / √(1 − β2ᵗ).
+    inv_sqrt_bc2: f32,
+    eps: f32,
+}
+
+/// The update kernel of one group: element-wise, only for visible Gaussians.
+fn update_group(p: &mut [f32], g: &[f32], st: &mut Moments, visible: &[bool], c: StepConst) {
+    let w = st.width;
+    debug_assert_eq!(p.len(), visible.len() * w);
+    debug_assert_eq!(g.len(), p.len());
+    p.par_chunks_mut(CHUNK * w)
+        .zip(st.m.par_chunks_mut(CHUNK * w))
+        .zip(st.v.par_chunks_mut(CHUNK * w))
+        .enumerate()
+        .for_each(|(ci, ((pc, mc), vc))| {
+            let first = ci * CHUNK;
+            for (j, ((pg, mg), vg)) in pc
+                .chunks_exact_mut(w)
+                .zip(mc.chunks_exact_mut(w))
+                .zip(vc.chunks_exact_mut(w))
+                .enumerate()
+            {
+                let i = first + j;
+                if !visible[i] {
+                    continue;
+                }
+                let gg = &g[i * w..(i + 1) * w];
+                for k in 0..w {
+                    let gk = gg[k];
+                    let m = c.b1 * mg[k] + (1.0 - c.b1) * gk;
+                    let v = c.b2 * vg[k] + (1.0 - c.b2) * gk * gk;
+                    mg[k] = m;
+                    vg[k] = v;
+                    let step = if k < c.split { c.step_a } else { c.step_b };
+                    pg[k] -= step * m / (v.sqrt() * c.inv_sqrt_bc2 + c.eps);
+                }
+            }
+        });
+}
+
+/// Which parameter group a rate or a reset refers to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Group {
+    /// Means.
+    Means,
+    /// Log-scales.
+    Scales,
+    /// Quaternions.
+    Quats,
+    /// Opacity logits.
+    Opacities,
+    /// All SH coefficients (DC and higher).
+    Sh,
+}
+
+/// Adam state for a [`Gaussians`] set.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Adam {
+    means: Moments,
+    scales: Moments,
+    quats: Moments,
+    opacities: Moments,
+    sh: Moments,
+    /// Steps taken per group (groups can be reset independently).
+    steps: [u64; 5],
+    n: usize,
+}
+
+impl Adam {
+    /// Fresh state for `n` Gaussians with `coeffs` SH coefficients per channel.
+    pub fn new(n: usize, coeffs: usize) -> Self {
+        let mut a = Adam {
+            means: Moments::new(3),
+            scales: Moments::new(3),
+            quats: Moments::new(4),
+            opacities: Moments::new(1),
+            sh: Moments::new(3 * coeffs),
+            steps: [0; 5],
+            n: 0,
+        };
+        a.append_zeros(n);
+        a
+    }
+
+    /// Number of Gaussians tracked.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+    /// Whether no Gaussians are tracked.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+    /// Steps taken by `group` since its last reset.
+    pub fn steps(&self, group: Group) -> u64 {
+        self.steps[group as usize]
+    }
+
+    fn groups_mut(&mut self) -> [&mut Moments; 5] {
+        [
+            &mut self.means,
+            &mut self.scales,
+            &mut self.quats,
+            &mut self.opacities,
+            &mut self.sh,
+        ]
+    }
+
+    /// Keeps the moments of the Gaussians with `keep[i]`, in order (densification pruning).
+    pub fn retain(&mut self, keep: &[bool]) {
+        assert_eq!(
+            keep.len(),
+            self.n,
+            "Adam::retain: mask length differs from the state"
+        );
+        for g in self.groups_mut() {
+            g.retain(keep);
+        }
+        self.n = keep.iter().filter(|&&k| k).count();
+    }
+    /// Appends zero moments for `count` new Gaussians (clones and split children).
+    pub fn append_zeros(&mut self, count: usize) {
+        self.n += count;
+        let n = self.n;
+        for g in self.groups_mut() {
+            g.resize(n);
+        }
+    }
+    /// Zeroes the moments of one group (e.g. after an opacity reset). The group's step
+    /// counter is kept, as gsplat does.
+    pub fn clear_group(&mut self, group: Group) {
+        self.groups_mut()[group as usize].clear();
+    }
+    /// Zeroes every moment and step counter (a fresh optimiser, e.g. at a Staged switch).
+    pub fn clear(&mut self) {
+        for g in self.groups_mut() {
+            g.clear();
+        }
+        self.steps = [0; 5];
+    }
+    /// The first and second moments of group `group` (flat, Gaussian-major), for tests.
+    pub fn moments(&self, group: Group) -> (&[f32], &[f32]) {
+        let g = [
+            &self.means,
+            &self.scales,
+            &self.quats,
+            &self.opacities,
+            &self.sh,
+        ][group as usize];
+        (&g.m, &g.v)
+    }
+
+    /// One Adam step over every group. `means_lr` is the already-scheduled rate of the means
+    /// (see [`LearningRates::means_at`]); the other rates come from `lr`. Only Gaussians with
+    /// `grads.visible[i]` change.
+    ///
+    /// Panics if the gradient, parameter and state sizes disagree (a programming error).
+    pub fn step(
+        &mut self,
+        g: &mut Gaussians,
+        grads: &ParamGrads,
+        lr: &LearningRates,
+        means_lr: f64,
+    ) {
+        let n = g.len();
+        assert_eq!(
+            self.n, n,
+            "Adam state tracks {} Gaussians, parameters have {n}",
+            self.n
+        );
+        assert_eq!(
+            grads.len(),
+            n,
+            "gradients for {} Gaussians, parameters have {n}",
+            grads.len()
+        );
+        assert_eq!(grads.visible.len(), n);
+        assert_eq!(grads.sh.len(), g.sh.len());
+        assert_eq!(
+            self.sh.width * n,
+            g.sh.len(),
+            "Adam SH state width differs from the set"
+        );
+        let (b1, b2) = (lr.beta1, lr.beta2);
+        let konst = |idx: usize, lr_a: f64, lr_b: f64, split: usize, steps: &mut [u64; 5]| {
+            steps[idx] += 1;
+            let t = steps[idx] as i32;
+            let bc1 = 1.0 - b1.powi(t);
+            let bc2 = 1.0 - b2.powi(t);
+            StepConst {
+                step_a: (lr_a / bc1) as f32,
+                step_b: (lr_b / bc1) as f32,
+                split,
+                b1: b1 as f32,
+                b2: b2 as f32,
+                inv_sqrt_bc2: (1.0 / bc2.sqrt()) as f32,
+                eps: lr.eps as f32,
+            }
+        };
+        let vis = &grads.visible;
+        let c = konst(0, means_lr, means_lr, 3, &mut self.steps);
+        update_group(
+            g.means.as_flattened_mut(),
+            grads.means.as_flattened(),
+            &mut self.means,
+            vis,
+            c,
+        );
+        let c = konst(1, lr.scales, lr.scales, 3, &mut self.steps);
+        update_group(
+            g.log_scales.as_flattened_mut(),
+            grads.log_scales.as_flattened(),
+            &mut self.scales,
+            vis,
+            c,
+        );
+        let c = konst(2, lr.quats, lr.quats, 4, &mut self.steps);
+        update_group(
+            g.quats.as_flattened_mut(),
+            grads.quats.as_flattened(),
+            &mut self.quats,
+            vis,
+            c,
+        );
+        let c = konst(3, lr.opacities, lr.opacities, 1, &mut self.steps);
+        update_group(
+            &mut g.opacity_logits,
+            &grads.opacity_logits,
+            &mut self.opacities,
+            vis,
+            c,
+        );
+        let c = konst(4, lr.sh0, lr.shn, 3, &mut self.steps);
+        update_group(&mut g.sh, &grads.sh, &mut self.sh, vis, c);
+    }
+}

@@ -1,0 +1,437 @@
+//! Adaptive density control as gsplat's `DefaultStrategy` (classic mode, `absgrad = False`,
+//! `revised_opacity = False`, no 2-D-radius rules).
+//!
+//! Per step ([`Densifier::accumulate`]) the per-view screen-space gradient statistic
+//! `‖dL/d(mean2d)‖` — in NDC-normalised units (× width/2, × height/2) — is summed for each
+//! visible Gaussian together with a visibility count. Every `every` steps in
+//! `(start, stop)` ([`Densifier::refine`]):
+//! 1. **grow**: Gaussians whose average statistic exceeds `grad_threshold` are *cloned*
+//!    (identical copy appended) when their largest scale ≤ `grow_scale3d · scene_scale`, and
+//!    *split* otherwise: replaced by two children at positions drawn from the Gaussian
+//!    (`μ + R·(s ⊙ n)`, n ~ N(0, I)) with scales divided by `split_factor` (1.6);
+//! 2. **prune**: opacity < `prune_opacity`, and (once a first opacity reset has happened)
+//!    largest scale > `prune_scale3d · scene_scale`;
+//! 3. the statistics are cleared.
+//!
+//! Every `reset_every` steps (while `step < stop`), opacities are clamped to
+//! `2 · prune_opacity` (0.01) and the opacity moments cleared.
+//!
+//! Adam state stays aligned: clones and children get zero moments, survivors keep theirs.
+//! The sample noise comes from a seeded [`Rng`] stream per refinement step, drawn in index
+//! order, so densification is deterministic.
+//!
+//! Iteration counts are given for gsplat's 30 000-step schedule; with `scale_with_steps`, a
+//! shorter run of T steps scales `start`, `stop` and `reset_every` by `f = T / 30000` and
+//! `every` by `max(f, 0.25)` (refining every 10 steps in a 3000-step run would leave too few
+//! views per statistic), see [`DensifyArgs::scaled`].
+
+use crate::adam::{Adam, Group};
+use crate::Gaussians;
+use augsplat_core::{linalg, Rng};
+use serde::{Deserialize, Serialize};
+
+/// Densification parameters (gsplat DefaultStrategy defaults).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DensifyArgs {
+    /// Whether to densify, prune and reset at all.
+    pub enabled: bool,
+    /// Threshold on the view-averaged NDC-normalised screen-space gradient.
+    pub grad_threshold: f64,
+    /// Clone (≤) vs split (>) boundary on the largest scale, × scene scale.
+    pub grow_scale3d: f64,
+    /// Split children's scales are divided by this.
+    pub split_factor: f64,
+    /// Prune below this opacity.
+    pub prune_opacity: f64,
+    /// Prune Gaussians whose largest scale exceeds this × scene scale (after the first reset).
+    pub prune_scale3d: f64,
+    /// First step at which refinement may happen (exclusive, as gsplat).
+    pub start: u64,
+    /// Refinement and opacity resets stop at this step.
+    pub stop: u64,
+    /// Refine every this many steps.
+    pub every: u64,
+    /// Reset opacities every this many steps (0 = never).
+    pub reset_every: u64,
+    /// Scale `start`, `stop`, `every`, `reset_every` for runs shorter than `reference_steps`.
+    pub scale_with_steps: bool,
+    /// The run length the iteration counts are given for.
+    pub reference_steps: u64,
+    /// Hard cap on the number of Gaussians (growth stops there; 0 = unlimited).
+    pub max_gaussians: usize,
+}
+
+impl Default for DensifyArgs {
+    fn default() -> Self {
+        DensifyArgs {
+            enabled: true,
+            grad_threshold: 2e-4,
+            grow_scale3d: 0.01,
+            split_factor: 1.6,
+            prune_opacity: 0.005,
+            prune_scale3d: 0.1,
+            start: 500,
+            stop: 15_000,
+            every: 100,
+            reset_every: 3000,
+            scale_with_steps: true,
+            reference_steps: 30_000,
+            max_gaussians: 0,
+        }
+    }
+}
+
+/// The iteration schedule actually used for a run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DensifySchedule {
+    /// Refinement happens at steps `> start`.
+    pub start: u64,
+    /// … and `< stop`.
+    pub stop: u64,
+    /// … that are multiples of `every`.
+    pub every: u64,
+    /// Opacity reset period (0 = never).
+    pub reset_every: u64,
+}
+
+impl DensifyArgs {
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<(), String> {
+        for (n, v) in [
+            ("grad_threshold", self.grad_threshold),
+            ("grow_scale3d", self.grow_scale3d),
+            ("prune_opacity", self.prune_opacity),
+            ("prune_scale3d", self.prune_scale3d),
+        ] {
+            if !v.is_finite() || v < 0.0 {
+                return Err(format!("densify.{n} = {v} must be finite and ≥ 0"));
+            }
+        }
+        if !(self.split_factor.is_finite() && self.split_factor > 0.0) {
+            return Err(format!(
+                "densify.split_factor = {} must be positive",
+                self.split_factor
+            ));
+        }
+        if self.prune_opacity >= 0.5 {
+            return Err(format!(
+                "densify.prune_opacity = {} must be < 0.5",
+                self.prune_opacity
+            ));
+        }
+        if self.every == 0 {
+            return Err("densify.every must be ≥ 1".into());
+        }
+        if self.scale_with_steps && self.reference_steps == 0 {
+            return Err("densify.reference_steps must be ≥ 1".into());
+        }
+        Ok(())
+    }
+
+    /// The schedule for a run of `steps` steps (see the module docs).
+    pub fn scaled(&self, steps: u64) -> DensifySchedule {
+        if !self.scale_with_steps || steps >= self.reference_steps {
+            return DensifySchedule {
+                start: self.start,
+                stop: self.stop,
+                every: self.every,
+                reset_every: self.reset_every,
+            };
+        }
+        let f = steps as f64 / self.reference_steps as f64;
+        let sc = |v: u64, f: f64| (v as f64 * f).round() as u64;
+        DensifySchedule {
+            start: sc(self.start, f),
+            stop: sc(self.stop, f),
+            every: sc(self.every, f.max(0.25)).max(1),
+            reset_every: sc(self.reset_every, f),
+        }
+    }
+}
+
+/// What one refinement did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RefineReport {
+    /// Gaussians cloned.
+    pub cloned: usize,
+    /// Gaussians split (each into two).
+    pub split: usize,
+    /// Gaussians pruned.
+    pub pruned: usize,
+    /// Whether opacities were reset.
+    pub reset: bool,
+}
+
+/// Densification statistics and the refinement operations.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Densifier {
+    /// Sum over views of the NDC-normalised screen-space gradient norm.
+    pub grad2d: Vec<f32>,
+    /// Number of views in which the Gaussian was visible.
+    pub count: Vec<u32>,
+}
+
+impl Densifier {
+    /// Empty statistics for `n` Gaussians.
+    pub fn new(n: usize) -> Self {
+        Densifier {
+            grad2d: vec![0.0; n],
+            count: vec![0; n],
+        }
+    }
+
+    /// Adds one view's statistic: `means2d` is dL/d(mean2d) already in NDC-normalised units
+    /// (× width/2, × height/2), `visible` marks Gaussians with radius > 0. Non-finite
+    /// gradients are ignored.
+    pub fn accumulate(&mut self, means2d: &[[f32; 2]], visible: &[bool]) {
+        assert_eq!(
+            means2d.len(),
+            self.grad2d.len(),
+            "densify statistics size differs"
+        );
+        assert_eq!(visible.len(), self.grad2d.len());
+        for i in 0..visible.len() {
+            if visible[i] {
+                let [x, y] = means2d[i];
+                let n = (x * x + y * y).sqrt();
+                if n.is_finite() {
+                    self.grad2d[i] += n;
+                }
+                self.count[i] += 1;
+            }
+        }
+    }
+
+    /// Clears the statistics.
+    pub fn clear(&mut self) {
+        self.grad2d.iter_mut().for_each(|x| *x = 0.0);
+        self.count.iter_mut().for_each(|x| *x = 0);
+    }
+
+    /// Runs the strategy after the optimiser update of step `step` (the 0-based index of the
+    /// step just taken, gsplat's `step`): refine when due, reset opacities when due (never at
+    /// step 0).
+    pub fn step_post_update(
+        &mut self,
+        step: u64,
+        sched: &DensifySchedule,
+        args: &DensifyArgs,
+        g: &mut Gaussians,
+        adam: &mut Adam,
+        scene_scale: f64,
+        seed: u64,
+    ) -> RefineReport {
+        let mut rep = RefineReport::default();
+        if !args.enabled || step >= sched.stop {
+            return rep;
+        }
+        if step > sched.start && step % sched.every == 0 {
+            let (c, s) = self.grow(g, adam, args, scene_scale, &mut Rng::stream(seed, step));
+            rep.cloned = c;
+            rep.split = s;
+            let past_reset = sched.reset_every > 0 && step > sched.reset_every;
+            rep.pruned = self.prune(g, adam, args, scene_scale, past_reset);
+            self.clear();
+        }
+        if sched.reset_every > 0 && step > 0 && step % sched.reset_every == 0 {
+            reset_opacities(g, adam, 2.0 * args.prune_opacity);
+            rep.reset = true;
+        }
+        rep
+    }
+
+    /// Clones and splits by the averaged statistic. Returns (cloned, split).
+    pub fn grow(
+        &mut self,
+        g: &mut Gaussians,
+        adam: &mut Adam,
+        args: &DensifyArgs,
+        scene_scale: f64,
+        rng: &mut Rng,
+    ) -> (usize, usize) {
+        let n = g.len();
+        assert_eq!(
+            self.grad2d.len(),
+            n,
+            "densify statistics size differs from the set"
+        );
+        let limit = if args.max_gaussians == 0 {
+            usize::MAX
+        } else {
+            args.max_gaussians
+        };
+        let mut clone = Vec::new();
+        let mut split = Vec::new();
+        for i in 0..n {
+            let avg = self.grad2d[i] as f64 / self.count[i].max(1) as f64;
+            if avg <= args.grad_threshold {
+                continue;
+            }
+            let smax = g.log_scales[i]
+                .iter()
+                .cloned()
+                .fold(f32::NEG_INFINITY, f32::max)
+                .exp();
+            if smax as f64 <= args.grow_scale3d * scene_scale {
+                clone.push(i);
+            } else {
+                split.push(i);
+            }
+        }
+        // Respect the cap: clones first, then splits (each split adds one net Gaussian).
+        let room = limit.saturating_sub(n);
+        clone.truncate(room);
+        split.truncate(room - clone.len());
+        let (nc, ns) = (clone.len(), split.len());
+        if nc + ns == 0 {
+            return (0, 0);
+        }
+        // Clone: append identical copies.
+        append_copies(g, &clone);
+        adam.append_zeros(nc);
+        for &i in &clone {
+            self.grad2d.push(self.grad2d[i]);
+            self.count.push(self.count[i]);
+        }
+        // Split: two children per parent, appended; parents removed.
+        let k3 = g.coeffs() * 3;
+        let log_div = (args.split_factor as f32).ln();
+        for &i in &split {
+            let q = g.quats[i];
+            let qn = {
+                let l = q.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+                if l > 0.0 && l.is_finite() {
+                    [
+                        q[0] as f64 / l,
+                        q[1] as f64 / l,
+                        q[2] as f64 / l,
+                        q[3] as f64 / l,
+                    ]
+                } else {
+                    [1.0, 0.0, 0.0, 0.0]
+                }
+            };
+            let r = linalg::quat_to_mat3(qn);
+            let s: [f64; 3] = std::array::from_fn(|a| (g.log_scales[i][a] as f64).exp());
+            for _ in 0..2 {
+                let z: [f64; 3] = std::array::from_fn(|a| rng.normal() * s[a]);
+                let off = linalg::mat3_vec(&r, z);
+                let m = g.means[i];
+                g.means
+                    .push(std::array::from_fn(|a| (m[a] as f64 + off[a]) as f32));
+                let ls = g.log_scales[i];
+                g.log_scales.push(ls.map(|v| v - log_div));
+                g.quats.push(q);
+                g.opacity_logits.push(g.opacity_logits[i]);
+                g.sh.extend_from_within(i * k3..(i + 1) * k3);
+                self.grad2d.push(0.0);
+                self.count.push(0);
+            }
+        }
+        adam.append_zeros(2 * ns);
+        if ns > 0 {
+            let mut keep = vec![true; g.len()];
+            for &i in &split {
+                keep[i] = false;
+            }
+            self.retain_all(g, adam, &keep);
+        }
+        (nc, ns)
+    }
+
+    /// Removes transparent Gaussians and, when `prune_large`, over-large ones. Returns how
+    /// many were removed. Gaussians with non-finite parameters are removed too.
+    pub fn prune(
+        &mut self,
+        g: &mut Gaussians,
+        adam: &mut Adam,
+        args: &DensifyArgs,
+        scene_scale: f64,
+        prune_large: bool,
+    ) -> usize {
+        let n = g.len();
+        let thr_logit = crate::init::logit(args.prune_opacity) as f32;
+        let big = args.prune_scale3d * scene_scale;
+        let keep: Vec<bool> = (0..n)
+            .map(|i| {
+                let o = g.opacity_logits[i];
+                if !(o >= thr_logit) {
+                    return false; // transparent or NaN
+                }
+                let smax = g.log_scales[i]
+                    .iter()
+                    .cloned()
+                    .fold(f32::NEG_INFINITY, f32::max);
+                if !smax.is_finite() || g.means[i].iter().any(|v| !v.is_finite()) {
+                    return false;
+                }
+                !(prune_large && (smax.exp() as f64) > big)
+            })
+            .collect();
+        let removed = keep.iter().filter(|&&k| !k).count();
+        if removed > 0 {
+            self.retain_all(g, adam, &keep);
+        }
+        removed
+    }
+
+    fn retain_all(&mut self, g: &mut Gaussians, adam: &mut Adam, keep: &[bool]) {
+        retain(g, keep);
+        adam.retain(keep);
+        let mut it = keep.iter();
+        self.grad2d.retain(|_| *it.next().unwrap_or(&false));
+        let mut it = keep.iter();
+        self.count.retain(|_| *it.next().unwrap_or(&false));
+    }
+}
+
+/// Clamps every opacity to at most `value` (gsplat `reset_opa`) and clears the opacity
+/// moments.
+pub fn reset_opacities(g: &mut Gaussians, adam: &mut Adam, value: f64) {
+    let cap = crate::init::logit(value) as f32;
+    for o in &mut g.opacity_logits {
+        *o = o.min(cap);
+    }
+    adam.clear_group(Group::Opacities);
+}
+
+/// Keeps the Gaussians with `keep[i]`, in order.
+pub fn retain(g: &mut Gaussians, keep: &[bool]) {
+    assert_eq!(
+        keep.len(),
+        g.len(),
+        "retain: mask length differs from the set"
+    );
+    let k3 = g.coeffs() * 3;
+    let mut out = 0;
+    for (i, &k) in keep.iter().enumerate() {
+        if k {
+            if out != i {
+                g.means[out] = g.means[i];
+                g.log_scales[out] = g.log_scales[i];
+                g.quats[out] = g.quats[i];
+                g.opacity_logits[out] = g.opacity_logits[i];
+                g.sh.copy_within(i * k3..(i + 1) * k3, out * k3);
+            }
+            out += 1;
+        }
+    }
+    g.means.truncate(out);
+    g.log_scales.truncate(out);
+    g.quats.truncate(out);
+    g.opacity_logits.truncate(out);
+    g.sh.truncate(out * k3);
+}
+
+/// Appends copies of the Gaussians at `indices`.
+pub fn append_copies(g: &mut Gaussians, indices: &[usize]) {
+    let k3 = g.coeffs() * 3;
+    for &i in indices {
+        g.means.push(g.means[i]);
+        g.log_scales.push(g.log_scales[i]);
+        g.quats.push(g.quats[i]);
+        g.opacity_logits.push(g.opacity_logits[i]);
+        g.sh.extend_from_within(i * k3..(i + 1) * k3);
+    }
+}

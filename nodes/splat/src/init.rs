@@ -1,0 +1,256 @@
+//! Initialisation of a Gaussian set, as gsplat `simple_trainer`: from the scene's sparse
+//! points (opacity 0.1, isotropic scale = root-mean-square distance to the 3 nearest
+//! neighbours, SH DC from the point colour, higher SH zero, quaternions uniform in [0,1)⁴) or,
+//! without points, from points drawn uniformly in a cube around the cameras.
+//!
+//! The nearest neighbours come from a uniform grid (cell ≈ bounding-box volume / N, searched
+//! in growing shells) so initialisation is O(N) for well-spread clouds, not O(N²).
+
+use crate::Gaussians;
+use augsplat_core::{PointCloud, Rng};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::constants::C0 as SH_C0;
+
+/// Initialisation parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct InitArgs {
+    /// Initial opacity (after the sigmoid).
+    pub opacity: f64,
+    /// Multiplier on the nearest-neighbour scale.
+    pub scale_factor: f64,
+    /// Number of random points when the scene has none (gsplat uses 100k; a CPU-sized
+    /// default here).
+    pub random_points: usize,
+    /// Half-extent of the random cube, in scene scales (gsplat `init_extent`).
+    pub random_extent: f64,
+}
+
+impl Default for InitArgs {
+    fn default() -> Self {
+        InitArgs {
+            opacity: 0.1,
+            scale_factor: 1.0,
+            random_points: 20_000,
+            random_extent: 3.0,
+        }
+    }
+}
+
+impl InitArgs {
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.opacity > 0.0 && self.opacity < 1.0) {
+            return Err(format!("init.opacity = {} must be in (0, 1)", self.opacity));
+        }
+        if !(self.scale_factor.is_finite() && self.scale_factor > 0.0) {
+            return Err(format!(
+                "init.scale_factor = {} must be positive",
+                self.scale_factor
+            ));
+        }
+        if !(self.random_extent.is_finite() && self.random_extent > 0.0) {
+            return Err(format!(
+                "init.random_extent = {} must be positive",
+                self.random_extent
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// logit(p) = ln(p / (1 − p)).
+pub fn logit(p: f64) -> f64 {
+    (p / (1.0 - p)).ln()
+}
+
+/// For each point, the root-mean-square distance to its `k` nearest other points (gsplat:
+/// `sqrt(mean(knn_dist²))`). Points with fewer than `k` others use the ones available; a
+/// lone point gets `fallback`. Duplicated points give 0. Non-finite points are ignored as
+/// neighbours and get `fallback`.
+pub fn knn_rms_distance(points: &[[f32; 3]], k: usize, fallback: f64) -> Vec<f64> {
+    let n = points.len();
+    let finite: Vec<bool> = points
+        .iter()
+        .map(|p| p.iter().all(|v| v.is_finite()))
+        .collect();
+    let valid: Vec<usize> = (0..n).filter(|&i| finite[i]).collect();
+    if valid.len() <= 1 || k == 0 {
+        return vec![fallback; n];
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for &i in &valid {
+        for a in 0..3 {
+            lo[a] = lo[a].min(points[i][a] as f64);
+            hi[a] = hi[a].max(points[i][a] as f64);
+        }
+    }
+    let ext: Vec<f64> = (0..3).map(|a| (hi[a] - lo[a]).max(1e-12)).collect();
+    // Cell size so that there are about 2 points per cell (cube root of volume per point);
+    // cap the grid at ~4M cells (degenerate flat clouds get a coarser grid).
+    let vol: f64 = ext.iter().product();
+    let mut cell = (2.0 * vol / valid.len() as f64).cbrt();
+    let max_ext = ext.iter().cloned().fold(0.0, f64::max);
+    cell = cell.max(max_ext / 256.0).max(1e-12);
+    let dims: [usize; 3] = std::array::from_fn(|a| ((ext[a] / cell).floor() as usize + 1).max(1));
+    let cell_of = |p: &[f32; 3]| -> [usize; 3] {
+        std::array::from_fn(|a| (((p[a] as f64 - lo[a]) / cell) as usize).min(dims[a] - 1))
+    };
+    let lin = |c: [usize; 3]| (c[2] * dims[1] + c[1]) * dims[0] + c[0];
+    let ncell = dims[0] * dims[1] * dims[2];
+    // Counting sort of the valid points by cell.
+    let mut start = vec![0u32; ncell + 1];
+    let cells: Vec<usize> = valid.iter().map(|&i| lin(cell_of(&points[i]))).collect();
+    for &c in &cells {
+        start[c + 1] += 1;
+    }
+    for c in 0..ncell {
+        start[c + 1] += start[c];
+    }
+    let mut fill = start.clone();
+    let mut order = vec![0u32; valid.len()];
+    for (j, &c) in cells.iter().enumerate() {
+        order[fill[c] as usize] = valid[j] as u32;
+        fill[c] += 1;
+    }
+    let kk = k.min(valid.len() - 1);
+    (0..n)
+        .into_par_iter()
+        .map(|i| {
+            if !finite[i] {
+                return fallback;
+            }
+            let p = points[i];
+            let c = cell_of(&p);
+            // Best kk squared distances, ascending (small fixed k: insertion).
+            let mut best = vec![f64::INFINITY; kk];
+            let mut r = 0usize;
+            loop {
+                // Visit the shell at Chebyshev radius r.
+                let lo_c: [isize; 3] = std::array::from_fn(|a| c[a] as isize - r as isize);
+                let hi_c: [isize; 3] = std::array::from_fn(|a| c[a] as isize + r as isize);
+                for z in lo_c[2].max(0)..=hi_c[2].min(dims[2] as isize - 1) {
+                    for y in lo_c[1].max(0)..=hi_c[1].min(dims[1] as isize - 1) {
+                        for x in lo_c[0].max(0)..=hi_c[0].min(dims[0] as isize - 1) {
+                            let on_shell = x == lo_c[0]
+                                || x == hi_c[0]
+                                || y == lo_c[1]
+                                || y == hi_c[1]
+                                || z == lo_c[2]
+                                || z == hi_c[2];
+                            if !on_shell {
+                                continue;
+                            }
+                            let cc = lin([x as usize, y as usize, z as usize]);
+                            for &j in &order[start[cc] as usize..start[cc + 1] as usize] {
+                                let j = j as usize;
+                                if j == i {
+                                    continue;
+                                }
+                                let q = points[j];
+                                let d2: f64 = (0..3)
+                                    .map(|a| {
+                                        let d = p[a] as f64 - q[a] as f64;
+                                        d * d
+                                    })
+                                    .sum();
+                                if d2 < best[kk - 1] {
+                                    let mut s = kk - 1;
+                                    while s > 0 && best[s - 1] > d2 {
+                                        best[s] = best[s - 1];
+                                        s -= 1;
+                                    }
+                                    best[s] = d2;
+                                }
+                            }
+                        }
+                    }
+                }
+                // Every unvisited point is at least r·cell away (beyond the shell r).
+                let reach = r as f64 * cell;
+                let covered = (0..3).all(|a| c[a] < r + 1 && c[a] + r + 1 >= dims[a]);
+                if covered || (best[kk - 1].is_finite() && best[kk - 1] <= reach * reach) {
+                    break;
+                }
+                r += 1;
+            }
+            (best.iter().sum::<f64>() / kk as f64).sqrt()
+        })
+        .collect()
+}
+
+/// Gaussians from a point cloud: one per finite point, at `sh_degree` storage. The scale of a
+/// point is `max(rms 3-NN distance · scale_factor, 1e-7 · scene_scale)` (so duplicate points
+/// do not give log(0)); a single point uses 0.01 · scene_scale.
+pub fn from_points(
+    cloud: &PointCloud,
+    sh_degree: u32,
+    args: &InitArgs,
+    scene_scale: f64,
+    seed: u64,
+) -> Gaussians {
+    let keep: Vec<usize> = (0..cloud.len())
+        .filter(|&i| cloud.positions[i].iter().all(|v| v.is_finite()))
+        .collect();
+    let positions: Vec<[f32; 3]> = keep.iter().map(|&i| cloud.positions[i]).collect();
+    let colors: Vec<[f32; 3]> = keep
+        .iter()
+        .map(|&i| cloud.colors.get(i).copied().unwrap_or([0.5; 3]))
+        .collect();
+    build(positions, colors, sh_degree, args, scene_scale, seed)
+}
+
+/// Gaussians at `args.random_points` points uniform in the cube of half-side
+/// `random_extent · scene_scale` around `center`, with uniform random colours (gsplat's
+/// `init_type = "random"`).
+pub fn random(
+    center: [f64; 3],
+    sh_degree: u32,
+    args: &InitArgs,
+    scene_scale: f64,
+    seed: u64,
+) -> Gaussians {
+    let mut rng = Rng::stream(seed, 0x1417);
+    let half = args.random_extent * scene_scale;
+    let mut positions = Vec::with_capacity(args.random_points);
+    let mut colors = Vec::with_capacity(args.random_points);
+    for _ in 0..args.random_points {
+        positions.push(std::array::from_fn(|a| {
+            (center[a] + half * (2.0 * rng.next_f64() - 1.0)) as f32
+        }));
+        colors.push(std::array::from_fn(|_| rng.next_f32()));
+    }
+    build(positions, colors, sh_degree, args, scene_scale, seed)
+}
+
+fn build(
+    positions: Vec<[f32; 3]>,
+    colors: Vec<[f32; 3]>,
+    sh_degree: u32,
+    args: &InitArgs,
+    scene_scale: f64,
+    seed: u64,
+) -> Gaussians {
+    let n = positions.len();
+    let floor = 1e-7 * scene_scale.max(1e-12);
+    let dists = knn_rms_distance(&positions, 3, 0.01 * scene_scale);
+    let mut g = Gaussians::empty(sh_degree);
+    let k = g.coeffs();
+    let mut rng = Rng::stream(seed, 0x9a7);
+    let op = logit(args.opacity) as f32;
+    g.sh = vec![0.0; n * k * 3];
+    for i in 0..n {
+        let s = (dists[i] * args.scale_factor).max(floor).ln() as f32;
+        g.log_scales.push([s; 3]);
+        g.quats.push(std::array::from_fn(|_| rng.next_f32()));
+        g.opacity_logits.push(op);
+        for c in 0..3 {
+            g.sh[i * k * 3 + c] = ((colors[i][c] as f64 - 0.5) / SH_C0) as f32;
+        }
+    }
+    g.means = positions;
+    g
+}
