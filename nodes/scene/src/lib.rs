@@ -13,3 +13,6 @@ pub mod intrinsics;
 pub mod source;
 
 pub use error::SceneError;
+pub mod depth;
+pub mod split;
+pub mod synthetic;
