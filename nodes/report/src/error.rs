@@ -9,6 +9,12 @@ pub enum ReportError {
     /// Reading or writing a shared artifact failed (the message names the file).
     #[error(transparent)]
     Core(#[from] CoreError),
+    /// A metric could not be computed (sizes, non-finite pixels, LPIPS weights).
+    #[error(transparent)]
+    Metrics(#[from] augsplat_metrics::MetricsError),
+    /// A splat model could not be read.
+    #[error(transparent)]
+    Splat(#[from] augsplat_splat::SplatError),
     /// A file or folder exists but its contents are not usable.
     #[error("{path}: {message}")]
     Invalid {

@@ -318,6 +318,26 @@ impl EvalMetrics {
     }
 }
 
+/// The PNG file name of a view: its name with every character other than ASCII letters,
+/// digits, `-`, `_` and `.` replaced by `_` (and a leading `.` too), plus `.png`.
+pub fn png_name(view: &str) -> String {
+    let mut s: String = view
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if s.is_empty() || s.starts_with('.') {
+        s.insert(0, '_');
+    }
+    s.push_str(".png");
+    s
+}
+
 /// Quotes a CSV field when it holds a comma, quote or line break.
 pub fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) {
@@ -373,11 +393,11 @@ impl EvalDir {
 
     /// Path of the render of view `name`.
     pub fn render_path(&self, name: &str) -> PathBuf {
-        self.dir.join(files::RENDERS).join(format!("{name}.png"))
+        self.dir.join(files::RENDERS).join(png_name(name))
     }
     /// Path of the ground truth of view `name`.
     pub fn gt_path(&self, name: &str) -> PathBuf {
-        self.dir.join(files::GT).join(format!("{name}.png"))
+        self.dir.join(files::GT).join(png_name(name))
     }
 }
 
@@ -461,6 +481,14 @@ mod tests {
         assert_eq!(lines[0], "view,width,height,psnr,ssim,lpips,mse,avg_error");
         assert_eq!(lines[1], "\"v\"\"1\",4,2,inf,0.5,,0.01,");
         assert_eq!(lines[2], "mean,,,inf,0.5,,0.01,");
+    }
+
+    #[test]
+    fn view_file_names_are_safe() {
+        assert_eq!(png_name("DSCF5568"), "DSCF5568.png");
+        assert_eq!(png_name("a/b c"), "a_b_c.png");
+        assert_eq!(png_name("../x"), "_.._x.png");
+        assert_eq!(png_name(""), "_.png");
     }
 
     #[test]

@@ -7,11 +7,14 @@
 //! - [`svg`]: a small deterministic SVG plotting module (line, scatter + Pareto front, bars);
 //! - [`html`]: HTML helpers (escaping, base64 PNG data URIs, tables with the best value per
 //!   column marked);
+//! - [`evaluate`]: the `Evaluate` node (render held-out views, per-view/mean metrics);
+//! - [`report`], [`report_node`]: the report builder and the `Report` node;
 //! - [`compare`]: metric deltas across runs (ablation points).
 
 pub mod compare;
 pub mod error;
 pub mod evalset;
+pub mod evaluate;
 pub mod html;
 pub mod report;
 pub mod report_node;
@@ -19,9 +22,11 @@ pub mod select;
 pub mod svg;
 
 pub use error::ReportError;
+pub use evaluate::EvaluateNode;
 pub use report_node::ReportNode;
 
 /// Registers this family's node kinds (`Report`; `Evaluate`).
 pub fn register(registry: &mut augsplat_graph::Registry) {
+    registry.register::<EvaluateNode>();
     registry.register::<ReportNode>();
 }
