@@ -6,4 +6,5 @@ use augsplat_graph::Registry;
 /// Registers the built-in node kinds of every family.
 pub fn register_builtin(registry: &mut Registry) {
     augsplat_augment::register(registry);
+    augsplat_field::register(registry);
 }

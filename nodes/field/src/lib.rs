@@ -1,1 +1,32 @@
-//! augsplat-field
+//! augsplat-field: the radiance-field ensemble member of AugSplat, on the CPU.
+//!
+//! A nerfacto-like field — multiresolution hash encoding ([`hashgrid`]), density MLP with
+//! truncated exp and colour MLP on geometry features + SH-encoded view direction ([`field`],
+//! [`mlp`], [`sh`]), mip-NeRF 360 contraction ([`contraction`]) — sampled through an occupancy
+//! grid over contracted space ([`occupancy`]) and volume-rendered with analytic gradients
+//! ([`volume`]). Training ([`train`]) uses Adam over fixed ray chunks with a fixed-order
+//! gradient reduction, so results are bit-identical for any thread count. [`reference`] holds
+//! naive f64 versions of every kernel for tests. The node kinds are in [`nodes`].
+
+pub mod constants;
+pub mod contraction;
+pub mod error;
+pub mod field;
+pub mod hashgrid;
+pub mod io;
+pub mod mlp;
+pub mod nodes;
+pub mod occupancy;
+pub mod reference;
+pub mod sh;
+pub mod train;
+pub mod volume;
+
+pub use error::FieldError;
+pub use nodes::{RenderField, RenderFieldArgs, TrainField, TrainFieldArgs};
+
+/// Registers `TrainField` and `RenderField`.
+pub fn register(registry: &mut augsplat_graph::Registry) {
+    registry.register::<TrainField>();
+    registry.register::<RenderField>();
+}

@@ -1,0 +1,615 @@
+//! The radiance field: hash encoding → density MLP (truncated exp, geometry features) →
+//! colour MLP (geometry features ‖ SH(direction) ‖ optional appearance embedding, sigmoid),
+//! plus ray marching through the occupancy grid and the per-chunk forward and backward passes
+//! that training and rendering share.
+//!
+//! All parameters live in one flat `Vec<f32>`: hash table, density MLP, colour MLP, appearance
+//! embeddings, in that order. A chunk of rays is processed by one thread with its own
+//! [`ChunkState`]; nothing in a chunk depends on which thread runs it.
+
+use crate::constants::{
+    GEO_FEAT_DIM, MAX_MARCH_ITERATIONS, SH_COMPONENTS, TRUNC_EXP_MAX, TRUNC_EXP_MIN,
+};
+use crate::contraction::{contract, max_stretch};
+use crate::error::FieldError;
+use crate::hashgrid::{HashGrid, HashGridConfig};
+use crate::mlp::{padded, Mlp};
+use crate::occupancy::OccupancyGrid;
+use crate::sh::sh_encode;
+use crate::volume;
+use serde::{Deserialize, Serialize};
+
+/// Everything needed to rebuild a field from its parameters (stored as `config.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FieldConfig {
+    /// Hash encoding.
+    pub grid: HashGridConfig,
+    /// Width of the hidden layers of both MLPs.
+    pub hidden_width: u32,
+    /// Appearance embedding width (0 = none).
+    pub appearance_dim: u32,
+    /// Number of training images (rows of the embedding table).
+    pub n_images: u32,
+    /// Contraction centre (world units).
+    pub center: [f64; 3],
+    /// World distance that maps to field radius 1.
+    pub radius: f64,
+    /// Near bound along rays (world units).
+    pub near: f64,
+    /// Far bound along rays (world units).
+    pub far: f64,
+    /// Marching steps across the contracted ball's diameter (4 contracted units).
+    pub march_steps: u32,
+    /// Occupancy grid cells per axis.
+    pub occupancy_resolution: u32,
+}
+
+impl FieldConfig {
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<(), FieldError> {
+        let bad = |m: String| Err(FieldError::Config(m));
+        if !(self.radius.is_finite() && self.radius > 0.0) {
+            return bad(format!(
+                "contraction radius {} must be positive and finite",
+                self.radius
+            ));
+        }
+        if !(self.near.is_finite()
+            && self.far.is_finite()
+            && self.near >= 0.0
+            && self.far > self.near)
+        {
+            return bad(format!(
+                "near {} / far {} must satisfy 0 ≤ near < far",
+                self.near, self.far
+            ));
+        }
+        if self.center.iter().any(|v| !v.is_finite()) {
+            return bad("contraction centre is not finite".into());
+        }
+        if !(4..=4096).contains(&self.march_steps) {
+            return bad(format!(
+                "march_steps = {} must be in 4..=4096",
+                self.march_steps
+            ));
+        }
+        if !(4..=512).contains(&self.occupancy_resolution) {
+            return bad(format!(
+                "occupancy_resolution = {} must be in 4..=512",
+                self.occupancy_resolution
+            ));
+        }
+        if !(8..=512).contains(&self.hidden_width) {
+            return bad(format!(
+                "hidden_width = {} must be in 8..=512",
+                self.hidden_width
+            ));
+        }
+        if self.appearance_dim > 256 {
+            return bad(format!(
+                "appearance_dim = {} must be ≤ 256",
+                self.appearance_dim
+            ));
+        }
+        Ok(())
+    }
+    /// Contracted-space step `Δ`.
+    pub fn contracted_step(&self) -> f32 {
+        4.0 / self.march_steps as f32
+    }
+}
+
+/// The field's architecture and parameter layout.
+#[derive(Clone, Debug)]
+pub struct Field {
+    /// The configuration.
+    pub config: FieldConfig,
+    /// Hash encoding layout (parameters at the start of the vector).
+    pub grid: HashGrid,
+    /// `L·F → hidden → 1 + 15` (density pre-activation, geometry features).
+    pub density: Mlp,
+    /// `15 + 16 + E → hidden → hidden → 3`.
+    pub color: Mlp,
+    /// Offset of the density MLP.
+    pub density_offset: usize,
+    /// Offset of the colour MLP.
+    pub color_offset: usize,
+    /// Offset of the appearance embeddings (`n_images × E`).
+    pub embedding_offset: usize,
+    /// Total parameters.
+    pub n_params: usize,
+}
+
+/// One ray to render or train on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayInput {
+    /// Origin (world).
+    pub origin: [f32; 3],
+    /// Unit direction (world).
+    pub dir: [f32; 3],
+    /// Training image whose embedding to use; `u32::MAX` = the mean embedding.
+    pub image: u32,
+    /// Background colour composited behind the ray.
+    pub background: [f32; 3],
+}
+
+/// Per-ray results of a forward pass.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RayOutput {
+    /// Composited colour including the background.
+    pub rgb: [f32; 3],
+    /// Accumulated opacity `Σ w`.
+    pub acc: f32,
+    /// Premultiplied distance `Σ w t` (divide by `acc` for the expected distance).
+    pub depth: f32,
+}
+
+/// Activations and gradients of one chunk of rays (structure of arrays).
+#[derive(Clone, Debug, Default)]
+pub struct ChunkState {
+    /// Sample positions in `[0, 1]³` (contracted, rescaled) — x, y, z.
+    pub px: Vec<f32>,
+    /// See `px`.
+    pub py: Vec<f32>,
+    /// See `px`.
+    pub pz: Vec<f32>,
+    /// Distance along the ray (sample midpoint).
+    pub t: Vec<f32>,
+    /// Sample length (world).
+    pub dt: Vec<f32>,
+    /// Contracted-space midpoint coordinate (for the distortion loss).
+    pub m: Vec<f32>,
+    /// Samples of ray `r` are `ray_start[r]..ray_start[r + 1]`.
+    pub ray_start: Vec<usize>,
+    /// Samples with colour per ray (early termination).
+    pub n_color: Vec<usize>,
+    /// Padded sample count.
+    pub ld: usize,
+    /// Encoding (`L·F × ld`).
+    pub enc: Vec<f32>,
+    /// Density MLP activations.
+    pub dens_acts: Vec<Vec<f32>>,
+    /// Densities.
+    pub sigma: Vec<f32>,
+    /// Weights.
+    pub w: Vec<f32>,
+    /// Indices of the samples that get a colour, ray by ray.
+    pub alive: Vec<u32>,
+    /// Padded alive count.
+    pub ldc: usize,
+    /// Colour MLP input.
+    pub col_in: Vec<f32>,
+    /// Colour MLP activations.
+    pub col_acts: Vec<Vec<f32>>,
+    /// Sigmoid colours (`3 × ldc`).
+    pub rgb: Vec<f32>,
+    /// Per-ray outputs.
+    pub out: Vec<RayOutput>,
+    /// `∂L/∂w_i` (filled by the loss).
+    pub g: Vec<f32>,
+    /// `∂L/∂c` for alive samples (`3 × ldc`, filled by the loss).
+    pub d_rgb: Vec<f32>,
+    /// `∂L/∂enc` after the backward pass (`L·F × ld`).
+    pub d_enc: Vec<f32>,
+    scratch: Vec<f32>,
+    scratch2: Vec<f32>,
+    wt: Vec<f32>,
+    d_sigma: Vec<f32>,
+}
+
+impl ChunkState {
+    /// Number of samples.
+    pub fn n(&self) -> usize {
+        self.t.len()
+    }
+}
+
+#[inline]
+fn trunc_exp(x: f32) -> f32 {
+    x.clamp(TRUNC_EXP_MIN, TRUNC_EXP_MAX).exp()
+}
+
+#[inline]
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+impl Field {
+    /// Builds the layout for a configuration.
+    pub fn new(config: FieldConfig) -> Result<Field, FieldError> {
+        config.validate()?;
+        let grid = HashGrid::new(config.grid.clone())?;
+        let h = config.hidden_width as usize;
+        let density = Mlp::new(grid.output_dim(), h, 1, 1 + GEO_FEAT_DIM);
+        let e = config.appearance_dim as usize;
+        let color = Mlp::new(GEO_FEAT_DIM + SH_COMPONENTS + e, h, 2, 3);
+        let density_offset = grid.n_params();
+        let color_offset = density_offset + density.n_params();
+        let embedding_offset = color_offset + color.n_params();
+        let n_params = embedding_offset + config.n_images as usize * e;
+        Ok(Field {
+            config,
+            grid,
+            density,
+            color,
+            density_offset,
+            color_offset,
+            embedding_offset,
+            n_params,
+        })
+    }
+
+    /// Seeded initial parameters.
+    pub fn init_params(&self, seed: u64) -> Vec<f32> {
+        let mut p = vec![0f32; self.n_params];
+        let mut rng = augsplat_core::Rng::stream(seed, 0x6772_6964);
+        self.grid.init(&mut p[..self.density_offset], &mut rng);
+        self.density
+            .init(&mut p[self.density_offset..self.color_offset], &mut rng);
+        self.color
+            .init(&mut p[self.color_offset..self.embedding_offset], &mut rng);
+        for v in &mut p[self.embedding_offset..] {
+            *v = (rng.normal() * 0.1) as f32;
+        }
+        p
+    }
+
+    /// The mean appearance embedding (empty when embeddings are off).
+    pub fn mean_embedding(&self, params: &[f32]) -> Vec<f32> {
+        let e = self.config.appearance_dim as usize;
+        let n = self.config.n_images as usize;
+        let mut m = vec![0f32; e];
+        if e == 0 || n == 0 {
+            return m;
+        }
+        for i in 0..n {
+            for k in 0..e {
+                m[k] += params[self.embedding_offset + i * e + k];
+            }
+        }
+        m.iter_mut().for_each(|v| *v /= n as f32);
+        m
+    }
+
+    /// World point to field units.
+    #[inline]
+    pub fn to_field(&self, p: [f32; 3]) -> [f32; 3] {
+        let c = self.config.center;
+        let s = 1.0 / self.config.radius as f32;
+        [
+            (p[0] - c[0] as f32) * s,
+            (p[1] - c[1] as f32) * s,
+            (p[2] - c[2] as f32) * s,
+        ]
+    }
+
+    /// Marches one ray from near to far with steps that are (at most) `Δ` in contracted
+    /// space, keeping the samples whose contracted midpoint lies in an occupied cell.
+    /// `jitter ∈ [0, 1)` shifts the whole ray's stepping (stratified training samples).
+    pub fn march(&self, ray: &RayInput, occ: &OccupancyGrid, jitter: f32, st: &mut ChunkState) {
+        let delta = self.config.contracted_step();
+        let rw = self.config.radius as f32;
+        let near = self.config.near as f32;
+        let far = self.config.far as f32;
+        let o = self.to_field(ray.origin);
+        let d = ray.dir;
+        let at = |t: f32| {
+            [
+                o[0] + d[0] * t / rw,
+                o[1] + d[1] * t / rw,
+                o[2] + d[2] * t / rw,
+            ]
+        };
+        let step_at = |t: f32| {
+            let x = at(t);
+            let r = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
+            delta * rw / max_stretch(r)
+        };
+        let mut t = near + jitter * step_at(near);
+        let mut k = 0u32;
+        while t < far && k < MAX_MARCH_ITERATIONS {
+            let dt = step_at(t).min(far - t).max(1e-6);
+            let tm = t + 0.5 * dt;
+            let c = contract(at(tm));
+            if occ.is_occupied(c) {
+                st.px.push((c[0] + 2.0) * 0.25);
+                st.py.push((c[1] + 2.0) * 0.25);
+                st.pz.push((c[2] + 2.0) * 0.25);
+                st.t.push(tm);
+                st.dt.push(dt);
+                st.m.push((k as f32 + 0.5) * delta);
+            }
+            t += dt;
+            k += 1;
+        }
+    }
+
+    /// Density of points given in `[0, 1]³` hash coordinates (for occupancy updates).
+    pub fn density_batch(
+        &self,
+        params: &[f32],
+        px: &[f32],
+        py: &[f32],
+        pz: &[f32],
+        st: &mut ChunkState,
+    ) -> Vec<f32> {
+        let n = px.len();
+        let ld = padded(n);
+        st.enc.resize(self.grid.output_dim() * ld, 0.0);
+        self.grid.encode(
+            &params[..self.density_offset],
+            px,
+            py,
+            pz,
+            n,
+            ld,
+            &mut st.enc,
+        );
+        self.density.forward(
+            &params[self.density_offset..self.color_offset],
+            &st.enc,
+            ld,
+            &mut st.dens_acts,
+        );
+        let out = &st.dens_acts[st.dens_acts.len() - 1];
+        (0..n).map(|i| trunc_exp(out[i])).collect()
+    }
+
+    /// Forward pass over a chunk of rays: marching, encoding, density, weights, early
+    /// termination, colour of the surviving samples, compositing. `jitter(r)` gives ray `r`'s
+    /// stratification offset. `mean_emb` is used for rays with `image == u32::MAX`.
+    pub fn forward_chunk(
+        &self,
+        params: &[f32],
+        occ: &OccupancyGrid,
+        rays: &[RayInput],
+        jitter: &dyn Fn(usize) -> f32,
+        mean_emb: &[f32],
+        st: &mut ChunkState,
+    ) {
+        for v in [
+            &mut st.px, &mut st.py, &mut st.pz, &mut st.t, &mut st.dt, &mut st.m,
+        ] {
+            v.clear();
+        }
+        st.ray_start.clear();
+        for (r, ray) in rays.iter().enumerate() {
+            st.ray_start.push(st.t.len());
+            self.march(ray, occ, jitter(r), st);
+        }
+        st.ray_start.push(st.t.len());
+        let n = st.n();
+        let ld = padded(n);
+        st.ld = ld;
+        let lf = self.grid.output_dim();
+        st.enc.clear();
+        st.enc.resize(lf * ld, 0.0);
+        self.grid.encode(
+            &params[..self.density_offset],
+            &st.px,
+            &st.py,
+            &st.pz,
+            n,
+            ld,
+            &mut st.enc,
+        );
+        let dp = &params[self.density_offset..self.color_offset];
+        self.density.forward(dp, &st.enc, ld, &mut st.dens_acts);
+        let dout = &st.dens_acts[st.dens_acts.len() - 1];
+        st.sigma.clear();
+        st.sigma.extend((0..n).map(|i| trunc_exp(dout[i])));
+        st.w.clear();
+        st.w.resize(n, 0.0);
+        st.n_color.clear();
+        st.alive.clear();
+        for r in 0..rays.len() {
+            let (a, b) = (st.ray_start[r], st.ray_start[r + 1]);
+            let nc = volume::weights_forward(&st.sigma[a..b], &st.dt[a..b], &mut st.w[a..b]);
+            st.n_color.push(nc);
+            st.alive.extend((a..a + nc).map(|i| i as u32));
+        }
+        // Colour network on the surviving samples.
+        let nc = st.alive.len();
+        let ldc = padded(nc);
+        st.ldc = ldc;
+        let e = self.config.appearance_dim as usize;
+        let cin = GEO_FEAT_DIM + SH_COMPONENTS + e;
+        st.col_in.clear();
+        st.col_in.resize(cin * ldc, 0.0);
+        let mut j = 0;
+        for (r, ray) in rays.iter().enumerate() {
+            let sh = sh_encode(ray.dir);
+            let emb: &[f32] = if e == 0 {
+                &[]
+            } else if ray.image == u32::MAX || ray.image >= self.config.n_images {
+                mean_emb
+            } else {
+                let o = self.embedding_offset + ray.image as usize * e;
+                &params[o..o + e]
+            };
+            for _ in 0..st.n_color[r] {
+                let i = st.alive[j] as usize;
+                for k in 0..GEO_FEAT_DIM {
+                    st.col_in[k * ldc + j] = dout[(1 + k) * ld + i];
+                }
+                for k in 0..SH_COMPONENTS {
+                    st.col_in[(GEO_FEAT_DIM + k) * ldc + j] = sh[k];
+                }
+                for k in 0..e {
+                    st.col_in[(GEO_FEAT_DIM + SH_COMPONENTS + k) * ldc + j] = emb[k];
+                }
+                j += 1;
+            }
+        }
+        let cp = &params[self.color_offset..self.embedding_offset];
+        self.color.forward(cp, &st.col_in, ldc, &mut st.col_acts);
+        let cout = &st.col_acts[st.col_acts.len() - 1];
+        st.rgb.clear();
+        st.rgb.resize(3 * ldc, 0.0);
+        for k in 0..3 {
+            for j in 0..nc {
+                st.rgb[k * ldc + j] = sigmoid(cout[k * ldc + j]);
+            }
+        }
+        // Compositing.
+        st.out.clear();
+        let mut j0 = 0;
+        for (r, ray) in rays.iter().enumerate() {
+            let (a, b) = (st.ray_start[r], st.ray_start[r + 1]);
+            let ncr = st.n_color[r];
+            let c = volume::composite_color(
+                &st.w[a..a + ncr],
+                &st.rgb[j0..j0 + ncr],
+                &st.rgb[ldc + j0..ldc + j0 + ncr],
+                &st.rgb[2 * ldc + j0..2 * ldc + j0 + ncr],
+            );
+            let (acc, depth) = volume::opacity_depth(&st.w[a..b], &st.t[a..b]);
+            let bg = ray.background;
+            st.out.push(RayOutput {
+                rgb: [
+                    c[0] + (1.0 - acc) * bg[0],
+                    c[1] + (1.0 - acc) * bg[1],
+                    c[2] + (1.0 - acc) * bg[2],
+                ],
+                acc,
+                depth,
+            });
+            j0 += ncr;
+        }
+        st.g.clear();
+        st.g.resize(n, 0.0);
+        st.d_rgb.clear();
+        st.d_rgb.resize(3 * ldc, 0.0);
+    }
+
+    /// Adds the photometric/opacity/depth output gradients of ray `r` to the chunk's
+    /// per-sample gradients: `d_rgb_out` = ∂L/∂(composited colour), `d_acc` = ∂L/∂A,
+    /// `d_depth` = ∂L/∂(Σ w t).
+    pub fn add_ray_output_grad(
+        &self,
+        st: &mut ChunkState,
+        rays: &[RayInput],
+        r: usize,
+        d_rgb_out: [f32; 3],
+        d_acc: f32,
+        d_depth: f32,
+    ) {
+        let (a, b) = (st.ray_start[r], st.ray_start[r + 1]);
+        let j0: usize = st.n_color[..r].iter().sum();
+        let ldc = st.ldc;
+        let bg = rays[r].background;
+        let d_a = d_acc - (d_rgb_out[0] * bg[0] + d_rgb_out[1] * bg[1] + d_rgb_out[2] * bg[2]);
+        for i in a..b {
+            st.g[i] += d_a + d_depth * st.t[i];
+        }
+        for q in 0..st.n_color[r] {
+            let i = a + q;
+            let j = j0 + q;
+            let c = [st.rgb[j], st.rgb[ldc + j], st.rgb[2 * ldc + j]];
+            st.g[i] += d_rgb_out[0] * c[0] + d_rgb_out[1] * c[1] + d_rgb_out[2] * c[2];
+            for k in 0..3 {
+                st.d_rgb[k * ldc + j] += st.w[i] * d_rgb_out[k];
+            }
+        }
+    }
+
+    /// Backward pass of a chunk after the loss filled `st.g` and `st.d_rgb`. Adds MLP and
+    /// embedding gradients to `grad` (the parameter range from `density_offset` on) and leaves
+    /// the encoding gradient in `st.d_enc` for [`HashGrid::backward_level`].
+    pub fn backward_chunk(
+        &self,
+        params: &[f32],
+        rays: &[RayInput],
+        st: &mut ChunkState,
+        grad: &mut [f32],
+    ) {
+        let n = st.n();
+        let (ld, ldc) = (st.ld, st.ldc);
+        let nc = st.alive.len();
+        let e = self.config.appearance_dim as usize;
+        let base = self.density_offset;
+        // σ gradients through the weights.
+        st.d_sigma.clear();
+        st.d_sigma.resize(n, 0.0);
+        for r in 0..rays.len() {
+            let (a, b) = (st.ray_start[r], st.ray_start[r + 1]);
+            volume::weights_backward(
+                &st.sigma[a..b],
+                &st.dt[a..b],
+                &st.w[a..b],
+                &st.g[a..b],
+                &mut st.d_sigma[a..b],
+            );
+        }
+        // Colour MLP backward.
+        let mut d_out = std::mem::take(&mut st.scratch2);
+        d_out.clear();
+        d_out.resize(3 * ldc, 0.0);
+        for k in 0..3 {
+            for j in 0..nc {
+                let c = st.rgb[k * ldc + j];
+                d_out[k * ldc + j] = st.d_rgb[k * ldc + j] * c * (1.0 - c);
+            }
+        }
+        let cp = &params[self.color_offset..self.embedding_offset];
+        let mut d_cin = Vec::new();
+        {
+            let (cg, eg) = grad[self.color_offset - base..]
+                .split_at_mut(self.embedding_offset - self.color_offset);
+            self.color.backward(
+                cp,
+                &st.col_in,
+                &st.col_acts,
+                ldc,
+                &mut d_out,
+                cg,
+                Some(&mut d_cin),
+                &mut st.scratch,
+                &mut st.wt,
+            );
+            // Embedding gradients.
+            if e > 0 {
+                let mut j = 0;
+                for (r, ray) in rays.iter().enumerate() {
+                    for _ in 0..st.n_color[r] {
+                        if ray.image < self.config.n_images {
+                            let o = ray.image as usize * e;
+                            for k in 0..e {
+                                eg[o + k] += d_cin[(GEO_FEAT_DIM + SH_COMPONENTS + k) * ldc + j];
+                            }
+                        }
+                        j += 1;
+                    }
+                }
+            }
+        }
+        // Density MLP output gradient: σ through trunc_exp, geometry features from colour.
+        d_out.clear();
+        d_out.resize((1 + GEO_FEAT_DIM) * ld, 0.0);
+        for i in 0..n {
+            // Truncated exp: the gradient is exp of the clamped argument everywhere.
+            d_out[i] = st.d_sigma[i] * st.sigma[i];
+        }
+        for (j, &i) in st.alive.iter().enumerate() {
+            for k in 0..GEO_FEAT_DIM {
+                d_out[(1 + k) * ld + i as usize] = d_cin[k * ldc + j];
+            }
+        }
+        let dp = &params[self.density_offset..self.color_offset];
+        let dg = &mut grad[..self.color_offset - base];
+        let mut d_enc = std::mem::take(&mut st.d_enc);
+        self.density.backward(
+            dp,
+            &st.enc,
+            &st.dens_acts,
+            ld,
+            &mut d_out,
+            dg,
+            Some(&mut d_enc),
+            &mut st.scratch,
+            &mut st.wt,
+        );
+        st.d_enc = d_enc;
+        st.scratch2 = d_out;
+    }
+}

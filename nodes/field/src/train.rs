@@ -1,0 +1,686 @@
+//! Training and rendering loops: seeded ray batches over the training images, fixed ray chunks
+//! processed in parallel, gradients reduced in chunk order (hash table: one level per task,
+//! samples in chunk order), Adam with an exponential learning-rate decay, occupancy-grid
+//! refreshes, periodic held-out PSNR, and guards against non-finite values.
+//!
+//! Every random number comes from [`Rng::stream`] keyed by (seed, step, chunk), and every sum
+//! runs in an order fixed by the chunk layout, so results are bit-identical for any number of
+//! threads.
+
+use crate::constants::*;
+use crate::contraction::{max_stretch, uncontract_radius};
+use crate::error::FieldError;
+use crate::field::{ChunkState, Field, RayInput};
+use crate::occupancy::OccupancyGrid;
+use crate::volume;
+use augsplat_core::{Camera, Rng, Scene};
+use rayon::prelude::*;
+use std::path::Path;
+
+/// One training or evaluation view, loaded into memory.
+#[derive(Clone, Debug)]
+pub struct ViewData {
+    /// Name of the view.
+    pub name: String,
+    /// Camera at the loaded resolution.
+    pub camera: Camera,
+    /// Interleaved RGB in [0, 1].
+    pub rgb: Vec<f32>,
+    /// Depth along the optical axis and its weight per pixel (0 = unknown), if the scene has it.
+    pub depth: Option<(Vec<f32>, Vec<f32>)>,
+}
+
+/// Loads a scene folder's views, downscaled by an integer factor.
+pub fn load_views(dir: &Path, downscale: u32) -> Result<(Scene, Vec<ViewData>), FieldError> {
+    let scene = Scene::load(dir)?;
+    if scene.views.is_empty() {
+        return Err(FieldError::Data(format!(
+            "{}: the scene has no views",
+            dir.display()
+        )));
+    }
+    let f = downscale.max(1);
+    let mut views = Vec::with_capacity(scene.views.len());
+    for (i, v) in scene.views.iter().enumerate() {
+        v.camera
+            .validate()
+            .map_err(|e| FieldError::Data(format!("{}: view {}: {e}", dir.display(), v.name)))?;
+        let img = scene.load_image(dir, i)?;
+        if img.width != v.camera.width || img.height != v.camera.height {
+            return Err(FieldError::Data(format!(
+                "{}: image {}×{} does not match its camera {}×{}",
+                dir.join(&v.image).display(),
+                img.width,
+                img.height,
+                v.camera.width,
+                v.camera.height
+            )));
+        }
+        let small = img.downscale(f);
+        let camera = v.camera.resized(small.width, small.height);
+        let depth = match scene.load_depth(dir, i)? {
+            None => None,
+            Some((z, w)) => {
+                if z.len() != img.pixels() || w.len() != img.pixels() {
+                    return Err(FieldError::Data(format!(
+                        "{}: depth map size does not match the image",
+                        dir.join(v.depth.as_deref().unwrap_or("")).display()
+                    )));
+                }
+                Some(downscale_depth(&z, &w, img.width, img.height, f))
+            }
+        };
+        views.push(ViewData {
+            name: v.name.clone(),
+            camera,
+            rgb: small.data,
+            depth,
+        });
+    }
+    Ok((scene, views))
+}
+
+/// Downscales a sparse depth map: each block keeps its most confident finite sample.
+fn downscale_depth(z: &[f32], w: &[f32], width: u32, height: u32, f: u32) -> (Vec<f32>, Vec<f32>) {
+    let (ow, oh) = (width.div_ceil(f), height.div_ceil(f));
+    let mut zo = vec![0f32; (ow * oh) as usize];
+    let mut wo = vec![0f32; (ow * oh) as usize];
+    for y in 0..height {
+        for x in 0..width {
+            let i = (y * width + x) as usize;
+            let (zz, ww) = (z[i], w[i]);
+            if !(zz.is_finite() && ww.is_finite() && zz > 0.0 && ww > 0.0) {
+                continue;
+            }
+            let o = ((y / f) * ow + x / f) as usize;
+            if ww > wo[o] {
+                wo[o] = ww;
+                zo[o] = zz;
+            }
+        }
+    }
+    (zo, wo)
+}
+
+/// Training hyper-parameters (the node args minus the field architecture).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainOptions {
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Optimisation steps.
+    pub steps: u32,
+    /// Rays per step.
+    pub rays_per_step: u32,
+    /// Rays per parallel chunk (fixed: part of the result's definition).
+    pub chunk_rays: u32,
+    /// Initial learning rate.
+    pub learning_rate: f32,
+    /// Final learning rate as a fraction of the initial one (exponential decay).
+    pub lr_final_factor: f32,
+    /// Weight of the DS-NeRF depth loss (0 = off).
+    pub depth_loss_weight: f32,
+    /// Spread of the depth-loss Gaussian relative to the target distance.
+    pub depth_sigma: f32,
+    /// Weight of the distortion loss (0 = off).
+    pub distortion_loss_weight: f32,
+    /// Random background colour per ray while training (else `background`).
+    pub random_background: bool,
+    /// Background colour for evaluation (and training when not random).
+    pub background: [f32; 3],
+    /// Steps before the occupancy grid is first updated (all cells occupied until then).
+    pub occupancy_warmup: u32,
+    /// Evaluate held-out PSNR every this many steps (0 = only at the end).
+    pub eval_every: u32,
+}
+
+/// Mutable training state.
+#[derive(Clone, Debug)]
+pub struct TrainState {
+    /// Parameters.
+    pub params: Vec<f32>,
+    /// Occupancy grid.
+    pub occupancy: OccupancyGrid,
+    /// Steps skipped because gradients or losses were not finite.
+    pub skipped_steps: u32,
+    /// Non-finite gradient entries seen (and discarded).
+    pub nonfinite_values: u64,
+}
+
+/// Statistics of one step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepStats {
+    /// Mean photometric loss (MSE over rays and channels).
+    pub rgb_loss: f64,
+    /// Mean depth loss over rays with depth.
+    pub depth_loss: f64,
+    /// Mean distortion loss.
+    pub distortion_loss: f64,
+    /// Field samples evaluated (density).
+    pub samples: u64,
+    /// Samples that reached the colour network.
+    pub color_samples: u64,
+    /// Whether the step was applied (false = skipped as non-finite).
+    pub applied: bool,
+}
+
+struct ChunkResult {
+    grad: Vec<f32>,
+    d_enc: Vec<f32>,
+    px: Vec<f32>,
+    py: Vec<f32>,
+    pz: Vec<f32>,
+    n: usize,
+    ld: usize,
+    rgb_loss: f64,
+    depth_loss: f64,
+    dist_loss: f64,
+    color_samples: usize,
+}
+
+/// A drawn training ray with its supervision.
+#[derive(Clone, Copy, Debug)]
+struct TrainRay {
+    ray: RayInput,
+    target: [f32; 3],
+    /// Target distance along the ray and its weight (0 = none).
+    depth: (f32, f32),
+}
+
+fn draw_ray(views: &[ViewData], rng: &mut Rng, opts: &TrainOptions) -> TrainRay {
+    let v = rng.below(views.len() as u64) as usize;
+    let view = &views[v];
+    let (w, h) = (view.camera.width, view.camera.height);
+    let p = rng.below(w as u64 * h as u64) as u32;
+    let (i, j) = (p / w, p % w);
+    let (o, d) = view.camera.pixel_ray(i, j);
+    let fwd = view.camera.forward();
+    let cos = (d[0] * fwd[0] + d[1] * fwd[1] + d[2] * fwd[2]).max(1e-6);
+    let px = p as usize;
+    let target = [view.rgb[3 * px], view.rgb[3 * px + 1], view.rgb[3 * px + 2]];
+    let depth = match &view.depth {
+        Some((z, wt)) if z[px] > 0.0 && wt[px] > 0.0 => ((z[px] as f64 / cos) as f32, wt[px]),
+        _ => (0.0, 0.0),
+    };
+    let background = if opts.random_background {
+        [rng.next_f32(), rng.next_f32(), rng.next_f32()]
+    } else {
+        opts.background
+    };
+    TrainRay {
+        ray: RayInput {
+            origin: o.map(|x| x as f32),
+            dir: d.map(|x| x as f32),
+            image: v as u32,
+            background,
+        },
+        target,
+        depth,
+    }
+}
+
+/// Learning rate at a step: exponential decay from `lr` to `lr · final_factor`.
+pub fn learning_rate(opts: &TrainOptions, step: u32) -> f32 {
+    let f = (step as f64 / opts.steps.max(1) as f64).min(1.0);
+    (opts.learning_rate as f64 * (opts.lr_final_factor.max(1e-8) as f64).powf(f)) as f32
+}
+
+/// The Adam optimiser over the flat parameter vector (updates run in parallel over fixed
+/// blocks; each element's update is independent, so the result does not depend on threads).
+#[derive(Clone, Debug)]
+pub struct Adam {
+    m: Vec<f32>,
+    v: Vec<f32>,
+    t: u32,
+}
+
+impl Adam {
+    /// Zero state for `n` parameters.
+    pub fn new(n: usize) -> Adam {
+        Adam {
+            m: vec![0.0; n],
+            v: vec![0.0; n],
+            t: 0,
+        }
+    }
+    /// One update with learning rate `lr`.
+    pub fn step(&mut self, params: &mut [f32], grad: &[f32], lr: f32) {
+        self.t += 1;
+        let bc1 = 1.0 - ADAM_BETA1.powi(self.t as i32);
+        let bc2 = 1.0 - ADAM_BETA2.powi(self.t as i32);
+        let step = lr / bc1;
+        let inv_bc2 = 1.0 / bc2;
+        const BLOCK: usize = 1 << 14;
+        params
+            .par_chunks_mut(BLOCK)
+            .zip(grad.par_chunks(BLOCK))
+            .zip(
+                self.m
+                    .par_chunks_mut(BLOCK)
+                    .zip(self.v.par_chunks_mut(BLOCK)),
+            )
+            .for_each(|((p, g), (m, v))| {
+                for i in 0..p.len() {
+                    let gi = g[i];
+                    m[i] = ADAM_BETA1 * m[i] + (1.0 - ADAM_BETA1) * gi;
+                    v[i] = ADAM_BETA2 * v[i] + (1.0 - ADAM_BETA2) * gi * gi;
+                    p[i] -= step * m[i] / ((v[i] * inv_bc2).sqrt() + ADAM_EPS);
+                }
+            });
+    }
+}
+
+/// Refreshes the occupancy grid from the current density (one jittered point per cell,
+/// seeded by `(seed, step)`).
+pub fn update_occupancy(
+    field: &Field,
+    params: &[f32],
+    occ: &mut OccupancyGrid,
+    seed: u64,
+    step: u32,
+) {
+    const CELLS: usize = 4096;
+    let n = occ.len();
+    let delta = field.config.contracted_step();
+    let rw = field.config.radius as f32;
+    let occ_ro = occ.clone();
+    let values: Vec<f32> = (0..n.div_ceil(CELLS))
+        .into_par_iter()
+        .map_init(ChunkState::default, |st, c| {
+            let mut rng = Rng::stream(
+                seed ^ 0x6f63_6375_7061_6e63,
+                ((step as u64) << 32) | c as u64,
+            );
+            let lo = c * CELLS;
+            let hi = (lo + CELLS).min(n);
+            let mut px = Vec::with_capacity(hi - lo);
+            let mut py = Vec::with_capacity(hi - lo);
+            let mut pz = Vec::with_capacity(hi - lo);
+            let mut scale = Vec::with_capacity(hi - lo);
+            for i in lo..hi {
+                let (corner, edge) = occ_ro.cell_box(i);
+                let p = [
+                    corner[0] + edge * rng.next_f32(),
+                    corner[1] + edge * rng.next_f32(),
+                    corner[2] + edge * rng.next_f32(),
+                ];
+                let rho = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                px.push((p[0] + 2.0) * 0.25);
+                py.push((p[1] + 2.0) * 0.25);
+                pz.push((p[2] + 2.0) * 0.25);
+                // σ·step with the world step the marcher takes there; cells outside the
+                // contracted ball are never visited.
+                scale.push(if rho < CONTRACTED_RADIUS {
+                    delta * rw / max_stretch(uncontract_radius(rho))
+                } else {
+                    0.0
+                });
+            }
+            let sigma = field.density_batch(params, &px, &py, &pz, st);
+            sigma
+                .iter()
+                .zip(&scale)
+                .map(|(s, k)| s * k)
+                .collect::<Vec<f32>>()
+        })
+        .flatten_iter()
+        .collect();
+    occ.update(&values);
+}
+
+/// Runs one training step. `grad` is scratch of the parameters' length.
+pub fn train_step(
+    field: &Field,
+    state: &mut TrainState,
+    adam: &mut Adam,
+    views: &[ViewData],
+    opts: &TrainOptions,
+    step: u32,
+    grad: &mut Vec<f32>,
+) -> Result<StepStats, FieldError> {
+    let chunk = opts.chunk_rays.max(1) as usize;
+    let total = opts.rays_per_step.max(1) as usize;
+    let n_chunks = total.div_ceil(chunk);
+    let params = &state.params;
+    let occ = &state.occupancy;
+    let mean_emb = field.mean_embedding(params);
+    let nmlp = field.n_params - field.density_offset;
+    let inv_rays = 1.0 / total as f32;
+    let results: Vec<ChunkResult> = (0..n_chunks)
+        .into_par_iter()
+        .map_init(ChunkState::default, |st, c| {
+            let mut rng = Rng::stream(opts.seed, ((step as u64) << 32) | c as u64);
+            let count = chunk.min(total - c * chunk);
+            let rays: Vec<TrainRay> = (0..count)
+                .map(|_| draw_ray(views, &mut rng, opts))
+                .collect();
+            let jit: Vec<f32> = (0..count).map(|_| rng.next_f32()).collect();
+            let inputs: Vec<RayInput> = rays.iter().map(|r| r.ray).collect();
+            field.forward_chunk(params, occ, &inputs, &|r| jit[r], &mean_emb, st);
+            let (mut rgb_loss, mut depth_loss, mut dist_loss) = (0f64, 0f64, 0f64);
+            let longest = (0..count)
+                .map(|r| st.ray_start[r + 1] - st.ray_start[r])
+                .max()
+                .unwrap_or(0);
+            let ds = vec![field.config.contracted_step(); longest];
+            for (r, tr) in rays.iter().enumerate() {
+                let o = st.out[r];
+                let mut d = [0f32; 3];
+                for k in 0..3 {
+                    let e = o.rgb[k] - tr.target[k];
+                    rgb_loss += (e * e) as f64 / 3.0;
+                    d[k] = 2.0 * e / 3.0 * inv_rays;
+                }
+                field.add_ray_output_grad(st, &inputs, r, d, 0.0, 0.0);
+                let (a, b) = (st.ray_start[r], st.ray_start[r + 1]);
+                if opts.depth_loss_weight > 0.0 && tr.depth.1 > 0.0 && b > a {
+                    let scale = opts.depth_loss_weight * tr.depth.1 * inv_rays;
+                    let s = (opts.depth_sigma * tr.depth.0).max(1e-4);
+                    let l = volume::ds_nerf_depth(
+                        &st.w[a..b],
+                        &st.t[a..b],
+                        &st.dt[a..b],
+                        tr.depth.0,
+                        s,
+                        scale,
+                        &mut st.g[a..b],
+                    );
+                    depth_loss += (l * tr.depth.1) as f64;
+                }
+                if opts.distortion_loss_weight > 0.0 && b > a {
+                    let scale = opts.distortion_loss_weight * inv_rays;
+                    let l = volume::distortion(
+                        &st.w[a..b],
+                        &st.m[a..b],
+                        &ds[..b - a],
+                        scale,
+                        &mut st.g[a..b],
+                    );
+                    dist_loss += l as f64;
+                }
+            }
+            let mut g = vec![0f32; nmlp];
+            field.backward_chunk(params, &inputs, st, &mut g);
+            ChunkResult {
+                grad: g,
+                d_enc: st.d_enc[..field.grid.output_dim() * st.ld].to_vec(),
+                px: st.px.clone(),
+                py: st.py.clone(),
+                pz: st.pz.clone(),
+                n: st.n(),
+                ld: st.ld,
+                rgb_loss,
+                depth_loss,
+                dist_loss,
+                color_samples: st.alive.len(),
+            }
+        })
+        .collect();
+    // Reduce: MLP/embedding gradients in chunk order; hash table level by level.
+    grad.clear();
+    grad.resize(field.n_params, 0.0);
+    let (ggrid, gmlp) = grad.split_at_mut(field.density_offset);
+    for r in &results {
+        for (a, b) in gmlp.iter_mut().zip(&r.grad) {
+            *a += *b;
+        }
+    }
+    let mut level_slices: Vec<(usize, &mut [f32])> = Vec::new();
+    let mut rest = ggrid;
+    for l in 0..field.grid.levels() {
+        let len = field.grid.level_range(l).len();
+        let (head, tail) = rest.split_at_mut(len);
+        level_slices.push((l, head));
+        rest = tail;
+    }
+    level_slices.into_par_iter().for_each(|(l, g)| {
+        for r in &results {
+            field
+                .grid
+                .backward_level(l, &r.px, &r.py, &r.pz, r.n, r.ld, &r.d_enc, g);
+        }
+    });
+    let mut stats = StepStats::default();
+    for r in &results {
+        stats.rgb_loss += r.rgb_loss;
+        stats.depth_loss += r.depth_loss;
+        stats.distortion_loss += r.dist_loss;
+        stats.samples += r.n as u64;
+        stats.color_samples += r.color_samples as u64;
+    }
+    stats.rgb_loss /= total as f64;
+    stats.depth_loss /= total as f64;
+    stats.distortion_loss /= total as f64;
+    // Guard: discard non-finite gradients.
+    let bad = grad.par_iter().filter(|g| !g.is_finite()).count();
+    let loss_ok = stats.rgb_loss.is_finite()
+        && stats.depth_loss.is_finite()
+        && stats.distortion_loss.is_finite();
+    if bad > 0 || !loss_ok {
+        state.nonfinite_values += bad as u64;
+        state.skipped_steps += 1;
+        stats.applied = false;
+        return Ok(stats);
+    }
+    adam.step(&mut state.params, grad, learning_rate(opts, step));
+    stats.applied = true;
+    Ok(stats)
+}
+
+/// Rendered planes of one camera.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderedImage {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Interleaved RGB (composited over the background).
+    pub rgb: Vec<f32>,
+    /// Expected depth along the optical axis (`Σ w t / Σ w · cos`), 0 where opacity is ~0.
+    pub depth: Vec<f32>,
+    /// Accumulated opacity.
+    pub acc: Vec<f32>,
+    /// Field samples evaluated.
+    pub samples: u64,
+}
+
+/// Renders a camera in fixed chunks of `chunk_rays` pixels (parallel, deterministic).
+pub fn render_camera(
+    field: &Field,
+    params: &[f32],
+    occ: &OccupancyGrid,
+    camera: &Camera,
+    background: [f32; 3],
+    chunk_rays: usize,
+) -> RenderedImage {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let n = w * h;
+    let chunk = chunk_rays.max(1);
+    let mean_emb = field.mean_embedding(params);
+    let fwd = camera.forward();
+    let parts: Vec<(Vec<f32>, Vec<f32>, Vec<f32>, u64)> = (0..n.div_ceil(chunk))
+        .into_par_iter()
+        .map_init(ChunkState::default, |st, c| {
+            let lo = c * chunk;
+            let hi = (lo + chunk).min(n);
+            let mut rays = Vec::with_capacity(hi - lo);
+            let mut cos = Vec::with_capacity(hi - lo);
+            for p in lo..hi {
+                let (o, d) = camera.pixel_ray((p / w) as u32, (p % w) as u32);
+                cos.push((d[0] * fwd[0] + d[1] * fwd[1] + d[2] * fwd[2]) as f32);
+                rays.push(RayInput {
+                    origin: o.map(|x| x as f32),
+                    dir: d.map(|x| x as f32),
+                    image: u32::MAX,
+                    background,
+                });
+            }
+            field.forward_chunk(params, occ, &rays, &|_| 0.5, &mean_emb, st);
+            let mut rgb = Vec::with_capacity(3 * (hi - lo));
+            let mut depth = Vec::with_capacity(hi - lo);
+            let mut acc = Vec::with_capacity(hi - lo);
+            for (r, o) in st.out.iter().enumerate() {
+                rgb.extend_from_slice(&o.rgb);
+                depth.push(if o.acc > 1e-6 {
+                    o.depth / o.acc * cos[r]
+                } else {
+                    0.0
+                });
+                acc.push(o.acc);
+            }
+            (rgb, depth, acc, st.n() as u64)
+        })
+        .collect();
+    let mut out = RenderedImage {
+        width: camera.width,
+        height: camera.height,
+        rgb: Vec::with_capacity(3 * n),
+        depth: Vec::with_capacity(n),
+        acc: Vec::with_capacity(n),
+        samples: 0,
+    };
+    for (rgb, depth, acc, s) in parts {
+        out.rgb.extend(rgb);
+        out.depth.extend(depth);
+        out.acc.extend(acc);
+        out.samples += s;
+    }
+    out
+}
+
+/// PSNR of `pred` against `target` (values in [0, 1], all channels), and the MSE.
+pub fn psnr(pred: &[f32], target: &[f32]) -> (f64, f64) {
+    let mse = pred
+        .iter()
+        .zip(target)
+        .map(|(a, b)| {
+            let d = a.clamp(0.0, 1.0) as f64 - *b as f64;
+            d * d
+        })
+        .sum::<f64>()
+        / pred.len().max(1) as f64;
+    (10.0 * (1.0 / mse.max(1e-20)).log10(), mse)
+}
+
+/// Mean PSNR and MSE over views rendered at their loaded resolution.
+pub fn evaluate(
+    field: &Field,
+    params: &[f32],
+    occ: &OccupancyGrid,
+    views: &[ViewData],
+    background: [f32; 3],
+    chunk_rays: usize,
+) -> (f64, f64) {
+    let (mut p, mut m) = (0.0, 0.0);
+    for v in views {
+        let img = render_camera(field, params, occ, &v.camera, background, chunk_rays);
+        let (ps, ms) = psnr(&img.rgb, &v.rgb);
+        p += ps;
+        m += ms;
+    }
+    let n = views.len().max(1) as f64;
+    (p / n, m / n)
+}
+
+/// Checks that a training run has not diverged.
+pub fn check_divergence(consecutive_bad: u32, step: u32) -> Result<(), FieldError> {
+    if consecutive_bad >= MAX_CONSECUTIVE_BAD_STEPS {
+        return Err(FieldError::Diverged(format!(
+            "{consecutive_bad} consecutive steps up to step {step} produced non-finite gradients or losses; \
+             lower learning_rate or the loss weights"
+        )));
+    }
+    Ok(())
+}
+
+/// Progress of a training run, reported after every step.
+pub struct StepReport<'a> {
+    /// Steps done.
+    pub step: u32,
+    /// Statistics of the last step.
+    pub stats: &'a StepStats,
+}
+
+/// Trains a field from its initial parameters: the full loop with occupancy refreshes,
+/// divergence guard and periodic evaluation on `test` (when given). Returns the final state
+/// and the curve (held-out PSNR/MSE and training loss at each evaluation; SSIM is not computed
+/// here and is written as 0; `seconds` is left 0 so the output stays deterministic).
+pub fn train(
+    field: &Field,
+    views: &[ViewData],
+    test: Option<&[ViewData]>,
+    opts: &TrainOptions,
+    on_step: &mut dyn FnMut(StepReport<'_>),
+) -> Result<(TrainState, augsplat_core::artifacts::TrainingCurve), FieldError> {
+    if views.is_empty() {
+        return Err(FieldError::Data("no training views".into()));
+    }
+    let mut state = TrainState {
+        params: field.init_params(opts.seed),
+        occupancy: OccupancyGrid::full(field.config.occupancy_resolution),
+        skipped_steps: 0,
+        nonfinite_values: 0,
+    };
+    let mut adam = Adam::new(field.n_params);
+    let mut grad = Vec::new();
+    let mut curve = augsplat_core::artifacts::TrainingCurve {
+        label: "field".into(),
+        points: Vec::new(),
+    };
+    let mut consecutive_bad = 0u32;
+    let mut loss_acc = (0f64, 0u32);
+    for step in 0..opts.steps {
+        if step >= opts.occupancy_warmup
+            && (step - opts.occupancy_warmup) % OCCUPANCY_UPDATE_EVERY == 0
+        {
+            update_occupancy(field, &state.params, &mut state.occupancy, opts.seed, step);
+        }
+        let stats = train_step(field, &mut state, &mut adam, views, opts, step, &mut grad)?;
+        if stats.applied {
+            consecutive_bad = 0;
+            loss_acc.0 += stats.rgb_loss;
+            loss_acc.1 += 1;
+        } else {
+            consecutive_bad += 1;
+            check_divergence(consecutive_bad, step)?;
+        }
+        on_step(StepReport {
+            step: step + 1,
+            stats: &stats,
+        });
+        let done = step + 1;
+        let eval_now = done == opts.steps || (opts.eval_every > 0 && done % opts.eval_every == 0);
+        if eval_now {
+            let (p, m) = match test {
+                Some(t) if !t.is_empty() => evaluate(
+                    field,
+                    &state.params,
+                    &state.occupancy,
+                    t,
+                    opts.background,
+                    4096,
+                ),
+                _ => (0.0, 0.0),
+            };
+            curve.points.push(augsplat_core::artifacts::CurvePoint {
+                step: done as u64,
+                psnr: p,
+                ssim: 0.0,
+                lpips: None,
+                mse: m,
+                avg_error: None,
+                primitives: 0,
+                seconds: 0.0,
+                loss: if loss_acc.1 > 0 {
+                    loss_acc.0 / loss_acc.1 as f64
+                } else {
+                    0.0
+                },
+            });
+            loss_acc = (0.0, 0);
+        }
+    }
+    if state.params.iter().any(|p| !p.is_finite()) {
+        return Err(FieldError::Diverged("parameters became non-finite".into()));
+    }
+    Ok((state, curve))
+}
