@@ -177,23 +177,35 @@ pub fn gaussian_blur(
 ) {
     let w = gaussian_kernel(k);
     let half = (k / 2) as i64;
+    // Border handling by index tables (no division in the loops): padded position `x + t`
+    // reads source column `cols[x + t]`.
+    let table = |n: usize| -> Vec<usize> {
+        (0..n + k as usize - 1)
+            .map(|i| reflect101(i as i64 - half, n))
+            .collect()
+    };
+    let cols = table(width);
+    let rows = table(height);
     for y in 0..height {
         let row = &src[y * width..(y + 1) * width];
-        for x in 0..width {
+        let dst = &mut tmp[y * width..(y + 1) * width];
+        for (x, d) in dst.iter_mut().enumerate() {
+            let idx = &cols[x..x + w.len()];
             let mut acc = 0.0;
-            for (t, wt) in w.iter().enumerate() {
-                acc += wt * row[reflect101(x as i64 + t as i64 - half, width)];
+            for (wt, &i) in w.iter().zip(idx) {
+                acc += wt * row[i];
             }
-            tmp[y * width + x] = acc;
+            *d = acc;
         }
     }
     for y in 0..height {
-        for x in 0..width {
-            let mut acc = 0.0;
-            for (t, wt) in w.iter().enumerate() {
-                acc += wt * tmp[reflect101(y as i64 + t as i64 - half, height) * width + x];
+        let dst = &mut out[y * width..(y + 1) * width];
+        dst.iter_mut().for_each(|v| *v = 0.0);
+        for (wt, &r) in w.iter().zip(&rows[y..y + w.len()]) {
+            let srow = &tmp[r * width..(r + 1) * width];
+            for (d, s) in dst.iter_mut().zip(srow) {
+                *d += wt * s;
             }
-            out[y * width + x] = acc;
         }
     }
 }

@@ -1,0 +1,166 @@
+//! Benchmarks of the augmentation kernels and nodes (run by hand, not a test):
+//!
+//! ```text
+//! cargo run --release -p augsplat-augment --example bench_augment
+//! ```
+//!
+//! Measures, at the paper's sizes (200 synthetic views at 1/8 of 800×533 → 100×67, M = 5):
+//! the aggregation kernel (no blur and 9×9 blur) on 1 and 2 threads, the whole
+//! `AggregateEnsemble` node with EXR reading and writing, and pose synthesis for 26 cameras
+//! (with the size of the candidate pool, which is what rendering every candidate would cost
+//! instead of only the drawn poses).
+
+use augsplat_augment::aggregate::{aggregate_view, AggregateParams, Workspace};
+use augsplat_augment::poses::{candidate_pool, synthesize_poses, PoseParams};
+use augsplat_augment::AggregateEnsemble;
+use augsplat_core::artifacts::{self, files, RenderSet, RenderedView};
+use augsplat_core::linalg::{self, mat4_from_rt};
+use augsplat_core::{image, Camera, Rng};
+use augsplat_graph::{Node, RunContext};
+use rayon::prelude::*;
+use std::time::Instant;
+
+fn camera(i: usize, n: usize, w: u32, h: u32) -> Camera {
+    let a = i as f64 / n as f64 * std::f64::consts::TAU;
+    let c = [3.0 * a.cos(), 0.1 * (i as f64).sin(), 3.0 * a.sin()];
+    let f = linalg::normalize(linalg::scale(c, -1.0));
+    let x = linalg::normalize(linalg::cross([0.0, -1.0, 0.0], f));
+    let y = linalg::cross(f, x);
+    let r = [x, y, f];
+    Camera {
+        width: w,
+        height: h,
+        fx: w as f64,
+        fy: w as f64,
+        cx: w as f64 / 2.0,
+        cy: h as f64 / 2.0,
+        world_to_camera: mat4_from_rt(&r, linalg::scale(linalg::mat3_vec(&r, c), -1.0)),
+    }
+}
+
+fn time<T>(label: &str, reps: usize, mut f: impl FnMut() -> T) -> f64 {
+    let _ = f();
+    let t = Instant::now();
+    for _ in 0..reps {
+        std::hint::black_box(f());
+    }
+    let s = t.elapsed().as_secs_f64() / reps as f64;
+    println!("{label:<58} {:>10.3} ms", s * 1e3);
+    s
+}
+
+fn main() {
+    let (views, m, w, h) = (200usize, 5usize, 100usize, 67usize);
+    let n = w * h;
+    let mut rng = Rng::new(1);
+    let members: Vec<Vec<Vec<f32>>> = (0..views)
+        .map(|_| {
+            (0..m)
+                .map(|_| (0..3 * n).map(|_| rng.next_f32()).collect())
+                .collect()
+        })
+        .collect();
+    println!("aggregation: {views} views of {w}×{h}, M = {m}");
+    for blur in [None, Some(9)] {
+        let params = AggregateParams {
+            blur,
+            ..AggregateParams::default()
+        };
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let label = format!("kernel, blur {blur:?}, {threads} thread(s), all views");
+            let s = time(&label, 3, || {
+                pool.install(|| {
+                    members
+                        .par_iter()
+                        .map_init(Workspace::default, |ws, mv| {
+                            let refs: Vec<&[f32]> = mv.iter().map(|v| v.as_slice()).collect();
+                            aggregate_view(&refs, w, h, &params, ws).weight[0]
+                        })
+                        .sum::<f32>()
+                })
+            });
+            println!("{:<58} {:>10.1} Mpx/s", "", (views * n) as f64 / s / 1e6);
+        }
+    }
+
+    // The node with file I/O.
+    let tmp = std::env::temp_dir().join(format!("augsplat-bench-augment-{}", std::process::id()));
+    let dirs: Vec<_> = (0..m)
+        .map(|k| {
+            let dir = tmp.join(format!("member{k}"));
+            std::fs::create_dir_all(&dir).unwrap();
+            let mut set = RenderSet::default();
+            for (v, mv) in members.iter().enumerate() {
+                let file = format!("view_{v:04}.exr");
+                let p = &mv[k];
+                let ones = vec![1f32; n];
+                image::write_exr(
+                    &dir.join(&file),
+                    w as u32,
+                    h as u32,
+                    &[
+                        ("R", &p[..n]),
+                        ("G", &p[n..2 * n]),
+                        ("B", &p[2 * n..]),
+                        ("D", &ones),
+                        ("A", &ones),
+                    ],
+                )
+                .unwrap();
+                set.views.push(RenderedView {
+                    name: format!("syn{v:04}"),
+                    camera: camera(v, views, w as u32, h as u32),
+                    file,
+                });
+            }
+            artifacts::write_json(&dir.join(files::RENDERS), &set).unwrap();
+            dir
+        })
+        .collect();
+    for threads in [1, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let mut i = 0;
+        time(
+            &format!("AggregateEnsemble node (EXR in/out, PNG previews), {threads} thr"),
+            2,
+            || {
+                i += 1;
+                let root = tmp.join(format!("out{threads}_{i}"));
+                let mut ctx = RunContext::standalone(
+                    vec![("members".into(), dirs.clone())],
+                    &["synthetic"],
+                    &root,
+                    0,
+                    threads,
+                )
+                .unwrap();
+                pool.install(|| AggregateEnsemble::run(&AggregateParams::default(), &mut ctx))
+                    .unwrap();
+            },
+        );
+    }
+    let _ = std::fs::remove_dir_all(&tmp);
+
+    // Pose synthesis at the paper's protocol (26 training views at 800×533).
+    let train: Vec<(String, Camera)> = (0..26)
+        .map(|i| (format!("v{i}"), camera(i, 26, 800, 533)))
+        .collect();
+    let params = PoseParams::default();
+    let pool = candidate_pool(&train, &params).unwrap();
+    time("SynthesizePoses kernel, 26 cameras, 200 drawn", 20, || {
+        synthesize_poses(&train, &params).unwrap().len()
+    });
+    println!(
+        "candidate pool {} poses, drawn {}: rendering only the drawn poses renders {:.1}% of the pool",
+        pool.len(),
+        params.count,
+        100.0 * params.count as f64 / pool.len() as f64
+    );
+}
