@@ -156,7 +156,15 @@ impl ColmapModel {
                 let pid = r.i64(&what)?;
                 points2d.push(([x, y], pid));
             }
-            let img = make_image(&path, id as i64, qvec, tvec, camera_id as i64, name, points2d)?;
+            let img = make_image(
+                &path,
+                id as i64,
+                qvec,
+                tvec,
+                camera_id as i64,
+                name,
+                points2d,
+            )?;
             model.images.insert(img.id, img);
         }
         r.finish()?;
@@ -217,7 +225,9 @@ impl ColmapModel {
             let at = |m: String| SceneError::format(&path, format!("line {}: {m}", ln + 1));
             let tok: Vec<&str> = line.split_whitespace().collect();
             if tok.len() < 4 {
-                return Err(at(format!("expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS…, found `{line}`")));
+                return Err(at(format!(
+                    "expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS…, found `{line}`"
+                )));
             }
             let id: i64 = parse(tok[0]).map_err(&at)?;
             let kind = ModelKind::from_colmap_name(tok[1]).ok_or_else(|| {
@@ -358,10 +368,9 @@ impl ColmapModel {
         }
         for p in &self.points {
             for &(iid, idx) in &p.track {
-                let ok = self
-                    .images
-                    .get(&iid)
-                    .is_some_and(|img| (idx as usize) < img.points2d.len() || img.points2d.is_empty());
+                let ok = self.images.get(&iid).is_some_and(|img| {
+                    (idx as usize) < img.points2d.len() || img.points2d.is_empty()
+                });
                 if !ok {
                     return Err(SceneError::format(
                         dir.join("points3D"),
@@ -417,7 +426,14 @@ impl ColmapModel {
         let _ = writeln!(s, "# Number of cameras: {}", self.cameras.len());
         for cam in self.cameras.values() {
             let i = &cam.intrinsics;
-            let _ = write!(s, "{} {} {} {}", cam.id, i.kind.colmap_name(), i.width, i.height);
+            let _ = write!(
+                s,
+                "{} {} {} {}",
+                cam.id,
+                i.kind.colmap_name(),
+                i.width,
+                i.height
+            );
             for p in i.colmap_params() {
                 let _ = write!(s, " {p:?}");
             }
@@ -504,7 +520,8 @@ fn make_image(
 ) -> Result<ColmapImage> {
     let bad = |m: String| SceneError::format(path, format!("image {id} ({name}): {m}"));
     let uid = u32::try_from(id).map_err(|_| bad("id out of range".into()))?;
-    let cid = u32::try_from(camera_id).map_err(|_| bad(format!("camera id {camera_id} out of range")))?;
+    let cid =
+        u32::try_from(camera_id).map_err(|_| bad(format!("camera id {camera_id} out of range")))?;
     if qvec.iter().chain(&tvec).any(|v| !v.is_finite()) {
         return Err(bad(format!(
             "pose contains a non-finite value (q {qvec:?}, t {tvec:?})"
@@ -517,7 +534,10 @@ fn make_image(
     if name.is_empty() {
         return Err(bad("empty image name".into()));
     }
-    if points2d.iter().any(|(xy, _)| !xy[0].is_finite() || !xy[1].is_finite()) {
+    if points2d
+        .iter()
+        .any(|(xy, _)| !xy[0].is_finite() || !xy[1].is_finite())
+    {
         return Err(bad("a keypoint position is not finite".into()));
     }
     Ok(ColmapImage {
@@ -661,8 +681,13 @@ mod tests {
             2,
             ColmapCamera {
                 id: 2,
-                intrinsics: Intrinsics::from_colmap(ModelKind::SimpleRadial, 64, 48, &[55.0, 32.0, 24.0, 0.02])
-                    .unwrap(),
+                intrinsics: Intrinsics::from_colmap(
+                    ModelKind::SimpleRadial,
+                    64,
+                    48,
+                    &[55.0, 32.0, 24.0, 0.02],
+                )
+                .unwrap(),
             },
         );
         let q = linalg::mat3_to_quat(&linalg::axis_angle([0.1, 1.0, 0.2], 0.3));
@@ -781,7 +806,11 @@ mod tests {
     #[test]
     fn empty_points_line_and_name_with_spaces() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join("cameras.txt"), "# c\n1 PINHOLE 10 8 9 9 5 4\n").unwrap();
+        std::fs::write(
+            dir.path().join("cameras.txt"),
+            "# c\n1 PINHOLE 10 8 9 9 5 4\n",
+        )
+        .unwrap();
         std::fs::write(
             dir.path().join("images.txt"),
             "# i\n1 1 0 0 0 0 0 0 1 my image.png\n\n2 1 0 0 0 1 0 0 1 b.png\n",
@@ -804,24 +833,37 @@ mod tests {
         let bytes = std::fs::read(&p).unwrap();
         std::fs::write(&p, &bytes[..bytes.len() - 30]).unwrap();
         let e = ColmapModel::load(dir.path()).unwrap_err().to_string();
-        assert!(e.contains("images.bin") && e.contains("truncated") && e.contains("img7.png"), "{e}");
+        assert!(
+            e.contains("images.bin") && e.contains("truncated") && e.contains("img7.png"),
+            "{e}"
+        );
         // Unknown model in text.
         let dir = tempfile::tempdir().unwrap();
         m.save_text(dir.path()).unwrap();
         let p = dir.path().join("cameras.txt");
-        let t = std::fs::read_to_string(&p).unwrap().replace("SIMPLE_RADIAL", "FISHEYE_X");
+        let t = std::fs::read_to_string(&p)
+            .unwrap()
+            .replace("SIMPLE_RADIAL", "FISHEYE_X");
         std::fs::write(&p, t).unwrap();
         let e = ColmapModel::load(dir.path()).unwrap_err().to_string();
-        assert!(e.contains("cameras.txt") && e.contains("camera 2") && e.contains("FISHEYE_X"), "{e}");
+        assert!(
+            e.contains("cameras.txt") && e.contains("camera 2") && e.contains("FISHEYE_X"),
+            "{e}"
+        );
         // NaN in a pose.
         let dir = tempfile::tempdir().unwrap();
         let mut bad = m.clone();
         bad.images.get_mut(&7).unwrap().tvec[1] = f64::NAN;
         bad.save_text(dir.path()).unwrap();
         let e = ColmapModel::load(dir.path()).unwrap_err().to_string();
-        assert!(e.contains("images.txt") && e.contains("image 7") && e.contains("non-finite"), "{e}");
+        assert!(
+            e.contains("images.txt") && e.contains("image 7") && e.contains("non-finite"),
+            "{e}"
+        );
         // Missing folder.
-        let e = ColmapModel::load(Path::new("/nonexistent/sparse/0")).unwrap_err().to_string();
+        let e = ColmapModel::load(Path::new("/nonexistent/sparse/0"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("/nonexistent/sparse/0"), "{e}");
     }
 }

@@ -47,7 +47,13 @@ pub fn weight_sigma(cloud: &PointCloud, min_track: usize, sigma_px: Option<f64>)
 }
 
 /// Sparse depth of view `view` of `scene` from `cloud` (see the module docs).
-pub fn sparse_depth(scene: &Scene, cloud: &PointCloud, view: usize, min_track: usize, sigma: f64) -> DepthMap {
+pub fn sparse_depth(
+    scene: &Scene,
+    cloud: &PointCloud,
+    view: usize,
+    min_track: usize,
+    sigma: f64,
+) -> DepthMap {
     let cam = &scene.views[view].camera;
     let (w, h) = (cam.width as usize, cam.height as usize);
     let mut z = vec![0f32; w * h];
@@ -94,18 +100,37 @@ pub fn dense_depth(
             .iter()
             .find_map(|n| img.channel(n))
             .ok_or_else(|| {
-                SceneError::format(&exr, format!("no depth channel Z, Y, R or depth (has {:?})", img.names()))
+                SceneError::format(
+                    &exr,
+                    format!("no depth channel Z, Y, R or depth (has {:?})", img.names()),
+                )
             })?;
-        (img.width, img.height, ch.iter().map(|&x| x as f64).collect::<Vec<_>>(), exr)
+        (
+            img.width,
+            img.height,
+            ch.iter().map(|&x| x as f64).collect::<Vec<_>>(),
+            exr,
+        )
     } else if png.is_file() {
         let dynimg = image::open(&png)
             .map_err(|e| SceneError::format(&png, format!("not a readable image: {e}")))?;
         if !matches!(dynimg, image::DynamicImage::ImageLuma16(_)) {
-            return Err(SceneError::format(&png, "a depth PNG must be 16-bit greyscale"));
+            return Err(SceneError::format(
+                &png,
+                "a depth PNG must be 16-bit greyscale",
+            ));
         }
         let g = dynimg.to_luma16();
         let (w, h) = g.dimensions();
-        (w, h, g.into_raw().into_iter().map(|x| x as f64 * png_scale).collect(), png)
+        (
+            w,
+            h,
+            g.into_raw()
+                .into_iter()
+                .map(|x| x as f64 * png_scale)
+                .collect(),
+            png,
+        )
     } else {
         return Ok(None);
     };
@@ -169,7 +194,12 @@ mod tests {
         let s = scene();
         let cloud = PointCloud {
             // Two points in pixel (row 3, col 4), depths 2 and 1; one point with a short track.
-            positions: vec![[0.1, 0.1, 2.0], [0.05, 0.05, 1.0], [0.0, 0.0, 3.0], [-0.9, -0.7, 2.0]],
+            positions: vec![
+                [0.1, 0.1, 2.0],
+                [0.05, 0.05, 1.0],
+                [0.0, 0.0, 3.0],
+                [-0.9, -0.7, 2.0],
+            ],
             colors: vec![[0.0; 3]; 4],
             errors: vec![0.5, 1.0, 0.0, 0.5],
             track_offsets: vec![0, 2, 4, 5, 7],
@@ -199,9 +229,14 @@ mod tests {
         let d = dense_depth(&s, 0, dir.path(), 0.001, 1.0).unwrap().unwrap();
         // Output pixel (0,0) samples source (1,1) = 1 + 17 = 18, scaled by 0.5.
         assert_eq!(d.z[0], 9.0);
-        augsplat_core::image::write_exr(&dir.path().join("a.exr"), 5, 5, &[("Z", &[1.0; 25])]).unwrap();
-        let e = dense_depth(&s, 0, dir.path(), 0.001, 1.0).unwrap_err().to_string();
+        augsplat_core::image::write_exr(&dir.path().join("a.exr"), 5, 5, &[("Z", &[1.0; 25])])
+            .unwrap();
+        let e = dense_depth(&s, 0, dir.path(), 0.001, 1.0)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("a.exr"), "{e}");
-        assert!(dense_depth(&s, 0, &dir.path().join("none"), 0.001, 1.0).unwrap().is_none());
+        assert!(dense_depth(&s, 0, &dir.path().join("none"), 0.001, 1.0)
+            .unwrap()
+            .is_none());
     }
 }

@@ -76,7 +76,11 @@ pub fn normalization_for(centres: &[Vec3], mode: NormalizeMode) -> Normalization
         .iter()
         .map(|p| linalg::norm(linalg::sub(*p, c)))
         .fold(0.0, f64::max);
-    let scale = if r > 1e-12 && r.is_finite() { 1.0 / r } else { 1.0 };
+    let scale = if r > 1e-12 && r.is_finite() {
+        1.0 / r
+    } else {
+        1.0
+    };
     Normalization { center: c, scale }
 }
 
@@ -90,14 +94,20 @@ pub fn normalize_pose(w2c: &Mat4, n: &Normalization) -> Mat4 {
 /// World-to-camera back in the original frame: `t = t_n / s − R c`.
 pub fn denormalize_pose(w2c: &Mat4, n: &Normalization) -> Mat4 {
     let (r, tn) = linalg::rt_from_mat4(w2c);
-    let t = linalg::sub(linalg::scale(tn, 1.0 / n.scale), linalg::mat3_vec(&r, n.center));
+    let t = linalg::sub(
+        linalg::scale(tn, 1.0 / n.scale),
+        linalg::mat3_vec(&r, n.center),
+    );
     linalg::mat4_from_rt(&r, t)
 }
 
 /// The scene description, cameras and points of a raw scene, without touching images.
 pub fn build_scene(raw: &RawScene, opts: &ImportOptions) -> Result<(Scene, PointCloud)> {
     if raw.views.is_empty() {
-        return Err(SceneError::Invalid(format!("no views left in {}", raw.source)));
+        return Err(SceneError::Invalid(format!(
+            "no views left in {}",
+            raw.source
+        )));
     }
     if opts.downscale == 0 {
         return Err(SceneError::Invalid("downscale must be at least 1".into()));
@@ -120,9 +130,8 @@ pub fn build_scene(raw: &RawScene, opts: &ImportOptions) -> Result<(Scene, Point
                 v.name, v.intrinsics.width, v.intrinsics.height, opts.downscale
             )));
         }
-        cam.validate().map_err(|e| {
-            SceneError::format(&v.image_path, format!("view {}: {e}", v.name))
-        })?;
+        cam.validate()
+            .map_err(|e| SceneError::format(&v.image_path, format!("view {}: {e}", v.name)))?;
         views.push(SceneView {
             name: v.name.clone(),
             image: format!("images/{}.png", v.name),
@@ -291,10 +300,17 @@ pub fn check_scene(scene: &Scene, cloud: &PointCloud, dir: &Path) -> Result<()> 
             .validate()
             .map_err(|e| SceneError::format(&file, format!("view {}: {e}", v.name)))?;
     }
-    if let Some(bad) = cloud.track_views.iter().find(|&&t| t as usize >= scene.views.len()) {
+    if let Some(bad) = cloud
+        .track_views
+        .iter()
+        .find(|&&t| t as usize >= scene.views.len())
+    {
         return Err(SceneError::format(
             dir.join(POINTS_FILE),
-            format!("a track names view {bad}, but the scene has {} views", scene.views.len()),
+            format!(
+                "a track names view {bad}, but the scene has {} views",
+                scene.views.len()
+            ),
         ));
     }
     Ok(())
@@ -332,7 +348,10 @@ mod tests {
                 assert!((back[i][j] - w2c[i][j]).abs() < 1e-12);
             }
         }
-        let c = normalization_for(&[[1.0, 0.0, 0.0], [3.0, 0.0, 0.0], [2.0, 2.0, 0.0]], NormalizeMode::Cameras);
+        let c = normalization_for(
+            &[[1.0, 0.0, 0.0], [3.0, 0.0, 0.0], [2.0, 2.0, 0.0]],
+            NormalizeMode::Cameras,
+        );
         assert!((c.center[0] - 2.0).abs() < 1e-12 && (c.center[1] - 2.0 / 3.0).abs() < 1e-12);
         assert!((c.scale - 1.0 / (4.0f64 / 3.0)).abs() < 1e-12);
     }

@@ -270,16 +270,17 @@ impl Intrinsics {
             ModelKind::Pinhole => vec![self.fx, self.fy, self.cx, self.cy],
             ModelKind::SimpleRadial => vec![self.fx, self.cx, self.cy, d.k1],
             ModelKind::Radial => vec![self.fx, self.cx, self.cy, d.k1, d.k2],
-            ModelKind::OpenCv => vec![
-                self.fx, self.fy, self.cx, self.cy, d.k1, d.k2, d.p1, d.p2,
-            ],
+            ModelKind::OpenCv => vec![self.fx, self.fy, self.cx, self.cy, d.k1, d.k2, d.p1, d.p2],
         }
     }
 
     /// Checks sizes and focal lengths.
     pub fn check(&self) -> std::result::Result<(), String> {
         if self.width == 0 || self.height == 0 {
-            return Err(format!("image size {}×{} is empty", self.width, self.height));
+            return Err(format!(
+                "image size {}×{} is empty",
+                self.width, self.height
+            ));
         }
         let all = [
             self.fx,
@@ -546,7 +547,10 @@ mod tests {
                     let (x, y) = (i as f64 * 0.06, j as f64 * 0.045);
                     let (xd, yd) = d.distort(x, y);
                     let (xu, yu) = d.undistort(xd, yd).expect("converges");
-                    assert!((xu - x).abs() < 1e-10 && (yu - y).abs() < 1e-10, "{d:?} {x} {y}");
+                    assert!(
+                        (xu - x).abs() < 1e-10 && (yu - y).abs() < 1e-10,
+                        "{d:?} {x} {y}"
+                    );
                 }
             }
         }
@@ -582,11 +586,17 @@ mod tests {
     fn colmap_params_round_trip_and_reject_bad_values() {
         let i = opencv();
         assert_eq!(i.colmap_params().len(), 8);
-        let back = Intrinsics::from_colmap(ModelKind::OpenCv, 200, 150, &i.colmap_params()).unwrap();
+        let back =
+            Intrinsics::from_colmap(ModelKind::OpenCv, 200, 150, &i.colmap_params()).unwrap();
         assert_eq!(back, i);
         assert!(Intrinsics::from_colmap(ModelKind::Pinhole, 10, 10, &[1.0, 2.0]).is_err());
-        assert!(Intrinsics::from_colmap(ModelKind::Pinhole, 10, 10, &[f64::NAN, 1.0, 1.0, 1.0]).is_err());
-        assert!(Intrinsics::from_colmap(ModelKind::Pinhole, 10, 10, &[-1.0, 1.0, 1.0, 1.0]).is_err());
+        assert!(
+            Intrinsics::from_colmap(ModelKind::Pinhole, 10, 10, &[f64::NAN, 1.0, 1.0, 1.0])
+                .is_err()
+        );
+        assert!(
+            Intrinsics::from_colmap(ModelKind::Pinhole, 10, 10, &[-1.0, 1.0, 1.0, 1.0]).is_err()
+        );
         for id in 0..5 {
             let k = ModelKind::from_colmap_id(id).unwrap();
             assert_eq!(ModelKind::from_colmap_name(k.colmap_name()), Some(k));

@@ -1,18 +1,31 @@
-//! augsplat-scene: the first stage of every pipeline.
+//! augsplat-scene: the first stage of every pipeline — scene import, the sparse-view split,
+//! depth for supervision, the generated default scene, inspection and export.
 //!
 //! - [`source`]: readers of COLMAP ([`colmap`]), transforms.json and LLFF sources into one
-//!   format-neutral raw scene;
+//!   format-neutral raw scene (original frame, distorted intrinsics, point tracks);
 //! - [`intrinsics`]: camera models with distortion, undistortion of points and images,
 //!   integer downscaling;
-//! - [`import`]: normalisation, near/far bounds and writing the scene artifact;
+//! - [`import`]: normalisation, near/far bounds and writing the scene artifact
+//!   ([`augsplat_core::scene`]);
+//! - [`split`]: the paper's sparse-view split;
+//! - [`depth`]: DS-NeRF-style sparse depth and dense depth maps;
+//! - [`synthetic`]: the exactly ray-traced default scene;
+//! - [`export`]: COLMAP text and transforms.json export;
+//! - [`inspect`]: the report behind `augsplat inspect`;
+//! - [`node`]: the node kinds (`ImportScene`, `SyntheticScene`, `SplitScene`, `SparseDepth`,
+//!   `ExportScene`) and [`register`].
 
 pub mod colmap;
-pub mod error;
-pub mod import;
-pub mod intrinsics;
-pub mod source;
-
-pub use error::SceneError;
 pub mod depth;
+pub mod error;
+pub mod export;
+pub mod import;
+pub mod inspect;
+pub mod intrinsics;
+pub mod node;
+pub mod source;
 pub mod split;
 pub mod synthetic;
+
+pub use error::SceneError;
+pub use node::register;

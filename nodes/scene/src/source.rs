@@ -182,13 +182,20 @@ pub fn load_colmap(model_dir: &Path, images_dir: &Path) -> Result<RawScene> {
         ),
         None => (Vec::new(), String::new()),
     };
-    let unregistered: Vec<&String> = inputs.iter().filter(|n| !registered.contains(n.as_str())).collect();
+    let unregistered: Vec<&String> = inputs
+        .iter()
+        .filter(|n| !registered.contains(n.as_str()))
+        .collect();
     if !unregistered.is_empty() {
         warnings.push(format!(
             "skipping {} of {} photos {origin}: COLMAP did not register them ({})",
             unregistered.len(),
             inputs.len(),
-            unregistered.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")
+            unregistered
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
         ));
     } else if list.is_none() {
         let n_folder = list_images(images_dir)?.len();
@@ -217,7 +224,10 @@ pub fn load_colmap(model_dir: &Path, images_dir: &Path) -> Result<RawScene> {
             let Some(&v) = view_of_image.get(&iid) else {
                 continue;
             };
-            let keypoint = model.images[&iid].points2d.get(idx as usize).map(|(xy, _)| *xy);
+            let keypoint = model.images[&iid]
+                .points2d
+                .get(idx as usize)
+                .map(|(xy, _)| *xy);
             track.push(Observation {
                 view: new_index[v],
                 keypoint,
@@ -227,9 +237,7 @@ pub fn load_colmap(model_dir: &Path, images_dir: &Path) -> Result<RawScene> {
             continue;
         }
         points.positions.push(p.xyz);
-        points
-            .colors
-            .push(p.rgb.map(|c| c as f32 / 255.0));
+        points.colors.push(p.rgb.map(|c| c as f32 / 255.0));
         points.errors.push(p.error);
         points.tracks.push(track);
     }
@@ -328,7 +336,11 @@ pub fn load_transforms(file: &Path) -> Result<RawScene> {
             (None, None) => match (get("fl_y")?, get("camera_angle_y")?) {
                 (Some(f), _) => f,
                 (None, Some(a)) => 0.5 * ih / (0.5 * a).tan(),
-                _ => return Err(at(format!("({rel}) no focal length (fl_x or camera_angle_x)"))),
+                _ => {
+                    return Err(at(format!(
+                        "({rel}) no focal length (fl_x or camera_angle_x)"
+                    )))
+                }
             },
         };
         let fl_y = match (get("fl_y")?, get("camera_angle_y")?) {
@@ -345,7 +357,9 @@ pub fn load_transforms(file: &Path) -> Result<RawScene> {
             p2: get("p2")?.unwrap_or(0.0),
         };
         if iw < 1.0 || ih < 1.0 || iw.fract() != 0.0 || ih.fract() != 0.0 {
-            return Err(at(format!("({rel}) image size {iw}×{ih} is not a positive integer size")));
+            return Err(at(format!(
+                "({rel}) image size {iw}×{ih} is not a positive integer size"
+            )));
         }
         let intrinsics = Intrinsics {
             kind: if distortion.is_zero() {
@@ -361,9 +375,7 @@ pub fn load_transforms(file: &Path) -> Result<RawScene> {
             cy: get("cy")?.unwrap_or(ih / 2.0),
             distortion,
         };
-        intrinsics
-            .check()
-            .map_err(|e| at(format!("({rel}) {e}")))?;
+        intrinsics.check().map_err(|e| at(format!("({rel}) {e}")))?;
         views.push(RawView {
             name: stem(rel),
             image_path: path,
@@ -400,14 +412,21 @@ fn matrix4(v: &serde_json::Value) -> std::result::Result<Mat4, String> {
     if rows.len() != 4 && rows.len() != 3 {
         return Err(format!("expected 4 rows, found {}", rows.len()));
     }
-    let mut m = [[0.0, 0.0, 0.0, 0.0], [0.0; 4], [0.0; 4], [0.0, 0.0, 0.0, 1.0]];
+    let mut m = [
+        [0.0, 0.0, 0.0, 0.0],
+        [0.0; 4],
+        [0.0; 4],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
     for (i, row) in rows.iter().enumerate() {
         let r = row.as_array().ok_or("rows must be arrays")?;
         if r.len() != 4 {
             return Err(format!("row {i} has {} values, expected 4", r.len()));
         }
         for (j, x) in r.iter().enumerate() {
-            let x = x.as_f64().ok_or_else(|| format!("entry [{i}][{j}] is not a number"))?;
+            let x = x
+                .as_f64()
+                .ok_or_else(|| format!("entry [{i}][{j}] is not a number"))?;
             if !x.is_finite() {
                 return Err(format!("entry [{i}][{j}] is not finite"));
             }
@@ -481,13 +500,18 @@ pub fn load_llff(dir: &Path, images_dir: &Path) -> Result<RawScene> {
         let c2w = orthonormalize(&linalg::mat4_from_rt(&r, t));
         let (near, far) = (row[15], row[16]);
         if !(near > 0.0 && far > near) {
-            return Err(at(format!("bounds near {near}, far {far} are not 0 < near < far")));
+            return Err(at(format!(
+                "bounds near {near}, far {far} are not 0 < near < far"
+            )));
         }
         let (iw, ih) = augsplat_core::image::image_size(file)?;
         if (iw, ih) != (aw, ah) {
             return Err(SceneError::format(
                 file,
-                format!("image is {iw}×{ih}, but {} is {aw}×{ah}", files[0].display()),
+                format!(
+                    "image is {iw}×{ih}, but {} is {aw}×{ah}",
+                    files[0].display()
+                ),
             ));
         }
         views.push(RawView {
@@ -509,7 +533,11 @@ pub fn load_llff(dir: &Path, images_dir: &Path) -> Result<RawScene> {
     }
     sort_views(&mut views, images_dir)?;
     Ok(RawScene {
-        source: format!("LLFF {} with images {}", dir.display(), images_dir.display()),
+        source: format!(
+            "LLFF {} with images {}",
+            dir.display(),
+            images_dir.display()
+        ),
         views,
         points: RawPoints::default(),
         warnings: Vec::new(),
@@ -550,7 +578,10 @@ mod tests {
         // World +y (up) appears at negative image y (OpenCV y points down).
         let up = transform(&v.world_to_camera, [0.0, 1.0, 0.0]);
         assert!(up[1] < 0.0);
-        assert_eq!((v.intrinsics.fx, v.intrinsics.fy, v.intrinsics.cx), (10.0, 11.0, 4.0));
+        assert_eq!(
+            (v.intrinsics.fx, v.intrinsics.fy, v.intrinsics.cx),
+            (10.0, 11.0, 4.0)
+        );
     }
 
     #[test]
@@ -561,6 +592,9 @@ mod tests {
         let f = dir.path().join("transforms.json");
         std::fs::write(&f, r#"{"camera_angle_x": 0.7, "frames": [{"file_path": "a.png", "transform_matrix": [[1,0,0],[0,1,0,0],[0,0,1,5]]}]}"#).unwrap();
         let e = load_transforms(&f).unwrap_err().to_string();
-        assert!(e.contains("transforms.json") && e.contains("frame 0"), "{e}");
+        assert!(
+            e.contains("transforms.json") && e.contains("frame 0"),
+            "{e}"
+        );
     }
 }

@@ -33,7 +33,9 @@ pub fn split_indices(n: usize, count: Option<u32>, holdout_every: u32, seed: u64
     let mut chosen: Vec<usize> = (0..n).collect();
     if let Some(k) = count {
         if k == 0 {
-            return Err(SceneError::Invalid("count must be at least 1 (or None for all views)".into()));
+            return Err(SceneError::Invalid(
+                "count must be at least 1 (or None for all views)".into(),
+            ));
         }
         if (k as usize) < n {
             let mut rng = Rng::new(seed);
@@ -61,7 +63,12 @@ pub fn split_indices(n: usize, count: Option<u32>, holdout_every: u32, seed: u64
 
 /// The sub-scene of `views` (indices into `scene.views`), with the points that at least
 /// `min_views` of those views observe, tracks remapped. `min_views == 0` drops all points.
-pub fn subset(scene: &Scene, cloud: &PointCloud, views: &[usize], min_views: usize) -> (Scene, PointCloud) {
+pub fn subset(
+    scene: &Scene,
+    cloud: &PointCloud,
+    views: &[usize],
+    min_views: usize,
+) -> (Scene, PointCloud) {
     let mut remap = vec![u32::MAX; scene.views.len()];
     for (new, &old) in views.iter().enumerate() {
         remap[old] = new as u32;

@@ -88,22 +88,37 @@ impl SyntheticParams {
     /// Checks ranges.
     pub fn validate(&self) -> std::result::Result<(), String> {
         if self.width == 0 || self.height == 0 || self.width > 8192 || self.height > 8192 {
-            return Err(format!("image size {}×{} must be within 1..=8192", self.width, self.height));
+            return Err(format!(
+                "image size {}×{} must be within 1..=8192",
+                self.width, self.height
+            ));
         }
         if self.views < 1 || self.views > 10_000 {
             return Err(format!("views = {} must be within 1..=10000", self.views));
         }
         if self.supersample < 1 || self.supersample > 16 {
-            return Err(format!("supersample = {} must be within 1..=16", self.supersample));
+            return Err(format!(
+                "supersample = {} must be within 1..=16",
+                self.supersample
+            ));
         }
         if !(self.fov_deg > 1.0 && self.fov_deg < 170.0) {
-            return Err(format!("fov_deg = {} must be within (1, 170)", self.fov_deg));
+            return Err(format!(
+                "fov_deg = {} must be within (1, 170)",
+                self.fov_deg
+            ));
         }
         if !(self.point_noise >= 0.0 && self.point_noise.is_finite()) {
-            return Err(format!("point_noise = {} must be finite and ≥ 0", self.point_noise));
+            return Err(format!(
+                "point_noise = {} must be finite and ≥ 0",
+                self.point_noise
+            ));
         }
         if !(self.specular >= 0.0 && self.specular <= 1.0) {
-            return Err(format!("specular = {} must be within [0, 1]", self.specular));
+            return Err(format!(
+                "specular = {} must be within [0, 1]",
+                self.specular
+            ));
         }
         Ok(())
     }
@@ -262,7 +277,11 @@ impl World {
                 let base_a = [0.82, 0.74, 0.58];
                 let base_b = [0.45, 0.5, 0.38];
                 let a = lerp3(base_a, base_b, c);
-                [a[0] * (0.85 + 0.15 * g), a[1], a[2] * (0.9 + 0.1 * (1.0 - g))]
+                [
+                    a[0] * (0.85 + 0.15 * g),
+                    a[1],
+                    a[2] * (0.9 + 0.1 * (1.0 - g)),
+                ]
             }
             2 => {
                 // Big sphere: soft latitude stripes, red/yellow.
@@ -276,7 +295,11 @@ impl World {
                 let n = h.n;
                 let lat = n[2].clamp(-1.0, 1.0).asin();
                 let lon = n[1].atan2(n[0]);
-                let c = soft_checker(lon * 4.0 / std::f64::consts::PI, lat * 4.0 / std::f64::consts::PI, 0.1);
+                let c = soft_checker(
+                    lon * 4.0 / std::f64::consts::PI,
+                    lat * 4.0 / std::f64::consts::PI,
+                    0.1,
+                );
                 lerp3([0.15, 0.3, 0.8], [0.75, 0.85, 0.95], c)
             }
             4 => {
@@ -419,7 +442,9 @@ fn design_cameras(p: &SyntheticParams) -> Vec<Camera> {
             let w2c = match p.layout {
                 Layout::Orbit => {
                     let az = std::f64::consts::TAU * i as f64 / n as f64;
-                    let el = (27.5 + 7.5 * (std::f64::consts::TAU * 2.0 * i as f64 / n as f64).sin()).to_radians();
+                    let el = (27.5
+                        + 7.5 * (std::f64::consts::TAU * 2.0 * i as f64 / n as f64).sin())
+                    .to_radians();
                     let r = 2.6;
                     let target = [0.0, 0.0, 0.3];
                     let c = [
@@ -430,9 +455,17 @@ fn design_cameras(p: &SyntheticParams) -> Vec<Camera> {
                     look_along(c, linalg::sub(target, c))
                 }
                 Layout::Forward => {
-                    let s = if n > 1 { i as f64 / (n - 1) as f64 * 2.0 - 1.0 } else { 0.0 };
+                    let s = if n > 1 {
+                        i as f64 / (n - 1) as f64 * 2.0 - 1.0
+                    } else {
+                        0.0
+                    };
                     let ang = s * 0.35;
-                    let c = [2.6 * ang.sin(), -2.6 * ang.cos() + 0.3 * s * s, 0.9 + 0.15 * (3.0 * s).sin()];
+                    let c = [
+                        2.6 * ang.sin(),
+                        -2.6 * ang.cos() + 0.3 * s * s,
+                        0.9 + 0.15 * (3.0 * s).sin(),
+                    ];
                     look_along(c, [0.0, 1.0, -0.28])
                 }
             };
@@ -513,7 +546,10 @@ pub fn generate(params: &SyntheticParams, out: &Path) -> Result<Scene> {
     let (mut dmin, mut dmax) = (f64::INFINITY, 0f64);
     for (cam, name) in cams.iter().zip(&names) {
         let (img, depth) = render_view(&world, cam, params.supersample);
-        let zn: Vec<f32> = depth.iter().map(|&z| (z as f64 * norm.scale) as f32).collect();
+        let zn: Vec<f32> = depth
+            .iter()
+            .map(|&z| (z as f64 * norm.scale) as f32)
+            .collect();
         for &z in &zn {
             dmin = dmin.min(z as f64);
             dmax = dmax.max(z as f64);
@@ -669,7 +705,11 @@ mod tests {
         };
         let (_, depth) = render_view(&world, &cam, 1);
         let want = linalg::norm(linalg::sub(s.c, c)) - s.r;
-        assert!((depth[16 * 33 + 16] as f64 - want).abs() < 1e-5, "{} vs {want}", depth[16 * 33 + 16]);
+        assert!(
+            (depth[16 * 33 + 16] as f64 - want).abs() < 1e-5,
+            "{} vs {want}",
+            depth[16 * 33 + 16]
+        );
     }
 
     #[test]
@@ -677,20 +717,44 @@ mod tests {
         let p = small();
         let a = tempfile::tempdir().unwrap();
         let b = tempfile::tempdir().unwrap();
-        let sa = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| generate(&p, a.path()).unwrap());
-        let sb = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(|| generate(&p, b.path()).unwrap());
+        let sa = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| generate(&p, a.path()).unwrap());
+        let sb = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap()
+            .install(|| generate(&p, b.path()).unwrap());
         assert_eq!(sa, sb);
-        for f in ["scene.json", "points.safetensors", "images/view_003.png", "exact_depth/view_003.exr"] {
-            assert_eq!(std::fs::read(a.path().join(f)).unwrap(), std::fs::read(b.path().join(f)).unwrap(), "{f}");
+        for f in [
+            "scene.json",
+            "points.safetensors",
+            "images/view_003.png",
+            "exact_depth/view_003.exr",
+        ] {
+            assert_eq!(
+                std::fs::read(a.path().join(f)).unwrap(),
+                std::fs::read(b.path().join(f)).unwrap(),
+                "{f}"
+            );
         }
         let cloud = sa.load_points(a.path()).unwrap();
         assert_eq!(cloud.len(), 200);
         // Normalised: mean camera centre at the origin, farthest camera at distance 1.
-        let far = sa.views.iter().map(|v| linalg::norm(v.camera.center())).fold(0.0, f64::max);
+        let far = sa
+            .views
+            .iter()
+            .map(|v| linalg::norm(v.camera.center()))
+            .fold(0.0, f64::max);
         assert!((far - 1.0).abs() < 1e-9);
         // Noise-free points lie exactly at the exact depth of the pixel they project to
         // (within the depth change across a pixel), in every view of their track.
-        let p0 = SyntheticParams { point_noise: 0.0, ..small() };
+        let p0 = SyntheticParams {
+            point_noise: 0.0,
+            ..small()
+        };
         let c = tempfile::tempdir().unwrap();
         let s0 = generate(&p0, c.path()).unwrap();
         let cl = s0.load_points(c.path()).unwrap();
@@ -701,7 +765,10 @@ mod tests {
             assert_eq!(cl.errors[i], 0.0);
             let t = cl.track(i)[0] as usize;
             let v = &s0.views[t];
-            let exr = augsplat_core::image::read_exr(&c.path().join(format!("exact_depth/{}.exr", v.name))).unwrap();
+            let exr = augsplat_core::image::read_exr(
+                &c.path().join(format!("exact_depth/{}.exr", v.name)),
+            )
+            .unwrap();
             let z = exr.channel("Z").unwrap();
             let q = cl.positions[i];
             let (u, vv, d) = v.camera.project([q[0] as f64, q[1] as f64, q[2] as f64]);

@@ -1,0 +1,464 @@
+//! The node kinds of this crate: thin adapters from typed args and folders to the library.
+//!
+//! | kind | inputs | outputs |
+//! |---|---|---|
+//! | `ImportScene` | `source` (COLMAP / transforms.json / LLFF folder) | `scene` |
+//! | `SyntheticScene` | — | `scene` (plus `exact_depth/`) |
+//! | `SplitScene` | `scene` | `train`, `test` |
+//! | `SparseDepth` | `scene`, optional `dense` (folder of per-view depth maps) | `scene` |
+//! | `ExportScene` | `scene` | `export` |
+
+use crate::depth::{self, DepthMap};
+use crate::error::SceneError;
+use crate::export::{export_scene, ExportFormat};
+use crate::import::{check_scene, copy_scene, import_scene, ImportOptions, NormalizeMode};
+use crate::source::{load_colmap, load_llff, load_transforms, RawScene};
+use crate::split::{split_indices, subset};
+use crate::synthetic::{generate, SyntheticParams};
+use augsplat_core::Scene;
+use augsplat_graph::{InputDecl, Node, NodeError, Registry, RunContext, Threads};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::{Component, Path, PathBuf};
+
+/// Registers every node kind of this crate.
+pub fn register(registry: &mut Registry) {
+    registry
+        .register::<ImportScene>()
+        .register::<SyntheticScene>()
+        .register::<SplitScene>()
+        .register::<SparseDepth>()
+        .register::<ExportScene>();
+}
+
+/// Source formats of [`ImportScene`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SourceFormat {
+    /// Detect: `model` if given, else `transforms.json`, else `poses_bounds.npy`, else a COLMAP
+    /// model in `sparse/0`, `sparse`, `sparse_txt`, `colmap/sparse/0` or the folder itself.
+    #[default]
+    Auto,
+    /// A COLMAP sparse model (binary or text) with an images folder.
+    Colmap,
+    /// A nerfstudio / instant-ngp transforms.json.
+    Transforms,
+    /// LLFF `poses_bounds.npy` with `images_N`.
+    Llff,
+}
+
+/// Args of [`ImportScene`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ImportSceneArgs {
+    /// The source format.
+    pub format: SourceFormat,
+    /// Images folder relative to the source (default: `images` for COLMAP, `images_<llff_factor>`
+    /// for LLFF; transforms.json paths are relative to the JSON file).
+    pub images: Option<String>,
+    /// The COLMAP model folder or the transforms JSON file, relative to the source (default:
+    /// detected, see [`SourceFormat::Auto`]).
+    pub model: Option<String>,
+    /// LLFF images folder factor: 8 reads `images_8` (1 reads `images`).
+    pub llff_factor: u32,
+    /// Integer downscale (area averaging) applied after undistortion.
+    pub downscale: u32,
+    /// Undistort distorted cameras to their pinhole part (see `intrinsics`).
+    pub undistort: bool,
+    /// The normalisation policy.
+    pub normalize: NormalizeMode,
+}
+
+impl Default for ImportSceneArgs {
+    fn default() -> Self {
+        ImportSceneArgs {
+            format: SourceFormat::Auto,
+            images: None,
+            model: None,
+            llff_factor: 8,
+            downscale: 1,
+            undistort: true,
+            normalize: NormalizeMode::Cameras,
+        }
+    }
+}
+
+/// A path argument relative to the source folder: no absolute paths, no `..`.
+fn relative(arg: &str, value: &str) -> Result<PathBuf, String> {
+    let p = Path::new(value);
+    if p.is_absolute()
+        || p.components()
+            .any(|c| matches!(c, Component::ParentDir | Component::Prefix(_)))
+    {
+        return Err(format!(
+            "{arg} = {value:?} must be a path inside the source folder (relative, without `..`)"
+        ));
+    }
+    Ok(p.to_path_buf())
+}
+
+/// Reads a source folder into a raw scene according to `args`.
+pub fn read_source(source: &Path, args: &ImportSceneArgs) -> Result<RawScene, SceneError> {
+    if !source.is_dir() {
+        return Err(SceneError::missing(source, "source folder"));
+    }
+    let model = args
+        .model
+        .as_deref()
+        .map(|m| relative("model", m).map(|p| source.join(p)))
+        .transpose()
+        .map_err(SceneError::Invalid)?;
+    let images = args
+        .images
+        .as_deref()
+        .map(|m| relative("images", m).map(|p| source.join(p)))
+        .transpose()
+        .map_err(SceneError::Invalid)?;
+    let colmap_candidates = ["sparse/0", "sparse", "sparse_txt", "colmap/sparse/0", "."];
+    let format = match args.format {
+        SourceFormat::Auto => match &model {
+            Some(m) if m.extension().is_some_and(|e| e == "json") => SourceFormat::Transforms,
+            Some(_) => SourceFormat::Colmap,
+            None if source.join("transforms.json").is_file() => SourceFormat::Transforms,
+            None if source.join("poses_bounds.npy").is_file() => SourceFormat::Llff,
+            None if colmap_candidates
+                .iter()
+                .any(|c| crate::colmap::is_model_dir(&source.join(c))) =>
+            {
+                SourceFormat::Colmap
+            }
+            None => {
+                return Err(SceneError::format(
+                    source,
+                    "cannot tell the format: no transforms.json, no poses_bounds.npy, and no COLMAP \
+                     model (cameras.bin/.txt) in sparse/0, sparse, sparse_txt, colmap/sparse/0 or the \
+                     folder itself; set `format` and `model`",
+                ))
+            }
+        },
+        f => f,
+    };
+    match format {
+        SourceFormat::Colmap => {
+            let model_dir = match model {
+                Some(m) => m,
+                None => colmap_candidates
+                    .iter()
+                    .map(|c| source.join(c))
+                    .find(|d| crate::colmap::is_model_dir(d))
+                    .ok_or_else(|| SceneError::missing(&source.join("sparse/0"), "COLMAP model"))?,
+            };
+            let images = images.unwrap_or_else(|| source.join("images"));
+            load_colmap(&model_dir, &images)
+        }
+        SourceFormat::Transforms => {
+            let file = model.unwrap_or_else(|| source.join("transforms.json"));
+            load_transforms(&file)
+        }
+        SourceFormat::Llff => {
+            let images = images.unwrap_or_else(|| match args.llff_factor {
+                0 | 1 => source.join("images"),
+                f => source.join(format!("images_{f}")),
+            });
+            load_llff(source, &images)
+        }
+        SourceFormat::Auto => unreachable!("resolved above"),
+    }
+}
+
+/// `ImportScene`: a COLMAP, transforms.json or LLFF source → a normalised scene.
+pub struct ImportScene;
+
+impl Node for ImportScene {
+    const KIND: &'static str = "ImportScene";
+    const VERSION: u32 = 1;
+    type Args = ImportSceneArgs;
+
+    fn inputs(_: &Self::Args) -> Vec<InputDecl> {
+        vec![InputDecl::one("source")]
+    }
+    fn outputs(_: &Self::Args) -> Vec<String> {
+        vec!["scene".into()]
+    }
+    fn threads(_: &Self::Args) -> Threads {
+        Threads::All
+    }
+    fn validate(a: &Self::Args) -> Result<(), String> {
+        if a.downscale == 0 || a.downscale > 64 {
+            return Err(format!("downscale = {} must be within 1..=64", a.downscale));
+        }
+        if let Some(m) = &a.model {
+            relative("model", m)?;
+        }
+        if let Some(m) = &a.images {
+            relative("images", m)?;
+        }
+        Ok(())
+    }
+    fn run(a: &Self::Args, ctx: &mut RunContext) -> Result<(), NodeError> {
+        Self::validate(a).map_err(NodeError::new)?;
+        let source = ctx.input("source")?.to_path_buf();
+        let out = ctx.output("scene")?.to_path_buf();
+        let raw = read_source(&source, a)?;
+        let opts = ImportOptions {
+            downscale: a.downscale,
+            undistort: a.undistort,
+            normalize: a.normalize,
+        };
+        let log = |s: &str| ctx.log(s);
+        let scene = import_scene(&raw, &opts, &out, &log)?;
+        ctx.log(format!(
+            "imported {} views ({}), {} points",
+            scene.views.len(),
+            raw.source,
+            raw.points.positions.len()
+        ));
+        Ok(())
+    }
+}
+
+/// `SyntheticScene`: the generated default scene (no inputs).
+pub struct SyntheticScene;
+
+impl Node for SyntheticScene {
+    const KIND: &'static str = "SyntheticScene";
+    const VERSION: u32 = 1;
+    type Args = SyntheticParams;
+
+    fn inputs(_: &Self::Args) -> Vec<InputDecl> {
+        Vec::new()
+    }
+    fn outputs(_: &Self::Args) -> Vec<String> {
+        vec!["scene".into()]
+    }
+    fn threads(_: &Self::Args) -> Threads {
+        Threads::All
+    }
+    fn validate(a: &Self::Args) -> Result<(), String> {
+        a.validate()
+    }
+    fn run(a: &Self::Args, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let out = ctx.output("scene")?.to_path_buf();
+        let scene = generate(a, &out)?;
+        ctx.log(format!("generated {} views", scene.views.len()));
+        Ok(())
+    }
+}
+
+/// Args of [`SplitScene`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SplitSceneArgs {
+    /// Views to sample before the holdout (`None` keeps all; more than available keeps all).
+    pub count: Option<u32>,
+    /// Every n-th sampled view (in name order, starting with the first) is a test view.
+    pub holdout_every: u32,
+    /// Seed of the sampling.
+    pub seed: u64,
+}
+
+impl Default for SplitSceneArgs {
+    fn default() -> Self {
+        SplitSceneArgs {
+            count: Some(30),
+            holdout_every: 8,
+            seed: 42,
+        }
+    }
+}
+
+/// `SplitScene`: the paper's sparse-view split into `train` and `test` scenes.
+pub struct SplitScene;
+
+impl Node for SplitScene {
+    const KIND: &'static str = "SplitScene";
+    const VERSION: u32 = 1;
+    type Args = SplitSceneArgs;
+
+    fn inputs(_: &Self::Args) -> Vec<InputDecl> {
+        vec![InputDecl::one("scene")]
+    }
+    fn outputs(_: &Self::Args) -> Vec<String> {
+        vec!["train".into(), "test".into()]
+    }
+    fn validate(a: &Self::Args) -> Result<(), String> {
+        if a.holdout_every < 2 {
+            return Err(format!(
+                "holdout_every = {} must be at least 2",
+                a.holdout_every
+            ));
+        }
+        if a.count == Some(0) {
+            return Err("count must be at least 1 (or None for all views)".into());
+        }
+        Ok(())
+    }
+    fn run(a: &Self::Args, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let src = ctx.input("scene")?.to_path_buf();
+        let scene = Scene::load(&src)?;
+        let cloud = scene.load_points(&src)?;
+        check_scene(&scene, &cloud, &src)?;
+        let split = split_indices(scene.views.len(), a.count, a.holdout_every, a.seed)?;
+        if let Some(k) = a.count {
+            if (k as usize) > scene.views.len() {
+                ctx.log(format!(
+                    "warning: count {k} exceeds the {} views available; keeping all",
+                    scene.views.len()
+                ));
+            }
+        }
+        let (train, train_pts) = subset(&scene, &cloud, &split.train, 2);
+        let (test, test_pts) = subset(&scene, &cloud, &split.test, 0);
+        copy_scene(&train, &train_pts, &src, ctx.output("train")?)?;
+        copy_scene(&test, &test_pts, &src, ctx.output("test")?)?;
+        ctx.log(format!(
+            "split: {} train, {} test views; {} of {} points kept (seen by ≥ 2 train views)",
+            train.views.len(),
+            test.views.len(),
+            train_pts.len(),
+            cloud.len()
+        ));
+        Ok(())
+    }
+}
+
+/// Args of [`SparseDepth`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SparseDepthArgs {
+    /// Points need at least this many views in their track.
+    pub min_track: u32,
+    /// σ of the weight exp(−(e/σ)²) in pixels (`None`: the mean error of the points used).
+    pub sigma_px: Option<f64>,
+    /// Depth per unit of a 16-bit dense depth PNG (source units).
+    pub dense_png_scale: f64,
+    /// Weight given to dense depth.
+    pub dense_weight: f32,
+}
+
+impl Default for SparseDepthArgs {
+    fn default() -> Self {
+        SparseDepthArgs {
+            min_track: 2,
+            sigma_px: None,
+            dense_png_scale: 0.001,
+            dense_weight: 1.0,
+        }
+    }
+}
+
+/// `SparseDepth`: per-view depth (Z) and confidence (W) EXRs from the SfM points, or from
+/// dense maps in the optional `dense` input where a view has one.
+pub struct SparseDepth;
+
+impl Node for SparseDepth {
+    const KIND: &'static str = "SparseDepth";
+    const VERSION: u32 = 1;
+    type Args = SparseDepthArgs;
+
+    fn inputs(_: &Self::Args) -> Vec<InputDecl> {
+        vec![InputDecl::one("scene"), InputDecl::optional("dense")]
+    }
+    fn outputs(_: &Self::Args) -> Vec<String> {
+        vec!["scene".into()]
+    }
+    fn validate(a: &Self::Args) -> Result<(), String> {
+        if let Some(s) = a.sigma_px {
+            if !(s > 0.0 && s.is_finite()) {
+                return Err(format!("sigma_px = {s} must be positive"));
+            }
+        }
+        if !(a.dense_png_scale > 0.0 && a.dense_png_scale.is_finite()) {
+            return Err(format!(
+                "dense_png_scale = {} must be positive",
+                a.dense_png_scale
+            ));
+        }
+        if !(0.0..=1.0).contains(&a.dense_weight) {
+            return Err(format!(
+                "dense_weight = {} must be within [0, 1]",
+                a.dense_weight
+            ));
+        }
+        Ok(())
+    }
+    fn run(a: &Self::Args, ctx: &mut RunContext) -> Result<(), NodeError> {
+        Self::validate(a).map_err(NodeError::new)?;
+        let src = ctx.input("scene")?.to_path_buf();
+        let dense = ctx.optional_input("dense").map(Path::to_path_buf);
+        let out = ctx.output("scene")?.to_path_buf();
+        let mut scene = Scene::load(&src)?;
+        let cloud = scene.load_points(&src)?;
+        check_scene(&scene, &cloud, &src)?;
+        let min_track = a.min_track.max(1) as usize;
+        let sigma = depth::weight_sigma(&cloud, min_track, a.sigma_px);
+        let ddir = out.join("depth");
+        std::fs::create_dir_all(&ddir).map_err(|e| SceneError::io(&ddir, e))?;
+        let results: Vec<Result<(bool, usize), SceneError>> = (0..scene.views.len())
+            .into_par_iter()
+            .map(|i| {
+                let d = match &dense {
+                    Some(dir) => {
+                        depth::dense_depth(&scene, i, dir, a.dense_png_scale, a.dense_weight)?
+                    }
+                    None => None,
+                };
+                let used_dense = d.is_some();
+                let DepthMap { z, w } =
+                    d.unwrap_or_else(|| depth::sparse_depth(&scene, &cloud, i, min_track, sigma));
+                let v = &scene.views[i];
+                let path = ddir.join(format!("{}.exr", v.name));
+                augsplat_core::image::write_exr(
+                    &path,
+                    v.camera.width,
+                    v.camera.height,
+                    &[("Z", &z), ("W", &w)],
+                )?;
+                Ok((used_dense, z.iter().filter(|&&x| x > 0.0).count()))
+            })
+            .collect();
+        let (mut n_dense, mut n_px) = (0, 0);
+        for r in results {
+            let (d, n) = r?;
+            n_dense += d as usize;
+            n_px += n;
+        }
+        for v in &mut scene.views {
+            v.depth = Some(format!("depth/{}.exr", v.name));
+        }
+        copy_scene(&scene, &cloud, &src, &out)?;
+        ctx.log(format!(
+            "depth for {} views ({n_dense} dense), {n_px} pixels with depth, σ = {sigma:.4} px",
+            scene.views.len()
+        ));
+        Ok(())
+    }
+}
+
+/// Args of [`ExportScene`].
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ExportSceneArgs {
+    /// The format to write.
+    pub format: ExportFormat,
+}
+
+/// `ExportScene`: a scene → COLMAP text or transforms.json (original frame).
+pub struct ExportScene;
+
+impl Node for ExportScene {
+    const KIND: &'static str = "ExportScene";
+    const VERSION: u32 = 1;
+    type Args = ExportSceneArgs;
+
+    fn inputs(_: &Self::Args) -> Vec<InputDecl> {
+        vec![InputDecl::one("scene")]
+    }
+    fn outputs(_: &Self::Args) -> Vec<String> {
+        vec!["export".into()]
+    }
+    fn run(a: &Self::Args, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let src = ctx.input("scene")?.to_path_buf();
+        export_scene(&src, ctx.output("export")?, a.format)?;
+        Ok(())
+    }
+}
