@@ -362,6 +362,7 @@ mod tests {
     use super::*;
 
     /// f64 direct convolution + bias + ReLU.
+    #[allow(clippy::too_many_arguments)]
     fn conv_reference(
         input: &[f32],
         c_in: usize,

@@ -12,7 +12,9 @@
 
 mod error;
 pub mod gemm;
+pub mod import;
 pub mod lpips;
+pub mod pickle;
 
 pub mod ssim;
 

@@ -1,0 +1,80 @@
+//! Benchmark: SSIM, LPIPS-alex and LPIPS-vgg for one image pair (default: two 800×533 bonsai
+//! photos from the shared data), on a rayon pool of `--threads N` (default 2).
+//!
+//! `cargo run --release -p augsplat-metrics --example bench_metrics -- [--threads N] [A B]`
+
+use augsplat_core::image::read_rgb;
+use augsplat_metrics::lpips::{Backbone, Lpips};
+use std::path::PathBuf;
+use std::time::Instant;
+
+fn main() {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let mut threads = 2;
+    if let Some(i) = args.iter().position(|a| a == "--threads") {
+        threads = args
+            .get(i + 1)
+            .and_then(|v| v.parse().ok())
+            .expect("--threads N");
+        args.drain(i..i + 2);
+    }
+    let data = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+    let (pa, pb) = match args.as_slice() {
+        [a, b] => (PathBuf::from(a), PathBuf::from(b)),
+        _ => {
+            let dir = data.join("bonsai/images");
+            let mut files: Vec<_> = std::fs::read_dir(&dir)
+                .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .collect();
+            files.sort();
+            (files[0].clone(), files[1].clone())
+        }
+    };
+    let a = read_rgb(&pa).expect("first image");
+    let b = read_rgb(&pb).expect("second image");
+    println!(
+        "images {}×{} ({} / {}), {threads} threads, kernel {:?}",
+        a.width,
+        a.height,
+        pa.display(),
+        pb.display(),
+        augsplat_metrics::gemm::Isa::detect()
+    );
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("thread pool");
+    pool.install(|| {
+        let time = |name: &str, reps: usize, f: &dyn Fn() -> f64| {
+            let v = f(); // warm-up
+            let mut best = f64::INFINITY;
+            let mut total = 0.0;
+            for _ in 0..reps {
+                let t = Instant::now();
+                let _ = f();
+                let s = t.elapsed().as_secs_f64();
+                best = best.min(s);
+                total += s;
+            }
+            println!(
+                "{name:<12} value {v:.6}  best {:.2} ms  mean {:.2} ms  ({reps} runs)",
+                best * 1e3,
+                total / reps as f64 * 1e3
+            );
+        };
+        time("psnr", 20, &|| augsplat_metrics::psnr(&a, &b).unwrap());
+        time("ssim", 20, &|| augsplat_metrics::ssim(&a, &b).unwrap());
+        for bb in [Backbone::Alex, Backbone::Vgg] {
+            let w = data.join("lpips").join(bb.file_name());
+            let Ok(model) = Lpips::load(&w) else {
+                println!("lpips-{bb}: weights not found at {}", w.display());
+                continue;
+            };
+            let reps = if bb == Backbone::Alex { 5 } else { 2 };
+            time(&format!("lpips-{bb}"), reps, &|| {
+                model.distance(&a, &b).unwrap()
+            });
+        }
+    });
+}
