@@ -1,19 +1,434 @@
-//! Tiled front-to-back compositing.
+//! The forward pass: projection of every Gaussian (parallel, fixed chunks), tile binning, and
+//! per-tile front-to-back compositing (tiles in parallel).
+//!
+//! Compositing (DESIGN.md §4): σ = ½(a·dx² + c·dy²) + b·dx·dy; α = min(max_alpha, o·e^−σ);
+//! skip if σ < 0 or α < 1/255; stop *before* a Gaussian when T·(1 − α) ≤ 1e-4;
+//! C += c·α·T; output C + T·background, alpha 1 − T, depth Σ z·α·T / (1 − T).
+//!
+//! Each tile keeps, per pixel, the number of list entries up to and including its last
+//! contributor and its final transmittance; the backward pass walks back from there.
+//!
+//! The projected records ([`Splat2D`]) are stored in depth-rank order, one 48-byte record per
+//! Gaussian so a tile's gather touches one cache line per Gaussian; inside a tile the kernel
+//! works on structure-of-arrays pixel lanes (rows of 16 pixels).
 
+use crate::constants::{
+    ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS, TRANSMITTANCE_THRESHOLD,
+};
 use crate::gaussians::Gaussians;
-use crate::render::{Cutoff, RenderOutput, RenderSettings};
+use crate::project::{project, CameraModel, Outcome};
+use crate::render::{Cutoff, RenderOutput, RenderSettings, RenderStats};
+use crate::sh;
+use crate::tiles::{bin, depth_order, Bins, TileGrid};
 use augsplat_core::Camera;
+use rayon::prelude::*;
+
+/// Gaussians per parallel projection chunk (fixed, so results never depend on the pool).
+pub(crate) const PROJECT_CHUNK: usize = 4096;
+
+/// One projected Gaussian, as the compositing kernels read it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C)]
+pub struct Splat2D {
+    /// Centre x, pixels.
+    pub x: f32,
+    /// Centre y, pixels.
+    pub y: f32,
+    /// Conic a (xx).
+    pub a: f32,
+    /// Conic b (xy).
+    pub b: f32,
+    /// Conic c (yy).
+    pub c: f32,
+    /// Opacity (after compensation).
+    pub opacity: f32,
+    /// Colour.
+    pub rgb: [f32; 3],
+    /// Camera-space depth.
+    pub depth: f32,
+    /// Top of the bounding box (y − radius_y), pixels.
+    pub ymin: f32,
+    /// Bottom of the bounding box (y + radius_y), pixels.
+    pub ymax: f32,
+}
 
 /// State kept from the forward pass for the backward pass.
 #[derive(Clone, Debug, Default)]
-pub(crate) struct RasterState {}
+pub(crate) struct RasterState {
+    pub grid: TileGrid,
+    /// Projected records in rank (front-to-back) order.
+    pub splats: Vec<Splat2D>,
+    /// Gaussian index of each rank.
+    pub rank_id: Vec<u32>,
+    pub bins: Bins,
+    /// Per pixel, tile-major (`tile·256 + row·16 + col`): list entries up to and including
+    /// the last contributor.
+    pub last: Vec<u32>,
+    /// Per pixel, tile-major: final transmittance.
+    pub final_t: Vec<f32>,
+    pub settings: RenderSettings,
+    pub cutoff: Cutoff,
+    /// Active SH degree actually used.
+    pub sh_degree: u32,
+}
+
+/// Per-Gaussian result of the projection stage.
+#[derive(Clone, Copy)]
+enum Proj {
+    Visible(Splat2D, [u32; 4]),
+    Culled,
+    Invalid,
+}
+
+/// e^x for x ≤ 0 (inputs below −87 are clamped), branch-free so it vectorises; relative
+/// error below 2e-7.
+#[inline(always)]
+pub fn exp_neg(x: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    const LN2_HI: f32 = 0.693_145_75;
+    const LN2_LO: f32 = 1.428_606_8e-6;
+    const ROUND: f32 = 12_582_912.0; // 1.5·2²³: adding and subtracting rounds to nearest
+    let x = x.clamp(-87.0, 0.0);
+    let n = (x * LOG2E + ROUND) - ROUND;
+    let f = x - n * LN2_HI - n * LN2_LO;
+    let p = 1.0
+        + f * (1.0
+            + f * (0.5
+                + f * (1.0 / 6.0
+                    + f * (1.0 / 24.0
+                        + f * (1.0 / 120.0 + f * (1.0 / 720.0 + f * (1.0 / 5040.0)))))));
+    let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+    p * scale
+}
+
+/// The smooth cutoff factor s(α) (C¹ smoothstep from 1/255 to 2/255) and its derivative.
+#[inline(always)]
+pub(crate) fn smooth_cut(alpha: f32) -> (f32, f32) {
+    let x = ((alpha - ALPHA_THRESHOLD) / ALPHA_THRESHOLD).clamp(0.0, 1.0);
+    (x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x) / ALPHA_THRESHOLD)
+}
+
+/// Per-tile pixel results.
+struct TilePixels {
+    t: [f32; TILE_PIXELS],
+    last: [u32; TILE_PIXELS],
+    c: [[f32; TILE_PIXELS]; 3],
+    d: [f32; TILE_PIXELS],
+}
+
+impl Default for TilePixels {
+    fn default() -> Self {
+        TilePixels {
+            t: [1.0; TILE_PIXELS],
+            last: [0; TILE_PIXELS],
+            c: [[0.0; TILE_PIXELS]; 3],
+            d: [0.0; TILE_PIXELS],
+        }
+    }
+}
+
+/// Projects every Gaussian and evaluates the colour of the visible ones.
+fn project_all(g: &Gaussians, cm: &CameraModel, s: &RenderSettings, degree: u32, grid: &TileGrid) -> Vec<Proj> {
+    let n = g.len();
+    let k = g.coeffs() * 3;
+    let sh_ok = g.sh.len() == n * k
+        && g.log_scales.len() == n
+        && g.quats.len() == n
+        && g.opacity_logits.len() == n;
+    let mut out = vec![Proj::Invalid; n];
+    out.par_chunks_mut(PROJECT_CHUNK).enumerate().for_each(|(ci, chunk)| {
+        let mut basis = [0.0f64; 16];
+        for (j, slot) in chunk.iter_mut().enumerate() {
+            let i = ci * PROJECT_CHUNK + j;
+            if !sh_ok {
+                *slot = Proj::Invalid;
+                continue;
+            }
+            let coefs = &g.sh[i * k..(i + 1) * k];
+            let nb = sh::basis_len(degree);
+            if !coefs[..nb * 3].iter().all(|v| v.is_finite()) {
+                *slot = Proj::Invalid;
+                continue;
+            }
+            *slot = match project(
+                cm,
+                g.means[i],
+                g.log_scales[i],
+                g.quats[i],
+                g.opacity_logits[i],
+                s.antialiased,
+                s.near as f64,
+            ) {
+                Outcome::Invalid => Proj::Invalid,
+                Outcome::Culled => Proj::Culled,
+                Outcome::Visible(p) => {
+                    let m = g.means[i];
+                    let v = [
+                        m[0] as f64 - cm.center[0],
+                        m[1] as f64 - cm.center[1],
+                        m[2] as f64 - cm.center[2],
+                    ];
+                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    let dir = if len > 0.0 { [v[0] / len, v[1] / len, v[2] / len] } else { [0.0, 0.0, 1.0] };
+                    let col = sh::eval_color(degree, coefs, dir, &mut basis);
+                    let rect = grid.rect(p.mean2d, p.radius);
+                    if rect[0] >= rect[1] || rect[2] >= rect[3] {
+                        Proj::Culled
+                    } else {
+                        Proj::Visible(
+                            Splat2D {
+                                x: p.mean2d[0] as f32,
+                                y: p.mean2d[1] as f32,
+                                a: p.conic[0] as f32,
+                                b: p.conic[1] as f32,
+                                c: p.conic[2] as f32,
+                                opacity: p.opacity as f32,
+                                rgb: [col[0] as f32, col[1] as f32, col[2] as f32],
+                                depth: p.depth as f32,
+                                ymin: (p.mean2d[1] - p.radius[1] as f64) as f32,
+                                ymax: (p.mean2d[1] + p.radius[1] as f64) as f32,
+                            },
+                            rect,
+                        )
+                    }
+                }
+            };
+        }
+    });
+    out
+}
+
+/// Row range `[lo, hi)` of a tile (top pixel row `y0`) whose pixel centres lie inside the
+/// Gaussian's bounding box.
+#[inline(always)]
+pub(crate) fn row_range(sp: &Splat2D, y0: u32) -> (usize, usize) {
+    let base = y0 as f32 + 0.5;
+    let lo = (sp.ymin - base).ceil().max(0.0);
+    let hi = ((sp.ymax - base).floor() + 1.0).min(TILE as f32);
+    if hi <= lo {
+        (0, 0)
+    } else {
+        (lo as usize, hi as usize)
+    }
+}
+
+/// Composites one tile front to back; returns the number of composited pairs.
+#[allow(clippy::too_many_arguments)]
+fn raster_tile<const SMOOTH: bool>(
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    active_init: &[bool; TILE_PIXELS],
+    max_alpha: f32,
+    out: &mut TilePixels,
+) -> u64 {
+    let mut active = *active_init;
+    let mut remaining = active.iter().filter(|a| **a).count();
+    if remaining == 0 {
+        return 0;
+    }
+    let mut px = [0.0f32; TILE as usize];
+    for (lx, v) in px.iter_mut().enumerate() {
+        *v = (x0 + lx as u32) as f32 + 0.5;
+    }
+    let mut pairs = 0u64;
+    for (k, &rank) in list.iter().enumerate() {
+        let sp = &splats[rank as usize];
+        let (lo, hi) = row_range(sp, y0);
+        let kk = k as u32 + 1;
+        for ly in lo..hi {
+            let dy = sp.y - ((y0 + ly as u32) as f32 + 0.5);
+            let base = ly * TILE as usize;
+            let mut stops = 0usize;
+            let mut comps = 0u32;
+            let t_row = &mut out.t[base..base + 16];
+            let act = &mut active[base..base + 16];
+            let last = &mut out.last[base..base + 16];
+            let (c0, rest) = out.c.split_at_mut(1);
+            let (c1, c2) = rest.split_at_mut(1);
+            let cr = &mut c0[0][base..base + 16];
+            let cg = &mut c1[0][base..base + 16];
+            let cb = &mut c2[0][base..base + 16];
+            let dd = &mut out.d[base..base + 16];
+            for lx in 0..16 {
+                let dx = sp.x - px[lx];
+                let sigma = 0.5 * (sp.a * dx * dx + sp.c * dy * dy) + sp.b * dx * dy;
+                let a1 = (sp.opacity * exp_neg(-sigma)).min(max_alpha);
+                let (alpha, ok) = if SMOOTH {
+                    (a1 * smooth_cut(a1).0, a1 > ALPHA_THRESHOLD)
+                } else {
+                    (a1, a1 >= ALPHA_THRESHOLD)
+                };
+                let ok = ok && sigma >= 0.0 && act[lx];
+                let t = t_row[lx];
+                let next_t = t * (1.0 - alpha);
+                let stop = ok && next_t <= TRANSMITTANCE_THRESHOLD;
+                let comp = ok && !stop;
+                act[lx] &= !stop;
+                stops += stop as usize;
+                comps += comp as u32;
+                let w = if comp { alpha * t } else { 0.0 };
+                cr[lx] += w * sp.rgb[0];
+                cg[lx] += w * sp.rgb[1];
+                cb[lx] += w * sp.rgb[2];
+                dd[lx] += w * sp.depth;
+                t_row[lx] = if comp { next_t } else { t };
+                last[lx] = if comp { kk } else { last[lx] };
+            }
+            pairs += comps as u64;
+            remaining -= stops;
+        }
+        if remaining == 0 {
+            break;
+        }
+    }
+    pairs
+}
 
 pub(crate) fn render_impl(
-    _g: &Gaussians,
-    _cam: &Camera,
-    _s: &RenderSettings,
-    _mask: Option<&[u8]>,
-    _cutoff: Cutoff,
+    g: &Gaussians,
+    cam: &Camera,
+    s: &RenderSettings,
+    mask: Option<&[u8]>,
+    cutoff: Cutoff,
 ) -> RenderOutput {
-    todo!("forward lands in the next commit")
+    let (width, height) = (cam.width, cam.height);
+    let npix = width as usize * height as usize;
+    let degree = s.sh_degree.min(g.sh_degree).min(3);
+    let grid = TileGrid::new(width, height);
+    let mask = mask.filter(|m| m.len() == npix);
+    let mut stats = RenderStats::default();
+    let cam_ok = cam.validate().is_ok();
+    let projs = if cam_ok {
+        let cm = CameraModel::new(cam);
+        project_all(g, &cm, s, degree, &grid)
+    } else {
+        vec![Proj::Culled; g.len()]
+    };
+    let mut visible = Vec::new();
+    let mut depth = vec![0.0f32; g.len()];
+    for (i, p) in projs.iter().enumerate() {
+        match p {
+            Proj::Visible(sp, _) => {
+                visible.push(i as u32);
+                depth[i] = sp.depth;
+            }
+            Proj::Culled => stats.culled += 1,
+            Proj::Invalid => stats.invalid += 1,
+        }
+    }
+    stats.visible = visible.len();
+    let rank_id = depth_order(&visible, &depth);
+    let mut splats = Vec::with_capacity(rank_id.len());
+    let mut rects = Vec::with_capacity(rank_id.len());
+    for &i in &rank_id {
+        if let Proj::Visible(sp, r) = projs[i as usize] {
+            splats.push(sp);
+            rects.push(r);
+        }
+    }
+    drop(projs);
+    let bins = bin(&grid, &rects);
+    drop(rects);
+
+    let max_alpha = s.max_alpha.clamp(0.0, 1.0 - 1e-6);
+    let mut tiles: Vec<TilePixels> = Vec::new();
+    tiles.resize_with(grid.len(), TilePixels::default);
+    let pairs: u64 = tiles
+        .par_iter_mut()
+        .enumerate()
+        .map(|(t, out)| {
+            let tx = (t % grid.tiles_x as usize) as u32;
+            let ty = (t / grid.tiles_x as usize) as u32;
+            let (x0, y0) = (tx * TILE, ty * TILE);
+            let mut active = [false; TILE_PIXELS];
+            for ly in 0..TILE {
+                for lx in 0..TILE {
+                    let (x, y) = (x0 + lx, y0 + ly);
+                    if x < width && y < height {
+                        let on = mask.is_none_or(|m| m[(y * width + x) as usize] != 0);
+                        active[(ly * TILE + lx) as usize] = on;
+                    }
+                }
+            }
+            let list = &bins.ranks[bins.ranges[t]..bins.ranges[t + 1]];
+            match cutoff {
+                Cutoff::Hard => raster_tile::<false>(&splats, list, x0, y0, &active, max_alpha, out),
+                Cutoff::Smooth => raster_tile::<true>(&splats, list, x0, y0, &active, max_alpha, out),
+            }
+        })
+        .sum();
+    stats.pairs = pairs;
+
+    let mut rgb = vec![0.0f32; npix * 3];
+    let mut alpha = vec![0.0f32; npix];
+    let mut depth_img = vec![0.0f32; npix];
+    let bg = s.background;
+    let w = width as usize;
+    rgb.par_chunks_mut(w * 3)
+        .zip(alpha.par_chunks_mut(w))
+        .zip(depth_img.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, ((rgb_row, a_row), d_row))| {
+            let ty = y / TILE as usize;
+            let ly = y % TILE as usize;
+            for x in 0..w {
+                let tile = &tiles[ty * grid.tiles_x as usize + x / TILE as usize];
+                let p = ly * TILE as usize + x % TILE as usize;
+                let t = tile.t[p];
+                for ch in 0..3 {
+                    rgb_row[x * 3 + ch] = tile.c[ch][p] + t * bg[ch];
+                }
+                let a = 1.0 - t;
+                a_row[x] = a;
+                d_row[x] = if a >= DEPTH_ALPHA_EPS { tile.d[p] / a } else { 0.0 };
+            }
+        });
+    let mut last = vec![0u32; grid.len() * TILE_PIXELS];
+    let mut final_t = vec![1.0f32; grid.len() * TILE_PIXELS];
+    last.par_chunks_mut(TILE_PIXELS)
+        .zip(final_t.par_chunks_mut(TILE_PIXELS))
+        .zip(tiles.par_iter())
+        .for_each(|((l, ft), tile)| {
+            l.copy_from_slice(&tile.last);
+            ft.copy_from_slice(&tile.t);
+        });
+    RenderOutput {
+        width,
+        height,
+        rgb,
+        alpha,
+        depth: depth_img,
+        stats,
+        state: RasterState {
+            grid,
+            splats,
+            rank_id,
+            bins,
+            last,
+            final_t,
+            settings: s.clone(),
+            cutoff,
+            sh_degree: degree,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exp_neg_is_accurate() {
+        let mut x = 0.0f32;
+        while x > -80.0 {
+            let e = exp_neg(x) as f64;
+            let r = (x as f64).exp();
+            assert!(((e - r) / r).abs() < 3e-7, "x {x}: {e} vs {r}");
+            x -= 0.0137;
+        }
+        assert_eq!(exp_neg(0.0), 1.0);
+        assert!(exp_neg(-1e30) >= 0.0 && exp_neg(-1e30) < 1e-37);
+    }
 }

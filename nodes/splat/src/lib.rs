@@ -10,7 +10,11 @@ pub mod gaussians;
 pub mod init;
 pub mod loss;
 pub mod ply;
+pub mod project;
+pub mod reference;
 pub mod render;
+pub mod sh;
+pub mod tiles;
 
 pub use error::SplatError;
 pub use gaussians::Gaussians;

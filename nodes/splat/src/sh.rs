@@ -1,0 +1,183 @@
+//! Real spherical harmonics, degrees 0–3 (the gsplat/Inria basis and sign convention), with
+//! their derivative with respect to the (unit) direction.
+//!
+//! Colour of one channel = max(Σ_k coef_k · Y_k(d) + 0.5, 0) with d = normalize(mean − camera
+//! centre).
+
+use crate::constants::{C0, C1, C2, C3};
+
+/// Number of basis functions up to `degree` (at most 16).
+pub const fn basis_len(degree: u32) -> usize {
+    ((degree + 1) * (degree + 1)) as usize
+}
+
+/// Evaluates the basis up to `degree` (≤ 3) at unit direction `d` into `out[..basis_len]`.
+pub fn basis(degree: u32, d: [f64; 3], out: &mut [f64; 16]) {
+    let [x, y, z] = d;
+    out[0] = C0;
+    if degree < 1 {
+        return;
+    }
+    out[1] = -C1 * y;
+    out[2] = C1 * z;
+    out[3] = -C1 * x;
+    if degree < 2 {
+        return;
+    }
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    out[4] = C2[0] * x * y;
+    out[5] = C2[1] * y * z;
+    out[6] = C2[2] * (2.0 * zz - xx - yy);
+    out[7] = C2[3] * x * z;
+    out[8] = C2[4] * (xx - yy);
+    if degree < 3 {
+        return;
+    }
+    out[9] = C3[0] * y * (3.0 * xx - yy);
+    out[10] = C3[1] * x * y * z;
+    out[11] = C3[2] * y * (4.0 * zz - xx - yy);
+    out[12] = C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy);
+    out[13] = C3[4] * x * (4.0 * zz - xx - yy);
+    out[14] = C3[5] * z * (xx - yy);
+    out[15] = C3[6] * x * (xx - 3.0 * yy);
+}
+
+/// Given dL/dY_k (`g[..basis_len]`), returns dL/dd treating the three components of `d` as
+/// independent (the caller projects through the normalisation).
+pub fn basis_vjp(degree: u32, d: [f64; 3], g: &[f64; 16]) -> [f64; 3] {
+    let [x, y, z] = d;
+    let mut gd = [0.0f64; 3];
+    if degree < 1 {
+        return gd;
+    }
+    gd[1] -= C1 * g[1];
+    gd[2] += C1 * g[2];
+    gd[0] -= C1 * g[3];
+    if degree < 2 {
+        return gd;
+    }
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    // Y4 = C2[0]·xy
+    gd[0] += C2[0] * y * g[4];
+    gd[1] += C2[0] * x * g[4];
+    // Y5 = C2[1]·yz
+    gd[1] += C2[1] * z * g[5];
+    gd[2] += C2[1] * y * g[5];
+    // Y6 = C2[2]·(2z² − x² − y²)
+    gd[0] -= 2.0 * C2[2] * x * g[6];
+    gd[1] -= 2.0 * C2[2] * y * g[6];
+    gd[2] += 4.0 * C2[2] * z * g[6];
+    // Y7 = C2[3]·xz
+    gd[0] += C2[3] * z * g[7];
+    gd[2] += C2[3] * x * g[7];
+    // Y8 = C2[4]·(x² − y²)
+    gd[0] += 2.0 * C2[4] * x * g[8];
+    gd[1] -= 2.0 * C2[4] * y * g[8];
+    if degree < 3 {
+        return gd;
+    }
+    // Y9 = C3[0]·y(3x² − y²)
+    gd[0] += 6.0 * C3[0] * x * y * g[9];
+    gd[1] += 3.0 * C3[0] * (xx - yy) * g[9];
+    // Y10 = C3[1]·xyz
+    gd[0] += C3[1] * y * z * g[10];
+    gd[1] += C3[1] * x * z * g[10];
+    gd[2] += C3[1] * x * y * g[10];
+    // Y11 = C3[2]·y(4z² − x² − y²)
+    gd[0] -= 2.0 * C3[2] * x * y * g[11];
+    gd[1] += C3[2] * (4.0 * zz - xx - 3.0 * yy) * g[11];
+    gd[2] += 8.0 * C3[2] * y * z * g[11];
+    // Y12 = C3[3]·z(2z² − 3x² − 3y²)
+    gd[0] -= 6.0 * C3[3] * x * z * g[12];
+    gd[1] -= 6.0 * C3[3] * y * z * g[12];
+    gd[2] += C3[3] * (6.0 * zz - 3.0 * xx - 3.0 * yy) * g[12];
+    // Y13 = C3[4]·x(4z² − x² − y²)
+    gd[0] += C3[4] * (4.0 * zz - 3.0 * xx - yy) * g[13];
+    gd[1] -= 2.0 * C3[4] * x * y * g[13];
+    gd[2] += 8.0 * C3[4] * x * z * g[13];
+    // Y14 = C3[5]·z(x² − y²)
+    gd[0] += 2.0 * C3[5] * x * z * g[14];
+    gd[1] -= 2.0 * C3[5] * y * z * g[14];
+    gd[2] += C3[5] * (xx - yy) * g[14];
+    // Y15 = C3[6]·x(x² − 3y²)
+    gd[0] += 3.0 * C3[6] * (xx - yy) * g[15];
+    gd[1] -= 6.0 * C3[6] * x * y * g[15];
+    gd
+}
+
+/// Colour of one Gaussian: `coefs` holds `K·3` values (`[k·3 + c]`, K the stored count),
+/// `degree` the active degree. Returns the clamped colour; `basis_out` receives the basis.
+pub fn eval_color(degree: u32, coefs: &[f32], dir: [f64; 3], basis_out: &mut [f64; 16]) -> [f64; 3] {
+    basis(degree, dir, basis_out);
+    let n = basis_len(degree);
+    let mut c = [0.5f64; 3];
+    for k in 0..n {
+        for ch in 0..3 {
+            c[ch] += coefs[k * 3 + ch] as f64 * basis_out[k];
+        }
+    }
+    [c[0].max(0.0), c[1].max(0.0), c[2].max(0.0)]
+}
+
+/// Backward of [`eval_color`]: given dL/d(colour), adds dL/d(coefs) into `g_coefs`
+/// (`K·3` values) and returns dL/d(dir) (direction components independent).
+pub fn eval_color_vjp(
+    degree: u32,
+    coefs: &[f32],
+    dir: [f64; 3],
+    g_color: [f64; 3],
+    g_coefs: &mut [f64],
+) -> [f64; 3] {
+    let mut y = [0.0f64; 16];
+    basis(degree, dir, &mut y);
+    let n = basis_len(degree);
+    // Clamped channels pass no gradient.
+    let mut raw = [0.5f64; 3];
+    for k in 0..n {
+        for ch in 0..3 {
+            raw[ch] += coefs[k * 3 + ch] as f64 * y[k];
+        }
+    }
+    let gc = [
+        if raw[0] > 0.0 { g_color[0] } else { 0.0 },
+        if raw[1] > 0.0 { g_color[1] } else { 0.0 },
+        if raw[2] > 0.0 { g_color[2] } else { 0.0 },
+    ];
+    let mut gy = [0.0f64; 16];
+    for k in 0..n {
+        let mut s = 0.0;
+        for ch in 0..3 {
+            g_coefs[k * 3 + ch] += gc[ch] * y[k];
+            s += gc[ch] * coefs[k * 3 + ch] as f64;
+        }
+        gy[k] = s;
+    }
+    basis_vjp(degree, dir, &gy)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn basis_vjp_matches_finite_differences() {
+        let d = [0.3f64, -0.5, 0.81];
+        for k in 0..16 {
+            let mut g = [0.0; 16];
+            g[k] = 1.0;
+            let an = basis_vjp(3, d, &g);
+            for a in 0..3 {
+                let h = 1e-6;
+                let mut dp = d;
+                let mut dm = d;
+                dp[a] += h;
+                dm[a] -= h;
+                let (mut yp, mut ym) = ([0.0; 16], [0.0; 16]);
+                basis(3, dp, &mut yp);
+                basis(3, dm, &mut ym);
+                let fd = (yp[k] - ym[k]) / (2.0 * h);
+                assert!((fd - an[a]).abs() < 1e-7, "Y{k} d{a}: fd {fd} analytic {}", an[a]);
+            }
+        }
+    }
+}

@@ -1,0 +1,124 @@
+//! Tile binning: each visible Gaussian is listed in every 16×16 tile its bounding box
+//! touches, each tile's list front to back.
+//!
+//! One sort: visible Gaussians are sorted once by (depth, index) — their *rank* — and the
+//! per-tile lists are then filled by a counting pass in rank order, which yields exactly the
+//! order of a sort of (tile, depth) keys. Tile lists hold ranks; the projected records are
+//! stored in rank order so that a tile's records are read in increasing memory order.
+
+use crate::constants::TILE;
+use rayon::prelude::*;
+
+/// The tile grid of an image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct TileGrid {
+    /// Tiles per row.
+    pub tiles_x: u32,
+    /// Tile rows.
+    pub tiles_y: u32,
+}
+
+impl TileGrid {
+    /// The grid covering a `width × height` image.
+    pub fn new(width: u32, height: u32) -> Self {
+        TileGrid {
+            tiles_x: width.div_ceil(TILE),
+            tiles_y: height.div_ceil(TILE),
+        }
+    }
+    /// Number of tiles.
+    pub fn len(&self) -> usize {
+        self.tiles_x as usize * self.tiles_y as usize
+    }
+    /// Whether the grid is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Tiles `[x0, x1) × [y0, y1)` touched by the box `mean2d ± radius` (gsplat's rule:
+    /// floor/ceil of the box edges in tile units, clamped to the grid).
+    pub fn rect(&self, mean2d: [f64; 2], radius: [i32; 2]) -> [u32; 4] {
+        let ts = TILE as f64;
+        let clampx = |v: f64| v.clamp(0.0, self.tiles_x as f64) as u32;
+        let clampy = |v: f64| v.clamp(0.0, self.tiles_y as f64) as u32;
+        let (tx, ty) = (mean2d[0] / ts, mean2d[1] / ts);
+        let (rx, ry) = (radius[0] as f64 / ts, radius[1] as f64 / ts);
+        [
+            clampx((tx - rx).floor()),
+            clampx((tx + rx).ceil()),
+            clampy((ty - ry).floor()),
+            clampy((ty + ry).ceil()),
+        ]
+    }
+}
+
+/// The binned (tile, rank) pairs.
+#[derive(Clone, Debug, Default)]
+pub struct Bins {
+    /// Tile t's list is `ranks[ranges[t]..ranges[t + 1]]`.
+    pub ranges: Vec<usize>,
+    /// Ranks (front-to-back index among visible Gaussians), per tile, ascending.
+    pub ranks: Vec<u32>,
+    /// Rank r's pairs are `pair_index[pair_start[r]..pair_start[r + 1]]`, tiles in row-major
+    /// order: the positions in `ranks` where r is listed.
+    pub pair_start: Vec<usize>,
+    /// See `pair_start`.
+    pub pair_index: Vec<u32>,
+}
+
+/// Sorts visible Gaussians by (depth, index): returns their indices front to back.
+pub fn depth_order(visible: &[u32], depth: &[f32]) -> Vec<u32> {
+    let mut keys: Vec<u64> = visible
+        .iter()
+        .map(|&i| ((depth[i as usize].to_bits() as u64) << 32) | i as u64)
+        .collect();
+    // Depths are ≥ near > 0, so their bit patterns order like the values; keys are unique.
+    keys.par_sort_unstable();
+    keys.into_iter().map(|k| k as u32).collect()
+}
+
+/// Builds the per-tile lists from the tile rectangles of the ranked Gaussians.
+pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
+    let ntiles = grid.len();
+    let tx = grid.tiles_x as usize;
+    let mut counts = vec![0usize; ntiles + 1];
+    let mut pair_start = Vec::with_capacity(rects.len() + 1);
+    let mut total = 0usize;
+    for r in rects {
+        pair_start.push(total);
+        for y in r[2]..r[3] {
+            let row = y as usize * tx;
+            for x in r[0]..r[1] {
+                counts[row + x as usize] += 1;
+            }
+        }
+        total += (r[1] - r[0]) as usize * (r[3] - r[2]) as usize;
+    }
+    pair_start.push(total);
+    let mut ranges = vec![0usize; ntiles + 1];
+    for t in 0..ntiles {
+        ranges[t + 1] = ranges[t] + counts[t];
+    }
+    let mut cursor: Vec<usize> = ranges[..ntiles].to_vec();
+    let mut ranks = vec![0u32; total];
+    let mut pair_index = vec![0u32; total];
+    let mut k = 0usize;
+    for (rank, r) in rects.iter().enumerate() {
+        for y in r[2]..r[3] {
+            let row = y as usize * tx;
+            for x in r[0]..r[1] {
+                let t = row + x as usize;
+                let pos = cursor[t];
+                cursor[t] += 1;
+                ranks[pos] = rank as u32;
+                pair_index[k] = pos as u32;
+                k += 1;
+            }
+        }
+    }
+    Bins {
+        ranges,
+        ranks,
+        pair_start,
+        pair_index,
+    }
+}
