@@ -7,7 +7,6 @@
 //! runs one level at a time (levels own disjoint parts of the table), so levels can be
 //! processed in parallel while each level accumulates its samples in a fixed order.
 
-use crate::constants::HASH_PRIMES;
 use crate::error::FieldError;
 use serde::{Deserialize, Serialize};
 
@@ -53,37 +52,216 @@ pub struct HashGrid {
     pub dense: Vec<bool>,
 }
 
-/// Corner indices (entry numbers, not floats) and trilinear weights of one point at one level.
+/// Points per block in the level kernels: corner indices and weights of a block are computed
+/// first (branch-free, vectorisable), then the table is gathered or scattered.
+const BLOCK: usize = 16;
+
+/// Corner indices (entry numbers, not floats) and trilinear weights of up to [`BLOCK`] points
+/// `start..start + BLOCK` (points past `n` get index 0 and weight 0).
 #[inline(always)]
-fn corners(res: u32, size: usize, dense: bool, p: [f32; 3]) -> ([u32; 8], [f32; 8]) {
-    let mut i0 = [0u32; 3];
-    let mut fr = [0f32; 3];
-    for a in 0..3 {
-        let x = p[a].clamp(0.0, 1.0) * res as f32;
-        let f = x.floor().min(res as f32 - 1.0).max(0.0);
-        i0[a] = f as u32;
-        fr[a] = x - f;
-    }
-    let mut idx = [0u32; 8];
-    let mut w = [0f32; 8];
+#[allow(clippy::too_many_arguments)]
+fn corners_block<const DENSE: bool>(
+    res: u32,
+    size: usize,
+    px: &[f32],
+    py: &[f32],
+    pz: &[f32],
+    start: usize,
+    n: usize,
+    idx: &mut [[u32; BLOCK]; 8],
+    w: &mut [[f32; BLOCK]; 8],
+) {
+    let r = res as f32;
     let stride = res + 1;
-    for c in 0..8u32 {
-        let (bx, by, bz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
-        let (x, y, z) = (i0[0] + bx, i0[1] + by, i0[2] + bz);
-        idx[c as usize] = if dense {
-            x + y * stride + z * stride * stride
+    let mask = size as u32 - 1;
+    let mut pos = [[0f32; BLOCK]; 3];
+    let cnt = (n - start).min(BLOCK);
+    pos[0][..cnt].copy_from_slice(&px[start..start + cnt]);
+    pos[1][..cnt].copy_from_slice(&py[start..start + cnt]);
+    pos[2][..cnt].copy_from_slice(&pz[start..start + cnt]);
+    let valid: [f32; BLOCK] = std::array::from_fn(|l| if l < cnt { 1.0 } else { 0.0 });
+    let mut lo = [[0u32; BLOCK]; 3];
+    let mut hi = [[0u32; BLOCK]; 3];
+    let mut fr = [[0f32; BLOCK]; 3];
+    for a in 0..3 {
+        let (m, s) = if DENSE {
+            (1u32, [1u32, stride, stride * stride][a])
         } else {
-            let h = x.wrapping_mul(HASH_PRIMES[0])
-                ^ y.wrapping_mul(HASH_PRIMES[1])
-                ^ z.wrapping_mul(HASH_PRIMES[2]);
-            h & (size as u32 - 1)
+            (crate::constants::HASH_PRIMES[a], 0)
         };
-        let wx = if bx == 1 { fr[0] } else { 1.0 - fr[0] };
-        let wy = if by == 1 { fr[1] } else { 1.0 - fr[1] };
-        let wz = if bz == 1 { fr[2] } else { 1.0 - fr[2] };
-        w[c as usize] = wx * wy * wz;
+        for l in 0..BLOCK {
+            // max/min also map NaN to 0 (f32::max returns the non-NaN operand).
+            let x = (pos[a][l] * r).max(0.0).min(r);
+            // x ∈ [0, r] is finite and non-negative: truncation is floor; keep one cell below r.
+            let i0 = x as u32;
+            let i0 = if i0 >= res { res - 1 } else { i0 };
+            fr[a][l] = x - i0 as f32;
+            if DENSE {
+                lo[a][l] = i0 * s;
+                hi[a][l] = (i0 + 1) * s;
+            } else {
+                lo[a][l] = i0.wrapping_mul(m);
+                hi[a][l] = (i0 + 1).wrapping_mul(m);
+            }
+        }
     }
-    (idx, w)
+    for c in 0..8 {
+        let (bx, by, bz) = (c & 1 == 1, (c >> 1) & 1 == 1, (c >> 2) & 1 == 1);
+        for l in 0..BLOCK {
+            let ix = if bx { hi[0][l] } else { lo[0][l] };
+            let iy = if by { hi[1][l] } else { lo[1][l] };
+            let iz = if bz { hi[2][l] } else { lo[2][l] };
+            let e = if DENSE {
+                ix + iy + iz
+            } else {
+                (ix ^ iy ^ iz) & mask
+            };
+            idx[c][l] = if l < cnt { e } else { 0 };
+            let wx = if bx { fr[0][l] } else { 1.0 - fr[0][l] };
+            let wy = if by { fr[1][l] } else { 1.0 - fr[1][l] };
+            let wz = if bz { fr[2][l] } else { 1.0 - fr[2][l] };
+            w[c][l] = wx * wy * wz * valid[l];
+        }
+    }
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn encode_level_body<const F: usize, const DENSE: bool>(
+    t: &[f32],
+    res: u32,
+    size: usize,
+    px: &[f32],
+    py: &[f32],
+    pz: &[f32],
+    n: usize,
+    ld: usize,
+    out: &mut [f32],
+) {
+    let t = &t[..size * F];
+    let mut idx = [[0u32; BLOCK]; 8];
+    let mut w = [[0f32; BLOCK]; 8];
+    for start in (0..n).step_by(BLOCK) {
+        corners_block::<DENSE>(res, size, px, py, pz, start, n, &mut idx, &mut w);
+        let cnt = (n - start).min(BLOCK);
+        for l in 0..cnt {
+            let mut acc = [0f32; F];
+            for c in 0..8 {
+                let e = idx[c][l] as usize * F;
+                let v: &[f32; F] = t[e..e + F].try_into().expect("entry");
+                for k in 0..F {
+                    acc[k] += w[c][l] * v[k];
+                }
+            }
+            for k in 0..F {
+                out[k * ld + start + l] = acc[k];
+            }
+        }
+    }
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn backward_level_body<const F: usize, const DENSE: bool>(
+    grad: &mut [f32],
+    res: u32,
+    size: usize,
+    px: &[f32],
+    py: &[f32],
+    pz: &[f32],
+    n: usize,
+    ld: usize,
+    d_out: &[f32],
+) {
+    let grad = &mut grad[..size * F];
+    let mut idx = [[0u32; BLOCK]; 8];
+    let mut w = [[0f32; BLOCK]; 8];
+    for start in (0..n).step_by(BLOCK) {
+        let cnt = (n - start).min(BLOCK);
+        let any = (0..F).any(|k| {
+            d_out[k * ld + start..k * ld + start + cnt]
+                .iter()
+                .any(|&v| v != 0.0)
+        });
+        if !any {
+            continue;
+        }
+        corners_block::<DENSE>(res, size, px, py, pz, start, n, &mut idx, &mut w);
+        for l in 0..cnt {
+            let mut d = [0f32; F];
+            for k in 0..F {
+                d[k] = d_out[k * ld + start + l];
+            }
+            for c in 0..8 {
+                let e = idx[c][l] as usize * F;
+                let g: &mut [f32; F] = (&mut grad[e..e + F]).try_into().expect("entry");
+                for k in 0..F {
+                    g[k] += w[c][l] * d[k];
+                }
+            }
+        }
+    }
+}
+
+macro_rules! level_kernel {
+    ($name:ident, $body:ident, $first:ident) => {
+        #[allow(clippy::too_many_arguments)]
+        fn $name<const F: usize, const DENSE: bool>(
+            $first: &[f32],
+            res: u32,
+            size: usize,
+            px: &[f32],
+            py: &[f32],
+            pz: &[f32],
+            n: usize,
+            ld: usize,
+            other: &mut [f32],
+        ) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx512f,avx512vl,avx2")]
+                #[allow(clippy::too_many_arguments)]
+                unsafe fn fast<const F: usize, const DENSE: bool>(
+                    a: &[f32], res: u32, size: usize, px: &[f32], py: &[f32], pz: &[f32], n: usize, ld: usize, b: &mut [f32],
+                ) {
+                    level_kernel!(@call $body, a, res, size, px, py, pz, n, ld, b)
+                }
+                if std::arch::is_x86_feature_detected!("avx512f")
+                    && std::arch::is_x86_feature_detected!("avx512vl")
+                {
+                    // SAFETY: the CPU supports the enabled features (checked above).
+                    return unsafe { fast::<F, DENSE>($first, res, size, px, py, pz, n, ld, other) };
+                }
+            }
+            level_kernel!(@call $body, $first, res, size, px, py, pz, n, ld, other)
+        }
+    };
+    (@call encode_level_body, $a:expr, $res:expr, $size:expr, $px:expr, $py:expr, $pz:expr, $n:expr, $ld:expr, $b:expr) => {
+        encode_level_body::<F, DENSE>($a, $res, $size, $px, $py, $pz, $n, $ld, $b)
+    };
+    (@call backward_level_body, $a:expr, $res:expr, $size:expr, $px:expr, $py:expr, $pz:expr, $n:expr, $ld:expr, $b:expr) => {
+        backward_level_body::<F, DENSE>($b, $res, $size, $px, $py, $pz, $n, $ld, $a)
+    };
+}
+
+level_kernel!(encode_level, encode_level_body, table);
+level_kernel!(backward_level_ro, backward_level_body, d_out);
+
+/// Backward of one level: `grad` (mutable) first, then the point data and `d_out`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn backward_level<const F: usize, const DENSE: bool>(
+    grad: &mut [f32],
+    res: u32,
+    size: usize,
+    px: &[f32],
+    py: &[f32],
+    pz: &[f32],
+    n: usize,
+    ld: usize,
+    d_out: &[f32],
+) {
+    backward_level_ro::<F, DENSE>(d_out, res, size, px, py, pz, n, ld, grad)
 }
 
 impl HashGrid {
@@ -187,21 +365,24 @@ impl HashGrid {
         for lvl in 0..self.levels() {
             let t = &table[self.level_range(lvl)];
             let (res, size, dense) = (self.resolutions[lvl], self.sizes[lvl], self.dense[lvl]);
-            for i in 0..n {
-                let (idx, w) = corners(res, size, dense, [px[i], py[i], pz[i]]);
-                let mut acc = [0f32; 8];
-                for c in 0..8 {
-                    let e = idx[c] as usize * f;
-                    for k in 0..f {
-                        acc[k] += w[c] * t[e + k];
-                    }
-                }
-                for k in 0..f {
-                    out[(lvl * f + k) * ld + i] = acc[k];
+            let o = &mut out[lvl * f * ld..(lvl + 1) * f * ld];
+            match (f, dense) {
+                (1, true) => encode_level::<1, true>(t, res, size, px, py, pz, n, ld, o),
+                (1, false) => encode_level::<1, false>(t, res, size, px, py, pz, n, ld, o),
+                (2, true) => encode_level::<2, true>(t, res, size, px, py, pz, n, ld, o),
+                (2, false) => encode_level::<2, false>(t, res, size, px, py, pz, n, ld, o),
+                (4, true) => encode_level::<4, true>(t, res, size, px, py, pz, n, ld, o),
+                (4, false) => encode_level::<4, false>(t, res, size, px, py, pz, n, ld, o),
+                (_, true) => encode_level::<8, true>(t, res, size, px, py, pz, n, ld, o),
+                (_, false) => encode_level::<8, false>(t, res, size, px, py, pz, n, ld, o),
+            }
+            for v in o.iter_mut() {
+                if !v.is_finite() {
+                    *v = 0.0;
                 }
             }
             for k in 0..f {
-                for v in &mut out[(lvl * f + k) * ld + n..(lvl * f + k + 1) * ld] {
+                for v in &mut o[k * ld + n..(k + 1) * ld] {
                     *v = 0.0;
                 }
             }
@@ -229,23 +410,16 @@ impl HashGrid {
             self.sizes[level],
             self.dense[level],
         );
-        for i in 0..n {
-            let mut d = [0f32; 8];
-            let mut any = false;
-            for k in 0..f {
-                d[k] = d_out[(level * f + k) * ld + i];
-                any |= d[k] != 0.0;
-            }
-            if !any {
-                continue;
-            }
-            let (idx, w) = corners(res, size, dense, [px[i], py[i], pz[i]]);
-            for c in 0..8 {
-                let e = idx[c] as usize * f;
-                for k in 0..f {
-                    grad[e + k] += w[c] * d[k];
-                }
-            }
+        let d = &d_out[level * f * ld..(level + 1) * f * ld];
+        match (f, dense) {
+            (1, true) => backward_level::<1, true>(grad, res, size, px, py, pz, n, ld, d),
+            (1, false) => backward_level::<1, false>(grad, res, size, px, py, pz, n, ld, d),
+            (2, true) => backward_level::<2, true>(grad, res, size, px, py, pz, n, ld, d),
+            (2, false) => backward_level::<2, false>(grad, res, size, px, py, pz, n, ld, d),
+            (4, true) => backward_level::<4, true>(grad, res, size, px, py, pz, n, ld, d),
+            (4, false) => backward_level::<4, false>(grad, res, size, px, py, pz, n, ld, d),
+            (_, true) => backward_level::<8, true>(grad, res, size, px, py, pz, n, ld, d),
+            (_, false) => backward_level::<8, false>(grad, res, size, px, py, pz, n, ld, d),
         }
     }
 

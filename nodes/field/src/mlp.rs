@@ -17,13 +17,25 @@ pub fn padded(n: usize) -> usize {
     n.div_ceil(LANES) * LANES
 }
 
+/// `a·b + c`, fused when `FMA` (the AVX paths) so every path of one build gives the same
+/// bits on one machine.
+#[inline(always)]
+fn fmadd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
+    if FMA {
+        a.mul_add(b, c)
+    } else {
+        a * b + c
+    }
+}
+
 #[inline(always)]
 fn lanes(s: &[f32], at: usize) -> &[f32; LANES] {
     s[at..at + LANES].try_into().expect("lane slice")
 }
 
 #[inline(always)]
-fn fwd_block<const OB: usize>(
+#[allow(clippy::too_many_arguments)]
+fn fwd_block<const OB: usize, const T: usize, const FMA: bool>(
     w: &[f32],
     b: Option<&[f32]>,
     x: &[f32],
@@ -31,28 +43,39 @@ fn fwd_block<const OB: usize>(
     inp: usize,
     o0: usize,
     ld: usize,
+    base: usize,
     relu: bool,
 ) {
-    for base in (0..ld).step_by(LANES) {
-        let mut acc = [[0f32; LANES]; OB];
-        if let Some(b) = b {
-            for k in 0..OB {
-                acc[k] = [b[o0 + k]; LANES];
-            }
+    let mut acc = [[[0f32; LANES]; T]; OB];
+    if let Some(b) = b {
+        for k in 0..OB {
+            acc[k] = [[b[o0 + k]; LANES]; T];
         }
-        for i in 0..inp {
-            let xv = lanes(x, i * ld + base);
-            for k in 0..OB {
-                let wk = w[(o0 + k) * inp + i];
+    }
+    for i in 0..inp {
+        let mut xv = [[0f32; LANES]; T];
+        for t in 0..T {
+            xv[t] = *lanes(x, i * ld + base + t * LANES);
+        }
+        for k in 0..OB {
+            let wk = w[(o0 + k) * inp + i];
+            for t in 0..T {
                 for l in 0..LANES {
-                    acc[k][l] += wk * xv[l];
+                    acc[k][t][l] = fmadd::<FMA>(wk, xv[t][l], acc[k][t][l]);
                 }
             }
         }
-        for k in 0..OB {
-            let row = &mut y[(o0 + k) * ld + base..(o0 + k) * ld + base + LANES];
+    }
+    for k in 0..OB {
+        for t in 0..T {
+            let at = (o0 + k) * ld + base + t * LANES;
+            let row = &mut y[at..at + LANES];
             for l in 0..LANES {
-                row[l] = if relu { acc[k][l].max(0.0) } else { acc[k][l] };
+                row[l] = if relu {
+                    acc[k][t][l].max(0.0)
+                } else {
+                    acc[k][t][l]
+                };
             }
         }
     }
@@ -60,7 +83,7 @@ fn fwd_block<const OB: usize>(
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn fwd_body<const OB: usize>(
+fn fwd_body<const OB: usize, const FMA: bool>(
     w: &[f32],
     b: Option<&[f32]>,
     x: &[f32],
@@ -70,19 +93,32 @@ fn fwd_body<const OB: usize>(
     ld: usize,
     relu: bool,
 ) {
-    let mut o0 = 0;
-    while o0 + OB <= out {
-        fwd_block::<OB>(w, b, x, y, inp, o0, ld, relu);
-        o0 += OB;
-    }
-    while o0 < out {
-        fwd_block::<1>(w, b, x, y, inp, o0, ld, relu);
-        o0 += 1;
+    let mut base = 0;
+    while base < ld {
+        let two = base + 2 * LANES <= ld;
+        let mut o0 = 0;
+        while o0 + OB <= out {
+            if two {
+                fwd_block::<OB, 2, FMA>(w, b, x, y, inp, o0, ld, base, relu);
+            } else {
+                fwd_block::<OB, 1, FMA>(w, b, x, y, inp, o0, ld, base, relu);
+            }
+            o0 += OB;
+        }
+        while o0 < out {
+            if two {
+                fwd_block::<1, 2, FMA>(w, b, x, y, inp, o0, ld, base, relu);
+            } else {
+                fwd_block::<1, 1, FMA>(w, b, x, y, inp, o0, ld, base, relu);
+            }
+            o0 += 1;
+        }
+        base += if two { 2 * LANES } else { LANES };
     }
 }
 
 #[inline(always)]
-fn dw_block<const OB: usize, const IB: usize>(
+fn dw_block<const OB: usize, const IB: usize, const FMA: bool>(
     dy: &[f32],
     x: &[f32],
     dw: &mut [f32],
@@ -101,7 +137,7 @@ fn dw_block<const OB: usize, const IB: usize>(
             let d = lanes(dy, (o0 + k) * ld + base);
             for j in 0..IB {
                 for l in 0..LANES {
-                    acc[k][j][l] += d[l] * xv[j][l];
+                    acc[k][j][l] = fmadd::<FMA>(d[l], xv[j][l], acc[k][j][l]);
                 }
             }
         }
@@ -125,7 +161,7 @@ fn hsum(a: &[f32; LANES]) -> f32 {
 }
 
 #[inline(always)]
-fn dw_body(
+fn dw_body<const OB: usize, const IB: usize, const FMA: bool>(
     dy: &[f32],
     x: &[f32],
     dw: &mut [f32],
@@ -134,8 +170,6 @@ fn dw_body(
     out: usize,
     ld: usize,
 ) {
-    const OB: usize = 4;
-    const IB: usize = 2;
     let mut o0 = 0;
     while o0 < out {
         let ob = (out - o0).min(OB);
@@ -143,11 +177,11 @@ fn dw_body(
         while i0 < inp {
             let ib = (inp - i0).min(IB);
             match (ob == OB, ib == IB) {
-                (true, true) => dw_block::<OB, IB>(dy, x, dw, inp, o0, i0, ld),
+                (true, true) => dw_block::<OB, IB, FMA>(dy, x, dw, inp, o0, i0, ld),
                 _ => {
                     for k in 0..ob {
                         for j in 0..ib {
-                            dw_block::<1, 1>(dy, x, dw, inp, o0 + k, i0 + j, ld);
+                            dw_block::<1, 1, FMA>(dy, x, dw, inp, o0 + k, i0 + j, ld);
                         }
                     }
                 }
@@ -168,46 +202,135 @@ fn dw_body(
     }
 }
 
-macro_rules! multiversion {
-    ($(#[$m:meta])* pub fn $name:ident($($a:ident : $t:ty),*) => $body:expr) => {
-        $(#[$m])*
+fn has_avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// `y[o] = act(b[o] + Σ_i w[o·inp + i] · x[i])` for every column of a channel-major batch
+/// (`x`: `inp × ld`, `y`: `out × ld`, `w`: `out × inp` row-major). `act` is ReLU when
+/// `relu`, else identity. `ld` must be a multiple of [`LANES`]. Each output sums over `i` in
+/// order, so block sizes do not change the result.
+#[allow(clippy::too_many_arguments)]
+pub fn linear_forward(
+    w: &[f32],
+    b: Option<&[f32]>,
+    x: &[f32],
+    y: &mut [f32],
+    inp: usize,
+    out: usize,
+    ld: usize,
+    relu: bool,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f,fma")]
         #[allow(clippy::too_many_arguments)]
-        pub fn $name($($a: $t),*) {
-            #[cfg(target_arch = "x86_64")]
-            {
-                #[target_feature(enable = "avx512f")]
-                #[allow(clippy::too_many_arguments)]
-                unsafe fn v512($($a: $t),*) { $body }
-                #[target_feature(enable = "avx2")]
-                #[allow(clippy::too_many_arguments)]
-                unsafe fn v256($($a: $t),*) { $body }
-                if std::arch::is_x86_feature_detected!("avx512f") {
-                    // SAFETY: the CPU supports the enabled feature (checked above).
-                    return unsafe { v512($($a),*) };
-                }
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    // SAFETY: the CPU supports the enabled feature (checked above).
-                    return unsafe { v256($($a),*) };
-                }
-            }
-            $body
+        unsafe fn v512(
+            w: &[f32],
+            b: Option<&[f32]>,
+            x: &[f32],
+            y: &mut [f32],
+            inp: usize,
+            out: usize,
+            ld: usize,
+            relu: bool,
+        ) {
+            fwd_body::<8, true>(w, b, x, y, inp, out, ld, relu)
         }
-    };
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn v256(
+            w: &[f32],
+            b: Option<&[f32]>,
+            x: &[f32],
+            y: &mut [f32],
+            inp: usize,
+            out: usize,
+            ld: usize,
+            relu: bool,
+        ) {
+            fwd_body::<4, true>(w, b, x, y, inp, out, ld, relu)
+        }
+        if has_avx512() {
+            // SAFETY: the CPU supports the enabled features (checked).
+            return unsafe { v512(w, b, x, y, inp, out, ld, relu) };
+        }
+        if has_avx2() {
+            // SAFETY: the CPU supports the enabled features (checked).
+            return unsafe { v256(w, b, x, y, inp, out, ld, relu) };
+        }
+    }
+    fwd_body::<4, false>(w, b, x, y, inp, out, ld, relu)
 }
 
-multiversion! {
-    /// `y[o] = act(b[o] + Σ_i w[o·inp + i] · x[i])` for every column of a channel-major batch
-    /// (`x`: `inp × ld`, `y`: `out × ld`, `w`: `out × inp` row-major). `act` is ReLU when
-    /// `relu`, else identity. `ld` must be a multiple of [`LANES`].
-    pub fn linear_forward(w: &[f32], b: Option<&[f32]>, x: &[f32], y: &mut [f32], inp: usize, out: usize, ld: usize, relu: bool)
-        => fwd_body::<4>(w, b, x, y, inp, out, ld, relu)
-}
-
-multiversion! {
-    /// Weight gradients of a layer: `dw[o·inp + i] += Σ_n dy[o][n] · x[i][n]` and
-    /// `db[o] += Σ_n dy[o][n]` (each sum in lane-blocked fixed order).
-    pub fn linear_backward_weights(dy: &[f32], x: &[f32], dw: &mut [f32], db: &mut [f32], inp: usize, out: usize, ld: usize)
-        => dw_body(dy, x, dw, db, inp, out, ld)
+/// Weight gradients of a layer: `dw[o·inp + i] += Σ_n dy[o][n] · x[i][n]` and
+/// `db[o] += Σ_n dy[o][n]` (each sum in lane-blocked fixed order, independent of block sizes).
+#[allow(clippy::too_many_arguments)]
+pub fn linear_backward_weights(
+    dy: &[f32],
+    x: &[f32],
+    dw: &mut [f32],
+    db: &mut [f32],
+    inp: usize,
+    out: usize,
+    ld: usize,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn v512(
+            dy: &[f32],
+            x: &[f32],
+            dw: &mut [f32],
+            db: &mut [f32],
+            inp: usize,
+            out: usize,
+            ld: usize,
+        ) {
+            dw_body::<4, 4, true>(dy, x, dw, db, inp, out, ld)
+        }
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn v256(
+            dy: &[f32],
+            x: &[f32],
+            dw: &mut [f32],
+            db: &mut [f32],
+            inp: usize,
+            out: usize,
+            ld: usize,
+        ) {
+            dw_body::<4, 2, true>(dy, x, dw, db, inp, out, ld)
+        }
+        if has_avx512() {
+            // SAFETY: the CPU supports the enabled features (checked).
+            return unsafe { v512(dy, x, dw, db, inp, out, ld) };
+        }
+        if has_avx2() {
+            // SAFETY: the CPU supports the enabled features (checked).
+            return unsafe { v256(dy, x, dw, db, inp, out, ld) };
+        }
+    }
+    dw_body::<4, 2, false>(dy, x, dw, db, inp, out, ld)
 }
 
 /// Input gradient of a layer: `dx[i] = Σ_o w[o·inp + i] · dy[o]` per column. `wt` is scratch
@@ -236,9 +359,7 @@ pub fn linear_backward_input(
 /// (`y > 0`).
 pub fn relu_backward(d: &mut [f32], y: &[f32]) {
     for (d, &y) in d.iter_mut().zip(y) {
-        if y <= 0.0 {
-            *d = 0.0;
-        }
+        *d = if y > 0.0 { *d } else { 0.0 };
     }
 }
 

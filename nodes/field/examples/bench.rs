@@ -1,0 +1,223 @@
+//! Throughput benchmarks of the field (run with `cargo run --release -p augsplat-field
+//! --example bench -- [threads] [what]`):
+//! - `step`: forward+backward samples per second and time per step (16 levels × 2 features,
+//!   2^17 table, 64-wide MLPs) for 1024- and 4096-ray steps on a random scene;
+//! - `kernels`: per-kernel timings on one chunk.
+
+use augsplat_core::{Camera, Rng};
+use augsplat_field::field::{ChunkState, Field, FieldConfig, RayInput};
+use augsplat_field::hashgrid::HashGridConfig;
+use augsplat_field::occupancy::OccupancyGrid;
+use augsplat_field::train::{self, Adam, TrainOptions, TrainState, ViewData};
+use std::time::Instant;
+
+fn camera(k: usize) -> Camera {
+    let a = k as f64 * 0.7;
+    let c = [1.2 * a.cos(), -0.3, 1.2 * a.sin()];
+    let f = augsplat_core::linalg::normalize(augsplat_core::linalg::scale(c, -1.0));
+    let right = augsplat_core::linalg::normalize(augsplat_core::linalg::cross([0.0, 1.0, 0.0], f));
+    let down = augsplat_core::linalg::cross(f, right);
+    let r = [right, down, f];
+    let t = augsplat_core::linalg::scale(augsplat_core::linalg::mat3_vec(&r, c), -1.0);
+    Camera {
+        width: 128,
+        height: 96,
+        fx: 110.0,
+        fy: 110.0,
+        cx: 64.0,
+        cy: 48.0,
+        world_to_camera: augsplat_core::linalg::mat4_from_rt(&r, t),
+    }
+}
+
+/// CPU seconds (user + system) used by this process so far, from /proc/self/stat (Linux);
+/// the machine is shared, so wall time alone overstates the cost.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = after.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let threads: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(2);
+    let what = args.get(2).cloned().unwrap_or_else(|| "step".into());
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    let cfg = FieldConfig {
+        grid: HashGridConfig {
+            log2_table_size: std::env::var("LOG2T")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(17),
+            ..HashGridConfig::default()
+        },
+        hidden_width: 64,
+        appearance_dim: 0,
+        n_images: 8,
+        center: [0.0; 3],
+        radius: 1.2,
+        near: 0.05,
+        far: 4.5,
+        march_steps: 128,
+        occupancy_resolution: 64,
+    };
+    let field = Field::new(cfg).unwrap();
+    let mut rng = Rng::new(0);
+    let views: Vec<ViewData> = (0..8)
+        .map(|k| ViewData {
+            name: format!("v{k}"),
+            camera: camera(k),
+            rgb: (0..128 * 96 * 3).map(|_| rng.next_f32()).collect(),
+            depth: None,
+        })
+        .collect();
+    println!("threads {threads}; params {}", field.n_params);
+    pool.install(|| match what.as_str() {
+        "kernels" => kernels(&field),
+        _ => {
+            for rays in [1024u32, 4096] {
+                let opts = TrainOptions {
+                    seed: 1,
+                    steps: 100,
+                    rays_per_step: rays,
+                    chunk_rays: 64,
+                    learning_rate: 1e-2,
+                    lr_final_factor: 0.1,
+                    depth_loss_weight: 0.0,
+                    depth_sigma: 0.02,
+                    distortion_loss_weight: 0.0,
+                    random_background: true,
+                    background: [0.0; 3],
+                    occupancy_warmup: 1000,
+                    eval_every: 0,
+                };
+                let mut state = TrainState {
+                    params: field.init_params(1),
+                    occupancy: OccupancyGrid::full(64),
+                    skipped_steps: 0,
+                    nonfinite_values: 0,
+                };
+                let mut adam = Adam::new(field.n_params);
+                let mut grad = Vec::new();
+                train::train_step(&field, &mut state, &mut adam, &views, &opts, 0, &mut grad).unwrap();
+                let n = 5;
+                let t0 = Instant::now();
+                let c0 = cpu_seconds();
+                let mut samples = 0;
+                let mut color = 0;
+                for s in 1..=n {
+                    let st = train::train_step(&field, &mut state, &mut adam, &views, &opts, s, &mut grad).unwrap();
+                    samples += st.samples;
+                    color += st.color_samples;
+                }
+                let dt = t0.elapsed().as_secs_f64();
+                let cpu = cpu_seconds() - c0;
+                println!(
+                    "{rays} rays/step: {:.3} s/step wall, {:.0} samples/step ({:.0} with colour), {:.0} samples/s forward+backward (wall); \
+                     CPU {:.3} s/step, i.e. {:.0} samples/s if the {threads} threads had their cores to themselves",
+                    dt / n as f64,
+                    samples as f64 / n as f64,
+                    color as f64 / n as f64,
+                    samples as f64 / dt,
+                    cpu / n as f64,
+                    samples as f64 / (cpu / threads as f64)
+                );
+            }
+        }
+    });
+}
+
+fn kernels(field: &Field) {
+    let params = field.init_params(3);
+    let occ = OccupancyGrid::full(64);
+    let mut rng = Rng::new(5);
+    let rays: Vec<RayInput> = (0..64)
+        .map(|_| {
+            let d = augsplat_core::linalg::normalize([
+                rng.uniform(-0.3, 0.3),
+                rng.uniform(-0.3, 0.3),
+                1.0,
+            ]);
+            RayInput {
+                origin: [0.0, 0.0, -1.2],
+                dir: d.map(|v| v as f32),
+                image: 0,
+                background: [0.0; 3],
+            }
+        })
+        .collect();
+    let mut st = ChunkState::default();
+    let mean = field.mean_embedding(&params);
+    let reps = 20;
+    let c_start = cpu_seconds();
+    let t0 = Instant::now();
+    for _ in 0..reps {
+        field.forward_chunk(&params, &occ, &rays, &|_| 0.5, &mean, &mut st);
+    }
+    let fwd = t0.elapsed().as_secs_f64() / reps as f64;
+    let n = st.n();
+    let t0 = Instant::now();
+    for _ in 0..reps {
+        let mut s2 = ChunkState::default();
+        std::mem::swap(&mut s2, &mut st);
+        let (px, py, pz) = (s2.px.clone(), s2.py.clone(), s2.pz.clone());
+        let ld = s2.ld;
+        let mut enc = vec![0f32; field.grid.output_dim() * ld];
+        field.grid.encode(
+            &params[..field.density_offset],
+            &px,
+            &py,
+            &pz,
+            n,
+            ld,
+            &mut enc,
+        );
+        std::mem::swap(&mut s2, &mut st);
+    }
+    let enc_t = t0.elapsed().as_secs_f64() / reps as f64;
+    for r in 0..rays.len() {
+        field.add_ray_output_grad(&mut st, &rays, r, [0.1, 0.1, 0.1], 0.0, 0.0);
+    }
+    let mut grad = vec![0f32; field.n_params - field.density_offset];
+    let t0 = Instant::now();
+    for _ in 0..reps {
+        field.backward_chunk(&params, &rays, &mut st, &mut grad);
+    }
+    let bwd = t0.elapsed().as_secs_f64() / reps as f64;
+    let mut g = vec![0f32; field.density_offset];
+    let t0 = Instant::now();
+    for _ in 0..reps {
+        for l in 0..field.grid.levels() {
+            let r = field.grid.level_range(l);
+            field
+                .grid
+                .backward_level(l, &st.px, &st.py, &st.pz, n, st.ld, &st.d_enc, &mut g[r]);
+        }
+    }
+    let gb = t0.elapsed().as_secs_f64() / reps as f64;
+    println!("chunk of {n} samples ({} with colour):", st.alive.len());
+    println!(
+        "  forward {:.2} ms (hash encode {:.2} ms)",
+        fwd * 1e3,
+        enc_t * 1e3
+    );
+    println!(
+        "  backward MLPs {:.2} ms, hash backward {:.2} ms",
+        bwd * 1e3,
+        gb * 1e3
+    );
+    println!(
+        "  => {:.0} samples/s single thread fwd+bwd (wall)",
+        n as f64 / (fwd + bwd + gb)
+    );
+    let cpu = cpu_seconds() - c_start;
+    println!(
+        "  => {:.0} samples/s single thread fwd+bwd (CPU time; encode timed twice)",
+        n as f64 * reps as f64 / cpu
+    );
+}
