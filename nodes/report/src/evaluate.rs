@@ -179,12 +179,12 @@ impl Node for EvaluateNode {
     }
 }
 
+/// A loaded LPIPS model with its backbone (or `None`), and a note when it is unavailable.
+pub type LoadedLpips = (Option<(Lpips, Backbone)>, Option<String>);
+
 /// Loads the LPIPS model the args ask for: `(model, backbone)` or `None` with a note saying
 /// why and how to get weights. A weights file that exists but cannot be loaded is an error.
-pub fn load_lpips(
-    net: LpipsNet,
-    explicit: Option<&Path>,
-) -> Result<(Option<(Lpips, Backbone)>, Option<String>), ReportError> {
+pub fn load_lpips(net: LpipsNet, explicit: Option<&Path>) -> Result<LoadedLpips, ReportError> {
     let backbone = match net {
         LpipsNet::None => {
             return Ok((

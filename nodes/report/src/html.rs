@@ -171,8 +171,8 @@ pub fn confidence_colormap(values: &[f32], width: u32, height: u32) -> ImageF32 
         let t = v.clamp(0.0, 1.0) * 4.0;
         let i = (t.floor() as usize).min(3);
         let f = t - i as f32;
-        for k in 0..3 {
-            data.push(ANCHORS[i][k] * (1.0 - f) + ANCHORS[i + 1][k] * f);
+        for (lo, hi) in ANCHORS[i].iter().zip(&ANCHORS[i + 1]) {
+            data.push(lo * (1.0 - f) + hi * f);
         }
     }
     ImageF32::from_vec(width, height, 3, data)

@@ -58,7 +58,7 @@ const CSS: &str = "body{font-family:system-ui,sans-serif;margin:24px auto;max-wi
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:4px;margin-top:2em}\
 table.metrics{border-collapse:collapse;margin:12px 0}table.metrics caption{text-align:left;font-weight:bold;margin-bottom:4px}\
 table.metrics th,table.metrics td{border:1px solid #ccc;padding:4px 10px;text-align:right}\
-table.metrics th[scope=row]{text-align:left}td.best{background:#e6f4e6}.detail{color:#777;font-weight:normal;font-size:.9em}\
+table.metrics th[scope=row],table.metrics thead th:first-child{text-align:left}td.best{background:#e6f4e6}.detail{color:#777;font-weight:normal;font-size:.9em}\
 .plots{display:flex;flex-wrap:wrap;gap:12px}.note{color:#555;font-size:.92em}\
 figure{margin:0;display:inline-block;vertical-align:top;text-align:center}figcaption{font-size:.85em;color:#444}\
 .row{display:flex;flex-wrap:wrap;gap:8px;align-items:flex-start;margin-bottom:8px}img.px{image-rendering:pixelated}";

@@ -277,6 +277,6 @@ mod tests {
         // Nothing at or before the step.
         let late = curve(vec![pt(250, 16.9, Some(0.19))]);
         assert!(at_baseline_step(&late, &baseline).is_none());
-        assert_eq!(point_at_step(&late, 250).unwrap().1, true);
+        assert!(point_at_step(&late, 250).unwrap().1);
     }
 }

@@ -529,7 +529,7 @@ pub fn bar_chart(chart: &Chart, categories: &[String], stacks: &[(String, Vec<f6
             escape(cat)
         );
         let mut x0 = 0.0;
-        for s in 0..stacks.len() {
+        for (s, (stack_name, _)) in stacks.iter().enumerate() {
             let v = val(s, c);
             if v <= 0.0 {
                 continue;
@@ -541,7 +541,7 @@ pub fn bar_chart(chart: &Chart, categories: &[String], stacks: &[(String, Vec<f6
                 f.px(x0 + v) - f.px(x0),
                 color(s),
                 escape(cat),
-                escape(&stacks[s].0),
+                escape(stack_name),
                 v
             );
             x0 += v;
