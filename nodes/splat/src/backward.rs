@@ -219,10 +219,28 @@ pub(crate) fn backward_impl(
         let ft = &st.final_t[t * TILE_PIXELS..(t + 1) * TILE_PIXELS];
         match st.cutoff {
             Cutoff::Hard => backward_tile::<false>(
-                &st.splats, list, x0, y0, last, ft, &up, s.background, max_alpha, slot,
+                &st.splats,
+                list,
+                x0,
+                y0,
+                last,
+                ft,
+                &up,
+                s.background,
+                max_alpha,
+                slot,
             ),
             Cutoff::Smooth => backward_tile::<true>(
-                &st.splats, list, x0, y0, last, ft, &up, s.background, max_alpha, slot,
+                &st.splats,
+                list,
+                x0,
+                y0,
+                last,
+                ft,
+                &up,
+                s.background,
+                max_alpha,
+                slot,
             ),
         }
     });
@@ -305,7 +323,8 @@ pub(crate) fn backward_impl(
                     let dir = [v[0] / len, v[1] / len, v[2] / len];
                     let coefs = &g.sh[i * kcoef..(i + 1) * kcoef];
                     g_coefs[..kcoef].iter_mut().for_each(|x| *x = 0.0);
-                    let gd = sh::eval_color_vjp(degree, coefs, dir, [rg[6], rg[7], rg[8]], &mut g_coefs);
+                    let gd =
+                        sh::eval_color_vjp(degree, coefs, dir, [rg[6], rg[7], rg[8]], &mut g_coefs);
                     let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
                     for a in 0..3 {
                         gmean[a] += (gd[a] - dir[a] * dd) / len;

@@ -105,7 +105,10 @@ pub fn exp_neg(x: f32) -> f32 {
 #[inline(always)]
 pub(crate) fn smooth_cut(alpha: f32) -> (f32, f32) {
     let x = ((alpha - ALPHA_THRESHOLD) / ALPHA_THRESHOLD).clamp(0.0, 1.0);
-    (x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x) / ALPHA_THRESHOLD)
+    (
+        x * x * (3.0 - 2.0 * x),
+        6.0 * x * (1.0 - x) / ALPHA_THRESHOLD,
+    )
 }
 
 /// Per-tile pixel results.
@@ -128,7 +131,13 @@ impl Default for TilePixels {
 }
 
 /// Projects every Gaussian and evaluates the colour of the visible ones.
-fn project_all(g: &Gaussians, cm: &CameraModel, s: &RenderSettings, degree: u32, grid: &TileGrid) -> Vec<Proj> {
+fn project_all(
+    g: &Gaussians,
+    cm: &CameraModel,
+    s: &RenderSettings,
+    degree: u32,
+    grid: &TileGrid,
+) -> Vec<Proj> {
     let n = g.len();
     let k = g.coeffs() * 3;
     let sh_ok = g.sh.len() == n * k
@@ -136,65 +145,71 @@ fn project_all(g: &Gaussians, cm: &CameraModel, s: &RenderSettings, degree: u32,
         && g.quats.len() == n
         && g.opacity_logits.len() == n;
     let mut out = vec![Proj::Invalid; n];
-    out.par_chunks_mut(PROJECT_CHUNK).enumerate().for_each(|(ci, chunk)| {
-        let mut basis = [0.0f64; 16];
-        for (j, slot) in chunk.iter_mut().enumerate() {
-            let i = ci * PROJECT_CHUNK + j;
-            if !sh_ok {
-                *slot = Proj::Invalid;
-                continue;
-            }
-            let coefs = &g.sh[i * k..(i + 1) * k];
-            let nb = sh::basis_len(degree);
-            if !coefs[..nb * 3].iter().all(|v| v.is_finite()) {
-                *slot = Proj::Invalid;
-                continue;
-            }
-            *slot = match project(
-                cm,
-                g.means[i],
-                g.log_scales[i],
-                g.quats[i],
-                g.opacity_logits[i],
-                s.antialiased,
-                s.near as f64,
-            ) {
-                Outcome::Invalid => Proj::Invalid,
-                Outcome::Culled => Proj::Culled,
-                Outcome::Visible(p) => {
-                    let m = g.means[i];
-                    let v = [
-                        m[0] as f64 - cm.center[0],
-                        m[1] as f64 - cm.center[1],
-                        m[2] as f64 - cm.center[2],
-                    ];
-                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                    let dir = if len > 0.0 { [v[0] / len, v[1] / len, v[2] / len] } else { [0.0, 0.0, 1.0] };
-                    let col = sh::eval_color(degree, coefs, dir, &mut basis);
-                    let rect = grid.rect(p.mean2d, p.radius);
-                    if rect[0] >= rect[1] || rect[2] >= rect[3] {
-                        Proj::Culled
-                    } else {
-                        Proj::Visible(
-                            Splat2D {
-                                x: p.mean2d[0] as f32,
-                                y: p.mean2d[1] as f32,
-                                a: p.conic[0] as f32,
-                                b: p.conic[1] as f32,
-                                c: p.conic[2] as f32,
-                                opacity: p.opacity as f32,
-                                rgb: [col[0] as f32, col[1] as f32, col[2] as f32],
-                                depth: p.depth as f32,
-                                ymin: (p.mean2d[1] - p.radius[1] as f64) as f32,
-                                ymax: (p.mean2d[1] + p.radius[1] as f64) as f32,
-                            },
-                            rect,
-                        )
-                    }
+    out.par_chunks_mut(PROJECT_CHUNK)
+        .enumerate()
+        .for_each(|(ci, chunk)| {
+            let mut basis = [0.0f64; 16];
+            for (j, slot) in chunk.iter_mut().enumerate() {
+                let i = ci * PROJECT_CHUNK + j;
+                if !sh_ok {
+                    *slot = Proj::Invalid;
+                    continue;
                 }
-            };
-        }
-    });
+                let coefs = &g.sh[i * k..(i + 1) * k];
+                let nb = sh::basis_len(degree);
+                if !coefs[..nb * 3].iter().all(|v| v.is_finite()) {
+                    *slot = Proj::Invalid;
+                    continue;
+                }
+                *slot = match project(
+                    cm,
+                    g.means[i],
+                    g.log_scales[i],
+                    g.quats[i],
+                    g.opacity_logits[i],
+                    s.antialiased,
+                    s.near as f64,
+                ) {
+                    Outcome::Invalid => Proj::Invalid,
+                    Outcome::Culled => Proj::Culled,
+                    Outcome::Visible(p) => {
+                        let m = g.means[i];
+                        let v = [
+                            m[0] as f64 - cm.center[0],
+                            m[1] as f64 - cm.center[1],
+                            m[2] as f64 - cm.center[2],
+                        ];
+                        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                        let dir = if len > 0.0 {
+                            [v[0] / len, v[1] / len, v[2] / len]
+                        } else {
+                            [0.0, 0.0, 1.0]
+                        };
+                        let col = sh::eval_color(degree, coefs, dir, &mut basis);
+                        let rect = grid.rect(p.mean2d, p.radius);
+                        if rect[0] >= rect[1] || rect[2] >= rect[3] {
+                            Proj::Culled
+                        } else {
+                            Proj::Visible(
+                                Splat2D {
+                                    x: p.mean2d[0] as f32,
+                                    y: p.mean2d[1] as f32,
+                                    a: p.conic[0] as f32,
+                                    b: p.conic[1] as f32,
+                                    c: p.conic[2] as f32,
+                                    opacity: p.opacity as f32,
+                                    rgb: [col[0] as f32, col[1] as f32, col[2] as f32],
+                                    depth: p.depth as f32,
+                                    ymin: (p.mean2d[1] - p.radius[1] as f64) as f32,
+                                    ymax: (p.mean2d[1] + p.radius[1] as f64) as f32,
+                                },
+                                rect,
+                            )
+                        }
+                    }
+                };
+            }
+        });
     out
 }
 
@@ -354,8 +369,12 @@ pub(crate) fn render_impl(
             }
             let list = &bins.ranks[bins.ranges[t]..bins.ranges[t + 1]];
             match cutoff {
-                Cutoff::Hard => raster_tile::<false>(&splats, list, x0, y0, &active, max_alpha, out),
-                Cutoff::Smooth => raster_tile::<true>(&splats, list, x0, y0, &active, max_alpha, out),
+                Cutoff::Hard => {
+                    raster_tile::<false>(&splats, list, x0, y0, &active, max_alpha, out)
+                }
+                Cutoff::Smooth => {
+                    raster_tile::<true>(&splats, list, x0, y0, &active, max_alpha, out)
+                }
             }
         })
         .sum();
@@ -382,7 +401,11 @@ pub(crate) fn render_impl(
                 }
                 let a = 1.0 - t;
                 a_row[x] = a;
-                d_row[x] = if a >= DEPTH_ALPHA_EPS { tile.d[p] / a } else { 0.0 };
+                d_row[x] = if a >= DEPTH_ALPHA_EPS {
+                    tile.d[p] / a
+                } else {
+                    0.0
+                };
             }
         });
     let mut last = vec![0u32; grid.len() * TILE_PIXELS];

@@ -183,9 +183,21 @@ fn tr3(a: &M3) -> M3 {
 pub fn quat_rot(q: [f64; 4]) -> M3 {
     let [w, x, y, z] = q;
     [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
     ]
 }
 
@@ -213,7 +225,12 @@ fn intermediates(
     if !s.iter().all(|v| v.is_finite()) {
         return Err(Outcome::Invalid);
     }
-    let q = [quat[0] as f64, quat[1] as f64, quat[2] as f64, quat[3] as f64];
+    let q = [
+        quat[0] as f64,
+        quat[1] as f64,
+        quat[2] as f64,
+        quat[3] as f64,
+    ];
     let n2 = q.iter().map(|v| v * v).sum::<f64>();
     if !(n2 >= MIN_QUAT_NORM2) || !n2.is_finite() {
         return Err(Outcome::Invalid);
@@ -266,7 +283,8 @@ fn intermediates(
             tm[i][k] = jac[i][0] * cov_c[0][k] + jac[i][1] * cov_c[1][k] + jac[i][2] * cov_c[2][k];
         }
     }
-    let dotj = |i: usize, j: usize| tm[i][0] * jac[j][0] + tm[i][1] * jac[j][1] + tm[i][2] * jac[j][2];
+    let dotj =
+        |i: usize, j: usize| tm[i][0] * jac[j][0] + tm[i][1] * jac[j][1] + tm[i][2] * jac[j][2];
     let x_raw = [dotj(0, 0), 0.5 * (dotj(0, 1) + dotj(1, 0)), dotj(1, 1)];
     if !x_raw.iter().all(|v| v.is_finite()) {
         return Err(Outcome::Invalid);
@@ -369,7 +387,10 @@ pub fn project_vjp(
     let [a, b, c] = it.conic;
     let k = [[a, b], [b, c]];
     // Full-matrix gradient of the conic (b sits in both off-diagonal entries).
-    let gk = [[g.conic[0], 0.5 * g.conic[1]], [0.5 * g.conic[1], g.conic[2]]];
+    let gk = [
+        [g.conic[0], 0.5 * g.conic[1]],
+        [0.5 * g.conic[1], g.conic[2]],
+    ];
     // G_X = −K G_K K.
     let mut kg = [[0.0; 2]; 2];
     for i in 0..2 {
@@ -485,7 +506,10 @@ pub fn project_vjp(
             + qz * gr[2][0]
             + qw * gr[2][1]
             - 2.0 * qx * gr[2][2]),
-        2.0 * (-2.0 * qy * gr[0][0] + qx * gr[0][1] + qw * gr[0][2] + qx * gr[1][0]
+        2.0 * (-2.0 * qy * gr[0][0]
+            + qx * gr[0][1]
+            + qw * gr[0][2]
+            + qx * gr[1][0]
             + qz * gr[1][2]
             - qw * gr[2][0]
             + qz * gr[2][1]

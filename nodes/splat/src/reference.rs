@@ -295,7 +295,11 @@ pub fn render_reference(
                 img.rgb[p * 3 + ch] = col[ch] + t * s.background[ch] as f64;
             }
             img.alpha[p] = 1.0 - t;
-            img.depth[p] = if 1.0 - t >= 1e-6 { dsum / (1.0 - t) } else { 0.0 };
+            img.depth[p] = if 1.0 - t >= 1e-6 {
+                dsum / (1.0 - t)
+            } else {
+                0.0
+            };
         }
     }
     img

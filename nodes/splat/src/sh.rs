@@ -107,7 +107,12 @@ pub fn basis_vjp(degree: u32, d: [f64; 3], g: &[f64; 16]) -> [f64; 3] {
 
 /// Colour of one Gaussian: `coefs` holds `K·3` values (`[k·3 + c]`, K the stored count),
 /// `degree` the active degree. Returns the clamped colour; `basis_out` receives the basis.
-pub fn eval_color(degree: u32, coefs: &[f32], dir: [f64; 3], basis_out: &mut [f64; 16]) -> [f64; 3] {
+pub fn eval_color(
+    degree: u32,
+    coefs: &[f32],
+    dir: [f64; 3],
+    basis_out: &mut [f64; 16],
+) -> [f64; 3] {
     basis(degree, dir, basis_out);
     let n = basis_len(degree);
     let mut c = [0.5f64; 3];
@@ -176,7 +181,11 @@ mod tests {
                 basis(3, dp, &mut yp);
                 basis(3, dm, &mut ym);
                 let fd = (yp[k] - ym[k]) / (2.0 * h);
-                assert!((fd - an[a]).abs() < 1e-7, "Y{k} d{a}: fd {fd} analytic {}", an[a]);
+                assert!(
+                    (fd - an[a]).abs() < 1e-7,
+                    "Y{k} d{a}: fd {fd} analytic {}",
+                    an[a]
+                );
             }
         }
     }

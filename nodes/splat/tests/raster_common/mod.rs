@@ -54,7 +54,13 @@ pub fn push(g: &mut Gaussians, rng: &mut Rng, cam: &Camera, pc: [f64; 3], ls: f6
 
 /// A random scene of `n` Gaussians mostly inside the view of `cam` at depths 1.5–6, with
 /// opacities spread over `logit_range` (include values above MAX_ALPHA with e.g. up to 7).
-pub fn random_scene(seed: u64, n: usize, degree: u32, cam: &Camera, logit_range: (f64, f64)) -> Gaussians {
+pub fn random_scene(
+    seed: u64,
+    n: usize,
+    degree: u32,
+    cam: &Camera,
+    logit_range: (f64, f64),
+) -> Gaussians {
     let mut rng = Rng::new(seed);
     let mut g = Gaussians::empty(degree);
     let (hw, hh) = (
@@ -75,5 +81,8 @@ pub fn random_scene(seed: u64, n: usize, degree: u32, cam: &Camera, logit_range:
 /// Maximum absolute difference.
 pub fn max_abs_diff(a: &[f32], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(x, y)| (*x as f64 - y).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (*x as f64 - y).abs())
+        .fold(0.0, f64::max)
 }
