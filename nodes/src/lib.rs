@@ -9,5 +9,4 @@ pub fn register_builtin(registry: &mut Registry) {
     augsplat_field::register(registry);
     augsplat_report::register(registry);
     augsplat_scene::register(registry);
-    augsplat_splat::register(registry);
 }
