@@ -2,9 +2,30 @@
 //!
 //! - [`node`]: the node API ([`Node`], [`RunContext`]).
 //! - [`registry`]: kinds by name and the type-erased adapter.
+//! - [`syntax`]: a RON reader that keeps positions; [`spec`]: `extends`, `--set`, params, sweeps.
+//! - [`resolve`]: typing against the registry, repeats, references, cycles, dedup → [`Plan`].
+//! - [`store`]: blobs, manifests, action cache, claims, records, GC.
+//! - [`exec`]: the local executor; [`explain`]: `plan` and `why`; [`engine`]: the library API.
+//! - [`command`]: the `Command` node kind (external programs).
+//!
+//! See `graph/README.md` for the pipeline syntax and the engine's semantics.
 
+pub mod command;
+pub mod engine;
+pub mod error;
+pub mod exec;
+pub mod explain;
 pub mod node;
 pub mod registry;
+pub mod resolve;
+pub mod spec;
+pub mod store;
+pub mod syntax;
 
-pub use node::{InputDecl, Node, NodeError, ProgressSink, RunContext, Threads};
+pub use engine::{default_cache_dir, expand_text, run_pipeline, Engine};
+pub use error::{Diagnostic, EngineError, PipelineError};
+pub use exec::{RunOptions, RunReport, Status};
+pub use node::{InputDecl, Node, NodeError, NullSink, ProgressSink, RunContext, Threads};
 pub use registry::{ArgsBox, ArgsError, DynNode, Registry};
+pub use resolve::Plan;
+pub use store::{GcReport, Store};

@@ -34,15 +34,27 @@ pub struct InputDecl {
 impl InputDecl {
     /// A required single input.
     pub fn one(name: &str) -> Self {
-        InputDecl { name: name.into(), optional: false, many: false }
+        InputDecl {
+            name: name.into(),
+            optional: false,
+            many: false,
+        }
     }
     /// An optional single input.
     pub fn optional(name: &str) -> Self {
-        InputDecl { name: name.into(), optional: true, many: false }
+        InputDecl {
+            name: name.into(),
+            optional: true,
+            many: false,
+        }
     }
     /// A required list input (one or more references).
     pub fn many(name: &str) -> Self {
-        InputDecl { name: name.into(), optional: false, many: true }
+        InputDecl {
+            name: name.into(),
+            optional: false,
+            many: true,
+        }
     }
 }
 
@@ -64,7 +76,9 @@ impl NodeError {
     }
     /// Prefixes the message with context ("while reading X: ...").
     pub fn context(self, ctx: impl std::fmt::Display) -> Self {
-        NodeError { message: format!("{ctx}: {}", self.message) }
+        NodeError {
+            message: format!("{ctx}: {}", self.message),
+        }
     }
 }
 
@@ -161,7 +175,10 @@ impl RunContext {
     }
     /// The folder of an optional single input, if connected.
     pub fn optional_input(&self, name: &str) -> Option<&Path> {
-        self.inputs.iter().find(|(n, _)| n == name).and_then(|(_, p)| p.first().map(|p| p.as_path()))
+        self.inputs
+            .iter()
+            .find(|(n, _)| n == name)
+            .and_then(|(_, p)| p.first().map(|p| p.as_path()))
     }
     /// The folders of list input `name`, in the order the pipeline lists them.
     pub fn input_list(&self, name: &str) -> Result<&[PathBuf], NodeError> {

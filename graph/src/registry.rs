@@ -65,12 +65,19 @@ impl<N: Node> DynNode for Adapter<N> {
         let args: N::Args = if trimmed.is_empty() || trimmed == "()" || trimmed == "{}" {
             N::Args::default()
         } else {
-            let opts = ron::Options::default();
-            let mut de = ron::Deserializer::from_str_with_options(trimmed, &opts)
-                .map_err(|e| ArgsError { path: String::new(), message: e.to_string() })?;
+            // `implicit_some`: an `Option` field may be written `steps: 100` as well as `Some(100)`.
+            let opts = ron::Options::default().with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME);
+            let mut de = ron::Deserializer::from_str_with_options(trimmed, &opts).map_err(|e| ArgsError {
+                path: String::new(),
+                message: e.to_string(),
+            })?;
             let value: N::Args = serde_path_to_error::deserialize(&mut de).map_err(|e| ArgsError {
                 path: e.path().to_string().trim_start_matches('.').replace('?', "").to_string(),
                 message: e.inner().to_string(),
+            })?;
+            de.end().map_err(|e| ArgsError {
+                path: String::new(),
+                message: e.to_string(),
             })?;
             value
         };
@@ -112,6 +119,12 @@ impl Registry {
     /// An empty registry.
     pub fn new() -> Self {
         Registry::default()
+    }
+    /// A registry holding the engine's own kinds (`Command`).
+    pub fn with_engine_kinds() -> Self {
+        let mut r = Registry::default();
+        r.register::<crate::command::Command>();
+        r
     }
     /// Registers kind `N` under `N::KIND` (a later registration of the same name replaces it).
     pub fn register<N: Node>(&mut self) -> &mut Self {

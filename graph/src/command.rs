@@ -1,0 +1,218 @@
+//! The engine's own `Command` node kind: runs an external program on declared input folders
+//! and output folders. No shell is involved: `program` is started with the `args` list.
+//!
+//! In `args` and `env` values, `{in:NAME}` is an input's folder (a list input given as a whole
+//! argument expands to one argument per folder; inside a longer string its folders are joined
+//! with `:`), `{out:NAME}` an output folder, `{scratch}` a temporary folder, `{seed}` and
+//! `{threads}` the node's seed and thread budget. The same values are in the environment:
+//! `AUGSPLAT_IN_<NAME>`, `AUGSPLAT_OUT_<NAME>` (upper-case), `AUGSPLAT_SCRATCH`,
+//! `AUGSPLAT_SEED`, `AUGSPLAT_THREADS`. The program's stdout and stderr go to the node's log;
+//! a non-zero exit fails the node, showing the log's last lines. The program runs in the
+//! scratch folder. To make a script's content part of the key, pass it as an input:
+//! `inputs: { "script": Path("augment.py") }` with `args: ["{in:script}", ..]`.
+
+use crate::node::{InputDecl, Node, NodeError, RunContext, Threads};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::io::{BufRead, BufReader};
+use std::process::Stdio;
+
+/// Args of [`Command`].
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct CommandArgs {
+    /// The program (a name looked up on `PATH`, or a path).
+    pub program: String,
+    /// Its arguments, with placeholders.
+    pub args: Vec<String>,
+    /// Names of single-folder inputs.
+    pub inputs: Vec<String>,
+    /// Names of list inputs (one or more folders).
+    pub list_inputs: Vec<String>,
+    /// Names of optional single-folder inputs.
+    pub optional_inputs: Vec<String>,
+    /// Output folder names (default: one output, `out`).
+    pub outputs: Vec<String>,
+    /// Extra environment variables (values may hold placeholders).
+    pub env: BTreeMap<String, String>,
+    /// Cores the program uses: 0 = every core of the executor's budget.
+    pub threads: usize,
+    /// Bump to force a rerun when the program changed (it is part of the key).
+    pub version: u32,
+}
+
+impl Default for CommandArgs {
+    fn default() -> Self {
+        CommandArgs {
+            program: String::new(),
+            args: Vec::new(),
+            inputs: Vec::new(),
+            list_inputs: Vec::new(),
+            optional_inputs: Vec::new(),
+            outputs: vec!["out".into()],
+            env: BTreeMap::new(),
+            threads: 1,
+            version: 0,
+        }
+    }
+}
+
+/// Runs an external program (see the module docs).
+pub struct Command;
+
+fn valid_name(n: &str) -> bool {
+    !n.is_empty() && n.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
+fn placeholders(s: &str) -> Vec<&str> {
+    let mut out = Vec::new();
+    let mut rest = s;
+    while let Some(a) = rest.find('{') {
+        match rest[a..].find('}') {
+            Some(b) => {
+                out.push(&rest[a + 1..a + b]);
+                rest = &rest[a + b + 1..];
+            }
+            None => break,
+        }
+    }
+    out
+}
+
+impl Node for Command {
+    const KIND: &'static str = "Command";
+    const VERSION: u32 = 1;
+    type Args = CommandArgs;
+
+    fn inputs(args: &CommandArgs) -> Vec<InputDecl> {
+        let mut v: Vec<InputDecl> = args.inputs.iter().map(|n| InputDecl::one(n)).collect();
+        v.extend(args.list_inputs.iter().map(|n| InputDecl::many(n)));
+        v.extend(args.optional_inputs.iter().map(|n| InputDecl::optional(n)));
+        v
+    }
+    fn outputs(args: &CommandArgs) -> Vec<String> {
+        args.outputs.clone()
+    }
+    fn threads(args: &CommandArgs) -> Threads {
+        match args.threads {
+            0 => Threads::All,
+            1 => Threads::One,
+            n => Threads::Exactly(n),
+        }
+    }
+    fn validate(args: &CommandArgs) -> Result<(), String> {
+        if args.program.is_empty() {
+            return Err("`program` is empty".into());
+        }
+        let ins: Vec<&String> = args.inputs.iter().chain(&args.list_inputs).chain(&args.optional_inputs).collect();
+        for (i, n) in ins.iter().enumerate() {
+            if !valid_name(n) {
+                return Err(format!("input name `{n}` may only hold ASCII letters, digits and `_`"));
+            }
+            if ins[..i].contains(n) {
+                return Err(format!("input `{n}` is declared twice"));
+            }
+        }
+        if args.outputs.is_empty() {
+            return Err("`outputs` is empty: a Command needs at least one output folder".into());
+        }
+        for (i, n) in args.outputs.iter().enumerate() {
+            if !valid_name(n) || args.outputs[..i].contains(n) {
+                return Err(format!("output name `{n}` is invalid or repeated"));
+            }
+        }
+        for s in args.args.iter().chain(args.env.values()) {
+            for p in placeholders(s) {
+                let ok = match p.split_once(':') {
+                    Some(("in", n)) => ins.iter().any(|x| *x == n),
+                    Some(("out", n)) => args.outputs.iter().any(|x| x == n),
+                    None => matches!(p, "scratch" | "seed" | "threads"),
+                    _ => false,
+                };
+                if !ok {
+                    return Err(format!(
+                        "placeholder `{{{p}}}` in `{s}` names nothing declared (use {{in:NAME}}, {{out:NAME}}, {{scratch}}, {{seed}}, {{threads}})"
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+    fn run(args: &CommandArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let mut vars: Vec<(String, Vec<String>)> = Vec::new();
+        for n in args.inputs.iter().chain(&args.list_inputs) {
+            let v = ctx.input_list(n)?.iter().map(|p| p.display().to_string()).collect();
+            vars.push((format!("in:{n}"), v));
+        }
+        for n in &args.optional_inputs {
+            let v = ctx.optional_input(n).map(|p| vec![p.display().to_string()]).unwrap_or_default();
+            vars.push((format!("in:{n}"), v));
+        }
+        for n in &args.outputs {
+            vars.push((format!("out:{n}"), vec![ctx.output(n)?.display().to_string()]));
+        }
+        vars.push(("scratch".into(), vec![ctx.scratch().display().to_string()]));
+        vars.push(("seed".into(), vec![ctx.seed().to_string()]));
+        vars.push(("threads".into(), vec![ctx.threads().to_string()]));
+        let subst = |s: &str| -> String {
+            let mut out = s.to_string();
+            for (k, v) in &vars {
+                out = out.replace(&format!("{{{k}}}"), &v.join(":"));
+            }
+            out
+        };
+        let mut argv = Vec::new();
+        for a in &args.args {
+            match vars.iter().find(|(k, _)| a == &format!("{{{k}}}")) {
+                Some((_, v)) => argv.extend(v.iter().cloned()),
+                None => argv.push(subst(a)),
+            }
+        }
+        let mut cmd = std::process::Command::new(&args.program);
+        cmd.args(&argv)
+            .current_dir(ctx.scratch())
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        for (k, v) in &vars {
+            let name = match k.split_once(':') {
+                Some((dir, n)) => format!("AUGSPLAT_{}_{}", dir.to_uppercase(), n.to_uppercase()),
+                None => format!("AUGSPLAT_{}", k.to_uppercase()),
+            };
+            cmd.env(name, v.join(":"));
+        }
+        for (k, v) in &args.env {
+            cmd.env(k, subst(v));
+        }
+        ctx.log(format!("$ {} {}", args.program, argv.join(" ")));
+        let mut child = cmd
+            .spawn()
+            .map_err(|e| NodeError::new(format!("cannot start `{}`: {e} (is it on PATH?)", args.program)))?;
+        let stdout = child.stdout.take().expect("piped");
+        let stderr = child.stderr.take().expect("piped");
+        let (tx, rx) = std::sync::mpsc::channel::<String>();
+        let tx2 = tx.clone();
+        let t1 = std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                let _ = tx.send(line);
+            }
+        });
+        let t2 = std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                let _ = tx2.send(line);
+            }
+        });
+        for line in rx {
+            ctx.log(line);
+        }
+        let _ = t1.join();
+        let _ = t2.join();
+        let status = child
+            .wait()
+            .map_err(|e| NodeError::new(format!("waiting for `{}`: {e}", args.program)))?;
+        if !status.success() {
+            return Err(NodeError::new(format!("`{}` exited with {status}", args.program)));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,717 @@
+//! The store: content-addressed blobs, output manifests, the action cache, claims, run records
+//! and garbage collection.
+//!
+//! Layout under the store root (default `./cache`):
+//! ```text
+//! store.lock                 runs hold it shared, `gc` exclusive
+//! blobs/ab/<hash>            file contents by blake3 (read-only)
+//! manifests/<hash>.json      an output folder's listing: path, size, blob hash per file
+//! outputs/<hash>/            the folder itself (hard links to blobs), read-only, given to dependents
+//! actions/ab/<key>.json      action cache: key -> output manifests + run metadata (time, host, seed, log)
+//! locks/<key>.lock           claims: a process computing a key holds an OS lock on its file
+//! tmp/                       scratch folders and half-written files (never read as results)
+//! runs/latest/<id>.json      the latest run of each pipeline (GC roots, `why`)
+//! runs/records/<t>-<pid>.json every run's summary
+//! pins/<name>.json           pinned results (GC roots)
+//! extcache/<id>.json         hashes of external input files by path + size + mtime
+//! ```
+//! An action entry is written last, by atomic rename, after its outputs are complete: a killed
+//! or failed run leaves only scratch files and unreferenced blobs, never an entry.
+
+use crate::error::{io, EngineError};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, BTreeSet};
+use std::fs::{self, File};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// A blake3 hash.
+pub type Hash = [u8; 32];
+
+/// Store format version; part of every key.
+pub const STORE_FORMAT: u32 = 1;
+
+/// Lower-case hex of a hash.
+pub fn hex(h: &Hash) -> String {
+    let mut s = String::with_capacity(64);
+    for b in h {
+        s.push_str(&format!("{b:02x}"));
+    }
+    s
+}
+
+/// Parses 64 hex digits.
+pub fn unhex(s: &str) -> Option<Hash> {
+    if s.len() != 64 {
+        return None;
+    }
+    let mut h = [0u8; 32];
+    for (i, b) in h.iter_mut().enumerate() {
+        *b = u8::from_str_radix(s.get(2 * i..2 * i + 2)?, 16).ok()?;
+    }
+    Some(h)
+}
+
+/// One entry of a manifest: a file (with size and blob hash) or a folder.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, Eq)]
+pub struct ManifestEntry {
+    /// Path relative to the output folder, `/`-separated; folders end with `/`.
+    pub path: String,
+    /// File size in bytes (0 for folders).
+    pub size: u64,
+    /// Blob hash (hex) of a file; empty for folders.
+    pub hash: String,
+}
+
+/// The listing of one output folder, sorted by path. Its hash identifies the output's content.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
+pub struct Manifest {
+    /// Entries sorted by path.
+    pub entries: Vec<ManifestEntry>,
+}
+
+impl Manifest {
+    /// The canonical bytes (compact JSON) and their hash.
+    pub fn hash(&self) -> Hash {
+        *blake3::hash(&serde_json::to_vec(self).expect("manifest serialises")).as_bytes()
+    }
+}
+
+/// An action cache entry: what a key produced and how.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ActionEntry {
+    /// Store format.
+    pub format: u32,
+    /// The key (hex).
+    pub key: String,
+    /// Node kind.
+    pub kind: String,
+    /// Kind version.
+    pub version: u32,
+    /// The instance name that computed it.
+    pub name: String,
+    /// Output name -> manifest hash (hex).
+    pub outputs: BTreeMap<String, String>,
+    /// Seconds the node ran.
+    pub seconds: f64,
+    /// Unix time the entry was written.
+    pub time_unix: u64,
+    /// Host that computed it.
+    pub host: String,
+    /// Process id that computed it.
+    pub pid: u32,
+    /// The seed given to the node.
+    pub seed: u64,
+    /// Threads given to the node.
+    pub threads: usize,
+    /// Blob hash (hex) of the node's log, if it logged anything.
+    pub log: Option<String>,
+}
+
+/// A held claim on a key; dropping it releases the OS lock.
+pub struct Claim {
+    _file: File,
+    /// Whether another process held it first (we waited).
+    pub waited: bool,
+}
+
+/// What `gc` removed or would remove.
+#[derive(Clone, Debug, Default)]
+pub struct GcReport {
+    /// Number of root keys kept (latest runs + pins).
+    pub roots: usize,
+    /// Root files read.
+    pub root_files: Vec<String>,
+    /// Action entries kept / removed.
+    pub actions_kept: usize,
+    /// Removed action entries.
+    pub actions_removed: usize,
+    /// Output folders (manifests) kept.
+    pub outputs_kept: usize,
+    /// Removed output folders.
+    pub outputs_removed: usize,
+    /// Blobs kept.
+    pub blobs_kept: usize,
+    /// Removed blobs.
+    pub blobs_removed: usize,
+    /// Bytes of removed blobs.
+    pub bytes_removed: u64,
+    /// Scratch folders, stale claim files and half-written files removed.
+    pub scratch_removed: usize,
+}
+
+/// A store on disk.
+#[derive(Clone, Debug)]
+pub struct Store {
+    root: PathBuf,
+}
+
+static COUNTER: AtomicU64 = AtomicU64::new(0);
+
+fn unique_suffix() -> String {
+    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+    let t = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
+    format!("{}-{n}-{t:x}", std::process::id())
+}
+
+/// Seconds since the Unix epoch.
+pub fn now_unix() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0)
+}
+
+/// This machine's host name.
+pub fn hostname() -> String {
+    fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| fs::read_to_string("/etc/hostname"))
+        .map(|s| s.trim().to_string())
+        .or_else(|_| std::env::var("HOSTNAME"))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+impl Store {
+    /// Opens (creating if needed) the store at `root`.
+    pub fn open(root: impl Into<PathBuf>) -> Result<Store, EngineError> {
+        let root = root.into();
+        for d in [
+            "blobs",
+            "manifests",
+            "outputs",
+            "actions",
+            "locks",
+            "tmp",
+            "runs/latest",
+            "runs/records",
+            "pins",
+            "extcache",
+        ] {
+            let p = root.join(d);
+            fs::create_dir_all(&p).map_err(io("creating store folder", &p))?;
+        }
+        Ok(Store { root })
+    }
+    /// The store root.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    fn lock_file(&self) -> Result<File, EngineError> {
+        let p = self.root.join("store.lock");
+        fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&p)
+            .map_err(io("opening", &p))
+    }
+    /// Takes the store lock shared (held by every run for its whole duration; `gc` waits for it).
+    pub fn lock_shared(&self) -> Result<File, EngineError> {
+        let f = self.lock_file()?;
+        f.lock_shared().map_err(io("locking", &self.root.join("store.lock")))?;
+        Ok(f)
+    }
+    /// Tries to take the store lock exclusively (for `gc`); `None` if a run holds it.
+    pub fn try_lock_exclusive(&self) -> Result<Option<File>, EngineError> {
+        let f = self.lock_file()?;
+        match f.try_lock() {
+            Ok(()) => Ok(Some(f)),
+            Err(fs::TryLockError::WouldBlock) => Ok(None),
+            Err(fs::TryLockError::Error(e)) => Err(EngineError::Io {
+                what: "locking",
+                path: self.root.join("store.lock"),
+                source: e,
+            }),
+        }
+    }
+
+    fn action_path(&self, key: &Hash) -> PathBuf {
+        let h = hex(key);
+        self.root.join("actions").join(&h[..2]).join(format!("{h}.json"))
+    }
+    /// The materialised, read-only folder of an output manifest.
+    pub fn output_dir(&self, manifest: &Hash) -> PathBuf {
+        self.root.join("outputs").join(hex(manifest))
+    }
+    fn blob_path(&self, h: &str) -> PathBuf {
+        self.root.join("blobs").join(&h[..2]).join(h)
+    }
+    /// The path of a blob (e.g. a node log).
+    pub fn blob(&self, h: &str) -> Option<PathBuf> {
+        (h.len() == 64).then(|| self.blob_path(h)).filter(|p| p.exists())
+    }
+
+    /// The action entry of `key`, if present and complete (every output folder exists).
+    pub fn action(&self, key: &Hash) -> Result<Option<ActionEntry>, EngineError> {
+        let p = self.action_path(key);
+        let bytes = match fs::read(&p) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => {
+                return Err(EngineError::Io {
+                    what: "reading",
+                    path: p,
+                    source: e,
+                })
+            }
+        };
+        let entry: ActionEntry = match serde_json::from_slice(&bytes) {
+            Ok(e) => e,
+            // Written by atomic rename, so damage means tampering; treat as absent and recompute.
+            Err(_) => return Ok(None),
+        };
+        for m in entry.outputs.values() {
+            match unhex(m) {
+                Some(h) if self.output_dir(&h).is_dir() => {}
+                _ => return Ok(None),
+            }
+        }
+        Ok(Some(entry))
+    }
+
+    /// Claims `key`: returns at once if no other process computes it, else waits until that
+    /// process finishes or dies (OS locks die with their process).
+    pub fn claim(&self, key: &Hash) -> Result<Claim, EngineError> {
+        let p = self.root.join("locks").join(format!("{}.lock", hex(key)));
+        let f = fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&p)
+            .map_err(io("opening claim", &p))?;
+        match f.try_lock() {
+            Ok(()) => Ok(Claim { _file: f, waited: false }),
+            Err(fs::TryLockError::WouldBlock) => {
+                f.lock().map_err(io("waiting for claim", &p))?;
+                Ok(Claim { _file: f, waited: true })
+            }
+            Err(fs::TryLockError::Error(e)) => Err(EngineError::Io {
+                what: "claiming",
+                path: p,
+                source: e,
+            }),
+        }
+    }
+
+    /// A fresh scratch folder for one node run.
+    pub fn new_scratch(&self, key: &Hash) -> Result<PathBuf, EngineError> {
+        let p = self.root.join("tmp").join(format!("run-{}-{}", &hex(key)[..16], unique_suffix()));
+        fs::create_dir_all(&p).map_err(io("creating scratch folder", &p))?;
+        Ok(p)
+    }
+
+    /// Writes `bytes` to `dest` atomically (temporary file in the store, then rename).
+    pub fn write_atomic(&self, dest: &Path, bytes: &[u8]) -> Result<(), EngineError> {
+        let tmp = self.root.join("tmp").join(format!("w-{}", unique_suffix()));
+        fs::write(&tmp, bytes).map_err(io("writing", &tmp))?;
+        if let Some(parent) = dest.parent() {
+            fs::create_dir_all(parent).map_err(io("creating", parent))?;
+        }
+        fs::rename(&tmp, dest).map_err(io("renaming into place", dest))
+    }
+
+    /// Stores bytes as a blob; returns its hash (hex).
+    pub fn put_blob(&self, bytes: &[u8]) -> Result<String, EngineError> {
+        let h = blake3::hash(bytes).to_hex().to_string();
+        let p = self.blob_path(&h);
+        if !p.exists() {
+            self.write_atomic(&p, bytes)?;
+            set_readonly(&p, true);
+        }
+        Ok(h)
+    }
+
+    /// Moves a finished output folder into the store: every file becomes a blob (hard-linked
+    /// back in place), the manifest is written, and the folder is renamed to `outputs/<hash>`.
+    /// Returns the manifest hash.
+    pub fn promote(&self, folder: &Path) -> Result<Hash, EngineError> {
+        let manifest = scan_folder(folder, |_rel, path, _size| hash_file(path))?;
+        for e in manifest.entries.iter().filter(|e| !e.path.ends_with('/')) {
+            let src = folder.join(&e.path);
+            let blob = self.blob_path(&e.hash);
+            if let Some(parent) = blob.parent() {
+                fs::create_dir_all(parent).map_err(io("creating", parent))?;
+            }
+            if blob.exists() {
+                fs::remove_file(&src).map_err(io("removing", &src))?;
+            } else {
+                set_readonly(&src, true);
+                fs::rename(&src, &blob).map_err(io("moving into the store", &src))?;
+            }
+            if fs::hard_link(&blob, &src).is_err() {
+                fs::copy(&blob, &src).map_err(io("copying blob to", &src))?;
+                set_readonly(&src, true);
+            }
+        }
+        let mh = manifest.hash();
+        let mpath = self.root.join("manifests").join(format!("{}.json", hex(&mh)));
+        if !mpath.exists() {
+            self.write_atomic(&mpath, &serde_json::to_vec(&manifest).expect("manifest serialises"))?;
+        }
+        let dest = self.output_dir(&mh);
+        if dest.is_dir() {
+            // Same content already materialised (by us or another process).
+            remove_tree(folder);
+        } else {
+            match fs::rename(folder, &dest) {
+                Ok(()) => set_tree_readonly(&dest),
+                Err(_) if dest.is_dir() => remove_tree(folder),
+                Err(e) => {
+                    return Err(EngineError::Io {
+                        what: "promoting output to",
+                        path: dest,
+                        source: e,
+                    })
+                }
+            }
+        }
+        Ok(mh)
+    }
+
+    /// Writes an action entry (the commit point of a node run).
+    pub fn write_action(&self, key: &Hash, entry: &ActionEntry) -> Result<(), EngineError> {
+        let bytes = serde_json::to_vec_pretty(entry).expect("entry serialises");
+        self.write_atomic(&self.action_path(key), &bytes)
+    }
+
+    /// The content hash of an external file or folder (same scheme as output manifests), cached
+    /// by path + size + mtime under `extcache/`.
+    pub fn hash_external(&self, path: &Path) -> Result<Hash, EngineError> {
+        let abs = fs::canonicalize(path).map_err(io("reading input", path))?;
+        let id = blake3::hash(abs.to_string_lossy().as_bytes()).to_hex();
+        let cpath = self.root.join("extcache").join(format!("{}.json", &id[..32]));
+        type Cache = BTreeMap<String, (u64, i128, String)>;
+        let old: Cache = fs::read(&cpath)
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok())
+            .unwrap_or_default();
+        let mut new: Cache = BTreeMap::new();
+        let meta = fs::metadata(&abs).map_err(io("reading input", &abs))?;
+        let manifest = if meta.is_file() {
+            let h = cached_hash(&old, &mut new, "", &abs, &meta)?;
+            Manifest {
+                entries: vec![ManifestEntry {
+                    path: String::new(),
+                    size: meta.len(),
+                    hash: h,
+                }],
+            }
+        } else {
+            scan_folder(&abs, |rel, p, _| {
+                let m = fs::metadata(p).map_err(io("reading input", p))?;
+                cached_hash(&old, &mut new, rel, p, &m)
+            })?
+        };
+        if old != new {
+            let _ = self.write_atomic(&cpath, &serde_json::to_vec(&new).expect("cache serialises"));
+        }
+        Ok(manifest.hash())
+    }
+
+    /// Writes the record of the latest run of pipeline `id`.
+    pub fn write_latest(&self, id: &str, record: &serde_json::Value) -> Result<(), EngineError> {
+        let p = self.root.join("runs/latest").join(format!("{id}.json"));
+        self.write_atomic(&p, &serde_json::to_vec_pretty(record).expect("json"))
+    }
+    /// Reads the record of the latest run of pipeline `id`.
+    pub fn read_latest(&self, id: &str) -> Option<serde_json::Value> {
+        let p = self.root.join("runs/latest").join(format!("{id}.json"));
+        fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok())
+    }
+    /// Appends a run record (the run's summary) to `runs/records`.
+    pub fn write_record(&self, record: &serde_json::Value) -> Result<PathBuf, EngineError> {
+        let p = self
+            .root
+            .join("runs/records")
+            .join(format!("{}-{}.json", now_unix(), unique_suffix()));
+        self.write_atomic(&p, &serde_json::to_vec_pretty(record).expect("json"))?;
+        Ok(p)
+    }
+    /// Pins a set of keys under `name` (a GC root until unpinned by deleting `pins/<name>.json`).
+    pub fn pin(&self, name: &str, keys: &[String]) -> Result<(), EngineError> {
+        if name.is_empty() || !name.chars().all(|c| c.is_alphanumeric() || "-_.".contains(c)) {
+            return Err(EngineError::Other(format!(
+                "pin name `{name}` may only hold letters, digits, `-`, `_` and `.`"
+            )));
+        }
+        let p = self.root.join("pins").join(format!("{name}.json"));
+        self.write_atomic(&p, &serde_json::to_vec_pretty(&serde_json::json!({ "keys": keys })).expect("json"))
+    }
+
+    /// Garbage collection: keeps every action reachable from a root (the latest run of each
+    /// pipeline, every pin) with its outputs, blobs and log; removes the rest, all scratch
+    /// files and stale claims. Refuses while a run holds the store. With `dry_run`, removes
+    /// nothing and reports what it would remove.
+    pub fn gc(&self, dry_run: bool) -> Result<GcReport, EngineError> {
+        let Some(_lock) = self.try_lock_exclusive()? else {
+            return Err(EngineError::Busy(format!(
+                "a run is using the store {}; gc never removes what a running job uses: retry when it has finished",
+                self.root.display()
+            )));
+        };
+        let mut rep = GcReport::default();
+        let mut keep_keys: BTreeSet<String> = BTreeSet::new();
+        for dir in ["runs/latest", "pins"] {
+            for f in list_dir(&self.root.join(dir)) {
+                let Some(v) = fs::read(&f).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok()) else {
+                    continue;
+                };
+                collect_keys(&v, &mut keep_keys);
+                rep.root_files.push(f.strip_prefix(&self.root).unwrap_or(&f).display().to_string());
+            }
+        }
+        rep.roots = keep_keys.len();
+        let mut keep_manifests = BTreeSet::new();
+        let mut keep_blobs = BTreeSet::new();
+        for sub in list_dir(&self.root.join("actions")) {
+            for f in list_dir(&sub) {
+                let stem = f.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+                if keep_keys.contains(&stem) {
+                    if let Some(entry) = fs::read(&f).ok().and_then(|b| serde_json::from_slice::<ActionEntry>(&b).ok()) {
+                        keep_manifests.extend(entry.outputs.values().cloned());
+                        keep_blobs.extend(entry.log.clone());
+                        rep.actions_kept += 1;
+                        continue;
+                    }
+                }
+                rep.actions_removed += 1;
+                if !dry_run {
+                    let _ = fs::remove_file(&f);
+                }
+            }
+        }
+        for f in list_dir(&self.root.join("manifests")) {
+            let stem = f.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+            if keep_manifests.contains(&stem) {
+                if let Some(m) = fs::read(&f).ok().and_then(|b| serde_json::from_slice::<Manifest>(&b).ok()) {
+                    keep_blobs.extend(m.entries.into_iter().filter(|e| !e.hash.is_empty()).map(|e| e.hash));
+                }
+                rep.outputs_kept += 1;
+                continue;
+            }
+            rep.outputs_removed += 1;
+            if !dry_run {
+                remove_tree(&self.root.join("outputs").join(&stem));
+                let _ = fs::remove_file(&f);
+            }
+        }
+        // Output folders whose manifest file is missing (interrupted promotion) go too.
+        for d in list_dir(&self.root.join("outputs")) {
+            let name = d.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+            if !keep_manifests.contains(&name) && !self.root.join("manifests").join(format!("{name}.json")).exists() {
+                rep.scratch_removed += 1;
+                if !dry_run {
+                    remove_tree(&d);
+                }
+            }
+        }
+        for sub in list_dir(&self.root.join("blobs")) {
+            for f in list_dir(&sub) {
+                let name = f.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+                if keep_blobs.contains(&name) {
+                    rep.blobs_kept += 1;
+                    continue;
+                }
+                rep.blobs_removed += 1;
+                rep.bytes_removed += fs::metadata(&f).map(|m| m.len()).unwrap_or(0);
+                if !dry_run {
+                    set_readonly(&f, false);
+                    let _ = fs::remove_file(&f);
+                }
+            }
+        }
+        for dir in ["tmp", "locks"] {
+            for f in list_dir(&self.root.join(dir)) {
+                rep.scratch_removed += 1;
+                if !dry_run {
+                    remove_tree(&f);
+                }
+            }
+        }
+        Ok(rep)
+    }
+}
+
+fn collect_keys(v: &serde_json::Value, out: &mut BTreeSet<String>) {
+    match v {
+        serde_json::Value::Object(m) => {
+            for (k, x) in m {
+                match (k.as_str(), x) {
+                    ("key", serde_json::Value::String(s)) if s.len() == 64 => {
+                        out.insert(s.clone());
+                    }
+                    ("keys", serde_json::Value::Array(a)) => {
+                        out.extend(a.iter().filter_map(|s| s.as_str()).map(str::to_string));
+                    }
+                    _ => collect_keys(x, out),
+                }
+            }
+        }
+        serde_json::Value::Array(a) => a.iter().for_each(|x| collect_keys(x, out)),
+        _ => {}
+    }
+}
+
+fn list_dir(p: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = fs::read_dir(p)
+        .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect())
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+fn cached_hash(
+    old: &BTreeMap<String, (u64, i128, String)>,
+    new: &mut BTreeMap<String, (u64, i128, String)>,
+    rel: &str,
+    path: &Path,
+    meta: &fs::Metadata,
+) -> Result<String, EngineError> {
+    let mtime = meta
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map(|d| d.as_nanos() as i128)
+        .unwrap_or(-1);
+    let h = match old.get(rel) {
+        Some((s, m, h)) if *s == meta.len() && *m == mtime && mtime >= 0 => h.clone(),
+        _ => hash_file(path)?,
+    };
+    new.insert(rel.to_string(), (meta.len(), mtime, h.clone()));
+    Ok(h)
+}
+
+/// Hashes a file with blake3 (memory-mapped and multi-threaded on the current rayon pool for
+/// large files). Returns hex.
+pub fn hash_file(path: &Path) -> Result<String, EngineError> {
+    let mut h = blake3::Hasher::new();
+    let len = fs::metadata(path).map_err(io("reading", path))?.len();
+    if len >= 1 << 20 {
+        h.update_mmap_rayon(path).map_err(io("hashing", path))?;
+    } else {
+        h.update_reader(File::open(path).map_err(io("opening", path))?)
+            .map_err(io("hashing", path))?;
+    }
+    Ok(h.finalize().to_hex().to_string())
+}
+
+/// Lists a folder recursively (sorted, `/`-separated, folders end with `/`), hashing each file
+/// with `hash(rel, path, size)`. Symbolic links are refused.
+pub fn scan_folder(root: &Path, mut hash: impl FnMut(&str, &Path, u64) -> Result<String, EngineError>) -> Result<Manifest, EngineError> {
+    let mut entries = Vec::new();
+    let mut stack = vec![(root.to_path_buf(), String::new())];
+    while let Some((dir, prefix)) = stack.pop() {
+        let mut items: Vec<_> = fs::read_dir(&dir)
+            .map_err(io("listing", &dir))?
+            .map(|e| e.map_err(io("listing", &dir)))
+            .collect::<Result<_, _>>()?;
+        items.sort_by_key(|e| e.file_name());
+        for e in items {
+            let name = e.file_name().to_string_lossy().to_string();
+            let p = e.path();
+            let ft = e.file_type().map_err(io("reading", &p))?;
+            let rel = format!("{prefix}{name}");
+            if ft.is_symlink() {
+                return Err(EngineError::Other(format!(
+                    "{} is a symbolic link; outputs and inputs must hold plain files",
+                    p.display()
+                )));
+            } else if ft.is_dir() {
+                entries.push(ManifestEntry {
+                    path: format!("{rel}/"),
+                    size: 0,
+                    hash: String::new(),
+                });
+                stack.push((p, format!("{rel}/")));
+            } else {
+                let size = e.metadata().map_err(io("reading", &p))?.len();
+                let h = hash(&rel, &p, size)?;
+                entries.push(ManifestEntry { path: rel, size, hash: h });
+            }
+        }
+    }
+    entries.sort_by(|a, b| a.path.cmp(&b.path));
+    Ok(Manifest { entries })
+}
+
+fn set_readonly(p: &Path, ro: bool) {
+    if let Ok(m) = fs::metadata(p) {
+        let mut perm = m.permissions();
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = perm.mode();
+            perm.set_mode(if ro { mode & !0o222 } else { mode | 0o200 });
+        }
+        #[cfg(not(unix))]
+        perm.set_readonly(ro);
+        let _ = fs::set_permissions(p, perm);
+    }
+}
+
+fn set_tree_readonly(p: &Path) {
+    if let Ok(rd) = fs::read_dir(p) {
+        for e in rd.flatten() {
+            if e.file_type().map(|t| t.is_dir()).unwrap_or(false) {
+                set_tree_readonly(&e.path());
+            }
+        }
+    }
+    set_readonly(p, true);
+}
+
+/// Removes a file or folder tree, making read-only folders writable first. Errors are ignored
+/// (a later `gc` retries).
+pub fn remove_tree(p: &Path) {
+    fn unlock(p: &Path) {
+        set_readonly(p, false);
+        if let Ok(rd) = fs::read_dir(p) {
+            for e in rd.flatten() {
+                if e.file_type().map(|t| t.is_dir()).unwrap_or(false) {
+                    unlock(&e.path());
+                }
+            }
+        }
+    }
+    if p.is_dir() {
+        unlock(p);
+        let _ = fs::remove_dir_all(p);
+    } else {
+        let _ = fs::remove_file(p);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn promote_dedups_and_manifests_are_content_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path().join("s")).unwrap();
+        let make = |name: &str| {
+            let f = dir.path().join(name);
+            fs::create_dir_all(f.join("sub")).unwrap();
+            fs::write(f.join("a.txt"), b"hello").unwrap();
+            fs::write(f.join("sub/b.bin"), [1u8, 2, 3]).unwrap();
+            f
+        };
+        let m1 = store.promote(&make("o1")).unwrap();
+        let m2 = store.promote(&make("o2")).unwrap();
+        assert_eq!(m1, m2);
+        let out = store.output_dir(&m1);
+        assert_eq!(fs::read(out.join("a.txt")).unwrap(), b"hello");
+        assert_eq!(fs::read(out.join("sub/b.bin")).unwrap(), [1, 2, 3]);
+        assert!(!dir.path().join("o2").exists());
+        // Same content outside the store hashes the same.
+        let ext = make("o3");
+        assert_eq!(store.hash_external(&ext).unwrap(), m1);
+        fs::write(ext.join("a.txt"), b"hellO").unwrap();
+        assert_ne!(store.hash_external(&ext).unwrap(), m1);
+        assert_eq!(unhex(&hex(&m1)), Some(m1));
+    }
+}
