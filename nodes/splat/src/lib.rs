@@ -9,14 +9,17 @@ pub mod forward;
 pub mod gaussians;
 pub mod init;
 pub mod loss;
+pub mod node;
 pub mod ply;
 pub mod project;
 pub mod reference;
 pub mod render;
 pub mod sh;
 pub mod tiles;
+pub mod train;
 
 pub use error::SplatError;
 pub use gaussians::Gaussians;
 pub use ply::{read_ply, write_ply};
 pub use render::{backward, render, render_masked, Gradients, RenderOutput, RenderSettings, RenderStats};
+pub use node::{register, OptimizeSplats};

@@ -1,0 +1,918 @@
+//! The Gaussian-splatting training loop with pluggable supervision sources and the AugSplat
+//! schedules.
+//!
+//! A [`Trainer`] owns the Gaussians, the [`Adam`] state and the [`Densifier`]. Each
+//! [`Trainer::step`]:
+//! 1. asks the [`Schedule`] for the step's [`StepPlan`] (weights of the real and the synthetic
+//!    source, synthetic batch size, whether this is the Staged switch);
+//! 2. renders one real view (epoch-shuffled order, as gsplat's data loader) and/or a batch of
+//!    synthetic views (drawn without replacement per step), each at its own camera and
+//!    resolution; synthetic views with a skip mask use [`crate::render_masked`];
+//! 3. asks each [`Supervision`] source for its loss and `dL/d(rgb)` scaled by the source's
+//!    weight (÷ batch size for the synthetic batch), back-propagates, and sums the gradients
+//!    in a fixed order;
+//! 4. takes one Adam step (only Gaussians visible in some render of the step move; the means
+//!    rate follows [`LearningRates::means_at`]);
+//! 5. feeds the densification statistic of the *real* renders (and of the synthetic ones when
+//!    `densify_from_synthetic`) to the [`Densifier`] and runs its refinement schedule.
+//!
+//! The statistic is the gradient of the weighted total loss, as in the authors' code (one
+//! backward of `λ_real·L_real + λ_nerf·L_nerf`); synthetic statistics are multiplied back by
+//! the batch size (gsplat's `× n_cameras`).
+//!
+//! Every random choice comes from [`Rng::stream`] keyed by the seed and the step, and every
+//! reduction has a fixed order, so a run is bit-identical for any thread count.
+
+use crate::adam::{Adam, LearningRates, ParamGrads};
+use crate::densify::{self, Densifier, DensifyArgs, DensifySchedule};
+use crate::init::InitArgs;
+use crate::loss::{self, PixelLoss, WeightNorm};
+use crate::{Gaussians, Gradients, RenderOutput, RenderSettings};
+use augsplat_core::{Camera, Rng};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Real-image loss parameters: `(1 − λ)·P + λ·(1 − SSIM)`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RealLoss {
+    /// λ, the SSIM share.
+    pub ssim_lambda: f64,
+    /// The pixel term P.
+    pub kind: PixelLoss,
+}
+
+impl Default for RealLoss {
+    fn default() -> Self {
+        RealLoss {
+            ssim_lambda: 0.2,
+            kind: PixelLoss::L2,
+        }
+    }
+}
+
+/// Synthetic-supervision parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SyntheticArgs {
+    /// Normalise the weighted L2 by the weight sum (else by the pixel count), see
+    /// [`loss::weighted_l2`].
+    pub normalize_by_weight_sum: bool,
+    /// Pixels whose weight is below this are neither rendered nor back-propagated (0 = render
+    /// everything; tiles with no such pixel are skipped by the rasteriser).
+    pub skip_below: f64,
+    /// Also accumulate the densification statistic from synthetic renders.
+    pub densify_from_synthetic: bool,
+}
+
+impl Default for SyntheticArgs {
+    fn default() -> Self {
+        SyntheticArgs {
+            normalize_by_weight_sum: true,
+            skip_below: 0.0,
+            densify_from_synthetic: false,
+        }
+    }
+}
+
+fn d_warmup() -> u64 {
+    300
+}
+fn d_batch() -> usize {
+    20
+}
+fn d_true() -> bool {
+    true
+}
+fn d_w_nerf0() -> f64 {
+    2.0
+}
+fn d_w_real() -> f64 {
+    1.0
+}
+fn d_quarter() -> f64 {
+    300.0
+}
+fn d_off_below() -> Option<f64> {
+    Some(0.1)
+}
+
+/// How real and synthetic supervision are mixed over the run. Omitted variant fields take
+/// the paper's defaults (Staged 300 / 20 / reset; Dual 2.0 / 1.0 / 300 / Some(0.1) / 20).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub enum Schedule {
+    /// Real images only (3DGS).
+    Baseline,
+    /// Synthetic-only for exactly `warmup_steps` steps, then real only. At the switch, when
+    /// `reset_at_switch`, opacities are clamped to at most 0.1 and the optimiser state is
+    /// cleared (a fresh Adam), as the authors' code.
+    Staged {
+        /// Steps of synthetic-only supervision.
+        #[serde(default = "d_warmup")]
+        warmup_steps: u64,
+        /// Synthetic views per step.
+        #[serde(default = "d_batch")]
+        synthetic_batch: usize,
+        /// Reset opacities and optimiser state at the switch.
+        #[serde(default = "d_true")]
+        reset_at_switch: bool,
+    },
+    /// Both every step: `λ_nerf(t) = w̃/(w̃ + w_real)`, `w̃ = w_nerf0 · 4^(−t/D)`, the real
+    /// weight `w_real/(w̃ + w_real)`. The synthetic branch is off once `w̃ < off_below`
+    /// (authors' code: 0.1; `None` = never). `quarter_decay` D = 0 means the synthetic branch
+    /// is off from step 0 (the limit of an infinitely fast decay), never NaN.
+    Dual {
+        /// w_nerf0.
+        #[serde(default = "d_w_nerf0")]
+        w_nerf0: f64,
+        /// w_real.
+        #[serde(default = "d_w_real")]
+        w_real: f64,
+        /// D, steps over which the synthetic weight quarters.
+        #[serde(default = "d_quarter")]
+        quarter_decay: f64,
+        /// Switch the synthetic branch off when its raw weight drops below this.
+        #[serde(default = "d_off_below")]
+        off_below: Option<f64>,
+        /// Synthetic views per step.
+        #[serde(default = "d_batch")]
+        synthetic_batch: usize,
+    },
+}
+
+impl Default for Schedule {
+    fn default() -> Self {
+        Schedule::Baseline
+    }
+}
+
+/// What one step does, as decided by the [`Schedule`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepPlan {
+    /// Weight of the real loss (0 = no real render this step).
+    pub real_weight: f64,
+    /// Weight of the synthetic loss (0 = no synthetic render this step).
+    pub synthetic_weight: f64,
+    /// Synthetic views rendered this step.
+    pub synthetic_batch: usize,
+    /// Staged: this is the first real-only step (reset happens before it).
+    pub switch: bool,
+}
+
+/// Dual's raw synthetic weight `w̃ = w_nerf0 · 4^(−t/D)`; 0 for D = 0 (see [`Schedule::Dual`]).
+pub fn dual_raw_weight(w_nerf0: f64, quarter_decay: f64, step: u64) -> f64 {
+    if quarter_decay <= 0.0 {
+        return 0.0;
+    }
+    w_nerf0 * 4f64.powf(-(step as f64) / quarter_decay)
+}
+
+/// Dual's `λ_nerf(t) = w̃/(w̃ + w_real)` (without the `off_below` switch).
+pub fn dual_lambda(w_nerf0: f64, w_real: f64, quarter_decay: f64, step: u64) -> f64 {
+    let w = dual_raw_weight(w_nerf0, quarter_decay, step);
+    if w + w_real <= 0.0 {
+        return 0.0;
+    }
+    w / (w + w_real)
+}
+
+impl Schedule {
+    /// Short name for reports: "3DGS", "Staged", "Dual".
+    pub fn name(&self) -> &'static str {
+        match self {
+            Schedule::Baseline => "3DGS",
+            Schedule::Staged { .. } => "Staged",
+            Schedule::Dual { .. } => "Dual",
+        }
+    }
+    /// Whether the schedule needs a synthetic source.
+    pub fn needs_synthetic(&self) -> bool {
+        !matches!(self, Schedule::Baseline)
+    }
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<(), String> {
+        match *self {
+            Schedule::Baseline => Ok(()),
+            Schedule::Staged {
+                synthetic_batch, ..
+            } => {
+                if synthetic_batch == 0 {
+                    return Err("schedule Staged: synthetic_batch must be ≥ 1".into());
+                }
+                Ok(())
+            }
+            Schedule::Dual {
+                w_nerf0,
+                w_real,
+                quarter_decay,
+                off_below,
+                synthetic_batch,
+            } => {
+                for (n, v) in [
+                    ("w_nerf0", w_nerf0),
+                    ("w_real", w_real),
+                    ("quarter_decay", quarter_decay),
+                ] {
+                    if !v.is_finite() || v < 0.0 {
+                        return Err(format!("schedule Dual: {n} = {v} must be finite and ≥ 0"));
+                    }
+                }
+                if w_real <= 0.0 {
+                    return Err("schedule Dual: w_real must be > 0".into());
+                }
+                if let Some(o) = off_below {
+                    if !o.is_finite() || o < 0.0 {
+                        return Err(format!(
+                            "schedule Dual: off_below = {o} must be finite and ≥ 0"
+                        ));
+                    }
+                }
+                if synthetic_batch == 0 {
+                    return Err("schedule Dual: synthetic_batch must be ≥ 1".into());
+                }
+                Ok(())
+            }
+        }
+    }
+    /// The plan of 0-based step `step`. Pure: tests check it against the closed forms.
+    pub fn plan(&self, step: u64) -> StepPlan {
+        let real_only = StepPlan {
+            real_weight: 1.0,
+            synthetic_weight: 0.0,
+            synthetic_batch: 0,
+            switch: false,
+        };
+        match *self {
+            Schedule::Baseline => real_only,
+            Schedule::Staged {
+                warmup_steps,
+                synthetic_batch,
+                ..
+            } => {
+                if step < warmup_steps {
+                    StepPlan {
+                        real_weight: 0.0,
+                        synthetic_weight: 1.0,
+                        synthetic_batch,
+                        switch: false,
+                    }
+                } else {
+                    StepPlan {
+                        switch: step == warmup_steps && warmup_steps > 0,
+                        ..real_only
+                    }
+                }
+            }
+            Schedule::Dual {
+                w_nerf0,
+                w_real,
+                quarter_decay,
+                off_below,
+                synthetic_batch,
+            } => {
+                let raw = dual_raw_weight(w_nerf0, quarter_decay, step);
+                let off = raw <= 0.0 || off_below.is_some_and(|o| raw < o);
+                if off {
+                    return real_only;
+                }
+                let lam = raw / (raw + w_real);
+                StepPlan {
+                    real_weight: 1.0 - lam,
+                    synthetic_weight: lam,
+                    synthetic_batch,
+                    switch: false,
+                }
+            }
+        }
+    }
+}
+
+/// The `OptimizeSplats` arguments (also the trainer's configuration).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainArgs {
+    /// Optimisation steps.
+    pub steps: u64,
+    /// Evaluate the held-out views every this many steps (and after the last step).
+    pub eval_every: u64,
+    /// Maximum SH degree (storage and final active degree).
+    pub sh_degree: u32,
+    /// Active SH degree increases by one every this many steps (gsplat: 1000).
+    pub sh_increase_every: u64,
+    /// Background colour.
+    pub background: [f32; 3],
+    /// Per-pixel alpha clamp.
+    pub max_alpha: f32,
+    /// Antialiased rasterisation (mip-splatting compensation).
+    pub antialiased: bool,
+    /// Learning rates.
+    pub learning_rates: LearningRates,
+    /// Densification.
+    pub densify: DensifyArgs,
+    /// Initialisation.
+    pub init: InitArgs,
+    /// Real-image loss.
+    pub real_loss: RealLoss,
+    /// Supervision schedule.
+    pub schedule: Schedule,
+    /// Synthetic supervision options.
+    pub synthetic: SyntheticArgs,
+    /// Stop when the selection metric (average error, or PSNR without LPIPS) has not improved
+    /// for this many evaluations.
+    pub early_stop_patience: Option<u32>,
+    /// Scene scale override (None: 1.1 × the largest distance of a training camera from the
+    /// cameras' mean, as gsplat).
+    pub scene_scale: Option<f64>,
+    /// LPIPS backbone when the `lpips` input is connected: "alex" (AugSplat) or "vgg".
+    pub lpips_net: String,
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Method name for reports (empty: the schedule's name).
+    pub label: String,
+    /// Write wall-clock seconds into `curve.json` (off by default: with it the output bytes
+    /// differ between runs; the node log always has the times).
+    pub record_wall_time: bool,
+}
+
+impl Default for TrainArgs {
+    fn default() -> Self {
+        TrainArgs {
+            steps: 3000,
+            eval_every: 100,
+            sh_degree: 3,
+            sh_increase_every: 1000,
+            background: [0.0; 3],
+            max_alpha: crate::constants::MAX_ALPHA,
+            antialiased: false,
+            learning_rates: LearningRates::default(),
+            densify: DensifyArgs::default(),
+            init: InitArgs::default(),
+            real_loss: RealLoss::default(),
+            schedule: Schedule::Baseline,
+            synthetic: SyntheticArgs::default(),
+            early_stop_patience: None,
+            scene_scale: None,
+            lpips_net: "alex".into(),
+            seed: 0,
+            label: String::new(),
+            record_wall_time: false,
+        }
+    }
+}
+
+impl TrainArgs {
+    /// Checks every range.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.sh_degree > 3 {
+            return Err(format!("sh_degree = {} must be 0..=3", self.sh_degree));
+        }
+        if self.sh_increase_every == 0 {
+            return Err("sh_increase_every must be ≥ 1".into());
+        }
+        if self.eval_every == 0 {
+            return Err("eval_every must be ≥ 1".into());
+        }
+        if !(self.max_alpha > 0.0 && self.max_alpha <= 1.0) {
+            return Err(format!("max_alpha = {} must be in (0, 1]", self.max_alpha));
+        }
+        if self.background.iter().any(|v| !v.is_finite()) {
+            return Err("background must be finite".into());
+        }
+        if !(0.0..=1.0).contains(&self.real_loss.ssim_lambda) {
+            return Err(format!(
+                "real_loss.ssim_lambda = {} must be in [0, 1]",
+                self.real_loss.ssim_lambda
+            ));
+        }
+        if !(self.synthetic.skip_below.is_finite() && self.synthetic.skip_below >= 0.0) {
+            return Err(format!(
+                "synthetic.skip_below = {} must be finite and ≥ 0",
+                self.synthetic.skip_below
+            ));
+        }
+        if let Some(s) = self.scene_scale {
+            if !(s.is_finite() && s > 0.0) {
+                return Err(format!("scene_scale = {s} must be positive"));
+            }
+        }
+        if !matches!(
+            self.lpips_net.to_ascii_lowercase().as_str(),
+            "alex" | "alexnet" | "vgg" | "vgg16"
+        ) {
+            return Err(format!(
+                "lpips_net = {:?} must be \"alex\" or \"vgg\"",
+                self.lpips_net
+            ));
+        }
+        self.learning_rates.validate()?;
+        self.densify.validate()?;
+        self.init.validate()?;
+        self.schedule.validate()
+    }
+    /// The active SH degree at 0-based step `step`.
+    pub fn active_sh_degree(&self, step: u64) -> u32 {
+        ((step / self.sh_increase_every.max(1)).min(self.sh_degree as u64)) as u32
+    }
+    /// Render settings at step `step`.
+    pub fn render_settings(&self, step: u64) -> RenderSettings {
+        RenderSettings {
+            sh_degree: self.active_sh_degree(step),
+            background: self.background,
+            max_alpha: self.max_alpha,
+            antialiased: self.antialiased,
+            ..RenderSettings::default()
+        }
+    }
+}
+
+/// A source of supervision: views with cameras and a loss on the rendered colour.
+pub trait Supervision: Send + Sync {
+    /// Number of views.
+    fn len(&self) -> usize;
+    /// Whether there are no views.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// The camera of view `i` (its resolution is the render resolution).
+    fn camera(&self, i: usize) -> &Camera;
+    /// Pixels to render (non-zero) for view `i`; `None` renders all.
+    fn mask(&self, _i: usize) -> Option<&[u8]> {
+        None
+    }
+    /// Whether view `i` has anything to supervise (e.g. a non-zero weight sum).
+    fn usable(&self, _i: usize) -> bool {
+        true
+    }
+    /// The loss of view `i` for rendered colour `rgb` (`H·W·3`); adds `scale · dL/d(rgb)`
+    /// into `grad`.
+    fn loss(&self, i: usize, rgb: &[f32], scale: f32, grad: &mut [f32]) -> f64;
+}
+
+/// One real training image.
+#[derive(Clone, Debug)]
+pub struct RealView {
+    /// Name, for logs.
+    pub name: String,
+    /// Camera (its size equals the image size).
+    pub camera: Camera,
+    /// Interleaved RGB, `H·W·3`.
+    pub image: Vec<f32>,
+}
+
+/// Real images with the `(1 − λ)·P + λ·(1 − SSIM)` loss.
+#[derive(Clone, Debug)]
+pub struct RealImages {
+    /// The views.
+    pub views: Vec<RealView>,
+    /// The loss.
+    pub loss: RealLoss,
+}
+
+impl Supervision for RealImages {
+    fn len(&self) -> usize {
+        self.views.len()
+    }
+    fn camera(&self, i: usize) -> &Camera {
+        &self.views[i].camera
+    }
+    fn loss(&self, i: usize, rgb: &[f32], scale: f32, grad: &mut [f32]) -> f64 {
+        let v = &self.views[i];
+        let (w, h) = (v.camera.width as usize, v.camera.height as usize);
+        loss::photometric(
+            rgb,
+            &v.image,
+            w,
+            h,
+            self.loss.kind,
+            self.loss.ssim_lambda as f32,
+            scale,
+            grad,
+        )
+        .0
+    }
+}
+
+/// One synthetic supervision view.
+#[derive(Clone, Debug)]
+pub struct SynthView {
+    /// Name, for logs.
+    pub name: String,
+    /// Camera at the synthetic resolution.
+    pub camera: Camera,
+    /// Target colour (ensemble median), `H·W·3`.
+    pub target: Vec<f32>,
+    /// Confidence weights, `H·W` (already zeroed where masked out).
+    pub weight: Vec<f32>,
+    /// Render mask (1 = render) when pixels are skipped.
+    pub mask: Option<Vec<u8>>,
+    /// Sum of the (masked) weights.
+    pub weight_sum: f64,
+}
+
+impl SynthView {
+    /// Builds a view, applying `skip_below`: pixels with weight < `skip_below` get weight 0
+    /// and, when `skip_below > 0`, are masked out of rendering. Non-finite weights become 0.
+    pub fn new(
+        name: String,
+        camera: Camera,
+        target: Vec<f32>,
+        mut weight: Vec<f32>,
+        skip_below: f64,
+    ) -> Self {
+        for w in &mut weight {
+            if !w.is_finite() || (*w as f64) < skip_below || *w < 0.0 {
+                *w = 0.0;
+            }
+        }
+        let mask = (skip_below > 0.0).then(|| weight.iter().map(|&w| (w > 0.0) as u8).collect());
+        let weight_sum = weight.iter().map(|&w| w as f64).sum();
+        SynthView {
+            name,
+            camera,
+            target,
+            weight,
+            mask,
+            weight_sum,
+        }
+    }
+}
+
+/// Synthetic views with the confidence-weighted L2 loss.
+#[derive(Clone, Debug)]
+pub struct SyntheticImages {
+    /// The views.
+    pub views: Vec<SynthView>,
+    /// Normalisation of the weighted L2.
+    pub norm: WeightNorm,
+}
+
+impl Supervision for SyntheticImages {
+    fn len(&self) -> usize {
+        self.views.len()
+    }
+    fn camera(&self, i: usize) -> &Camera {
+        &self.views[i].camera
+    }
+    fn mask(&self, i: usize) -> Option<&[u8]> {
+        self.views[i].mask.as_deref()
+    }
+    fn usable(&self, i: usize) -> bool {
+        self.views[i].weight_sum > 0.0
+    }
+    fn loss(&self, i: usize, rgb: &[f32], scale: f32, grad: &mut [f32]) -> f64 {
+        let v = &self.views[i];
+        loss::weighted_l2(rgb, &v.target, &v.weight, self.norm, scale, grad)
+    }
+}
+
+/// What one step did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepReport {
+    /// The 0-based step index.
+    pub step: u64,
+    /// Weighted total loss.
+    pub loss: f64,
+    /// Real loss (unweighted), when a real view was rendered.
+    pub real_loss: Option<f64>,
+    /// Mean synthetic loss (unweighted) over the batch, when rendered.
+    pub synthetic_loss: Option<f64>,
+    /// Gaussians after the step.
+    pub gaussians: usize,
+    /// Densification that happened after the step.
+    pub refine: densify::RefineReport,
+    /// Composited (Gaussian, pixel) pairs over the step's renders.
+    pub pairs: u64,
+}
+
+/// Scene scale as gsplat: 1.1 × the largest distance of a camera centre from their mean
+/// (1.0 when there are no cameras or they coincide).
+pub fn scene_scale(cameras: &[&Camera]) -> f64 {
+    if cameras.is_empty() {
+        return 1.0;
+    }
+    let cs: Vec<[f64; 3]> = cameras.iter().map(|c| c.center()).collect();
+    let mean: [f64; 3] =
+        std::array::from_fn(|a| cs.iter().map(|c| c[a]).sum::<f64>() / cs.len() as f64);
+    let r = cs
+        .iter()
+        .map(|c| {
+            ((c[0] - mean[0]).powi(2) + (c[1] - mean[1]).powi(2) + (c[2] - mean[2]).powi(2)).sqrt()
+        })
+        .fold(0.0, f64::max);
+    let s = 1.1 * r;
+    if s.is_finite() && s > 0.0 {
+        s
+    } else {
+        1.0
+    }
+}
+
+/// Adds one render's gradients into the step's sum (element-wise, so the order of renders is
+/// the only order that matters, and it is fixed).
+fn add_grads(acc: &mut ParamGrads, g: &Gradients) {
+    fn add<const K: usize>(a: &mut [[f32; K]], b: &[[f32; K]]) {
+        a.par_iter_mut()
+            .zip(b.par_iter())
+            .with_min_len(4096)
+            .for_each(|(x, y)| {
+                for k in 0..K {
+                    x[k] += y[k];
+                }
+            });
+    }
+    if g.means.len() != acc.len() {
+        return; // an empty gradient (e.g. an empty set) contributes nothing
+    }
+    add(&mut acc.means, &g.means);
+    add(&mut acc.log_scales, &g.log_scales);
+    add(&mut acc.quats, &g.quats);
+    acc.opacity_logits
+        .par_iter_mut()
+        .zip(g.opacity_logits.par_iter())
+        .with_min_len(4096)
+        .for_each(|(x, y)| *x += y);
+    if g.sh.len() == acc.sh.len() {
+        acc.sh
+            .par_iter_mut()
+            .zip(g.sh.par_iter())
+            .with_min_len(4096)
+            .for_each(|(x, y)| *x += y);
+    }
+    for (v, &w) in acc.visible.iter_mut().zip(&g.visible) {
+        *v |= w;
+    }
+}
+
+/// The training state.
+pub struct Trainer<'a> {
+    args: TrainArgs,
+    g: Gaussians,
+    adam: Adam,
+    densifier: Densifier,
+    dsched: DensifySchedule,
+    scene_scale: f64,
+    step: u64,
+    real: &'a dyn Supervision,
+    synthetic: Option<&'a dyn Supervision>,
+    real_order: Vec<usize>,
+    real_pos: usize,
+    epoch: u64,
+    usable_synth: Vec<usize>,
+    d_rgb: Vec<f32>,
+}
+
+impl<'a> Trainer<'a> {
+    /// A trainer starting from `g`. The SH storage of `g` must be `args.sh_degree`.
+    pub fn new(
+        args: TrainArgs,
+        g: Gaussians,
+        scene_scale: f64,
+        real: &'a dyn Supervision,
+        synthetic: Option<&'a dyn Supervision>,
+    ) -> Self {
+        let n = g.len();
+        let adam = Adam::new(n, g.coeffs());
+        let dsched = args.densify.scaled(args.steps);
+        let usable_synth = synthetic
+            .map(|s| (0..s.len()).filter(|&i| s.usable(i)).collect())
+            .unwrap_or_default();
+        Trainer {
+            densifier: Densifier::new(n),
+            dsched,
+            scene_scale,
+            step: 0,
+            real,
+            synthetic,
+            real_order: Vec::new(),
+            real_pos: 0,
+            epoch: 0,
+            usable_synth,
+            d_rgb: Vec::new(),
+            adam,
+            g,
+            args,
+        }
+    }
+
+    /// The current Gaussians.
+    pub fn gaussians(&self) -> &Gaussians {
+        &self.g
+    }
+    /// Steps taken so far.
+    pub fn steps_done(&self) -> u64 {
+        self.step
+    }
+    /// The scene scale in use.
+    pub fn scene_scale(&self) -> f64 {
+        self.scene_scale
+    }
+    /// The densification schedule in use.
+    pub fn densify_schedule(&self) -> DensifySchedule {
+        self.dsched
+    }
+    /// The arguments.
+    pub fn args(&self) -> &TrainArgs {
+        &self.args
+    }
+
+    fn next_real(&mut self) -> Option<usize> {
+        let n = self.real.len();
+        if n == 0 {
+            return None;
+        }
+        if self.real_pos >= self.real_order.len() {
+            self.real_order = (0..n).collect();
+            Rng::stream(self.args.seed ^ 0x5EA1, self.epoch).shuffle(&mut self.real_order);
+            self.epoch += 1;
+            self.real_pos = 0;
+        }
+        let i = self.real_order[self.real_pos];
+        self.real_pos += 1;
+        Some(i)
+    }
+
+    /// Renders view `i` of `src`, adds `scale · dL/drgb`, back-propagates into `acc`. Returns
+    /// (unweighted-by-scale loss, the render's gradients, pairs).
+    fn render_and_backward(
+        &mut self,
+        src: &dyn Supervision,
+        i: usize,
+        scale: f64,
+        settings: &RenderSettings,
+        acc: &mut ParamGrads,
+    ) -> (f64, Gradients, u64) {
+        let cam = src.camera(i);
+        let out: RenderOutput = crate::render_masked(&self.g, cam, settings, src.mask(i));
+        self.d_rgb.clear();
+        self.d_rgb.resize(out.rgb.len(), 0.0);
+        let l = src.loss(i, &out.rgb, scale as f32, &mut self.d_rgb);
+        let gr = crate::backward(&self.g, cam, settings, &out, &self.d_rgb, None, None);
+        add_grads(acc, &gr);
+        (l, gr, out.stats.pairs)
+    }
+
+    /// One optimisation step.
+    pub fn step(&mut self) -> StepReport {
+        let step = self.step;
+        let plan = self.args.schedule.plan(step);
+        if plan.switch {
+            if let Schedule::Staged {
+                reset_at_switch: true,
+                ..
+            } = self.args.schedule
+            {
+                densify::reset_opacities(&mut self.g, &mut self.adam, 0.1);
+                self.adam.clear();
+                self.densifier.clear();
+            }
+        }
+        let settings = self.args.render_settings(step);
+        let n = self.g.len();
+        let mut acc = ParamGrads::zeros(n, self.g.coeffs());
+        let mut rep = StepReport {
+            step,
+            ..Default::default()
+        };
+        let densify_on = self.args.densify.enabled && step < self.dsched.stop;
+        if plan.real_weight > 0.0 {
+            if let Some(i) = self.next_real() {
+                let src = self.real;
+                let (l, gr, pairs) =
+                    self.render_and_backward(src, i, plan.real_weight, &settings, &mut acc);
+                rep.real_loss = Some(l);
+                rep.loss += plan.real_weight * l;
+                rep.pairs += pairs;
+                if densify_on && gr.means2d_abs.len() == n {
+                    self.densifier.accumulate(&gr.means2d_abs, &gr.visible);
+                }
+            }
+        }
+        if plan.synthetic_weight > 0.0 && plan.synthetic_batch > 0 {
+            if let Some(src) = self.synthetic {
+                let pool = &self.usable_synth;
+                let b = plan.synthetic_batch.min(pool.len());
+                if b > 0 {
+                    // Draw b views without replacement (partial Fisher–Yates on a copy).
+                    let mut ids = pool.clone();
+                    let mut rng = Rng::stream(self.args.seed ^ 0x5F17, step);
+                    for k in 0..b {
+                        let j = k + rng.below((ids.len() - k) as u64) as usize;
+                        ids.swap(k, j);
+                    }
+                    ids.truncate(b);
+                    let scale = plan.synthetic_weight / b as f64;
+                    let mut sum = 0.0;
+                    for &i in &ids {
+                        let (l, gr, pairs) =
+                            self.render_and_backward(src, i, scale, &settings, &mut acc);
+                        sum += l;
+                        rep.pairs += pairs;
+                        if densify_on
+                            && self.args.synthetic.densify_from_synthetic
+                            && gr.means2d_abs.len() == n
+                        {
+                            let m: Vec<[f32; 2]> = gr
+                                .means2d_abs
+                                .iter()
+                                .map(|v| [v[0] * b as f32, v[1] * b as f32])
+                                .collect();
+                            self.densifier.accumulate(&m, &gr.visible);
+                        }
+                    }
+                    rep.synthetic_loss = Some(sum / b as f64);
+                    rep.loss += plan.synthetic_weight * sum / b as f64;
+                }
+            }
+        }
+        let lr = self
+            .args
+            .learning_rates
+            .means_at(step, self.args.steps, self.scene_scale);
+        self.adam
+            .step(&mut self.g, &acc, &self.args.learning_rates, lr);
+        if self.args.densify.enabled {
+            rep.refine = self.densifier.step_post_update(
+                step,
+                &self.dsched,
+                &self.args.densify,
+                &mut self.g,
+                &mut self.adam,
+                self.scene_scale,
+                self.args.seed ^ 0xDE45,
+            );
+        }
+        self.step += 1;
+        rep.gaussians = self.g.len();
+        rep
+    }
+}
+
+/// Held-out evaluation of one set of Gaussians.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Evaluation {
+    /// Mean per-view PSNR, dB.
+    pub psnr: f64,
+    /// Mean per-view SSIM (torchmetrics convention).
+    pub ssim: f64,
+    /// Mean per-view MSE.
+    pub mse: f64,
+    /// Mean per-view LPIPS when a model was given.
+    pub lpips: Option<f64>,
+    /// Average error from the means, when LPIPS is available.
+    pub avg_error: Option<f64>,
+}
+
+/// Error of an evaluation (a metric rejected an image).
+#[derive(Debug, thiserror::Error)]
+#[error("evaluating view {view}: {source}")]
+pub struct EvalError {
+    /// The view's name.
+    pub view: String,
+    /// The metric's error.
+    #[source]
+    pub source: augsplat_metrics::MetricsError,
+}
+
+/// Renders every view (colour clamped to [0, 1], as gsplat's evaluation) and averages PSNR,
+/// SSIM, MSE (and LPIPS) over views with `augsplat-metrics`.
+pub fn evaluate(
+    g: &Gaussians,
+    views: &[RealView],
+    settings: &RenderSettings,
+    lpips: Option<&augsplat_metrics::lpips::Lpips>,
+) -> Result<Evaluation, EvalError> {
+    use augsplat_core::ImageF32;
+    let mut e = Evaluation::default();
+    if views.is_empty() {
+        return Ok(e);
+    }
+    let mut lp = 0.0;
+    for v in views {
+        let out = crate::render(g, &v.camera, settings);
+        let (w, h) = (v.camera.width, v.camera.height);
+        let pred = ImageF32::from_vec(w, h, 3, out.rgb.iter().map(|x| x.clamp(0.0, 1.0)).collect());
+        let gt = ImageF32::from_vec(w, h, 3, v.image.clone());
+        let err = |source| EvalError {
+            view: v.name.clone(),
+            source,
+        };
+        let mse = augsplat_metrics::mse(&pred, &gt).map_err(err)?;
+        e.mse += mse;
+        e.psnr += augsplat_metrics::psnr_from_mse(mse).min(100.0);
+        e.ssim += augsplat_metrics::ssim(&pred, &gt).map_err(err)?;
+        if let Some(m) = lpips {
+            lp += m.distance(&pred, &gt).map_err(err)?;
+        }
+    }
+    let n = views.len() as f64;
+    e.mse /= n;
+    e.psnr /= n;
+    e.ssim /= n;
+    if lpips.is_some() {
+        let l = lp / n;
+        e.lpips = Some(l);
+        e.avg_error = Some(augsplat_metrics::average_error(e.mse, e.ssim, l));
+    }
+    Ok(e)
+}

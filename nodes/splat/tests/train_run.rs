@@ -1,0 +1,280 @@
+//! The training loop end to end on small generated scenes: determinism across thread counts,
+//! PSNR improvement, the Staged switch inside the trainer, the OptimizeSplats node.
+
+mod train_util;
+
+use augsplat_core::{Rng, Scene};
+use augsplat_splat::adam::LearningRates;
+use augsplat_splat::densify::DensifyArgs;
+use augsplat_splat::train::{
+    evaluate, scene_scale, RealImages, RealLoss, RealView, Schedule, Supervision, SynthView,
+    SyntheticImages, TrainArgs, Trainer,
+};
+use augsplat_splat::{init, loss::WeightNorm, Gaussians};
+use std::path::Path;
+
+fn load_views(dir: &Path) -> Vec<RealView> {
+    let scene = Scene::load(dir).unwrap();
+    (0..scene.views.len())
+        .map(|i| RealView {
+            name: scene.views[i].name.clone(),
+            camera: scene.views[i].camera.clone(),
+            image: scene.load_image(dir, i).unwrap().data,
+        })
+        .collect()
+}
+
+fn initial(dir: &Path, degree: u32, sscale: f64) -> Gaussians {
+    let scene = Scene::load(dir).unwrap();
+    let cloud = scene.load_points(dir).unwrap();
+    init::from_points(&cloud, degree, &Default::default(), sscale, 1)
+}
+
+fn bits(g: &Gaussians) -> Vec<u32> {
+    g.means
+        .as_flattened()
+        .iter()
+        .chain(g.log_scales.as_flattened())
+        .chain(g.quats.as_flattened())
+        .chain(&g.opacity_logits)
+        .chain(&g.sh)
+        .map(|v| v.to_bits())
+        .collect()
+}
+
+#[test]
+fn training_steps_are_bit_identical_for_1_and_2_threads() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, _) = train_util::make_scene(tmp.path(), 48, 40, 9, 400);
+    let views = load_views(&train);
+    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
+    let ss = scene_scale(&cams);
+    let real = RealImages {
+        views,
+        loss: RealLoss::default(),
+    };
+    // Densify from the second step on, every step, so clone/split/prune run too.
+    let args = TrainArgs {
+        steps: 6,
+        sh_degree: 1,
+        sh_increase_every: 2,
+        densify: DensifyArgs {
+            start: 1,
+            every: 2,
+            reset_every: 4,
+            scale_with_steps: false,
+            grad_threshold: 1e-6,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let mut t = Trainer::new(args.clone(), initial(&train, 1, ss), ss, &real, None);
+                let mut reps = Vec::new();
+                for _ in 0..6 {
+                    reps.push(t.step());
+                }
+                (bits(t.gaussians()), reps)
+            })
+    };
+    let (a, ra) = run(1);
+    let (b, rb) = run(2);
+    assert_eq!(ra, rb);
+    assert!(a == b, "parameters differ between 1 and 2 threads");
+    assert!(
+        ra.iter().any(|r| r.refine.cloned + r.refine.split > 0),
+        "densification was exercised: {ra:?}"
+    );
+}
+
+#[test]
+fn short_run_improves_held_out_psnr() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, test) = train_util::make_scene(tmp.path(), 64, 48, 17, 1500);
+    let views = load_views(&train);
+    let test = load_views(&test);
+    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
+    let ss = scene_scale(&cams);
+    let real = RealImages {
+        views,
+        loss: RealLoss::default(),
+    };
+    let args = TrainArgs {
+        steps: 300,
+        sh_degree: 1,
+        sh_increase_every: 100,
+        ..Default::default()
+    };
+    let g0 = initial(&train, 1, ss);
+    let before = evaluate(&g0, &test, &args.render_settings(0), None).unwrap();
+    let mut t = Trainer::new(args.clone(), g0, ss, &real, None);
+    for _ in 0..300 {
+        t.step();
+    }
+    let after = evaluate(t.gaussians(), &test, &args.render_settings(300), None).unwrap();
+    eprintln!(
+        "held-out PSNR {:.2} → {:.2} dB, SSIM {:.3} → {:.3}, {} Gaussians",
+        before.psnr,
+        after.psnr,
+        before.ssim,
+        after.ssim,
+        t.gaussians().len()
+    );
+    assert!(
+        after.psnr > before.psnr + 3.0,
+        "PSNR {} → {}",
+        before.psnr,
+        after.psnr
+    );
+    assert!(after.ssim > before.ssim);
+}
+
+#[test]
+fn staged_trainer_uses_synthetic_then_real_and_resets_at_the_switch() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, _) = train_util::make_scene(tmp.path(), 40, 32, 9, 300);
+    let views = load_views(&train);
+    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
+    let ss = scene_scale(&cams);
+    // Synthetic views: the training views at half resolution, weight 1 on the left half.
+    let synth = SyntheticImages {
+        views: views
+            .iter()
+            .map(|v| {
+                let cam = v.camera.resized(20, 16);
+                let img =
+                    augsplat_core::ImageF32::from_vec(40, 32, 3, v.image.clone()).downscale(2);
+                let w: Vec<f32> = (0..20 * 16)
+                    .map(|p| if p % 20 < 10 { 1.0 } else { 0.0 })
+                    .collect();
+                SynthView::new(v.name.clone(), cam, img.data, w, 0.5)
+            })
+            .collect(),
+        norm: WeightNorm::WeightSum,
+    };
+    assert!(synth.mask(0).is_some());
+    let real = RealImages {
+        views,
+        loss: RealLoss::default(),
+    };
+    let warm = 4;
+    let args = TrainArgs {
+        steps: 7,
+        sh_degree: 0,
+        densify: DensifyArgs {
+            enabled: false,
+            ..Default::default()
+        },
+        schedule: Schedule::Staged {
+            warmup_steps: warm,
+            synthetic_batch: 3,
+            reset_at_switch: true,
+        },
+        learning_rates: LearningRates {
+            opacities: 0.05,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let mut g0 = initial(&train, 0, ss);
+    for o in &mut g0.opacity_logits {
+        *o = 2.0; // well above 0.1, so the reset is visible
+    }
+    let mut t = Trainer::new(args, g0, ss, &real, Some(&synth));
+    for step in 0..7u64 {
+        let r = t.step();
+        if step < warm {
+            assert!(
+                r.synthetic_loss.is_some() && r.real_loss.is_none(),
+                "step {step}: {r:?}"
+            );
+        } else {
+            assert!(
+                r.real_loss.is_some() && r.synthetic_loss.is_none(),
+                "step {step}: {r:?}"
+            );
+        }
+        if step == warm {
+            // Clamped to logit(0.1), then one fresh-Adam step moves each by at most lr.
+            let cap = (0.1f64 / 0.9).ln() + 0.05 + 1e-5;
+            let max = t
+                .gaussians()
+                .opacity_logits
+                .iter()
+                .cloned()
+                .fold(f32::MIN, f32::max) as f64;
+            assert!(max <= cap, "max opacity logit {max} after the switch");
+        }
+        if step == warm - 1 {
+            let min = t
+                .gaussians()
+                .opacity_logits
+                .iter()
+                .cloned()
+                .fold(f32::MAX, f32::min);
+            assert!(min > 1.5, "no reset before the switch");
+        }
+    }
+}
+
+#[test]
+fn empty_and_degenerate_inputs_do_not_panic() {
+    // No Gaussians at all, and a view with no usable synthetic weight.
+    let cam = augsplat_core::Camera {
+        width: 16,
+        height: 12,
+        fx: 20.0,
+        fy: 20.0,
+        cx: 8.0,
+        cy: 6.0,
+        world_to_camera: [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 3.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+    };
+    let mut rng = Rng::new(1);
+    let img: Vec<f32> = (0..16 * 12 * 3).map(|_| rng.next_f32()).collect();
+    let real = RealImages {
+        views: vec![RealView {
+            name: "a".into(),
+            camera: cam.clone(),
+            image: img.clone(),
+        }],
+        loss: RealLoss::default(),
+    };
+    let synth = SyntheticImages {
+        views: vec![SynthView::new(
+            "s".into(),
+            cam,
+            img,
+            vec![0.0; 16 * 12],
+            0.0,
+        )],
+        norm: WeightNorm::WeightSum,
+    };
+    let args = TrainArgs {
+        steps: 3,
+        schedule: Schedule::Dual {
+            w_nerf0: 2.0,
+            w_real: 1.0,
+            quarter_decay: 300.0,
+            off_below: None,
+            synthetic_batch: 4,
+        },
+        ..Default::default()
+    };
+    let mut t = Trainer::new(args, Gaussians::empty(3), 1.0, &real, Some(&synth));
+    for _ in 0..3 {
+        let r = t.step();
+        assert!(r.loss.is_finite());
+        assert_eq!(r.synthetic_loss, None, "a zero-weight view is never drawn");
+    }
+    assert_eq!(t.gaussians().len(), 0);
+}

@@ -1,0 +1,46 @@
+//! Shared helpers of the training tests: a generated scene split into train/test folders.
+#![allow(dead_code)]
+
+use augsplat_core::Scene;
+use augsplat_scene::split;
+use augsplat_scene::synthetic::{self, SyntheticParams};
+use std::path::{Path, PathBuf};
+
+/// Generates the procedural scene (`views` views of `w×h`) under `root/full` and writes
+/// `root/train` (every view but each 8th) and `root/test` (each 8th view, from 0).
+pub fn make_scene(root: &Path, w: u32, h: u32, views: u32, points: u32) -> (PathBuf, PathBuf) {
+    let full = root.join("full");
+    let params = SyntheticParams {
+        width: w,
+        height: h,
+        views,
+        points,
+        supersample: 2,
+        ..Default::default()
+    };
+    let scene = synthetic::generate(&params, &full).expect("generate scene");
+    let cloud = scene.load_points(&full).expect("points");
+    let n = scene.views.len();
+    let train: Vec<usize> = (0..n).filter(|i| i % 8 != 0).collect();
+    let test: Vec<usize> = (0..n).filter(|i| i % 8 == 0).collect();
+    let mut out = Vec::new();
+    for (name, ids) in [("train", train), ("test", test)] {
+        let dir = root.join(name);
+        std::fs::create_dir_all(dir.join("images")).unwrap();
+        let (sub, pts) = split::subset(&scene, &cloud, &ids, 1);
+        for v in &sub.views {
+            std::fs::copy(full.join(&v.image), dir.join(&v.image)).unwrap();
+        }
+        let sub = Scene {
+            has_points: !pts.is_empty(),
+            ..sub
+        };
+        sub.save(&dir).unwrap();
+        if !pts.is_empty() {
+            pts.save(&dir.join(augsplat_core::scene::POINTS_FILE))
+                .unwrap();
+        }
+        out.push(dir);
+    }
+    (out[0].clone(), out[1].clone())
+}
