@@ -7,6 +7,7 @@ use augsplat_graph::Registry;
 pub fn register_builtin(registry: &mut Registry) {
     augsplat_augment::register(registry);
     augsplat_field::register(registry);
+    augsplat_report::register(registry);
     augsplat_scene::register(registry);
     augsplat_splat::register(registry);
 }
