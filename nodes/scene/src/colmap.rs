@@ -68,7 +68,7 @@ pub struct ColmapModel {
     pub cameras: BTreeMap<u32, ColmapCamera>,
     /// Registered images by id.
     pub images: BTreeMap<u32, ColmapImage>,
-    /// Points, in file order.
+    /// Points, sorted by id by [`ColmapModel::load`] (file order from the format readers).
     pub points: Vec<ColmapPoint>,
 }
 
@@ -94,6 +94,8 @@ impl ColmapModel {
             ));
         };
         model.check_references(dir)?;
+        let mut model = model;
+        model.points.sort_by_key(|p| p.id);
         Ok(model)
     }
 
@@ -418,6 +420,57 @@ impl ColmapModel {
         (npts > 0).then(|| (sum / npts as f64, npts, nobs))
     }
 
+    /// Writes the model as COLMAP binary files into `dir` (which must exist).
+    pub fn save_binary(&self, dir: &Path) -> Result<()> {
+        let m = self;
+        let mut b = Vec::new();
+        b.extend((m.cameras.len() as u64).to_le_bytes());
+        for c in m.cameras.values() {
+            b.extend((c.id as i32).to_le_bytes());
+            b.extend(c.intrinsics.kind.colmap_id().to_le_bytes());
+            b.extend((c.intrinsics.width as u64).to_le_bytes());
+            b.extend((c.intrinsics.height as u64).to_le_bytes());
+            for p in c.intrinsics.colmap_params() {
+                b.extend(p.to_le_bytes());
+            }
+        }
+        write_bytes(&dir.join("cameras.bin"), &b)?;
+        let mut b = Vec::new();
+        b.extend((m.images.len() as u64).to_le_bytes());
+        for i in m.images.values() {
+            b.extend((i.id as i32).to_le_bytes());
+            for v in i.qvec.iter().chain(&i.tvec) {
+                b.extend(v.to_le_bytes());
+            }
+            b.extend((i.camera_id as i32).to_le_bytes());
+            b.extend(i.name.as_bytes());
+            b.push(0);
+            b.extend((i.points2d.len() as u64).to_le_bytes());
+            for (xy, pid) in &i.points2d {
+                b.extend(xy[0].to_le_bytes());
+                b.extend(xy[1].to_le_bytes());
+                b.extend(pid.to_le_bytes());
+            }
+        }
+        write_bytes(&dir.join("images.bin"), &b)?;
+        let mut b = Vec::new();
+        b.extend((m.points.len() as u64).to_le_bytes());
+        for p in &m.points {
+            b.extend(p.id.to_le_bytes());
+            for v in p.xyz {
+                b.extend(v.to_le_bytes());
+            }
+            b.extend(p.rgb);
+            b.extend(p.error.to_le_bytes());
+            b.extend((p.track.len() as u64).to_le_bytes());
+            for (i, k) in &p.track {
+                b.extend((*i as i32).to_le_bytes());
+                b.extend((*k as i32).to_le_bytes());
+            }
+        }
+        write_bytes(&dir.join("points3D.bin"), &b)
+    }
+
     /// Writes the model as COLMAP text files into `dir` (which must exist).
     pub fn save_text(&self, dir: &Path) -> Result<()> {
         let mut s = String::new();
@@ -576,6 +629,10 @@ fn read_text(path: &Path) -> Result<String> {
     std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))
 }
 
+fn write_bytes(path: &Path, b: &[u8]) -> Result<()> {
+    std::fs::write(path, b).map_err(|e| SceneError::io(path, e))
+}
+
 fn write_text(path: &Path, s: &str) -> Result<()> {
     std::fs::write(path, s).map_err(|e| SceneError::io(path, e))
 }
@@ -731,56 +788,6 @@ mod tests {
         m
     }
 
-    /// Writes the model in COLMAP's binary layout (test helper, independent of the reader).
-    pub(crate) fn write_binary(m: &ColmapModel, dir: &Path) {
-        let mut b = Vec::new();
-        b.extend((m.cameras.len() as u64).to_le_bytes());
-        for c in m.cameras.values() {
-            b.extend((c.id as i32).to_le_bytes());
-            b.extend(c.intrinsics.kind.colmap_id().to_le_bytes());
-            b.extend((c.intrinsics.width as u64).to_le_bytes());
-            b.extend((c.intrinsics.height as u64).to_le_bytes());
-            for p in c.intrinsics.colmap_params() {
-                b.extend(p.to_le_bytes());
-            }
-        }
-        std::fs::write(dir.join("cameras.bin"), b).unwrap();
-        let mut b = Vec::new();
-        b.extend((m.images.len() as u64).to_le_bytes());
-        for i in m.images.values() {
-            b.extend((i.id as i32).to_le_bytes());
-            for v in i.qvec.iter().chain(&i.tvec) {
-                b.extend(v.to_le_bytes());
-            }
-            b.extend((i.camera_id as i32).to_le_bytes());
-            b.extend(i.name.as_bytes());
-            b.push(0);
-            b.extend((i.points2d.len() as u64).to_le_bytes());
-            for (xy, pid) in &i.points2d {
-                b.extend(xy[0].to_le_bytes());
-                b.extend(xy[1].to_le_bytes());
-                b.extend(pid.to_le_bytes());
-            }
-        }
-        std::fs::write(dir.join("images.bin"), b).unwrap();
-        let mut b = Vec::new();
-        b.extend((m.points.len() as u64).to_le_bytes());
-        for p in &m.points {
-            b.extend(p.id.to_le_bytes());
-            for v in p.xyz {
-                b.extend(v.to_le_bytes());
-            }
-            b.extend(p.rgb);
-            b.extend(p.error.to_le_bytes());
-            b.extend((p.track.len() as u64).to_le_bytes());
-            for (i, k) in &p.track {
-                b.extend((*i as i32).to_le_bytes());
-                b.extend((*k as i32).to_le_bytes());
-            }
-        }
-        std::fs::write(dir.join("points3D.bin"), b).unwrap();
-    }
-
     #[test]
     fn text_and_binary_round_trip() {
         let m = tiny_model();
@@ -789,7 +796,7 @@ mod tests {
         let t = ColmapModel::load(dir.path()).unwrap();
         assert_eq!(t, m);
         let bdir = tempfile::tempdir().unwrap();
-        write_binary(&m, bdir.path());
+        m.save_binary(bdir.path()).unwrap();
         let b = ColmapModel::load(bdir.path()).unwrap();
         assert_eq!(b, m);
     }
@@ -828,7 +835,7 @@ mod tests {
         let m = tiny_model();
         // Truncated binary.
         let dir = tempfile::tempdir().unwrap();
-        write_binary(&m, dir.path());
+        m.save_binary(dir.path()).unwrap();
         let p = dir.path().join("images.bin");
         let bytes = std::fs::read(&p).unwrap();
         std::fs::write(&p, &bytes[..bytes.len() - 30]).unwrap();

@@ -1,7 +1,7 @@
-//! Export of a scene artifact to COLMAP text and to transforms.json, in the scene's original
+//! Export of a scene artifact to COLMAP (text or binary) and to transforms.json, in the scene's original
 //! frame (the import normalisation is inverted), so results go back into other tools.
 //!
-//! - COLMAP text: `sparse/0/{cameras,images,points3D}.txt` plus `images/<name>.png`. One
+//! - COLMAP text or binary: `sparse/0/{cameras,images,points3D}.{txt,bin}` plus `images/<name>.png`. One
 //!   `PINHOLE` camera per distinct intrinsics; image ids follow the view order (1-based); each
 //!   point's keypoints are its exact projections into the views of its track (the scene
 //!   stores no keypoints), so their reprojection error is 0 by construction while the point's
@@ -24,6 +24,8 @@ pub enum ExportFormat {
     /// COLMAP text model plus images.
     #[default]
     ColmapText,
+    /// COLMAP binary model plus images.
+    ColmapBinary,
     /// nerfstudio / instant-ngp transforms.json plus images.
     Transforms,
 }
@@ -132,10 +134,15 @@ pub fn export_scene(src: &Path, out: &Path, format: ExportFormat) -> Result<()> 
     crate::import::check_scene(&scene, &cloud, src)?;
     let names = copy_images(&scene, src, out)?;
     match format {
-        ExportFormat::ColmapText => {
+        ExportFormat::ColmapText | ExportFormat::ColmapBinary => {
             let dir = out.join("sparse").join("0");
             std::fs::create_dir_all(&dir).map_err(|e| SceneError::io(&dir, e))?;
-            to_colmap(&scene, &cloud, &names).save_text(&dir)
+            let model = to_colmap(&scene, &cloud, &names);
+            if format == ExportFormat::ColmapText {
+                model.save_text(&dir)
+            } else {
+                model.save_binary(&dir)
+            }
         }
         ExportFormat::Transforms => {
             let n = &scene.normalization;
