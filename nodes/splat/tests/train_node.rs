@@ -1,0 +1,213 @@
+//! The OptimizeSplats node on a tiny generated scene: outputs, byte-identical results for 1
+//! and 2 threads, synthetic input handling, errors, LPIPS selection when weights exist.
+
+mod train_util;
+
+use augsplat_core::artifacts::{self, SyntheticSet, SyntheticView, TrainingCurve};
+use augsplat_core::image::{read_rgb, write_exr};
+use augsplat_core::Scene;
+use augsplat_graph::{Node, RunContext};
+use augsplat_splat::node::BestRecord;
+use augsplat_splat::train::{Schedule, TrainArgs};
+use augsplat_splat::OptimizeSplats;
+use std::path::{Path, PathBuf};
+
+fn run_node(
+    args: &TrainArgs,
+    inputs: Vec<(&str, &Path)>,
+    out: &Path,
+    threads: usize,
+) -> Result<PathBuf, String> {
+    let inputs = inputs
+        .into_iter()
+        .map(|(n, p)| (n.to_string(), vec![p.to_path_buf()]))
+        .collect();
+    let mut ctx = RunContext::standalone(inputs, &["model"], out, 0, threads).unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    pool.install(|| OptimizeSplats::run(args, &mut ctx))
+        .map_err(|e| e.to_string())?;
+    Ok(out.join("model"))
+}
+
+fn small_args() -> TrainArgs {
+    TrainArgs {
+        steps: 20,
+        eval_every: 10,
+        sh_degree: 1,
+        sh_increase_every: 10,
+        ..Default::default()
+    }
+}
+
+/// A SyntheticSet made from the training views at half resolution, weights from a ramp.
+fn make_synthetic(train: &Path, dir: &Path) {
+    std::fs::create_dir_all(dir).unwrap();
+    let scene = Scene::load(train).unwrap();
+    let mut set = SyntheticSet::default();
+    for (i, v) in scene.views.iter().enumerate().take(4) {
+        let img = read_rgb(&train.join(&v.image)).unwrap().downscale(2);
+        let cam = v.camera.resized(img.width, img.height);
+        let (w, h) = (img.width, img.height);
+        let planes: Vec<Vec<f32>> = (0..3).map(|c| img.channel(c)).collect();
+        let weight: Vec<f32> = (0..w * h).map(|p| (p % w) as f32 / w as f32).collect();
+        let t = format!("t{i}.exr");
+        let wf = format!("w{i}.exr");
+        write_exr(
+            &dir.join(&t),
+            w,
+            h,
+            &[("R", &planes[0]), ("G", &planes[1]), ("B", &planes[2])],
+        )
+        .unwrap();
+        write_exr(&dir.join(&wf), w, h, &[("W", &weight)]).unwrap();
+        set.views.push(SyntheticView {
+            name: v.name.clone(),
+            camera: cam,
+            target: t,
+            weight: wf,
+            weight_sum: weight.iter().map(|&x| x as f64).sum(),
+        });
+    }
+    artifacts::write_json(&dir.join(artifacts::files::SYNTHETIC), &set).unwrap();
+}
+
+#[test]
+fn node_writes_model_and_is_byte_identical_for_1_and_2_threads() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, test) = train_util::make_scene(tmp.path(), 48, 40, 9, 300);
+    let args = small_args();
+    let a = run_node(
+        &args,
+        vec![("train", &train), ("test", &test)],
+        &tmp.path().join("o1"),
+        1,
+    )
+    .unwrap();
+    let b = run_node(
+        &args,
+        vec![("train", &train), ("test", &test)],
+        &tmp.path().join("o2"),
+        2,
+    )
+    .unwrap();
+    for f in ["final.ply", "best.ply", "curve.json", "best.json"] {
+        let x = std::fs::read(a.join(f)).unwrap();
+        let y = std::fs::read(b.join(f)).unwrap();
+        assert!(x == y, "{f} differs between 1 and 2 threads");
+    }
+    let curve: TrainingCurve = artifacts::read_json(&a.join("curve.json")).unwrap();
+    assert_eq!(curve.label, "3DGS");
+    assert_eq!(
+        curve.points.iter().map(|p| p.step).collect::<Vec<_>>(),
+        vec![10, 20]
+    );
+    assert!(curve.points.iter().all(|p| p.psnr.is_finite()
+        && p.ssim.is_finite()
+        && p.primitives > 0
+        && p.lpips.is_none()));
+    assert!(
+        curve.points.iter().all(|p| p.seconds == 0.0),
+        "wall time is off by default"
+    );
+    let best: BestRecord = artifacts::read_json(&a.join("best.json")).unwrap();
+    assert_eq!(best.criterion, "psnr");
+    let max = curve.points.iter().map(|p| p.psnr).fold(f64::MIN, f64::max);
+    assert_eq!(best.point.psnr, max);
+    assert_eq!(best.steps_run, 20);
+    let g = augsplat_splat::read_ply(&a.join("final.ply")).unwrap();
+    assert_eq!(g.len() as u64, curve.points[1].primitives);
+}
+
+#[test]
+fn node_runs_dual_with_synthetic_input_and_rejects_missing_synthetic() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, test) = train_util::make_scene(tmp.path(), 48, 40, 9, 300);
+    let mut args = small_args();
+    args.schedule = Schedule::Staged {
+        warmup_steps: 5,
+        synthetic_batch: 2,
+        reset_at_switch: true,
+    };
+    let err = run_node(
+        &args,
+        vec![("train", &train), ("test", &test)],
+        &tmp.path().join("o0"),
+        1,
+    )
+    .unwrap_err();
+    assert!(err.contains("synthetic"), "{err}");
+    let syn = tmp.path().join("syn");
+    make_synthetic(&train, &syn);
+    args.schedule = Schedule::Dual {
+        w_nerf0: 2.0,
+        w_real: 1.0,
+        quarter_decay: 10.0,
+        off_below: Some(0.1),
+        synthetic_batch: 2,
+    };
+    args.synthetic.skip_below = 0.25;
+    args.label = "dual-test".into();
+    let m = run_node(
+        &args,
+        vec![("train", &train), ("test", &test), ("synthetic", &syn)],
+        &tmp.path().join("o1"),
+        2,
+    )
+    .unwrap();
+    let curve: TrainingCurve = artifacts::read_json(&m.join("curve.json")).unwrap();
+    assert_eq!(curve.label, "dual-test");
+    assert!(curve
+        .points
+        .iter()
+        .all(|p| p.loss.is_finite() && p.loss > 0.0));
+    // A broken synthetic index is a clear error naming the file.
+    std::fs::write(syn.join("synthetic.json"), "{").unwrap();
+    let err = run_node(
+        &args,
+        vec![("train", &train), ("test", &test), ("synthetic", &syn)],
+        &tmp.path().join("o2"),
+        1,
+    )
+    .unwrap_err();
+    assert!(err.contains("synthetic.json"), "{err}");
+}
+
+#[test]
+fn node_selects_by_average_error_when_lpips_weights_are_given() {
+    let lp = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/lpips");
+    if !lp.join("lpips_alex_v0.1.safetensors").is_file() {
+        eprintln!("skipping: {} not found", lp.display());
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, test) = train_util::make_scene(tmp.path(), 64, 64, 9, 300);
+    let mut args = small_args();
+    args.early_stop_patience = Some(1);
+    args.steps = 40;
+    let m = run_node(
+        &args,
+        vec![("train", &train), ("test", &test), ("lpips", &lp)],
+        &tmp.path().join("o"),
+        2,
+    )
+    .unwrap();
+    let best: BestRecord = artifacts::read_json(&m.join("best.json")).unwrap();
+    assert_eq!(best.criterion, "avg_error");
+    let curve: TrainingCurve = artifacts::read_json(&m.join("curve.json")).unwrap();
+    assert!(curve
+        .points
+        .iter()
+        .all(|p| p.lpips.is_some() && p.avg_error.is_some()));
+    let min = curve
+        .points
+        .iter()
+        .map(|p| p.avg_error.unwrap())
+        .fold(f64::MAX, f64::min);
+    assert_eq!(best.point.avg_error, Some(min));
+    if best.early_stopped {
+        assert!(best.steps_run < 40);
+    }
+}
