@@ -18,7 +18,7 @@
 //! g_A' = g_A − g_D·D/A from the alpha-normalised depth D = S/A.
 
 use crate::constants::{ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS};
-use crate::forward::{exp_neg, row_range, smooth_cut, Splat2D, PROJECT_CHUNK};
+use crate::forward::{exp_neg, row_hits, row_range, smooth_cut, Splat2D, PROJECT_CHUNK};
 use crate::gaussians::Gaussians;
 use crate::project::{project_vjp, CameraModel, ProjectedGrad};
 use crate::render::{Cutoff, Gradients, RenderOutput, RenderSettings};
@@ -74,9 +74,21 @@ fn backward_tile<const SMOOTH: bool>(
         let mut lanes = [[0.0f32; 16]; 10];
         for ly in lo..hi {
             let dy = sp.y - ((y0 + ly as u32) as f32 + 0.5);
+            if !row_hits(sp, dy, x0) {
+                continue;
+            }
             let base = ly * TILE as usize;
+            let r16 = |v: &[f32]| -> [f32; 16] { v[base..base + 16].try_into().unwrap() };
+            let (gcr, gcg, gcb) = (r16(&up.gc[0]), r16(&up.gc[1]), r16(&up.gc[2]));
+            let (ga, gsv, tf) = (r16(&up.ga), r16(&up.gs), r16(final_t));
+            let last_row: [u32; 16] = last[base..base + 16].try_into().unwrap();
+            let t_row: &mut [f32; 16] = (&mut t[base..base + 16]).try_into().unwrap();
+            let [a0, a1r, a2] = &mut acc;
+            let ar: &mut [f32; 16] = (&mut a0[base..base + 16]).try_into().unwrap();
+            let ag: &mut [f32; 16] = (&mut a1r[base..base + 16]).try_into().unwrap();
+            let ab: &mut [f32; 16] = (&mut a2[base..base + 16]).try_into().unwrap();
+            let ad: &mut [f32; 16] = (&mut acc_d[base..base + 16]).try_into().unwrap();
             for lx in 0..16 {
-                let p = base + lx;
                 let dx = sp.x - px[lx];
                 let sigma = 0.5 * (sp.a * dx * dx + sp.c * dy * dy) + sp.b * dx * dy;
                 let gauss = exp_neg(-sigma);
@@ -88,19 +100,15 @@ fn backward_tile<const SMOOTH: bool>(
                 } else {
                     (a1, a1 >= ALPHA_THRESHOLD, 1.0)
                 };
-                let ok = ok && sigma >= 0.0 && kk < last[p];
+                let ok = ok && sigma >= 0.0 && kk < last_row[lx];
                 let ra = 1.0 / (1.0 - alpha);
-                let ti = t[p] * ra;
+                let ti = t_row[lx] * ra;
                 let w = alpha * ti;
-                let gcr = up.gc[0][p];
-                let gcg = up.gc[1][p];
-                let gcb = up.gc[2][p];
-                let gs = up.gs[p];
-                let dl_da = gcr * (sp.rgb[0] * ti - acc[0][p] * ra)
-                    + gcg * (sp.rgb[1] * ti - acc[1][p] * ra)
-                    + gcb * (sp.rgb[2] * ti - acc[2][p] * ra)
-                    + up.ga[p] * final_t[p] * ra
-                    + gs * (sp.depth * ti - acc_d[p] * ra);
+                let dl_da = gcr[lx] * (sp.rgb[0] * ti - ar[lx] * ra)
+                    + gcg[lx] * (sp.rgb[1] * ti - ag[lx] * ra)
+                    + gcb[lx] * (sp.rgb[2] * ti - ab[lx] * ra)
+                    + ga[lx] * tf[lx] * ra
+                    + gsv[lx] * (sp.depth * ti - ad[lx] * ra);
                 let unclamped = raw < max_alpha;
                 let d_raw = if ok && unclamped { dl_da * da_da1 } else { 0.0 };
                 let d_sigma = -d_raw * raw;
@@ -114,15 +122,15 @@ fn backward_tile<const SMOOTH: bool>(
                 lanes[4][lx] += sel(d_sigma * 0.5 * dy * dy);
                 lanes[0][lx] += sel(d_sigma * (sp.a * dx + sp.b * dy));
                 lanes[1][lx] += sel(d_sigma * (sp.b * dx + sp.c * dy));
-                lanes[6][lx] += gcr * wm;
-                lanes[7][lx] += gcg * wm;
-                lanes[8][lx] += gcb * wm;
-                lanes[9][lx] += gs * wm;
-                acc[0][p] += sp.rgb[0] * wm;
-                acc[1][p] += sp.rgb[1] * wm;
-                acc[2][p] += sp.rgb[2] * wm;
-                acc_d[p] += sp.depth * wm;
-                t[p] = if ok { ti } else { t[p] };
+                lanes[6][lx] += gcr[lx] * wm;
+                lanes[7][lx] += gcg[lx] * wm;
+                lanes[8][lx] += gcb[lx] * wm;
+                lanes[9][lx] += gsv[lx] * wm;
+                ar[lx] += sp.rgb[0] * wm;
+                ag[lx] += sp.rgb[1] * wm;
+                ab[lx] += sp.rgb[2] * wm;
+                ad[lx] += sp.depth * wm;
+                t_row[lx] = if ok { ti } else { t_row[lx] };
             }
         }
         let slot = &mut out[k];

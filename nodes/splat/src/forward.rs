@@ -50,6 +50,9 @@ pub struct Splat2D {
     pub ymin: f32,
     /// Bottom of the bounding box (y + radius_y), pixels.
     pub ymax: f32,
+    /// σ beyond which α < 1/255: ln(255·opacity), padded by a relative 1e-4 so that rounding
+    /// never skips a pixel the compositing rule would keep.
+    pub sigma_max: f32,
 }
 
 /// State kept from the forward pass for the backward pass.
@@ -80,16 +83,18 @@ enum Proj {
     Invalid,
 }
 
-/// e^x for x ≤ 0 (inputs below −87 are clamped), branch-free so it vectorises; relative
-/// error below 2e-7.
+/// e^x for x ≤ 0 (inputs below −87 are clamped), branch-free and free of float→int
+/// conversions so it vectorises; relative error below 3e-7.
 #[inline(always)]
 pub fn exp_neg(x: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_145_75;
     const LN2_LO: f32 = 1.428_606_8e-6;
-    const ROUND: f32 = 12_582_912.0; // 1.5·2²³: adding and subtracting rounds to nearest
-    let x = x.clamp(-87.0, 0.0);
-    let n = (x * LOG2E + ROUND) - ROUND;
+    // 1.5·2²³: adding it rounds to an integer held in the low mantissa bits.
+    const ROUND: f32 = 12_582_912.0;
+    let x = x.max(-87.0).min(0.0);
+    let shifted = x * LOG2E + ROUND;
+    let n = shifted - ROUND;
     let f = x - n * LN2_HI - n * LN2_LO;
     let p = 1.0
         + f * (1.0
@@ -97,14 +102,17 @@ pub fn exp_neg(x: f32) -> f32 {
                 + f * (1.0 / 6.0
                     + f * (1.0 / 24.0
                         + f * (1.0 / 120.0 + f * (1.0 / 720.0 + f * (1.0 / 5040.0)))))));
-    let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+    let k = shifted.to_bits().wrapping_sub(ROUND.to_bits());
+    let scale = f32::from_bits(k.wrapping_add(127) << 23);
     p * scale
 }
 
 /// The smooth cutoff factor s(α) (C¹ smoothstep from 1/255 to 2/255) and its derivative.
 #[inline(always)]
 pub(crate) fn smooth_cut(alpha: f32) -> (f32, f32) {
-    let x = ((alpha - ALPHA_THRESHOLD) / ALPHA_THRESHOLD).clamp(0.0, 1.0);
+    let x = ((alpha - ALPHA_THRESHOLD) * (1.0 / ALPHA_THRESHOLD))
+        .max(0.0)
+        .min(1.0);
     (
         x * x * (3.0 - 2.0 * x),
         6.0 * x * (1.0 - x) / ALPHA_THRESHOLD,
@@ -202,6 +210,10 @@ fn project_all(
                                     depth: p.depth as f32,
                                     ymin: (p.mean2d[1] - p.radius[1] as f64) as f32,
                                     ymax: (p.mean2d[1] + p.radius[1] as f64) as f32,
+                                    sigma_max: ((p.opacity / ALPHA_THRESHOLD as f64).ln().max(0.0)
+                                        * (1.0 + 1e-4)
+                                        + 1e-4)
+                                        as f32,
                                 },
                                 rect,
                             )
@@ -213,17 +225,63 @@ fn project_all(
     out
 }
 
-/// Row range `[lo, hi)` of a tile (top pixel row `y0`) whose pixel centres lie inside the
-/// Gaussian's bounding box.
+/// Row range `[lo, hi)` of a tile (top pixel row `y0`) whose pixel centres lie inside both
+/// the Gaussian's bounding box and its α ≥ 1/255 ellipse.
 #[inline(always)]
 pub(crate) fn row_range(sp: &Splat2D, y0: u32) -> (usize, usize) {
+    // σ restricted to a row is minimal at dx = −b·dy/a where it equals ½·dy²·(c − b²/a).
+    let q = (sp.c - sp.b * sp.b / sp.a).max(1e-30);
+    let ext = (2.0 * sp.sigma_max / q).sqrt();
     let base = y0 as f32 + 0.5;
-    let lo = (sp.ymin - base).ceil().max(0.0);
-    let hi = ((sp.ymax - base).floor() + 1.0).min(TILE as f32);
-    if hi <= lo {
+    let top = sp.ymin.max(sp.y - ext);
+    let bottom = sp.ymax.min(sp.y + ext);
+    let lo = (top - base).ceil().max(0.0);
+    let hi = ((bottom - base).floor() + 1.0).min(TILE as f32);
+    if !(hi > lo) {
         (0, 0)
     } else {
         (lo as usize, hi as usize)
+    }
+}
+
+/// Whether the α ≥ 1/255 chord of the Gaussian's ellipse on the row at offset `dy`
+/// (= mean_y − pixel_y) reaches the 16 pixel centres starting at `x0 + 0.5`.
+#[inline(always)]
+pub(crate) fn row_hits(sp: &Splat2D, dy: f32, x0: u32) -> bool {
+    let q = sp.c - sp.b * sp.b / sp.a;
+    let w2 = 2.0 * (sp.sigma_max - 0.5 * dy * dy * q) / sp.a;
+    if !(w2 >= 0.0) {
+        return false;
+    }
+    let w = w2.sqrt() + 1e-3;
+    let centre = sp.x + sp.b * dy / sp.a;
+    let left = x0 as f32 + 0.5;
+    centre + w >= left && centre - w <= left + 15.0
+}
+
+/// Alpha of one Gaussian for a row of 16 pixels (0 where it is skipped: σ < 0 or below the
+/// 1/255 cutoff). Pure arithmetic over lanes, so it vectorises.
+#[inline(always)]
+pub(crate) fn row_alpha<const SMOOTH: bool>(
+    sp: &Splat2D,
+    px: &[f32; 16],
+    dy: f32,
+    max_alpha: f32,
+    out: &mut [f32; 16],
+) {
+    for lx in 0..16 {
+        let dx = sp.x - px[lx];
+        let sigma = 0.5 * (sp.a * dx * dx + sp.c * dy * dy) + sp.b * dx * dy;
+        let a1 = (sp.opacity * exp_neg(-sigma)).min(max_alpha);
+        let (alpha, ok) = if SMOOTH {
+            let x = ((a1 - ALPHA_THRESHOLD) * (1.0 / ALPHA_THRESHOLD))
+                .max(0.0)
+                .min(1.0);
+            (a1 * (x * x * (3.0 - 2.0 * x)), a1 > ALPHA_THRESHOLD)
+        } else {
+            (a1, a1 >= ALPHA_THRESHOLD)
+        };
+        out[lx] = if ok && sigma >= 0.0 { alpha } else { 0.0 };
     }
 }
 
@@ -234,56 +292,54 @@ fn raster_tile<const SMOOTH: bool>(
     list: &[u32],
     x0: u32,
     y0: u32,
-    active_init: &[bool; TILE_PIXELS],
+    active_init: &[u32; TILE_PIXELS],
     max_alpha: f32,
     out: &mut TilePixels,
 ) -> u64 {
+    // 1 = still compositing, 0 = done (outside the image, masked, or saturated).
     let mut active = *active_init;
-    let mut remaining = active.iter().filter(|a| **a).count();
+    let mut remaining: u32 = active.iter().sum();
     if remaining == 0 {
         return 0;
     }
-    let mut px = [0.0f32; TILE as usize];
+    let mut px = [0.0f32; 16];
     for (lx, v) in px.iter_mut().enumerate() {
         *v = (x0 + lx as u32) as f32 + 0.5;
     }
     let mut pairs = 0u64;
+    let mut alpha = [0.0f32; 16];
     for (k, &rank) in list.iter().enumerate() {
         let sp = &splats[rank as usize];
         let (lo, hi) = row_range(sp, y0);
         let kk = k as u32 + 1;
         for ly in lo..hi {
             let dy = sp.y - ((y0 + ly as u32) as f32 + 0.5);
+            if !row_hits(sp, dy, x0) {
+                continue;
+            }
+            row_alpha::<SMOOTH>(sp, &px, dy, max_alpha, &mut alpha);
             let base = ly * TILE as usize;
-            let mut stops = 0usize;
+            let t_row: &mut [f32; 16] = (&mut out.t[base..base + 16]).try_into().unwrap();
+            let act: &mut [u32; 16] = (&mut active[base..base + 16]).try_into().unwrap();
+            let last: &mut [u32; 16] = (&mut out.last[base..base + 16]).try_into().unwrap();
+            let [c0, c1, c2] = &mut out.c;
+            let cr: &mut [f32; 16] = (&mut c0[base..base + 16]).try_into().unwrap();
+            let cg: &mut [f32; 16] = (&mut c1[base..base + 16]).try_into().unwrap();
+            let cb: &mut [f32; 16] = (&mut c2[base..base + 16]).try_into().unwrap();
+            let dd: &mut [f32; 16] = (&mut out.d[base..base + 16]).try_into().unwrap();
+            let mut stops = 0u32;
             let mut comps = 0u32;
-            let t_row = &mut out.t[base..base + 16];
-            let act = &mut active[base..base + 16];
-            let last = &mut out.last[base..base + 16];
-            let (c0, rest) = out.c.split_at_mut(1);
-            let (c1, c2) = rest.split_at_mut(1);
-            let cr = &mut c0[0][base..base + 16];
-            let cg = &mut c1[0][base..base + 16];
-            let cb = &mut c2[0][base..base + 16];
-            let dd = &mut out.d[base..base + 16];
             for lx in 0..16 {
-                let dx = sp.x - px[lx];
-                let sigma = 0.5 * (sp.a * dx * dx + sp.c * dy * dy) + sp.b * dx * dy;
-                let a1 = (sp.opacity * exp_neg(-sigma)).min(max_alpha);
-                let (alpha, ok) = if SMOOTH {
-                    (a1 * smooth_cut(a1).0, a1 > ALPHA_THRESHOLD)
-                } else {
-                    (a1, a1 >= ALPHA_THRESHOLD)
-                };
-                let ok = ok && sigma >= 0.0 && act[lx];
+                let a = alpha[lx];
                 let t = t_row[lx];
-                let next_t = t * (1.0 - alpha);
+                let next_t = t * (1.0 - a);
+                let ok = a > 0.0 && act[lx] != 0;
                 let stop = ok && next_t <= TRANSMITTANCE_THRESHOLD;
                 let comp = ok && !stop;
-                act[lx] &= !stop;
-                stops += stop as usize;
+                act[lx] = if stop { 0 } else { act[lx] };
+                stops += stop as u32;
                 comps += comp as u32;
-                let w = if comp { alpha * t } else { 0.0 };
+                let w = if comp { a * t } else { 0.0 };
                 cr[lx] += w * sp.rgb[0];
                 cg[lx] += w * sp.rgb[1];
                 cb[lx] += w * sp.rgb[2];
@@ -357,13 +413,13 @@ pub(crate) fn render_impl(
             let tx = (t % grid.tiles_x as usize) as u32;
             let ty = (t / grid.tiles_x as usize) as u32;
             let (x0, y0) = (tx * TILE, ty * TILE);
-            let mut active = [false; TILE_PIXELS];
+            let mut active = [0u32; TILE_PIXELS];
             for ly in 0..TILE {
                 for lx in 0..TILE {
                     let (x, y) = (x0 + lx, y0 + ly);
                     if x < width && y < height {
                         let on = mask.is_none_or(|m| m[(y * width + x) as usize] != 0);
-                        active[(ly * TILE + lx) as usize] = on;
+                        active[(ly * TILE + lx) as usize] = on as u32;
                     }
                 }
             }
