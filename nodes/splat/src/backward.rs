@@ -38,6 +38,7 @@ struct Upstream {
 }
 
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn backward_tile<const SMOOTH: bool>(
     splats: &[Splat2D],
     list: &[u32],
@@ -140,6 +141,82 @@ fn backward_tile<const SMOOTH: bool>(
     }
 }
 
+/// [`backward_tile`] compiled for AVX-512F (16 lanes: one tile row per vector).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[allow(clippy::too_many_arguments)]
+fn backward_tile_avx512<const SMOOTH: bool>(
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    last: &[u32],
+    final_t: &[f32],
+    up: &Upstream,
+    bg: [f32; 3],
+    max_alpha: f32,
+    out: &mut [PairGrad],
+) {
+    backward_tile::<SMOOTH>(splats, list, x0, y0, last, final_t, up, bg, max_alpha, out)
+}
+
+/// [`backward_tile`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+fn backward_tile_avx2<const SMOOTH: bool>(
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    last: &[u32],
+    final_t: &[f32],
+    up: &Upstream,
+    bg: [f32; 3],
+    max_alpha: f32,
+    out: &mut [PairGrad],
+) {
+    backward_tile::<SMOOTH>(splats, list, x0, y0, last, final_t, up, bg, max_alpha, out)
+}
+
+/// Runs [`backward_tile`] with the widest vector unit the CPU has. Every variant performs the same
+/// IEEE operations in the same order (no FMA contraction, sequential lane sums), so results
+/// are bit-identical whichever one runs.
+#[allow(clippy::too_many_arguments)]
+fn backward_tile_dispatch<const SMOOTH: bool>(
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    last: &[u32],
+    final_t: &[f32],
+    up: &Upstream,
+    bg: [f32; 3],
+    max_alpha: f32,
+    out: &mut [PairGrad],
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F (checked just above).
+            return unsafe {
+                backward_tile_avx512::<SMOOTH>(
+                    splats, list, x0, y0, last, final_t, up, bg, max_alpha, out,
+                )
+            };
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe {
+                backward_tile_avx2::<SMOOTH>(
+                    splats, list, x0, y0, last, final_t, up, bg, max_alpha, out,
+                )
+            };
+        }
+    }
+    backward_tile::<SMOOTH>(splats, list, x0, y0, last, final_t, up, bg, max_alpha, out)
+}
+
 pub(crate) fn backward_impl(
     g: &Gaussians,
     cam: &Camera,
@@ -226,7 +303,7 @@ pub(crate) fn backward_impl(
         let list = &bins.ranks[bins.ranges[t]..bins.ranges[t + 1]];
         let ft = &st.final_t[t * TILE_PIXELS..(t + 1) * TILE_PIXELS];
         match st.cutoff {
-            Cutoff::Hard => backward_tile::<false>(
+            Cutoff::Hard => backward_tile_dispatch::<false>(
                 &st.splats,
                 list,
                 x0,
@@ -238,7 +315,7 @@ pub(crate) fn backward_impl(
                 max_alpha,
                 slot,
             ),
-            Cutoff::Smooth => backward_tile::<true>(
+            Cutoff::Smooth => backward_tile_dispatch::<true>(
                 &st.splats,
                 list,
                 x0,
@@ -357,5 +434,51 @@ fn finite_or_zero(v: f32) -> f32 {
         v
     } else {
         0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::forward::tests::random_tile_splats;
+
+    #[test]
+    fn vector_variants_are_bit_identical_to_the_portable_kernel() {
+        let splats = random_tile_splats(5, 200);
+        let list: Vec<u32> = (0..200).collect();
+        let mut rng = augsplat_core::Rng::new(9);
+        let last: Vec<u32> = (0..TILE_PIXELS).map(|_| rng.below(201) as u32).collect();
+        let final_t: Vec<f32> = (0..TILE_PIXELS)
+            .map(|_| rng.uniform(1e-4, 1.0) as f32)
+            .collect();
+        let mut up = Upstream {
+            gc: [[0.0; TILE_PIXELS]; 3],
+            ga: [0.0; TILE_PIXELS],
+            gs: [0.0; TILE_PIXELS],
+        };
+        for p in 0..TILE_PIXELS {
+            for ch in 0..3 {
+                up.gc[ch][p] = rng.uniform(-1.0, 1.0) as f32;
+            }
+            up.ga[p] = rng.uniform(-1.0, 1.0) as f32;
+            up.gs[p] = rng.uniform(-0.1, 0.1) as f32;
+        }
+        let bg = [0.2, 0.4, 0.6];
+        let mut a = vec![[0.0f32; 10]; 200];
+        let mut b = vec![[0.0f32; 10]; 200];
+        backward_tile::<false>(&splats, &list, 0, 0, &last, &final_t, &up, bg, 0.99, &mut a);
+        backward_tile_dispatch::<false>(
+            &splats, &list, 0, 0, &last, &final_t, &up, bg, 0.99, &mut b,
+        );
+        let bits = |v: &[[f32; 10]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a), bits(&b));
+        assert!(a.iter().flatten().filter(|v| **v != 0.0).count() > 500);
+        let mut a = vec![[0.0f32; 10]; 200];
+        let mut b = vec![[0.0f32; 10]; 200];
+        backward_tile::<true>(&splats, &list, 0, 0, &last, &final_t, &up, bg, 0.99, &mut a);
+        backward_tile_dispatch::<true>(
+            &splats, &list, 0, 0, &last, &final_t, &up, bg, 0.99, &mut b,
+        );
+        assert_eq!(bits(&a), bits(&b));
     }
 }
