@@ -27,7 +27,7 @@ fn eval_dir(dir: &Path, label: &str, psnr: f64, ssim: f64, lpips: Option<f64>, s
         at_baseline: None,
         train_seconds: Some(seconds),
         primitives: None,
-        eval_seconds: 1.0,
+        eval_seconds: Some(1.0),
         notes: vec![],
     };
     write_json(&dir.join("metrics.json"), &m).unwrap();

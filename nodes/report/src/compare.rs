@@ -336,7 +336,7 @@ mod tests {
                 at_baseline: None,
                 train_seconds: Some(12.0),
                 primitives: None,
-                eval_seconds: 1.0,
+                eval_seconds: Some(1.0),
                 notes: vec![],
             },
             curve: None,

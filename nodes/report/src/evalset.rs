@@ -271,15 +271,17 @@ pub struct EvalMetrics {
     /// The curve's evaluation at the baseline's best step, when a baseline was given.
     #[serde(default)]
     pub at_baseline: Option<AtBaselineStep>,
-    /// Training wall time in seconds (last curve point), when known.
+    /// Training wall time in seconds (last curve point), when the trainer recorded it
+    /// (`OptimizeSplats` `record_wall_time: true`; a curve whose seconds are all 0 did not).
     #[serde(default)]
     pub train_seconds: Option<f64>,
     /// Number of Gaussians in the evaluated model.
     #[serde(default)]
     pub primitives: Option<u64>,
-    /// Wall time of this evaluation (rendering + metrics), seconds.
+    /// Wall time of this evaluation (rendering + metrics), seconds, when recorded
+    /// (`record_wall_time: true`; off by default so that outputs are byte-identical).
     #[serde(default)]
-    pub eval_seconds: f64,
+    pub eval_seconds: Option<f64>,
     /// Remarks for readers (missing LPIPS weights, fallbacks taken).
     #[serde(default)]
     pub notes: Vec<String>,
@@ -468,7 +470,7 @@ mod tests {
             at_baseline: None,
             train_seconds: None,
             primitives: Some(10),
-            eval_seconds: 0.5,
+            eval_seconds: Some(0.5),
             notes: vec![],
         };
         let text = serde_json::to_string(&e).unwrap();

@@ -67,6 +67,9 @@ pub struct EvaluateArgs {
     pub background: [f32; 3],
     /// Render with the antialiased opacity compensation (as in training, if it used it).
     pub antialiased: bool,
+    /// Write the evaluation's wall time into `metrics.json` (off by default: outputs must be
+    /// byte-identical for identical args and inputs; the time is always logged).
+    pub record_wall_time: bool,
 }
 
 impl Default for EvaluateArgs {
@@ -77,6 +80,7 @@ impl Default for EvaluateArgs {
             lpips: LpipsNet::Alex,
             background: [0.0; 3],
             antialiased: false,
+            record_wall_time: false,
         }
     }
 }
@@ -165,15 +169,18 @@ impl Node for EvaluateNode {
             lpips: lpips_model.as_ref().map(|(m, b)| (m, *b)),
             lpips_note,
             primitives: Some(gaussians.len() as u64),
+            record_wall_time: args.record_wall_time,
         };
+        let started = Instant::now();
         let metrics = evaluate(&context, &test, &out, render, &|done, total| {
             ctx.progress(done, total, "views")
         })?;
         ctx.log(format!(
-            "{}: {} views, mean PSNR {} dB",
+            "{}: {} views, mean PSNR {} dB, {:.2} s",
             metrics.label,
             metrics.views.len(),
-            evalset::nonfinite::format_value(metrics.mean.psnr)
+            evalset::nonfinite::format_value(metrics.mean.psnr),
+            started.elapsed().as_secs_f64()
         ));
         Ok(())
     }
@@ -234,6 +241,8 @@ pub struct EvalContext<'a> {
     pub lpips_note: Option<String>,
     /// Number of Gaussians of the rendered model.
     pub primitives: Option<u64>,
+    /// Whether to write the evaluation's wall time into `metrics.json`.
+    pub record_wall_time: bool,
 }
 
 fn read_curve(dir: &Path) -> Result<Option<TrainingCurve>, ReportError> {
@@ -381,6 +390,17 @@ where
         },
         _ => None,
     };
+    let train_seconds = curve
+        .as_ref()
+        .and_then(|c| c.points.iter().max_by_key(|p| p.step))
+        .map(|p| p.seconds)
+        .filter(|s| s.is_finite() && *s > 0.0);
+    if curve.is_some() && train_seconds.is_none() {
+        notes.push(
+            "training wall time not recorded (OptimizeSplats `record_wall_time: true` records it)"
+                .into(),
+        );
+    }
     let checkpoint_step = match cx.checkpoint {
         Checkpoint::Best => best_json_step(&cx.model_dir)?,
         Checkpoint::Final => curve
@@ -409,12 +429,9 @@ where
         views,
         best,
         at_baseline,
-        train_seconds: curve
-            .as_ref()
-            .and_then(|c| c.points.iter().max_by_key(|p| p.step))
-            .map(|p| p.seconds),
+        train_seconds,
         primitives: cx.primitives,
-        eval_seconds: start.elapsed().as_secs_f64(),
+        eval_seconds: cx.record_wall_time.then(|| start.elapsed().as_secs_f64()),
         notes,
     };
     artifacts::write_json(&out.join(files::METRICS), &metrics)?;

@@ -467,12 +467,22 @@ fn synthetic_section(opts: &ReportOptions, dir: &Path) -> Result<String, ReportE
 }
 
 fn time_section(evals: &[EvalDir], labels: &[String], md: &mut String) -> String {
-    let mut out = String::from("<h2 id=\"time\">Wall time</h2><div class=\"plots\">");
+    let mut out = String::from("<h2 id=\"time\">Wall time</h2>");
+    let recorded = evals
+        .iter()
+        .any(|e| e.metrics.train_seconds.is_some() || e.metrics.eval_seconds.is_some());
+    if !recorded {
+        out.push_str("<p class=\"note\">No wall times were recorded: set <code>record_wall_time: true</code> on OptimizeSplats and Evaluate (off by default so that outputs are byte-identical).</p>");
+    }
+    out.push_str("<div class=\"plots\">");
     let train: Vec<f64> = evals
         .iter()
         .map(|e| e.metrics.train_seconds.unwrap_or(f64::NAN))
         .collect();
-    let eval: Vec<f64> = evals.iter().map(|e| e.metrics.eval_seconds).collect();
+    let eval: Vec<f64> = evals
+        .iter()
+        .map(|e| e.metrics.eval_seconds.unwrap_or(f64::NAN))
+        .collect();
     out.push_str(&svg::bar_chart(
         &Chart::new("Wall time per stage", "seconds", ""),
         labels,

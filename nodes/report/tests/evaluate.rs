@@ -22,6 +22,7 @@ fn context(model: &std::path::Path, baseline: Option<&std::path::Path>) -> EvalC
         lpips: None,
         lpips_note: Some("no LPIPS".into()),
         primitives: Some(7),
+        record_wall_time: false,
     }
 }
 
@@ -91,6 +92,7 @@ fn golden_metrics_files_and_curve_selection() {
     assert_eq!(m.label, "method");
     assert_eq!(m.checkpoint_step, Some(300));
     assert_eq!(m.primitives, Some(7));
+    assert_eq!(m.eval_seconds, None, "wall time is off by default");
     assert_eq!(m.train_seconds, Some(20.0));
     let best = m.best.as_ref().unwrap();
     assert_eq!((best.step, best.criterion), (300, Criterion::AvgError));
