@@ -17,6 +17,10 @@
 //! with B the sums over Gaussians behind i (B_c includes T_N·background), g_S = g_D/A and
 //! g_A' = g_A − g_D·D/A from the alpha-normalised depth D = S/A.
 
+// Negated comparisons are deliberate: they also reject NaN. Index loops read best in
+// small fixed-size numeric code.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 use crate::constants::{ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS};
 use crate::forward::{exp_neg, row_hits, row_range, smooth_cut, Splat2D, PROJECT_CHUNK};
 use crate::gaussians::Gaussians;
@@ -249,7 +253,7 @@ pub(crate) fn backward_impl(
     let d_depth = d_depth.filter(|v| v.len() == npix);
     let grid = st.grid;
     let bins = &st.bins;
-    let max_alpha = s.max_alpha.clamp(0.0, 1.0 - 1e-6);
+    let max_alpha = crate::forward::effective_max_alpha(s);
 
     // 1. per-tile pair gradients.
     let mut pair_grads: Vec<PairGrad> = vec![[0.0; 10]; bins.ranks.len()];

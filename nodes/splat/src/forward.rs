@@ -12,6 +12,10 @@
 //! Gaussian so a tile's gather touches one cache line per Gaussian; inside a tile the kernel
 //! works on structure-of-arrays pixel lanes (rows of 16 pixels).
 
+// Negated comparisons are deliberate: they also reject NaN. Index loops read best in
+// small fixed-size numeric code.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 use crate::constants::{
     ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS, TRANSMITTANCE_THRESHOLD,
 };
@@ -92,7 +96,7 @@ pub fn exp_neg(x: f32) -> f32 {
     const LN2_LO: f32 = 1.428_606_8e-6;
     // 1.5·2²³: adding it rounds to an integer held in the low mantissa bits.
     const ROUND: f32 = 12_582_912.0;
-    let x = x.max(-87.0).min(0.0);
+    let x = x.clamp(-87.0, 0.0);
     let shifted = x * LOG2E + ROUND;
     let n = shifted - ROUND;
     let f = x - n * LN2_HI - n * LN2_LO;
@@ -110,13 +114,21 @@ pub fn exp_neg(x: f32) -> f32 {
 /// The smooth cutoff factor s(α) (C¹ smoothstep from 1/255 to 2/255) and its derivative.
 #[inline(always)]
 pub(crate) fn smooth_cut(alpha: f32) -> (f32, f32) {
-    let x = ((alpha - ALPHA_THRESHOLD) * (1.0 / ALPHA_THRESHOLD))
-        .max(0.0)
-        .min(1.0);
+    let x = ((alpha - ALPHA_THRESHOLD) * (1.0 / ALPHA_THRESHOLD)).clamp(0.0, 1.0);
     (
         x * x * (3.0 - 2.0 * x),
         6.0 * x * (1.0 - x) / ALPHA_THRESHOLD,
     )
+}
+
+/// The alpha clamp actually used: `max_alpha` limited to [0, 1 − 1e-6] (so 1/(1 − α) stays
+/// finite in the backward pass); a non-finite value falls back to the default 0.99.
+pub(crate) fn effective_max_alpha(s: &RenderSettings) -> f32 {
+    if s.max_alpha.is_finite() {
+        s.max_alpha.clamp(0.0, 1.0 - 1e-6)
+    } else {
+        crate::constants::MAX_ALPHA
+    }
 }
 
 /// Per-tile pixel results.
@@ -274,9 +286,7 @@ pub(crate) fn row_alpha<const SMOOTH: bool>(
         let sigma = 0.5 * (sp.a * dx * dx + sp.c * dy * dy) + sp.b * dx * dy;
         let a1 = (sp.opacity * exp_neg(-sigma)).min(max_alpha);
         let (alpha, ok) = if SMOOTH {
-            let x = ((a1 - ALPHA_THRESHOLD) * (1.0 / ALPHA_THRESHOLD))
-                .max(0.0)
-                .min(1.0);
+            let x = ((a1 - ALPHA_THRESHOLD) * (1.0 / ALPHA_THRESHOLD)).clamp(0.0, 1.0);
             (a1 * (x * x * (3.0 - 2.0 * x)), a1 > ALPHA_THRESHOLD)
         } else {
             (a1, a1 >= ALPHA_THRESHOLD)
@@ -467,7 +477,7 @@ pub(crate) fn render_impl(
     let bins = bin(&grid, &rects);
     drop(rects);
 
-    let max_alpha = s.max_alpha.clamp(0.0, 1.0 - 1e-6);
+    let max_alpha = effective_max_alpha(s);
     let mut tiles: Vec<TilePixels> = Vec::new();
     tiles.resize_with(grid.len(), TilePixels::default);
     let pairs: u64 = tiles

@@ -16,6 +16,10 @@
 //! the exact derivative of the clamped expression (−fx·L/z ⇒ fx·L/z²), so finite differences
 //! agree everywhere away from the clamp boundary.
 
+// Negated comparisons are deliberate: they also reject NaN. Index loops read best in
+// small fixed-size numeric code.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 use crate::constants::{
     ALPHA_THRESHOLD, EPS2D, JACOBIAN_CLAMP_MARGIN, MAX_EXTEND, MIN_COMPENSATION_RATIO,
     MIN_QUAT_NORM2,

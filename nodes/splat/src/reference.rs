@@ -10,6 +10,10 @@
 //! α·s((α − 1/255)/(1/255)), s(x) = 3x² − 2x³ on [0, 1] — the same rule as
 //! [`crate::render::Cutoff::Smooth`].
 
+// Negated comparisons are deliberate: they also reject NaN. Index loops read best in
+// small fixed-size numeric code.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 use crate::constants::{
     ALPHA_THRESHOLD, C0, C1, C2, C3, EPS2D, JACOBIAN_CLAMP_MARGIN, MAX_EXTEND,
     MIN_COMPENSATION_RATIO, TRANSMITTANCE_THRESHOLD,

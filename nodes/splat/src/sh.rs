@@ -4,6 +4,10 @@
 //! Colour of one channel = max(Σ_k coef_k · Y_k(d) + 0.5, 0) with d = normalize(mean − camera
 //! centre).
 
+// Negated comparisons are deliberate: they also reject NaN. Index loops read best in
+// small fixed-size numeric code.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 use crate::constants::{C0, C1, C2, C3};
 
 /// Number of basis functions up to `degree` (at most 16).

@@ -6,6 +6,10 @@
 //! order of a sort of (tile, depth) keys. Tile lists hold ranks; the projected records are
 //! stored in rank order so that a tile's records are read in increasing memory order.
 
+// Negated comparisons are deliberate: they also reject NaN. Index loops read best in
+// small fixed-size numeric code.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 use crate::constants::TILE;
 use rayon::prelude::*;
 

@@ -1,4 +1,5 @@
 //! Render and backward are bit-identical with 1 and 2 threads.
+#![allow(clippy::needless_range_loop)]
 
 mod raster_common;
 

@@ -1,4 +1,5 @@
 //! The tiled f32 forward pass against the independent untiled f64 reference.
+#![allow(clippy::needless_range_loop)]
 
 mod raster_common;
 

@@ -2,6 +2,7 @@
 //! the independent f64 reference renderer. Both sides use the C¹ smooth alpha cutoff
 //! (`Cutoff::Smooth`, a hidden render entry point used only by tests) so the loss is
 //! differentiable.
+#![allow(clippy::needless_range_loop)]
 
 mod raster_common;
 
@@ -39,7 +40,7 @@ fn scene(cam: &Camera, seed: u64) -> Gaussians {
     let mut rng = Rng::new(seed + 100);
     push(&mut g, &mut rng, cam, [0.0, 0.01, 0.06], -5.3, 0.5); // near plane
     push(&mut g, &mut rng, cam, [0.95 * 3.0, 0.1, 3.0], -0.3, 0.8); // clamped in x
-    push(&mut g, &mut rng, cam, [-0.2, -1.0 * 2.5, 2.5], -0.4, 0.3); // clamped in −y
+    push(&mut g, &mut rng, cam, [-0.2, -2.5, 2.5], -0.4, 0.3); // clamped in −y
     push(&mut g, &mut rng, cam, [30.0, 0.0, 2.0], -2.0, 0.0); // off-screen
     g
 }

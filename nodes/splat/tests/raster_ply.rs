@@ -1,5 +1,6 @@
 //! PLY export → import → render is bit-identical; the layout is Inria's; bad files fail
 //! with a clear error.
+#![allow(clippy::needless_range_loop)]
 
 mod raster_common;
 

@@ -1,6 +1,7 @@
 //! Stress inputs: degenerate and non-finite parameters, extreme poses and image sizes.
 //! Outcome must be a clean image and clean gradients (no panic, no NaN), with invalid
 //! Gaussians culled and counted.
+#![allow(clippy::needless_range_loop)]
 
 mod raster_common;
 
