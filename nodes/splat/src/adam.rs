@@ -219,14 +219,17 @@ fn update_group(p: &mut [f32], g: &[f32], st: &mut Moments, visible: &[bool], c:
                     continue;
                 }
                 let gg = &g[i * w..(i + 1) * w];
-                for k in 0..w {
-                    let gk = gg[k];
-                    let m = c.b1 * mg[k] + (1.0 - c.b1) * gk;
-                    let v = c.b2 * vg[k] + (1.0 - c.b2) * gk * gk;
-                    mg[k] = m;
-                    vg[k] = v;
-                    let step = if k < c.split { c.step_a } else { c.step_b };
-                    pg[k] -= step * m / (v.sqrt() * c.inv_sqrt_bc2 + c.eps);
+                // Two branch-free runs (the columns before and after `split`).
+                for (lo, hi, step) in [(0, c.split.min(w), c.step_a), (c.split.min(w), w, c.step_b)]
+                {
+                    for k in lo..hi {
+                        let gk = gg[k];
+                        let m = c.b1 * mg[k] + (1.0 - c.b1) * gk;
+                        let v = c.b2 * vg[k] + (1.0 - c.b2) * gk * gk;
+                        mg[k] = m;
+                        vg[k] = v;
+                        pg[k] -= step * m / (v.sqrt() * c.inv_sqrt_bc2 + c.eps);
+                    }
                 }
             }
         });

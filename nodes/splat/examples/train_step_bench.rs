@@ -1,0 +1,150 @@
+//! Benchmark of one full training step (render → loss (L2 + SSIM) → backward → gradient sum →
+//! Adam → densification statistics) and of its parts, for N Gaussians at W×H.
+//!
+//! `cargo run --release -p augsplat-splat --example train_step_bench -- [N ...] [--size WxH] [--steps S] [--threads T]`
+//! Defaults: N = 20000 100000 500000, 256×256, 10 timed steps after 2 warm-up steps, all threads.
+//! Gaussians are random in a box in front of the camera (isotropic-ish, scale ~ 1–3 px),
+//! the target image a smooth gradient.
+
+use augsplat_core::{Camera, Rng};
+use augsplat_splat::adam::{Adam, LearningRates, ParamGrads};
+use augsplat_splat::densify::Densifier;
+use augsplat_splat::loss::{self, PixelLoss};
+use augsplat_splat::{backward, render, Gaussians, RenderSettings};
+use std::time::Instant;
+
+fn scene(n: usize, w: u32, h: u32, seed: u64) -> (Gaussians, Camera, Vec<f32>) {
+    let cam = Camera {
+        width: w,
+        height: h,
+        fx: w as f64 * 0.9,
+        fy: w as f64 * 0.9,
+        cx: w as f64 / 2.0,
+        cy: h as f64 / 2.0,
+        world_to_camera: [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 4.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+    };
+    let mut rng = Rng::new(seed);
+    let mut g = Gaussians::empty(3);
+    // Typical 3DGS mid-training density: scales such that footprints are a few pixels.
+    let px = 4.0 / (w as f64 * 0.9); // world size of one pixel at depth 4
+    for _ in 0..n {
+        g.means.push([
+            rng.uniform(-2.0, 2.0) as f32,
+            rng.uniform(-2.0, 2.0) as f32,
+            rng.uniform(-1.5, 1.5) as f32,
+        ]);
+        let s = (px * rng.uniform(0.7, 3.0)).ln() as f32;
+        g.log_scales.push([
+            s,
+            s + rng.uniform(-0.3, 0.3) as f32,
+            s + rng.uniform(-0.3, 0.3) as f32,
+        ]);
+        g.quats.push([
+            1.0,
+            rng.uniform(-0.5, 0.5) as f32,
+            rng.uniform(-0.5, 0.5) as f32,
+            rng.uniform(-0.5, 0.5) as f32,
+        ]);
+        g.opacity_logits.push(rng.uniform(-2.0, 2.0) as f32);
+        for _ in 0..48 {
+            g.sh.push(rng.uniform(-0.3, 0.3) as f32);
+        }
+    }
+    let target: Vec<f32> = (0..(w * h) as usize)
+        .flat_map(|p| {
+            let (x, y) = (
+                (p % w as usize) as f32 / w as f32,
+                (p / w as usize) as f32 / h as f32,
+            );
+            [x, y, 0.5 * (x + y)]
+        })
+        .collect();
+    (g, cam, target)
+}
+
+fn main() {
+    let mut ns: Vec<usize> = Vec::new();
+    let (mut w, mut h, mut steps, mut threads) = (256u32, 256u32, 10usize, 0usize);
+    let mut it = std::env::args().skip(1);
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--size" => {
+                let v = it.next().expect("--size WxH");
+                let (a, b) = v.split_once('x').expect("WxH");
+                w = a.parse().unwrap();
+                h = b.parse().unwrap();
+            }
+            "--steps" => steps = it.next().unwrap().parse().unwrap(),
+            "--threads" => threads = it.next().unwrap().parse().unwrap(),
+            n => ns.push(n.parse().expect("a Gaussian count")),
+        }
+    }
+    if ns.is_empty() {
+        ns = vec![20_000, 100_000, 500_000];
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        println!("{} threads, {w}×{h}, {steps} timed steps", rayon::current_num_threads());
+        for &n in &ns {
+            let (mut g, cam, target) = scene(n, w, h, 1);
+            let s = RenderSettings::default();
+            let lr = LearningRates::default();
+            let mut adam = Adam::new(n, g.coeffs());
+            let mut dens = Densifier::new(n);
+            let mut d_rgb = vec![0f32; target.len()];
+            let mut t = [0f64; 6];
+            let mut pairs = 0u64;
+            for step in 0..steps + 2 {
+                let t0 = Instant::now();
+                let out = render(&g, &cam, &s);
+                let t1 = Instant::now();
+                d_rgb.iter_mut().for_each(|v| *v = 0.0);
+                loss::photometric(&out.rgb, &target, w as usize, h as usize, PixelLoss::L2, 0.2, 1.0, &mut d_rgb);
+                let t2 = Instant::now();
+                let gr = backward(&g, &cam, &s, &out, &d_rgb, None, None);
+                let t3 = Instant::now();
+                let pg = ParamGrads {
+                    means: gr.means,
+                    log_scales: gr.log_scales,
+                    quats: gr.quats,
+                    opacity_logits: gr.opacity_logits,
+                    sh: gr.sh,
+                    visible: gr.visible.clone(),
+                };
+                let t4 = Instant::now();
+                adam.step(&mut g, &pg, &lr, 1.6e-4);
+                let t5 = Instant::now();
+                dens.accumulate(&gr.means2d_abs, &gr.visible);
+                let t6 = Instant::now();
+                if step >= 2 {
+                    for (k, (a, b)) in [(t0, t1), (t1, t2), (t2, t3), (t3, t4), (t4, t5), (t5, t6)].iter().enumerate() {
+                        t[k] += (*b - *a).as_secs_f64();
+                    }
+                    pairs += out.stats.pairs;
+                }
+            }
+            let ms = |v: f64| v / steps as f64 * 1e3;
+            let total: f64 = t.iter().sum();
+            println!(
+                "N={n:>7}: step {:7.2} ms | forward {:6.2} | loss(L2+SSIM) {:5.2} | backward {:7.2} | grad move {:4.2} | adam {:5.2} | densify stat {:4.2} ms | {:.1} M pairs/step, {:.2} ns/pair (fwd+bwd)",
+                ms(total),
+                ms(t[0]),
+                ms(t[1]),
+                ms(t[2]),
+                ms(t[3]),
+                ms(t[4]),
+                ms(t[5]),
+                pairs as f64 / steps as f64 / 1e6,
+                (t[0] + t[2]) / pairs.max(1) as f64 * 1e9
+            );
+        }
+    });
+}
