@@ -3,6 +3,7 @@
 //! - `step`: forward+backward samples per second and time per step (16 levels × 2 features,
 //!   2^17 table, 64-wide MLPs) for 1024- and 4096-ray steps on a random scene;
 //! - `kernels`: per-kernel timings on one chunk.
+#![allow(clippy::needless_range_loop)]
 
 use augsplat_core::{Camera, Rng};
 use augsplat_field::field::{ChunkState, Field, FieldConfig, RayInput};

@@ -8,6 +8,10 @@
 //! gradient reduction, so results are bit-identical for any thread count. [`reference`] holds
 //! naive f64 versions of every kernel for tests. The node kinds are in [`nodes`].
 
+// Kernels index several parallel arrays (SoA rows, accumulators, weights) with one index;
+// iterator zips over four or five slices would hide the maths.
+#![allow(clippy::needless_range_loop)]
+
 pub mod constants;
 pub mod contraction;
 pub mod error;

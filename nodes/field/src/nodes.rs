@@ -84,8 +84,8 @@ impl Default for TrainFieldArgs {
             appearance_dim: 16,
             learning_rate: 1e-2,
             lr_final_factor: 0.1,
-            depth_loss_weight: 0.01,
-            depth_sigma: 0.02,
+            depth_loss_weight: 0.1,
+            depth_sigma: 0.05,
             distortion_loss_weight: 0.0,
             random_background: true,
             background: [0.0; 3],
@@ -269,7 +269,7 @@ impl Node for TrainField {
         let (state, curve) = {
             let ctx_ref = &*ctx;
             let mut on_step = |r: train::StepReport<'_>| {
-                if r.step % 10 == 0 || r.step == steps {
+                if r.step.is_multiple_of(10) || r.step == steps {
                     ctx_ref.progress(
                         r.step as u64,
                         steps as u64,
@@ -323,7 +323,7 @@ pub struct RenderFieldArgs {
 impl Default for RenderFieldArgs {
     fn default() -> Self {
         RenderFieldArgs {
-            chunk_rays: 4096,
+            chunk_rays: 256,
             downscale: 1,
             background: None,
         }

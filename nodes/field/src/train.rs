@@ -483,6 +483,9 @@ pub struct RenderedImage {
     pub samples: u64,
 }
 
+/// Colour, depth, opacity and sample count of one render chunk.
+type RenderPart = (Vec<f32>, Vec<f32>, Vec<f32>, u64);
+
 /// Renders a camera in fixed chunks of `chunk_rays` pixels (parallel, deterministic).
 pub fn render_camera(
     field: &Field,
@@ -497,7 +500,7 @@ pub fn render_camera(
     let chunk = chunk_rays.max(1);
     let mean_emb = field.mean_embedding(params);
     let fwd = camera.forward();
-    let parts: Vec<(Vec<f32>, Vec<f32>, Vec<f32>, u64)> = (0..n.div_ceil(chunk))
+    let parts: Vec<RenderPart> = (0..n.div_ceil(chunk))
         .into_par_iter()
         .map_init(ChunkState::default, |st, c| {
             let lo = c * chunk;
@@ -630,7 +633,7 @@ pub fn train(
     let mut loss_acc = (0f64, 0u32);
     for step in 0..opts.steps {
         if step >= opts.occupancy_warmup
-            && (step - opts.occupancy_warmup) % OCCUPANCY_UPDATE_EVERY == 0
+            && (step - opts.occupancy_warmup).is_multiple_of(OCCUPANCY_UPDATE_EVERY)
         {
             update_occupancy(field, &state.params, &mut state.occupancy, opts.seed, step);
         }
@@ -657,7 +660,7 @@ pub fn train(
                     &state.occupancy,
                     t,
                     opts.background,
-                    4096,
+                    256,
                 ),
                 _ => (0.0, 0.0),
             };

@@ -1,5 +1,6 @@
 //! Analytic gradients of every kernel against central finite differences of the independent
 //! f64 references, and the fast forward passes against the references.
+#![allow(clippy::needless_range_loop)]
 
 use augsplat_core::Rng;
 use augsplat_field::constants::GEO_FEAT_DIM;

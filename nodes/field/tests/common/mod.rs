@@ -1,6 +1,7 @@
 //! A small procedural scene, ray-traced analytically, for the field's tests: three shaded
 //! spheres on a checkered ground inside a colour-gradient dome, seen by cameras on an orbit.
 #![allow(dead_code)]
+#![allow(clippy::needless_range_loop)]
 
 use augsplat_core::image::{write_exr, write_png};
 use augsplat_core::linalg::{self, Vec3};
