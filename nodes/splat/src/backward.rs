@@ -72,12 +72,25 @@ fn backward_tile<const SMOOTH: bool>(
     for (lx, v) in px.iter_mut().enumerate() {
         *v = (x0 + lx as u32) as f32 + 0.5;
     }
+    // Largest last-contributor count per row: rows where every pixel finished before a
+    // Gaussian are skipped.
+    let mut row_last = [0u32; 16];
+    for (ly, m) in row_last.iter_mut().enumerate() {
+        *m = last[ly * 16..ly * 16 + 16]
+            .iter()
+            .copied()
+            .max()
+            .unwrap_or(0);
+    }
     for k in (0..max_last).rev() {
         let sp = &splats[list[k] as usize];
         let (lo, hi) = row_range(sp, y0);
         let kk = k as u32;
         let mut lanes = [[0.0f32; 16]; 10];
         for ly in lo..hi {
+            if kk >= row_last[ly] {
+                continue;
+            }
             let dy = sp.y - ((y0 + ly as u32) as f32 + 0.5);
             if !row_hits(sp, dy, x0) {
                 continue;

@@ -319,11 +319,19 @@ fn raster_tile<const SMOOTH: bool>(
     }
     let mut pairs = 0u64;
     let mut alpha = [0.0f32; 16];
+    // Pixels still compositing, per row: rows that are all done are skipped.
+    let mut row_live = [0u32; 16];
+    for (ly, live) in row_live.iter_mut().enumerate() {
+        *live = active[ly * 16..ly * 16 + 16].iter().sum();
+    }
     for (k, &rank) in list.iter().enumerate() {
         let sp = &splats[rank as usize];
         let (lo, hi) = row_range(sp, y0);
         let kk = k as u32 + 1;
         for ly in lo..hi {
+            if row_live[ly] == 0 {
+                continue;
+            }
             let dy = sp.y - ((y0 + ly as u32) as f32 + 0.5);
             if !row_hits(sp, dy, x0) {
                 continue;
@@ -360,6 +368,7 @@ fn raster_tile<const SMOOTH: bool>(
             }
             pairs += comps as u64;
             remaining -= stops;
+            row_live[ly] -= stops;
         }
         if remaining == 0 {
             break;

@@ -134,8 +134,10 @@ pub fn render_with_cutoff(
 }
 
 /// Gradients of a loss given dL/d(rgb) (`H·W·3`), optional dL/d(alpha) (`H·W`) and
-/// dL/d(depth) (`H·W`, of the normalised depth). `out` must be the result of rendering the
-/// same `g`, `cam` and `s`. Slices of the wrong length are treated as zero.
+/// dL/d(depth) (`H·W`, of the alpha-normalised depth). `out` must be the result of rendering
+/// the same `g` from the same `cam`; the compositing settings (background, max_alpha,
+/// antialiasing, near, SH degree) are taken from `out`, so `s` only documents intent.
+/// Slices of the wrong length, and non-finite upstream values, are treated as zero.
 pub fn backward(
     g: &Gaussians,
     cam: &Camera,
