@@ -345,16 +345,19 @@ impl Intrinsics {
     }
 }
 
-/// A precomputed inverse map for one camera: for each output pixel, the continuous source
-/// position (in pixel-index space, i.e. pixel centre at integer coordinates).
+/// A precomputed inverse map for one camera: for each output pixel, the source pixel block
+/// and bilinear weights (source positions clamped to the image, so edge pixels repeat).
 #[derive(Clone, Debug)]
 pub struct UndistortMap {
     width: u32,
     height: u32,
-    /// Source x per output pixel (index space).
-    src_x: Vec<f32>,
-    /// Source y per output pixel (index space).
-    src_y: Vec<f32>,
+    /// Index of the top-left source pixel of each output pixel's 2×2 block.
+    base: Vec<u32>,
+    /// Step to the right neighbour (0 at the right edge, else 1) and to the lower neighbour
+    /// (0 at the bottom edge, else the width), in pixels.
+    step: Vec<(u8, u32)>,
+    /// Bilinear weights along x and y.
+    weight: Vec<(f32, f32)>,
 }
 
 impl UndistortMap {
@@ -362,26 +365,45 @@ impl UndistortMap {
     /// parallel, deterministic).
     pub fn new(intr: &Intrinsics) -> UndistortMap {
         let (w, h) = (intr.width as usize, intr.height as usize);
-        let mut src_x = vec![0f32; w * h];
-        let mut src_y = vec![0f32; w * h];
-        src_x
-            .par_chunks_mut(w)
-            .zip(src_y.par_chunks_mut(w))
+        let mut base = vec![0u32; w * h];
+        let mut step = vec![(0u8, 0u32); w * h];
+        let mut weight = vec![(0f32, 0f32); w * h];
+        base.par_chunks_mut(w)
+            .zip(step.par_chunks_mut(w))
+            .zip(weight.par_chunks_mut(w))
             .enumerate()
-            .for_each(|(i, (rx, ry))| {
+            .for_each(|(i, ((rb, rs), rw))| {
                 let y = (i as f64 + 0.5 - intr.cy) / intr.fy;
                 for j in 0..w {
                     let x = (j as f64 + 0.5 - intr.cx) / intr.fx;
                     let (xd, yd) = intr.distortion.distort(x, y);
-                    rx[j] = (intr.fx * xd + intr.cx - 0.5) as f32;
-                    ry[j] = (intr.fy * yd + intr.cy - 0.5) as f32;
+                    // Continuous source position in index space (pixel centres at integers),
+                    // clamped to the image.
+                    let sx = intr.fx * xd + intr.cx - 0.5;
+                    let sy = intr.fy * yd + intr.cy - 0.5;
+                    let sx = if sx.is_finite() {
+                        sx.clamp(0.0, (w - 1) as f64)
+                    } else {
+                        0.0
+                    };
+                    let sy = if sy.is_finite() {
+                        sy.clamp(0.0, (h - 1) as f64)
+                    } else {
+                        0.0
+                    };
+                    let x0 = (sx.floor() as usize).min(w - 1);
+                    let y0 = (sy.floor() as usize).min(h - 1);
+                    rb[j] = (y0 * w + x0) as u32;
+                    rs[j] = ((x0 + 1 < w) as u8, if y0 + 1 < h { w as u32 } else { 0 });
+                    rw[j] = ((sx - x0 as f64) as f32, (sy - y0 as f64) as f32);
                 }
             });
         UndistortMap {
             width: intr.width,
             height: intr.height,
-            src_x,
-            src_y,
+            base,
+            step,
+            weight,
         }
     }
 
@@ -396,51 +418,32 @@ impl UndistortMap {
                 ),
             ));
         }
-        let (w, h, c) = (
-            src.width as usize,
-            src.height as usize,
-            src.channels as usize,
-        );
+        let (w, c) = (src.width as usize, src.channels as usize);
         let mut out = ImageF32::new(src.width, src.height, src.channels);
+        let data = &src.data;
         out.data
             .par_chunks_mut(w * c)
             .enumerate()
             .for_each(|(i, row)| {
-                for j in 0..w {
-                    let k = i * w + j;
-                    bilinear(
-                        &src.data,
-                        w,
-                        h,
-                        c,
-                        self.src_x[k],
-                        self.src_y[k],
-                        &mut row[j * c..(j + 1) * c],
-                    );
+                let r = i * w..(i + 1) * w;
+                for (((px, &b), &(dx, dy)), &(fx, fy)) in row
+                    .chunks_exact_mut(c)
+                    .zip(&self.base[r.clone()])
+                    .zip(&self.step[r.clone()])
+                    .zip(&self.weight[r])
+                {
+                    let a = b as usize * c;
+                    let bb = a + dx as usize * c;
+                    let d = a + dy as usize * c;
+                    let e = d + dx as usize * c;
+                    for k in 0..c {
+                        let top = data[a + k] + (data[bb + k] - data[a + k]) * fx;
+                        let bot = data[d + k] + (data[e + k] - data[d + k]) * fx;
+                        px[k] = top + (bot - top) * fy;
+                    }
                 }
             });
         Ok(out)
-    }
-}
-
-/// Bilinear sample at continuous index-space position (x, y), clamped to the edges.
-fn bilinear(data: &[f32], w: usize, h: usize, c: usize, x: f32, y: f32, out: &mut [f32]) {
-    let xc = x.clamp(0.0, (w - 1) as f32);
-    let yc = y.clamp(0.0, (h - 1) as f32);
-    let x0 = (xc.floor() as usize).min(w - 1);
-    let y0 = (yc.floor() as usize).min(h - 1);
-    let x1 = (x0 + 1).min(w - 1);
-    let y1 = (y0 + 1).min(h - 1);
-    let fx = xc - x0 as f32;
-    let fy = yc - y0 as f32;
-    for k in 0..c {
-        let a = data[(y0 * w + x0) * c + k];
-        let b = data[(y0 * w + x1) * c + k];
-        let d = data[(y1 * w + x0) * c + k];
-        let e = data[(y1 * w + x1) * c + k];
-        let top = a + (b - a) * fx;
-        let bot = d + (e - d) * fx;
-        out[k] = top + (bot - top) * fy;
     }
 }
 
