@@ -396,6 +396,11 @@ pub(crate) fn backward_impl(
                 let rg = &rank_grads[r as usize];
                 gv[j] = true;
                 g2[j] = [(rg[0] * hw) as f32, (rg[1] * hh) as f32];
+                if rg.iter().all(|v| *v == 0.0) {
+                    // Visible but never composited (occluded or behind saturated pixels):
+                    // every parameter gradient is exactly zero.
+                    continue;
+                }
                 let pg = ProjectedGrad {
                     mean2d: [rg[0], rg[1]],
                     conic: [rg[2], rg[3], rg[4]],
