@@ -206,11 +206,16 @@ impl ChunkState {
 
 #[inline]
 fn trunc_exp(x: f32) -> f32 {
-    x.clamp(TRUNC_EXP_MIN, TRUNC_EXP_MAX).exp()
+    // `max`/`min` map NaN to the bound (f32::max returns the non-NaN operand): a NaN
+    // pre-activation becomes an (almost) empty sample instead of poisoning the ray.
+    x.max(TRUNC_EXP_MIN).min(TRUNC_EXP_MAX).exp()
 }
 
 #[inline]
 fn sigmoid(x: f32) -> f32 {
+    if x.is_nan() {
+        return 0.5;
+    }
     1.0 / (1.0 + (-x).exp())
 }
 

@@ -265,3 +265,91 @@ fn depth_loss_reduces_depth_error() {
         "depth loss did not reduce the depth error enough ({e1:.4} vs {e0:.4})"
     );
 }
+
+/// Stress: absurd parameters, a learning-rate spike, rays that see nothing. Outcome: finite
+/// outputs, or a clear divergence error — never NaN weights or a panic.
+#[test]
+fn stress_inputs_stay_finite_or_fail_cleanly() {
+    use augsplat_field::field::{ChunkState, Field, RayInput};
+    use augsplat_field::occupancy::OccupancyGrid;
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path();
+    common::split_scene(root, 8, 16, 12, 0.2);
+    // A learning-rate spike with huge depth and distortion weights.
+    let mut args = quick_args(5, 12);
+    args.learning_rate = 1.0;
+    args.depth_loss_weight = 1e6;
+    args.distortion_loss_weight = 1e6;
+    args.occupancy_warmup = 2;
+    let mut ctx = RunContext::standalone(
+        vec![("train".into(), vec![root.join("train")])],
+        &["weights"],
+        &root.join("spike"),
+        5,
+        2,
+    )
+    .unwrap();
+    match TrainField::run(&args, &mut ctx) {
+        Ok(()) => {
+            let f = augsplat_field::io::load(&root.join("spike/weights")).unwrap();
+            assert!(f.params.iter().all(|p| p.is_finite()));
+        }
+        Err(e) => assert!(
+            e.message().contains("diverged"),
+            "unexpected error: {}",
+            e.message()
+        ),
+    }
+    // Huge and NaN parameters: renders stay finite.
+    let cfg = TrainFieldArgs {
+        levels: 4,
+        log2_table_size: 10,
+        max_resolution: 64,
+        hidden_width: 16,
+        ..quick_args(0, 1)
+    };
+    let scene = augsplat_core::Scene::load(&root.join("train")).unwrap();
+    let field = Field::new(cfg.field_config(&scene, scene.views.len()).unwrap()).unwrap();
+    let cam = &scene.views[0].camera;
+    for fill in [1e30f32, -1e30, f32::NAN, f32::INFINITY] {
+        let mut params = field.init_params(1);
+        for (i, p) in params.iter_mut().enumerate() {
+            if i % 3 == 0 {
+                *p = fill;
+            }
+        }
+        let img = augsplat_field::train::render_camera(
+            &field,
+            &params,
+            &OccupancyGrid::full(8),
+            cam,
+            [0.2; 3],
+            50,
+        );
+        assert!(
+            img.rgb
+                .iter()
+                .chain(&img.depth)
+                .chain(&img.acc)
+                .all(|v| v.is_finite()),
+            "fill {fill}"
+        );
+    }
+    // An empty occupancy grid: every ray misses; the output is the background.
+    let params = field.init_params(1);
+    let mut occ = OccupancyGrid::full(8);
+    occ.occupied.iter_mut().for_each(|o| *o = 0);
+    let mut st = ChunkState::default();
+    let rays = [RayInput {
+        origin: [0.0, 0.0, -1.0],
+        dir: [0.0, 0.0, 1.0],
+        image: 0,
+        background: [0.1, 0.2, 0.3],
+    }];
+    field.forward_chunk(&params, &occ, &rays, &|_| 0.5, &[], &mut st);
+    assert_eq!(st.n(), 0);
+    assert_eq!(st.out[0].rgb, [0.1, 0.2, 0.3]);
+    let mut grad = vec![0f32; field.n_params - field.density_offset];
+    field.backward_chunk(&params, &rays, &mut st, &mut grad);
+    assert!(grad.iter().all(|g| *g == 0.0));
+}
