@@ -1,12 +1,24 @@
 //! Benchmark: SSIM, LPIPS-alex and LPIPS-vgg for one image pair (default: two 800×533 bonsai
 //! photos from the shared data), on a rayon pool of `--threads N` (default 2).
 //!
-//! `cargo run --release -p augsplat-metrics --example bench_metrics -- [--threads N] [A B]`
+//! `cargo run --release -p augsplat-metrics --example bench_metrics -- [--threads N]
+//! [--what psnr,ssim,alex,vgg] [A B]`
 
 use augsplat_core::image::read_rgb;
 use augsplat_metrics::lpips::{Backbone, Lpips};
 use std::path::PathBuf;
 use std::time::Instant;
+
+/// CPU time of the whole process (all threads), in seconds.
+fn cpu_seconds() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes into the timespec we pass.
+    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
 
 fn main() {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
@@ -16,6 +28,11 @@ fn main() {
             .get(i + 1)
             .and_then(|v| v.parse().ok())
             .expect("--threads N");
+        args.drain(i..i + 2);
+    }
+    let mut what = "psnr,ssim,alex,vgg".to_string();
+    if let Some(i) = args.iter().position(|a| a == "--what") {
+        what = args.get(i + 1).cloned().expect("--what LIST");
         args.drain(i..i + 2);
     }
     let data = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
@@ -34,6 +51,12 @@ fn main() {
     let a = read_rgb(&pa).expect("first image");
     let b = read_rgb(&pb).expect("second image");
     println!(
+        "load average: {}",
+        std::fs::read_to_string("/proc/loadavg")
+            .unwrap_or_default()
+            .trim()
+    );
+    println!(
         "images {}×{} ({} / {}), {threads} threads, kernel {:?}",
         a.width,
         a.height,
@@ -50,22 +73,32 @@ fn main() {
             let v = f(); // warm-up
             let mut best = f64::INFINITY;
             let mut total = 0.0;
+            let mut best_cpu = f64::INFINITY;
             for _ in 0..reps {
-                let t = Instant::now();
+                let (t, c) = (Instant::now(), cpu_seconds());
                 let _ = f();
                 let s = t.elapsed().as_secs_f64();
+                best_cpu = best_cpu.min(cpu_seconds() - c);
                 best = best.min(s);
                 total += s;
             }
             println!(
-                "{name:<12} value {v:.6}  best {:.2} ms  mean {:.2} ms  ({reps} runs)",
+                "{name:<12} value {v:.6}  wall best {:.2} ms  mean {:.2} ms  cpu best {:.2} ms  ({reps} runs)",
                 best * 1e3,
-                total / reps as f64 * 1e3
+                total / reps as f64 * 1e3,
+                best_cpu * 1e3
             );
         };
-        time("psnr", 20, &|| augsplat_metrics::psnr(&a, &b).unwrap());
-        time("ssim", 20, &|| augsplat_metrics::ssim(&a, &b).unwrap());
+        if what.contains("psnr") {
+            time("psnr", 20, &|| augsplat_metrics::psnr(&a, &b).unwrap());
+        }
+        if what.contains("ssim") {
+            time("ssim", 20, &|| augsplat_metrics::ssim(&a, &b).unwrap());
+        }
         for bb in [Backbone::Alex, Backbone::Vgg] {
+            if !what.contains(bb.name()) {
+                continue;
+            }
             let w = data.join("lpips").join(bb.file_name());
             let Ok(model) = Lpips::load(&w) else {
                 println!("lpips-{bb}: weights not found at {}", w.display());

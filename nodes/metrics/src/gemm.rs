@@ -155,22 +155,37 @@ pub fn conv2d_relu(
     let oh = out_size(h, weights.kh, stride, pad).expect("input smaller than kernel");
     let ow = out_size(w, weights.kw, stride, pad).expect("input smaller than kernel");
     let n = oh * ow;
+    // Zero-pad once so that im2col needs no bounds checks.
+    let (hp, wp) = (h + 2 * pad, w + 2 * pad);
+    let padded: std::borrow::Cow<[f32]> = if pad == 0 {
+        std::borrow::Cow::Borrowed(input)
+    } else {
+        let mut p = vec![0f32; weights.c_in * hp * wp];
+        p.par_chunks_mut(hp * wp)
+            .zip(input.par_chunks(h * w))
+            .for_each(|(dst, src)| {
+                for y in 0..h {
+                    dst[(y + pad) * wp + pad..(y + pad) * wp + pad + w]
+                        .copy_from_slice(&src[y * w..(y + 1) * w]);
+                }
+            });
+        std::borrow::Cow::Owned(p)
+    };
     let geo = Geometry {
-        h,
-        w,
+        hp,
+        wp,
         ow,
         stride,
-        pad,
         kh: weights.kh,
         kw: weights.kw,
         c_in: weights.c_in,
     };
     let tiles: Vec<Vec<f32>> = (0..n.div_ceil(TILE_N))
         .into_par_iter()
-        .map(|t| {
+        .map_init(Vec::new, |bbuf, t| {
             let n0 = t * TILE_N;
             let nt = TILE_N.min(n - n0);
-            tile(input, &geo, weights, n0, nt)
+            tile(&padded, &geo, weights, n0, nt, bbuf)
         })
         .collect();
     let (mr, nr) = (weights.isa.mr(), weights.isa.nr());
@@ -196,53 +211,82 @@ pub fn conv2d_relu(
 }
 
 struct Geometry {
-    h: usize,
-    w: usize,
+    hp: usize,
+    wp: usize,
     ow: usize,
     stride: usize,
-    pad: usize,
     kh: usize,
     kw: usize,
     c_in: usize,
 }
 
-/// One output tile: im2col into packed panels, blocked GEMM; returns the tile's accumulators
-/// in panel order `[m panel][n panel][MR × NR]`.
-fn tile(input: &[f32], g: &Geometry, wts: &PackedWeights, n0: usize, nt: usize) -> Vec<f32> {
+/// One output tile: im2col (from the zero-padded input) into packed panels, then the blocked
+/// GEMM; returns the tile's accumulators in panel order `[m panel][n panel][MR × NR]`.
+/// `b` is a reusable buffer whose content does not matter.
+fn tile(
+    padded: &[f32],
+    g: &Geometry,
+    wts: &PackedWeights,
+    n0: usize,
+    nt: usize,
+    b: &mut Vec<f32>,
+) -> Vec<f32> {
     let isa = wts.isa;
     let (mr, nr) = (isa.mr(), isa.nr());
     let k = wts.k();
     let npan = nt.div_ceil(nr);
     let mpan = wts.m.div_ceil(mr);
-    // im2col, packed: panel j holds, for each k, NR consecutive column values.
-    let mut b = vec![0f32; npan * k * nr];
-    let mut iy0 = vec![0isize; nr];
-    let mut ix0 = vec![0isize; nr];
+    b.resize(npan * k * nr, 0.0);
+    let plane = g.hp * g.wp;
+    let s = g.stride;
+    let mut base = vec![0usize; nr];
     for j in 0..npan {
         let cols = nr.min(nt - j * nr);
-        for t in 0..cols {
-            let col = n0 + j * nr + t;
-            let (oy, ox) = (col / g.ow, col % g.ow);
-            iy0[t] = (oy * g.stride) as isize - g.pad as isize;
-            ix0[t] = (ox * g.stride) as isize - g.pad as isize;
-        }
         let panel = &mut b[j * k * nr..(j + 1) * k * nr];
-        let mut kk = 0;
-        for ci in 0..g.c_in {
-            let plane = &input[ci * g.h * g.w..(ci + 1) * g.h * g.w];
-            for ky in 0..g.kh {
-                for kx in 0..g.kw {
-                    let dst = &mut panel[kk * nr..kk * nr + cols];
-                    for (t, d) in dst.iter_mut().enumerate() {
-                        let iy = iy0[t] + ky as isize;
-                        let ix = ix0[t] + kx as isize;
-                        *d = if iy >= 0 && ix >= 0 && (iy as usize) < g.h && (ix as usize) < g.w {
-                            plane[iy as usize * g.w + ix as usize]
+        let col0 = n0 + j * nr;
+        let (oy0, ox0) = (col0 / g.ow, col0 % g.ow);
+        if cols < nr {
+            // Partial panel: the unused columns must be zero.
+            for kk in 0..k {
+                panel[kk * nr + cols..(kk + 1) * nr].fill(0.0);
+            }
+        }
+        if ox0 + cols <= g.ow {
+            // All columns in one output row: contiguous (stride 1) or strided reads.
+            let row0 = oy0 * s * g.wp + ox0 * s;
+            let mut kk = 0;
+            for ci in 0..g.c_in {
+                for ky in 0..g.kh {
+                    for kx in 0..g.kw {
+                        let src = &padded[ci * plane + row0 + ky * g.wp + kx..];
+                        let dst = &mut panel[kk * nr..kk * nr + cols];
+                        if s == 1 {
+                            dst.copy_from_slice(&src[..cols]);
                         } else {
-                            0.0
-                        };
+                            for (d, v) in dst.iter_mut().zip(src.iter().step_by(s)) {
+                                *d = *v;
+                            }
+                        }
+                        kk += 1;
                     }
-                    kk += 1;
+                }
+            }
+        } else {
+            for (t, bs) in base.iter_mut().enumerate().take(cols) {
+                let col = col0 + t;
+                *bs = (col / g.ow) * s * g.wp + (col % g.ow) * s;
+            }
+            let mut kk = 0;
+            for ci in 0..g.c_in {
+                for ky in 0..g.kh {
+                    for kx in 0..g.kw {
+                        let off = ci * plane + ky * g.wp + kx;
+                        let dst = &mut panel[kk * nr..kk * nr + cols];
+                        for (d, &bs) in dst.iter_mut().zip(&base) {
+                            *d = padded[bs + off];
+                        }
+                        kk += 1;
+                    }
                 }
             }
         }
@@ -430,6 +474,9 @@ mod tests {
             (35, 23, 19, 13, 3, 3, 1, 1), // K = 315 > KC
             (9, 70, 9, 10, 5, 5, 1, 2),   // N = 630 > TILE_N
             (4, 5, 5, 3, 3, 3, 2, 0),
+            (2, 9, 140, 5, 11, 11, 4, 2), // wide rows: one-row panels with stride 4
+            (4, 6, 70, 7, 3, 3, 1, 1),    // one-row panels (stride 1) and row-crossing ones
+            (3, 7, 97, 4, 2, 2, 2, 0),    // no padding, stride 2
         ];
         for &(c_in, h, w, m, kh, kw, stride, pad) in &cases {
             let input = values(c_in * h * w, 1);
