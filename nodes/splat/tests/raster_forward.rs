@@ -27,6 +27,7 @@ fn check(seed: u64, n: usize, w: u32, h: u32, s: &RenderSettings) {
         }
     }
     assert!(e_d < 1e-5, "seed {seed}: depth error {e_d}");
+    eprintln!("seed {seed}: max |Δ| rgb {e_rgb:.2e}, alpha {e_a:.2e}, depth (rel) {e_d:.2e}");
 }
 
 #[test]
