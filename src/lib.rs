@@ -17,7 +17,7 @@ use std::process::ExitCode;
 
 /// Every built-in node kind (the engine's own `Command` kind included).
 pub fn builtin_registry() -> Registry {
-    let mut registry = Registry::new();
+    let mut registry = Registry::with_engine_kinds();
     augsplat_nodes::register_builtin(&mut registry);
     registry
 }

@@ -184,6 +184,19 @@ impl Node for Command {
         for (k, v) in &args.env {
             cmd.env(k, subst(v));
         }
+        // If the engine process dies (even by SIGKILL), the program dies with it instead of
+        // running on as an orphan.
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::unix::process::CommandExt;
+            // SAFETY: only calls the async-signal-safe prctl between fork and exec.
+            unsafe {
+                cmd.pre_exec(|| {
+                    libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
+                    Ok(())
+                });
+            }
+        }
         ctx.log(format!("$ {} {}", args.program, argv.join(" ")));
         let mut child = cmd
             .spawn()

@@ -43,7 +43,10 @@ impl From<SyntaxError> for Diagnostic {
         Diagnostic {
             origin: Some(e.origin),
             message: format!("syntax error: {}", e.message),
-            hint: None,
+            hint: Some(
+                "RON: structs `(name: value, ..)`, maps `{\"key\": value}`, lists `[a, b]`, strings in double quotes, commas between items"
+                    .into(),
+            ),
         }
     }
 }

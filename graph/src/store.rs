@@ -193,6 +193,8 @@ impl Store {
             let p = root.join(d);
             fs::create_dir_all(&p).map_err(io("creating store folder", &p))?;
         }
+        // Absolute, so folders handed to nodes (and external programs run elsewhere) resolve.
+        let root = fs::canonicalize(&root).map_err(io("opening store", &root))?;
         Ok(Store { root })
     }
     /// The store root.

@@ -1,13 +1,20 @@
-//! `augsplat expand` (owned by the engine work, issue 2).
+//! `augsplat expand`: print the fully resolved pipeline(s).
 
+use super::run::PipelineArgs;
 use super::CmdResult;
 use augsplat_graph::Registry;
 
 /// Arguments of `augsplat expand`.
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Pipeline, overrides, store (the store caches hashes of external inputs).
+    #[command(flatten)]
+    pub pipeline: PipelineArgs,
+}
 
 /// Runs `augsplat expand`.
-pub fn run(_args: Args, _registry: &Registry) -> CmdResult {
-    Err("`expand` is not built yet".into())
+pub fn run(args: Args, registry: &Registry) -> CmdResult {
+    let (_engine, plan) = args.pipeline.load(registry)?;
+    print!("{}", augsplat_graph::expand_text(&plan));
+    Ok(())
 }

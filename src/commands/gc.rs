@@ -1,13 +1,45 @@
-//! `augsplat gc` (owned by the engine work, issue 2).
+//! `augsplat gc`: remove what no root needs.
 
+use super::run::open_engine;
 use super::CmdResult;
 use augsplat_graph::Registry;
+use std::path::PathBuf;
 
 /// Arguments of `augsplat gc`.
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Report what would be removed, remove nothing.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// The store (default: $AUGSPLAT_CACHE, else ./cache).
+    #[arg(long, value_name = "DIR")]
+    pub cache: Option<PathBuf>,
+}
 
 /// Runs `augsplat gc`.
-pub fn run(_args: Args, _registry: &Registry) -> CmdResult {
-    Err("`gc` is not built yet".into())
+pub fn run(args: Args, registry: &Registry) -> CmdResult {
+    let engine = open_engine(registry, args.cache)?;
+    let r = engine.gc(args.dry_run).map_err(|e| e.to_string())?;
+    let verb = if args.dry_run { "would remove" } else { "removed" };
+    println!(
+        "roots: {} keys from {} root file(s) (latest run of each pipeline, pins)",
+        r.roots,
+        r.root_files.len()
+    );
+    for f in &r.root_files {
+        println!("  {f}");
+    }
+    println!(
+        "kept: {} actions, {} outputs, {} blobs",
+        r.actions_kept, r.outputs_kept, r.blobs_kept
+    );
+    println!(
+        "{verb}: {} actions, {} outputs, {} blobs ({:.1} MiB), {} scratch/claim files",
+        r.actions_removed,
+        r.outputs_removed,
+        r.blobs_removed,
+        r.bytes_removed as f64 / (1024.0 * 1024.0),
+        r.scratch_removed
+    );
+    Ok(())
 }

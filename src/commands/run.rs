@@ -1,13 +1,104 @@
-//! `augsplat run` (owned by the engine work, issue 2).
+//! `augsplat run`: run a pipeline (every run is a resume). Also holds the options the engine
+//! subcommands (`plan`, `why`, `expand`, `gc`) share.
 
 use super::CmdResult;
-use augsplat_graph::Registry;
+use augsplat_graph::{default_cache_dir, Engine, Plan, Registry, RunOptions};
+use std::io::IsTerminal;
+use std::path::PathBuf;
 
 /// Arguments of `augsplat run`.
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Pipeline, overrides, store.
+    #[command(flatten)]
+    pub pipeline: PipelineArgs,
+    /// Build only these nodes (and what they need). A node name matches all its instances;
+    /// `field[2]` or `aggregate@gamma=0.5` match one. Repeatable.
+    #[arg(long = "target", value_name = "NODE")]
+    pub targets: Vec<String>,
+    /// Cores to use in total (default: all).
+    #[arg(long, short = 'j')]
+    pub jobs: Option<usize>,
+    /// Write `{"nodes":[{"name","kind","key","status","seconds"}..]}` to this file.
+    #[arg(long, value_name = "PATH")]
+    pub summary_json: Option<PathBuf>,
+    /// Pin this run's results under NAME (kept by `gc` until `cache/pins/NAME.json` is deleted).
+    #[arg(long, value_name = "NAME")]
+    pub pin: Option<String>,
+    /// No progress bars and no final table.
+    #[arg(long, short = 'q')]
+    pub quiet: bool,
+}
 
 /// Runs `augsplat run`.
-pub fn run(_args: Args, _registry: &Registry) -> CmdResult {
-    Err("`run` is not built yet".into())
+pub fn run(args: Args, registry: &Registry) -> CmdResult {
+    let (engine, plan) = args.pipeline.load(registry)?;
+    let mut opts = RunOptions {
+        targets: args.targets.clone(),
+        progress: !args.quiet && std::io::stderr().is_terminal(),
+        ..Default::default()
+    };
+    if let Some(j) = args.jobs {
+        if j == 0 {
+            return Err("--jobs must be at least 1".into());
+        }
+        opts.jobs = j;
+    }
+    let report = engine.run(&plan, &opts).map_err(|e| e.to_string())?;
+    if let Some(path) = &args.summary_json {
+        let text = serde_json::to_string_pretty(&report.summary_json(&plan)).expect("json");
+        std::fs::write(path, text).map_err(|e| format!("writing {}: {e}", path.display()))?;
+    }
+    if let Some(name) = &args.pin {
+        let keys: Vec<String> = report
+            .results
+            .iter()
+            .flatten()
+            .filter_map(|r| r.key.as_ref().map(augsplat_graph::store::hex))
+            .collect();
+        engine.store().pin(name, &keys).map_err(|e| e.to_string())?;
+    }
+    if !args.quiet {
+        print!("{}", report.table(&plan));
+    }
+    let failures = report.failures(&plan);
+    if failures.is_empty() {
+        Ok(())
+    } else {
+        let mut msg = format!("{} node(s) failed; nothing was stored for them:", failures.len());
+        for (_, m) in failures {
+            msg.push_str("\n  ");
+            msg.push_str(&m.replace('\n', "\n  "));
+        }
+        Err(msg)
+    }
+}
+
+/// Pipeline file, overrides and store location.
+#[derive(clap::Args, Clone, Debug)]
+pub struct PipelineArgs {
+    /// The pipeline file (.ron).
+    pub file: PathBuf,
+    /// Override a value as if the file said so: `NODE.ARG[.SUB]=RON_VALUE` or `params.NAME=RON_VALUE`
+    /// (strings need quotes: --set 'node.name="text"'). Repeatable.
+    #[arg(long = "set", value_name = "PATH=VALUE")]
+    pub sets: Vec<String>,
+    /// The store (default: $AUGSPLAT_CACHE, else ./cache).
+    #[arg(long, value_name = "DIR")]
+    pub cache: Option<PathBuf>,
+}
+
+impl PipelineArgs {
+    /// Opens the store and resolves the pipeline.
+    pub fn load(&self, registry: &Registry) -> Result<(Engine, Plan), String> {
+        let engine = open_engine(registry, self.cache.clone())?;
+        let plan = engine.load(&self.file, &self.sets).map_err(|e| e.to_string())?;
+        Ok((engine, plan))
+    }
+}
+
+/// Opens the store at `cache` (or the default).
+pub fn open_engine(registry: &Registry, cache: Option<PathBuf>) -> Result<Engine, String> {
+    let cache = cache.unwrap_or_else(default_cache_dir);
+    Engine::new(registry.clone(), cache).map_err(|e| e.to_string())
 }

@@ -1,0 +1,299 @@
+//! The engine through the `augsplat` binary: crash safety (SIGKILL mid-node), two concurrent
+//! runs on one store, error reporting, failing nodes, summaries, plan/why/expand/gc.
+//! Uses the engine's `Command` kind with `sh`, so no 3-D node is involved.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_augsplat");
+
+struct Env {
+    dir: tempfile::TempDir,
+}
+
+impl Env {
+    fn new() -> Env {
+        Env {
+            dir: tempfile::tempdir().unwrap(),
+        }
+    }
+    fn path(&self, p: &str) -> PathBuf {
+        self.dir.path().join(p)
+    }
+    fn write(&self, name: &str, text: &str) -> PathBuf {
+        let p = self.path(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+    fn cmd(&self, args: &[&str]) -> Command {
+        let mut c = Command::new(BIN);
+        c.args(args).current_dir(self.dir.path()).env("AUGSPLAT_CACHE", self.path("cache"));
+        c
+    }
+    fn run(&self, args: &[&str]) -> Output {
+        self.cmd(args).output().unwrap()
+    }
+    /// Lines of the execution log the pipeline's commands append to.
+    fn log(&self) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_to_string(self.path("log.txt"))
+            .unwrap_or_default()
+            .lines()
+            .map(str::to_string)
+            .collect();
+        v.sort();
+        v
+    }
+    fn actions(&self) -> usize {
+        let mut n = 0;
+        for sub in std::fs::read_dir(self.path("cache/actions")).into_iter().flatten().flatten() {
+            n += std::fs::read_dir(sub.path()).into_iter().flatten().count();
+        }
+        n
+    }
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// A three-node chain whose middle node sleeps (only on its first attempt when `once`).
+fn chain(env: &Env, sleep: &str) -> PathBuf {
+    let log = env.path("log.txt");
+    let log = log.display();
+    env.write(
+        "p.ron",
+        &format!(
+            r#"(
+    nodes: {{
+        "a": (kind: "Command", args: (program: "sh", args: ["-c", "echo a >> {log}; echo data > $AUGSPLAT_OUT_OUT/x"])),
+        "slow": (kind: "Command",
+            args: (program: "sh", inputs: ["src"],
+                   args: ["-c", "echo slow >> {log}; cat {{in:src}}/x > {{out:out}}/x; {sleep}; echo more >> {{out:out}}/x"]),
+            inputs: {{ "src": "a" }}),
+        "c": (kind: "Command",
+            args: (program: "sh", inputs: ["src"], args: ["-c", "echo c >> {log}; cp {{in:src}}/x {{out:out}}/x"]),
+            inputs: {{ "src": "slow" }}),
+    }},
+)"#
+        ),
+    )
+}
+
+fn wait_for(env: &Env, line: &str, limit: Duration) {
+    let t = Instant::now();
+    while !env.log().iter().any(|l| l == line) {
+        assert!(t.elapsed() < limit, "timed out waiting for `{line}` in the log");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn read_output(env: &Env, summary: &Path, node: &str) -> String {
+    let s: serde_json::Value = serde_json::from_slice(&std::fs::read(summary).unwrap()).unwrap();
+    let key = s["nodes"].as_array().unwrap().iter().find(|n| n["name"] == node).unwrap()["key"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let entry: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(env.path(&format!("cache/actions/{}/{key}.json", &key[..2]))).unwrap()).unwrap();
+    let m = entry["outputs"]["out"].as_str().unwrap();
+    std::fs::read_to_string(env.path(&format!("cache/outputs/{m}/x"))).unwrap()
+}
+
+#[test]
+fn sigkill_in_the_middle_of_a_node_then_a_clean_rerun() {
+    let env = Env::new();
+    // The middle node sleeps only on its first attempt (marker file outside the key).
+    let mark = env.path("mark");
+    let f = chain(&env, &format!("if [ ! -f {0} ]; then touch {0}; sleep 30; fi", mark.display()));
+    let mut child = env
+        .cmd(&["run", f.to_str().unwrap(), "-q"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    wait_for(&env, "slow", Duration::from_secs(60));
+    std::thread::sleep(Duration::from_millis(200));
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    assert_eq!(env.actions(), 1, "only the finished node `a` may have an entry");
+    // Scratch of the killed node exists but is not a result.
+    let out = env.run(&["plan", f.to_str().unwrap()]);
+    let t = text(&out);
+    assert!(t.contains("a     Command  cached") && t.contains("slow  Command  will run"), "{t}");
+    let summary = env.path("s.json");
+    let out = env.run(&["run", f.to_str().unwrap(), "--summary-json", summary.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert_eq!(
+        env.log(),
+        ["a", "c", "slow", "slow"],
+        "the killed node reruns once, `a` stays cached"
+    );
+    assert_eq!(read_output(&env, &summary, "c"), "data\nmore\n");
+    let out = env.run(&["run", f.to_str().unwrap()]);
+    assert!(out.status.success());
+    assert_eq!(env.log().len(), 4, "third run computes nothing");
+    // gc clears the killed run's scratch folder.
+    let out = env.run(&["gc"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert_eq!(std::fs::read_dir(env.path("cache/tmp")).unwrap().count(), 0);
+}
+
+#[test]
+fn two_concurrent_runs_compute_each_node_once() {
+    let env = Env::new();
+    let f = chain(&env, "sleep 1");
+    let s1 = env.path("s1.json");
+    let s2 = env.path("s2.json");
+    let c1 = env
+        .cmd(&["run", f.to_str().unwrap(), "--summary-json", s1.to_str().unwrap()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let c2 = env
+        .cmd(&["run", f.to_str().unwrap(), "--summary-json", s2.to_str().unwrap()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let o1 = c1.wait_with_output().unwrap();
+    let o2 = c2.wait_with_output().unwrap();
+    assert!(o1.status.success(), "{}", text(&o1));
+    assert!(o2.status.success(), "{}", text(&o2));
+    assert_eq!(env.log(), ["a", "c", "slow"], "each node computed once");
+    let ran = |p: &Path| -> Vec<String> {
+        let s: serde_json::Value = serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap();
+        s["nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|n| n["status"] == "ran")
+            .map(|n| n["name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let mut all = ran(&s1);
+    all.extend(ran(&s2));
+    all.sort();
+    assert_eq!(all, ["a", "c", "slow"]);
+    assert_eq!(read_output(&env, &s1, "c"), read_output(&env, &s2, "c"));
+}
+
+#[test]
+fn summary_json_and_table() {
+    let env = Env::new();
+    let f = chain(&env, "true");
+    let s = env.path("s.json");
+    let out = env.run(&["run", f.to_str().unwrap(), "--summary-json", s.to_str().unwrap(), "-j", "2"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let t = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(t.contains("node") && t.contains("slow  Command  ran"), "{t}");
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&s).unwrap()).unwrap();
+    let nodes = v["nodes"].as_array().unwrap();
+    assert_eq!(nodes.len(), 3);
+    for n in nodes {
+        assert_eq!(n.as_object().unwrap().len(), 5);
+        assert_eq!(n["kind"], "Command");
+        assert_eq!(n["status"], "ran");
+        assert_eq!(n["key"].as_str().unwrap().len(), 64);
+        assert!(n["seconds"].as_f64().unwrap() >= 0.0);
+    }
+    let out = env.run(&["run", f.to_str().unwrap(), "--summary-json", s.to_str().unwrap()]);
+    assert!(out.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&s).unwrap()).unwrap();
+    assert!(v["nodes"].as_array().unwrap().iter().all(|n| n["status"] == "cached"));
+}
+
+#[test]
+fn pipeline_errors_exit_nonzero_with_location_and_run_nothing() {
+    let env = Env::new();
+    let cases = [
+        ("syntax.ron", "(nodes: {\n  \"a\": (kind: \"Command\" args: ()),\n})", ":2:25", "syntax error"),
+        ("kind.ron", "(nodes: {\n  \"a\": (kind: \"Comand\"),\n})", ":2:15", "did you mean Command"),
+        ("arg.ron", "(nodes: {\n  \"a\": (kind: \"Command\", args: (program: \"true\", progam: \"x\")),\n})", ":2:58", "progam"),
+        ("type.ron", "(nodes: {\n  \"a\": (kind: \"Command\", args: (program: 5)),\n})", ":2:42", "program"),
+        ("dangling.ron", "(nodes: {\n  \"a\": (kind: \"Command\", args: (program: \"true\", inputs: [\"x\"]), inputs: {\"x\": \"b\"}),\n})", ":2:80", "not a node"),
+        (
+            "cycle.ron",
+            "(nodes: {\n  \"a\": (kind: \"Command\", args: (program: \"true\", inputs: [\"x\"]), inputs: {\"x\": \"b\"}),\n  \"b\": (kind: \"Command\", args: (program: \"true\", inputs: [\"x\"]), inputs: {\"x\": \"a\"}),\n})",
+            "cycle.ron:",
+            "cycle",
+        ),
+    ];
+    for (name, src, loc, what) in cases {
+        let f = env.write(name, src);
+        let out = env.run(&["run", f.to_str().unwrap()]);
+        let t = text(&out);
+        assert!(!out.status.success(), "{name}: {t}");
+        assert!(
+            t.contains(&format!("{name}{loc}")) || (loc.ends_with(':') && t.contains(loc)),
+            "{name}: expected {loc} in {t}"
+        );
+        assert!(t.contains(what) && t.contains("hint") || name == "type.ron", "{name}: {t}");
+    }
+    let f = env.write("ok.ron", "(nodes: {\"a\": (kind: \"Command\", args: (program: \"true\"))})");
+    let out = env.run(&["run", f.to_str().unwrap(), "--set", "a.program=("]);
+    assert!(!out.status.success() && text(&out).contains("--set a.program=("), "{}", text(&out));
+    assert_eq!(env.actions(), 0, "nothing ran");
+}
+
+#[test]
+fn failing_node_reports_its_log_and_stores_nothing() {
+    let env = Env::new();
+    let log = env.path("log.txt");
+    let f = env.write(
+        "f.ron",
+        &format!(
+            r#"(nodes: {{
+            "a": (kind: "Command", args: (program: "sh", args: ["-c", "echo a >> {0}"])),
+            "bad": (kind: "Command", args: (program: "sh", inputs: ["x"], args: ["-c", "echo bad >> {0}; echo partial > {{out:out}}/x; echo oh-no >&2; exit 7"]), inputs: {{"x": "a"}}),
+        }})"#,
+            log.display()
+        ),
+    );
+    let out = env.run(&["run", f.to_str().unwrap()]);
+    let t = text(&out);
+    assert!(!out.status.success());
+    assert!(
+        t.contains("`bad` (Command) failed") && t.contains("exit status: 7") && t.contains("oh-no"),
+        "{t}"
+    );
+    assert_eq!(env.actions(), 1, "only `a` is stored");
+    let out = env.run(&["run", f.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert_eq!(env.log(), ["a", "bad", "bad"], "`a` stays cached");
+}
+
+#[test]
+fn plan_why_expand_gc_commands() {
+    let env = Env::new();
+    let f = env.write(
+        "p.ron",
+        r#"(
+    params: { "n": 2 },
+    nodes: {
+        "gen": (kind: "Command", repeat: Param("n"), args: (program: "sh", args: ["-c", "echo {seed} > {out:out}/s"])),
+        "all": (kind: "Command", args: (program: "sh", list_inputs: ["m"], args: ["-c", "cat $AUGSPLAT_IN_M/s > {out:out}/x 2>/dev/null || true"]), inputs: { "m": "gen[*]" }),
+    },
+    sweep: Grid({ "all.version": [1, 2] }),
+)"#,
+    );
+    let fs = f.to_str().unwrap();
+    let t = text(&env.run(&["expand", fs]));
+    assert!(t.contains("// sweep point version=1") && t.contains("gen[1]"), "{t}");
+    let t = text(&env.run(&["plan", fs]));
+    assert!(
+        t.contains("version=1: 3 new, 0 cached") && t.contains("version=2: 3 new, 0 cached"),
+        "{t}"
+    );
+    let out = env.run(&["run", fs]);
+    assert!(out.status.success(), "{}", text(&out));
+    let t = text(&env.run(&["plan", fs, "--set", "params.n=3"]));
+    assert!(t.contains("gen[2]") && t.contains("version=1: 2 new, 2 cached"), "{t}");
+    let t = text(&env.run(&["why", fs, "all@version=2", "--set", "params.n=3"]));
+    assert!(t.contains("input `m` now comes from"), "{t}");
+    let out = env.run(&["why", fs, "nope"]);
+    assert!(!out.status.success() && text(&out).contains("no node `nope`"));
+    let t = text(&env.run(&["gc", "--dry-run"]));
+    assert!(t.contains("would remove: 0 actions"), "{t}");
+}
