@@ -310,6 +310,7 @@ where
     }
     let mut views = Vec::with_capacity(scene.views.len());
     let mut seen = std::collections::BTreeSet::new();
+    let mut size_notes: Vec<String> = Vec::new();
     for (i, view) in scene.views.iter().enumerate() {
         let file = png_name(&view.name);
         if !seen.insert(file.clone()) {
@@ -344,7 +345,21 @@ where
             // NaN stays NaN so the metrics report it as a clear error.
             *v = v.clamp(0.0, 1.0);
         }
-        let m = measure(&img, &gt, cx.lpips.map(|(m, _)| m))
+        // Images too small for the LPIPS backbone: LPIPS (and the average error) unavailable
+        // for this view, said in the notes, never a made-up number.
+        let lp = match cx.lpips {
+            Some((m, _)) => match m.net().check_size(gt.width as usize, gt.height as usize) {
+                Ok(()) => Some(m),
+                Err(msg) => {
+                    if !size_notes.contains(&msg) {
+                        size_notes.push(msg);
+                    }
+                    None
+                }
+            },
+            None => None,
+        };
+        let m = measure(&img, &gt, lp)
             .map_err(|e| ReportError::Message(format!("view {:?}: {e}", view.name)))?;
         image::write_png(&renders_dir.join(&file), &img)?;
         image::write_png(&gt_dir.join(&file), &gt)?;
@@ -361,6 +376,9 @@ where
     let mut notes = Vec::new();
     if let Some(n) = &cx.lpips_note {
         notes.push(n.clone());
+    }
+    for n in size_notes {
+        notes.push(format!("LPIPS unavailable: {n}; average error unavailable"));
     }
     let curve = read_curve(&cx.model_dir)?;
     let best = curve.as_ref().and_then(select::best_step);

@@ -364,7 +364,16 @@ fn image_section(
             None => ((gt.width - win) / 2, (gt.height - win) / 2),
         };
         let zoom = (opts.crop_size / win).max(1);
-        let shown_w = gt.width.min(opts.image_width);
+        // Small images are shown enlarged by an integer factor (pixelated), large ones
+        // downscaled to fit.
+        let (shown_w, full_class) = if gt.width < opts.image_width {
+            (
+                gt.width * (opts.image_width / gt.width.max(1)).max(1),
+                "full px",
+            )
+        } else {
+            (gt.width.min(opts.image_width), "full")
+        };
         let factor = gt.width.div_ceil(opts.image_width.max(1)).max(1);
         let mut full_row = String::from("<div class=\"row\">");
         let mut crop_row = String::from("<div class=\"row\">");
@@ -387,7 +396,7 @@ fn image_section(
                         &html::png_data_uri(&small)?,
                         &caption,
                         shown_w,
-                        "full",
+                        full_class,
                     ));
                     let c = html::upscale_nearest(&html::crop(img, cx, cy, win, win), zoom);
                     crop_row.push_str(&figure(

@@ -234,6 +234,24 @@ fn lpips_unavailable_is_reported_never_invented() {
     assert!(m.mean.lpips.unwrap().abs() < 1e-6);
     assert!(m.mean.avg_error.unwrap().abs() < 1e-3);
     assert_eq!(m.lpips_net.as_deref(), Some("alex"));
+    // Too small for AlexNet: LPIPS unavailable with a note, other metrics still measured.
+    let small = dir.path().join("small");
+    let sg = make_scene(&small, 1, 24, 20);
+    let m = evaluate(
+        &cx,
+        &small,
+        &dir.path().join("e3"),
+        move |_| Ok(sg[0].clone()),
+        &|_, _| {},
+    )
+    .unwrap();
+    assert!(m.mean.lpips.is_none() && m.mean.avg_error.is_none());
+    assert_eq!(m.mean.psnr, f64::INFINITY);
+    assert!(
+        m.notes.iter().any(|n| n.contains("too small")),
+        "{:?}",
+        m.notes
+    );
     let cams = vec![Scene::load(&test).unwrap().views[0].camera.clone()];
     let m = evaluate(
         &cx,

@@ -29,7 +29,7 @@ fn model(shift: f32) -> Gaussians {
             .push([(0.05f32).ln(), (0.04f32).ln(), (0.05f32).ln()]);
         g.quats.push([1.0, 0.1 * i, 0.0, 0.05 * j]);
         g.opacity_logits.push(1.5);
-        let c0 = 0.28209479177387814f32;
+        let c0 = 0.282_094_8_f32;
         for c in 0..3 {
             let colour = 0.2 + 0.6 * (((k * (c + 2)) % 7) as f32 / 6.0) + shift;
             g.sh.push((colour - 0.5) / c0);
