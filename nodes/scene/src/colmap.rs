@@ -282,7 +282,7 @@ impl ColmapModel {
                 let pln = i + 1;
                 i += 1;
                 let pt: Vec<&str> = pl.split_whitespace().collect();
-                if pt.len() % 3 != 0 {
+                if !pt.len().is_multiple_of(3) {
                     return Err(SceneError::format(
                         &path,
                         format!("line {pln}: image {id} ({name}): POINTS2D has {} values, not a multiple of 3", pt.len()),
@@ -321,7 +321,7 @@ impl ColmapModel {
             }
             let at = |m: String| SceneError::format(&path, format!("line {}: {m}", ln + 1));
             let tok: Vec<&str> = line.split_whitespace().collect();
-            if tok.len() < 8 || (tok.len() - 8) % 2 != 0 {
+            if tok.len() < 8 || !(tok.len() - 8).is_multiple_of(2) {
                 return Err(at(
                     "expected POINT3D_ID X Y Z R G B ERROR followed by (IMAGE_ID, POINT2D_IDX) pairs".into(),
                 ));
@@ -581,7 +581,7 @@ fn make_image(
         )));
     }
     let qn = qvec.iter().map(|v| v * v).sum::<f64>().sqrt();
-    if !(qn > 1e-6) {
+    if qn.is_nan() || qn <= 1e-6 {
         return Err(bad("rotation quaternion is zero".into()));
     }
     if name.is_empty() {

@@ -65,7 +65,9 @@ pub fn sparse_depth(
         }
         let p = cloud.positions[i];
         let (u, v, d) = cam.project([p[0] as f64, p[1] as f64, p[2] as f64]);
-        if !(d > 0.0) || !(u >= 0.0 && v >= 0.0 && u < w as f64 && v < h as f64) {
+        // NaN fails every comparison, so it is skipped too.
+        let inside = d > 0.0 && u >= 0.0 && v >= 0.0 && u < w as f64 && v < h as f64;
+        if !inside {
             continue;
         }
         let k = v as usize * w + u as usize;

@@ -108,7 +108,7 @@ pub fn to_colmap(scene: &Scene, cloud: &PointCloud, image_names: &[String]) -> C
         for &t in cloud.track(i) {
             let cam = &originals[t as usize];
             let (u, v, z) = cam.project(p);
-            if !(z > 0.0) {
+            if z.is_nan() || z <= 0.0 {
                 continue;
             }
             let img = model.images.get_mut(&(t + 1)).expect("image of every view");

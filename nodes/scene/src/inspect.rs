@@ -52,9 +52,9 @@ impl Aabb {
         let mut b: Option<Aabb> = None;
         for p in points {
             let bb = b.get_or_insert(Aabb { min: p, max: p });
-            for k in 0..3 {
-                bb.min[k] = bb.min[k].min(p[k]);
-                bb.max[k] = bb.max[k].max(p[k]);
+            for (k, &x) in p.iter().enumerate() {
+                bb.min[k] = bb.min[k].min(x);
+                bb.max[k] = bb.max[k].max(x);
             }
         }
         b

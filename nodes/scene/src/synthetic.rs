@@ -588,6 +588,9 @@ pub fn generate(params: &SyntheticParams, out: &Path) -> Result<Scene> {
     Ok(scene)
 }
 
+/// One accepted point sample: exact and noisy normalised positions, colour, track.
+type Sample = (Vec3, Vec3, Vec3, Vec<u32>);
+
 /// Samples the sparse points (see the module docs). Deterministic for any thread count:
 /// attempts are independent streams and the first successes in attempt order are kept.
 fn sample_points(
@@ -606,7 +609,7 @@ fn sample_points(
     let max_attempts = target * 8 + 1024;
     let mut attempt = 0usize;
     while cloud.len() < target && attempt < max_attempts {
-        let batch: Vec<Option<(Vec3, Vec3, Vec3, Vec<u32>)>> = (attempt..attempt + chunk)
+        let batch: Vec<Option<Sample>> = (attempt..attempt + chunk)
             .into_par_iter()
             .map(|a| {
                 let mut rng = Rng::stream(p.seed, a as u64);
