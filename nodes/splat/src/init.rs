@@ -247,8 +247,8 @@ fn build(
         g.log_scales.push([s; 3]);
         g.quats.push(std::array::from_fn(|_| rng.next_f32()));
         g.opacity_logits.push(op);
-        for c in 0..3 {
-            g.sh[i * k * 3 + c] = ((colors[i][c] as f64 - 0.5) / SH_C0) as f32;
+        for (c, &col) in colors[i].iter().enumerate() {
+            g.sh[i * k * 3 + c] = ((col as f64 - 0.5) / SH_C0) as f32;
         }
     }
     g.means = positions;

@@ -331,13 +331,12 @@ pub fn ssim(
     grad.par_chunks_mut(width * 3).enumerate().for_each_init(
         || (vec![0f32; 3 * ow], vec![0f32; 3 * width]),
         |(vb, hb), (y, grow)| {
-            let k_lo = if y + 1 > oh { y + 1 - oh } else { 0 };
+            let k_lo = (y + 1).saturating_sub(oh);
             let k_hi = y.min(SSIM_WINDOW - 1);
             for c in 0..3 {
                 vb.iter_mut().for_each(|v| *v = 0.0);
-                for k in k_lo..=k_hi {
+                for (k, &wk) in win.iter().enumerate().take(k_hi + 1).skip(k_lo) {
                     let oy = y - k;
-                    let wk = win[k];
                     let src = &part[(c * oh + oy) * 3 * ow..(c * oh + oy + 1) * 3 * ow];
                     for (d, s) in vb.iter_mut().zip(src) {
                         *d += wk * s;

@@ -278,7 +278,7 @@ impl Node for OptimizeSplats {
                     rep.gaussians
                 ));
             }
-            if done % a.eval_every == 0 || done == a.steps {
+            if done.is_multiple_of(a.eval_every) || done == a.steps {
                 let settings = a.render_settings(done);
                 let e = evaluate(trainer.gaussians(), &test, &settings, lpips.as_ref())
                     .map_err(NodeError::from)?;

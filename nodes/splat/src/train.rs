@@ -99,10 +99,11 @@ fn d_off_below() -> Option<f64> {
 
 /// How real and synthetic supervision are mixed over the run. Omitted variant fields take
 /// the paper's defaults (Staged 300 / 20 / reset; Dual 2.0 / 1.0 / 300 / Some(0.1) / 20).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub enum Schedule {
     /// Real images only (3DGS).
+    #[default]
     Baseline,
     /// Synthetic-only for exactly `warmup_steps` steps, then real only. At the switch, when
     /// `reset_at_switch`, opacities are clamped to at most 0.1 and the optimiser state is
@@ -139,12 +140,6 @@ pub enum Schedule {
         #[serde(default = "d_batch")]
         synthetic_batch: usize,
     },
-}
-
-impl Default for Schedule {
-    fn default() -> Self {
-        Schedule::Baseline
-    }
 }
 
 /// What one step does, as decided by the [`Schedule`].

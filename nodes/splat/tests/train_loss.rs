@@ -1,5 +1,7 @@
 //! Loss kernels against f64 references and central finite differences.
 
+#![allow(clippy::needless_range_loop)]
+
 use augsplat_core::Rng;
 use augsplat_splat::loss::{self, reference, PixelLoss, WeightNorm};
 

@@ -1,6 +1,8 @@
 //! The OptimizeSplats node on a tiny generated scene: outputs, byte-identical results for 1
 //! and 2 threads, synthetic input handling, errors, LPIPS selection when weights exist.
 
+#![allow(clippy::needless_range_loop)]
+
 mod train_util;
 
 use augsplat_core::artifacts::{self, SyntheticSet, SyntheticView, TrainingCurve};

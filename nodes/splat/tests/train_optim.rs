@@ -1,5 +1,7 @@
 //! Adam, initialisation and densification on crafted inputs.
 
+#![allow(clippy::needless_range_loop)]
+
 use augsplat_core::{PointCloud, Rng};
 use augsplat_splat::adam::{Adam, Group, LearningRates, ParamGrads};
 use augsplat_splat::densify::{self, Densifier, DensifyArgs};
@@ -419,7 +421,7 @@ fn schedule_scaling_and_opacity_reset() {
     let s = args.scaled(3000);
     assert_eq!(
         (s.start, s.stop, s.every, s.reset_every),
-        (50, 1500, 25, 300)
+        (125, 1500, 100, 750)
     );
     let mut g = set(3, 0);
     g.opacity_logits = vec![-6.0, 0.0, 3.0];
@@ -429,14 +431,24 @@ fn schedule_scaling_and_opacity_reset() {
     let sched = args.scaled(3000);
     let r = d.step_post_update(0, &sched, &args, &mut g, &mut adam, 1.0, 0);
     assert!(!r.reset);
-    let r = d.step_post_update(300, &sched, &args, &mut g, &mut adam, 1.0, 0);
-    assert!(r.reset);
-    // The transparent one was pruned (refinement at 300 too), the others clamped to 0.01.
+    // Refinement at 700 prunes the transparent one, no reset there.
+    let r = d.step_post_update(700, &sched, &args, &mut g, &mut adam, 1.0, 0);
+    assert!(!r.reset);
     assert_eq!(r.pruned, 1);
     assert_eq!(g.len(), 2);
+    // Reset at 750 (not a refinement step): the others clamped to 0.01.
+    let r = d.step_post_update(750, &sched, &args, &mut g, &mut adam, 1.0, 0);
+    assert!(r.reset);
+    assert_eq!(r.pruned + r.cloned + r.split, 0);
     for &o in &g.opacity_logits {
         assert!((sigmoid(o as f64) - 0.01).abs() < 1e-6);
     }
+    // Very short runs still refine a few times.
+    let s = args.scaled(300);
+    assert_eq!(
+        (s.start, s.stop, s.every, s.reset_every),
+        (125, 150, 6, 750)
+    );
     // Past stop nothing happens.
     let before = g.clone();
     let r = d.step_post_update(1500, &sched, &args, &mut g, &mut adam, 1.0, 0);

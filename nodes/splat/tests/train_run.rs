@@ -1,6 +1,8 @@
 //! The training loop end to end on small generated scenes: determinism across thread counts,
 //! PSNR improvement, the Staged switch inside the trainer, the OptimizeSplats node.
 
+#![allow(clippy::needless_range_loop)]
+
 mod train_util;
 
 use augsplat_core::{Rng, Scene};

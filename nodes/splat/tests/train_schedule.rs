@@ -1,6 +1,8 @@
 //! The AugSplat schedules as pure functions: Dual's λ(t) against the closed form, the Staged
 //! switch step, D = 0, and the args' serde defaults.
 
+#![allow(clippy::needless_range_loop)]
+
 use augsplat_splat::train::{dual_lambda, dual_raw_weight, Schedule, TrainArgs};
 
 fn dual(d: f64, off: Option<f64>) -> Schedule {
