@@ -320,3 +320,35 @@ fn single_member_gives_weight_one() {
         assert_eq!(v.weight_sum, 48.0);
     }
 }
+
+#[test]
+fn args_parse_from_ron_with_defaults_and_reject_typos() {
+    let mut registry = augsplat_graph::Registry::new();
+    augsplat_augment::register(&mut registry);
+    let poses = registry.get("SynthesizePoses").expect("registered");
+    let args = poses
+        .parse_args("(count: 50, jitter: (copies: 10), interpolation: (fractions: [0.5]))")
+        .unwrap();
+    let json = poses.args_json(&args);
+    assert_eq!(json["count"], 50);
+    assert_eq!(json["jitter"]["copies"], 10);
+    assert_eq!(json["jitter"]["yaw_deg"], 10.0);
+    assert_eq!(json["interpolation"]["neighbours"], 3);
+    assert_eq!(json["downscale"], 8);
+    let err = poses.parse_args("(jitter: (yaw: 3.0))").unwrap_err();
+    assert!(err.path.contains("jitter"), "{err:?}");
+    // Default-vs-explicit does not change the canonical encoding (hence the key).
+    let a = poses.parse_args("()").unwrap();
+    let b = poses.parse_args("(count: 200, downscale: 8)").unwrap();
+    assert_eq!(poses.canonical_args(&a), poses.canonical_args(&b));
+
+    let agg = registry.get("AggregateEnsemble").expect("registered");
+    let args = agg
+        .parse_args("(gamma: 2.0, blur: Some(9), floor: Some(0.1))")
+        .unwrap();
+    assert!(agg.validate(&args).is_ok());
+    let json = agg.args_json(&args);
+    assert_eq!(json["percentiles"], serde_json::json!([5.0, 95.0]));
+    let bad = agg.parse_args("(blur: Some(4))").unwrap();
+    assert!(agg.validate(&bad).unwrap_err().contains("odd"));
+}
