@@ -240,5 +240,25 @@ mod tests {
         assert!(dense_depth(&s, 0, &dir.path().join("none"), 0.001, 1.0)
             .unwrap()
             .is_none());
+        // A 16-bit PNG: raw value × png_scale, then the normalisation scale; 0 stays unknown.
+        std::fs::remove_file(dir.path().join("a.exr")).unwrap();
+        let raw: Vec<u16> = (0..8 * 6)
+            .map(|i| if i == 5 { 0 } else { 1000 + i as u16 })
+            .collect();
+        image::ImageBuffer::<image::Luma<u16>, _>::from_raw(8, 6, raw)
+            .unwrap()
+            .save(dir.path().join("a.png"))
+            .unwrap();
+        let d = dense_depth(&s, 0, dir.path(), 0.001, 0.5).unwrap().unwrap();
+        assert!((d.z[7] - 1.007 * 0.5).abs() < 1e-6 && d.w[7] == 0.5);
+        assert_eq!((d.z[5], d.w[5]), (0.0, 0.0));
+        // An 8-bit PNG is refused (its scale would be ambiguous).
+        image::GrayImage::new(8, 6)
+            .save(dir.path().join("a.png"))
+            .unwrap();
+        let e = dense_depth(&s, 0, dir.path(), 0.001, 1.0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("16-bit"), "{e}");
     }
 }

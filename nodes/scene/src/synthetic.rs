@@ -689,6 +689,28 @@ mod tests {
     }
 
     #[test]
+    fn forward_layout_looks_one_way_and_orbit_surrounds() {
+        let f = design_cameras(&SyntheticParams {
+            layout: Layout::Forward,
+            views: 9,
+            ..Default::default()
+        });
+        let d0 = f[0].forward();
+        for c in &f {
+            assert!((linalg::dot(c.forward(), d0) - 1.0).abs() < 1e-12);
+        }
+        let o = design_cameras(&SyntheticParams::default());
+        // Orbit cameras look at the target (0, 0, 0.3) from all sides.
+        let mut sum = [0.0; 3];
+        for c in &o {
+            let to = linalg::normalize(linalg::sub([0.0, 0.0, 0.3], c.center()));
+            assert!(linalg::dot(to, c.forward()) > 1.0 - 1e-12);
+            sum = linalg::add(sum, c.forward());
+        }
+        assert!(linalg::norm([sum[0], sum[1], 0.0]) < 1e-9);
+    }
+
+    #[test]
     fn exact_depth_matches_independent_ray_sphere_geometry() {
         // The pixel-centre depth at the image centre of a camera looking at the big sphere's
         // centre equals (distance − radius) along the axis (the centre ray is the optical axis
