@@ -35,3 +35,6 @@ pub const MAX_MARCH_ITERATIONS: u32 = 4096;
 pub const GEO_FEAT_DIM: usize = 15;
 /// Number of SH components of the view direction (degree 4 ⇒ 16, nerfacto).
 pub const SH_COMPONENTS: usize = 16;
+/// When rendering, samples with weight below this skip the colour network (their colour
+/// could change the pixel by at most this much each).
+pub const RENDER_MIN_COLOR_WEIGHT: f32 = 1e-5;

@@ -175,6 +175,9 @@ pub struct ChunkState {
     pub w: Vec<f32>,
     /// Indices of the samples that get a colour, ray by ray.
     pub alive: Vec<u32>,
+    /// Samples whose weight is below this get no colour evaluation (rendering only: the
+    /// backward pass needs 0, i.e. every sample before early termination).
+    pub min_color_weight: f32,
     /// Padded alive count.
     pub ldc: usize,
     /// Colour MLP input.
@@ -410,8 +413,11 @@ impl Field {
         for r in 0..rays.len() {
             let (a, b) = (st.ray_start[r], st.ray_start[r + 1]);
             let nc = volume::weights_forward(&st.sigma[a..b], &st.dt[a..b], &mut st.w[a..b]);
-            st.n_color.push(nc);
-            st.alive.extend((a..a + nc).map(|i| i as u32));
+            let before = st.alive.len();
+            let minw = st.min_color_weight;
+            st.alive
+                .extend((a..a + nc).filter(|&i| st.w[i] >= minw).map(|i| i as u32));
+            st.n_color.push(st.alive.len() - before);
         }
         // Colour network on the surviving samples.
         let nc = st.alive.len();
@@ -462,12 +468,16 @@ impl Field {
         for (r, ray) in rays.iter().enumerate() {
             let (a, b) = (st.ray_start[r], st.ray_start[r + 1]);
             let ncr = st.n_color[r];
-            let c = volume::composite_color(
-                &st.w[a..a + ncr],
-                &st.rgb[j0..j0 + ncr],
-                &st.rgb[ldc + j0..ldc + j0 + ncr],
-                &st.rgb[2 * ldc + j0..2 * ldc + j0 + ncr],
-            );
+            // Σ w_i c_i over the ray's coloured samples (in sample order, as
+            // `volume::composite_color` sums).
+            let mut c = [0f32; 3];
+            for q in 0..ncr {
+                let j = j0 + q;
+                let wi = st.w[st.alive[j] as usize];
+                for k in 0..3 {
+                    c[k] += wi * st.rgb[k * ldc + j];
+                }
+            }
             let (acc, depth) = volume::opacity_depth(&st.w[a..b], &st.t[a..b]);
             let bg = ray.background;
             st.out.push(RayOutput {
@@ -508,8 +518,8 @@ impl Field {
             st.g[i] += d_a + d_depth * st.t[i];
         }
         for q in 0..st.n_color[r] {
-            let i = a + q;
             let j = j0 + q;
+            let i = st.alive[j] as usize;
             let c = [st.rgb[j], st.rgb[ldc + j], st.rgb[2 * ldc + j]];
             st.g[i] += d_rgb_out[0] * c[0] + d_rgb_out[1] * c[1] + d_rgb_out[2] * c[2];
             for k in 0..3 {

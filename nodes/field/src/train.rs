@@ -502,36 +502,43 @@ pub fn render_camera(
     let fwd = camera.forward();
     let parts: Vec<RenderPart> = (0..n.div_ceil(chunk))
         .into_par_iter()
-        .map_init(ChunkState::default, |st, c| {
-            let lo = c * chunk;
-            let hi = (lo + chunk).min(n);
-            let mut rays = Vec::with_capacity(hi - lo);
-            let mut cos = Vec::with_capacity(hi - lo);
-            for p in lo..hi {
-                let (o, d) = camera.pixel_ray((p / w) as u32, (p % w) as u32);
-                cos.push((d[0] * fwd[0] + d[1] * fwd[1] + d[2] * fwd[2]) as f32);
-                rays.push(RayInput {
-                    origin: o.map(|x| x as f32),
-                    dir: d.map(|x| x as f32),
-                    image: u32::MAX,
-                    background,
-                });
-            }
-            field.forward_chunk(params, occ, &rays, &|_| 0.5, &mean_emb, st);
-            let mut rgb = Vec::with_capacity(3 * (hi - lo));
-            let mut depth = Vec::with_capacity(hi - lo);
-            let mut acc = Vec::with_capacity(hi - lo);
-            for (r, o) in st.out.iter().enumerate() {
-                rgb.extend_from_slice(&o.rgb);
-                depth.push(if o.acc > 1e-6 {
-                    o.depth / o.acc * cos[r]
-                } else {
-                    0.0
-                });
-                acc.push(o.acc);
-            }
-            (rgb, depth, acc, st.n() as u64)
-        })
+        .map_init(
+            || {
+                let mut st = ChunkState::default();
+                st.min_color_weight = RENDER_MIN_COLOR_WEIGHT;
+                st
+            },
+            |st, c| {
+                let lo = c * chunk;
+                let hi = (lo + chunk).min(n);
+                let mut rays = Vec::with_capacity(hi - lo);
+                let mut cos = Vec::with_capacity(hi - lo);
+                for p in lo..hi {
+                    let (o, d) = camera.pixel_ray((p / w) as u32, (p % w) as u32);
+                    cos.push((d[0] * fwd[0] + d[1] * fwd[1] + d[2] * fwd[2]) as f32);
+                    rays.push(RayInput {
+                        origin: o.map(|x| x as f32),
+                        dir: d.map(|x| x as f32),
+                        image: u32::MAX,
+                        background,
+                    });
+                }
+                field.forward_chunk(params, occ, &rays, &|_| 0.5, &mean_emb, st);
+                let mut rgb = Vec::with_capacity(3 * (hi - lo));
+                let mut depth = Vec::with_capacity(hi - lo);
+                let mut acc = Vec::with_capacity(hi - lo);
+                for (r, o) in st.out.iter().enumerate() {
+                    rgb.extend_from_slice(&o.rgb);
+                    depth.push(if o.acc > 1e-6 {
+                        o.depth / o.acc * cos[r]
+                    } else {
+                        0.0
+                    });
+                    acc.push(o.acc);
+                }
+                (rgb, depth, acc, st.n() as u64)
+            },
+        )
         .collect();
     let mut out = RenderedImage {
         width: camera.width,
