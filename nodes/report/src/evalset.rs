@@ -216,6 +216,22 @@ impl MetricKey {
             MetricKey::AvgError => "avg_error",
         }
     }
+    /// Decimals shown in tables (PSNR 2, MSE 5, others 3).
+    pub fn decimals(self) -> i32 {
+        match self {
+            MetricKey::Psnr => 2,
+            MetricKey::Mse => 5,
+            _ => 3,
+        }
+    }
+    /// The value rounded to the decimals shown (non-finite values unchanged).
+    pub fn round_shown(self, v: f64) -> f64 {
+        if !v.is_finite() {
+            return v;
+        }
+        let f = 10f64.powi(self.decimals());
+        (v * f).round() / f
+    }
     /// Formats a value for tables (PSNR 2 decimals, others 3, MSE 5, `inf` as ∞).
     pub fn format(self, v: f64) -> String {
         if v == f64::INFINITY {

@@ -192,8 +192,9 @@ pub struct MetricRow {
 /// A table of methods × metrics, like the paper's Table 1.
 ///
 /// The best value of each column is marked (bold, CSS class `best`) when at least two rows have
-/// a comparable value in that column; every row that attains the best value exactly is marked
-/// (ties are all marked). NaN never counts; +∞ PSNR (identical images) is a valid best.
+/// a comparable value in that column. Values are compared *as shown* (rounded to the table's
+/// decimals), so every row that shows the best value is marked (ties are all marked). NaN
+/// never counts; +∞ PSNR (identical images) is a valid best.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MetricTable {
     /// Caption.
@@ -232,7 +233,13 @@ impl MetricTable {
             let col: Vec<Option<f64>> = self
                 .rows
                 .iter()
-                .map(|r| r.values.get(c).copied().flatten())
+                .map(|r| {
+                    r.values
+                        .get(c)
+                        .copied()
+                        .flatten()
+                        .map(|v| key.round_shown(v))
+                })
                 .collect();
             for (r, m) in best_marks(&col, key.higher_is_better())
                 .into_iter()
@@ -408,6 +415,36 @@ mod tests {
         assert!(
             md.contains("| Dual (step 300) | 18.37 | **0.630** | 0.631 | 0.184 |"),
             "{md}"
+        );
+    }
+
+    #[test]
+    fn ties_at_the_shown_precision_are_all_marked() {
+        let t = MetricTable {
+            caption: String::new(),
+            columns: vec![MetricKey::Ssim, MetricKey::Psnr],
+            rows: vec![
+                MetricRow {
+                    label: "a".into(),
+                    detail: String::new(),
+                    values: vec![Some(0.0381), Some(6.381)],
+                },
+                MetricRow {
+                    label: "b".into(),
+                    detail: String::new(),
+                    values: vec![Some(0.0379), Some(6.389)],
+                },
+                MetricRow {
+                    label: "c".into(),
+                    detail: String::new(),
+                    values: vec![Some(0.0374), None],
+                },
+            ],
+        };
+        // SSIM 0.038 / 0.038 / 0.037: a and b tie as shown; PSNR 6.38 vs 6.39: b alone.
+        assert_eq!(
+            t.marks(),
+            vec![vec![true, false], vec![true, true], vec![false, false]]
         );
     }
 
