@@ -208,6 +208,7 @@ impl ChunkState {
 }
 
 #[inline]
+#[allow(clippy::manual_clamp)] // clamp() would keep NaN; max/min map it to a bound
 fn trunc_exp(x: f32) -> f32 {
     // `max`/`min` map NaN to the bound (f32::max returns the non-NaN operand): a NaN
     // pre-activation becomes an (almost) empty sample instead of poisoning the ray.
