@@ -345,13 +345,37 @@ pub fn load_plan(registry: &Registry, store: &Store, file: &Path, sets: &[String
             points[p].instances.push(idx);
         }
     }
-    Ok(Plan {
-        file: file.to_path_buf(),
-        id: pipeline_id(file),
-        comps: b.comps,
-        instances,
-        points,
-    })
+    // List instances by dependency depth, then file order, so tables read top-down.
+    let mut depth = vec![0usize; b.comps.len()];
+    for c in 0..b.comps.len() {
+        for slot in &b.comps[c].inputs {
+            for (src, _) in &slot.sources {
+                if let Source::Node { comp, .. } = src {
+                    depth[c] = depth[c].max(depth[*comp] + 1);
+                }
+            }
+        }
+    }
+    let mut perm: Vec<usize> = (0..instances.len()).collect();
+    perm.sort_by_key(|&i| (depth[instances[i].comp], i));
+    let mut new_index = vec![0; instances.len()];
+    for (new, &old) in perm.iter().enumerate() {
+        new_index[old] = new;
+    }
+    let mut comps = b.comps;
+    for c in &mut comps {
+        for i in &mut c.instances {
+            *i = new_index[*i];
+        }
+        c.instances.sort_unstable();
+    }
+    for p in &mut points {
+        for i in &mut p.instances {
+            *i = new_index[*i];
+        }
+    }
+    let instances = perm.into_iter().map(|i| instances[i].clone()).collect();
+    Ok(Plan { file: file.to_path_buf(), id: pipeline_id(file), comps, instances, points })
 }
 
 struct Builder<'a> {
