@@ -32,7 +32,7 @@ fn main() {
     let t0 = Instant::now();
     let mut times = Vec::new();
     let mut on_step = |r: train::StepReport<'_>| {
-        if r.step % every == 0 || r.step == steps {
+        if r.step.is_multiple_of(every) || r.step == steps {
             times.push((r.step, t0.elapsed().as_secs_f64()));
         }
     };
