@@ -96,7 +96,18 @@ fn relative(arg: &str, value: &str) -> Result<PathBuf, String> {
     Ok(p.to_path_buf())
 }
 
-/// Reads a source folder into a raw scene according to `args`.
+/// `path` relative to the source folder, for descriptions that must not depend on where the
+/// source lives (the scene's bytes must be the same for the same source content).
+fn rel(source: &Path, path: &Path) -> String {
+    match path.strip_prefix(source) {
+        Ok(r) if r.as_os_str().is_empty() => ".".into(),
+        Ok(r) => r.display().to_string(),
+        Err(_) => path.display().to_string(),
+    }
+}
+
+/// Reads a source folder into a raw scene according to `args`. The scene's `source` text
+/// names the format and the model/images paths relative to the source folder.
 pub fn read_source(source: &Path, args: &ImportSceneArgs) -> Result<RawScene, SceneError> {
     if !source.is_dir() {
         return Err(SceneError::missing(source, "source folder"));
@@ -148,18 +159,28 @@ pub fn read_source(source: &Path, args: &ImportSceneArgs) -> Result<RawScene, Sc
                     .ok_or_else(|| SceneError::missing(&source.join("sparse/0"), "COLMAP model"))?,
             };
             let images = images.unwrap_or_else(|| source.join("images"));
-            load_colmap(&model_dir, &images)
+            let mut raw = load_colmap(&model_dir, &images)?;
+            raw.source = format!(
+                "COLMAP model {} with images {}",
+                rel(source, &model_dir),
+                rel(source, &images)
+            );
+            Ok(raw)
         }
         SourceFormat::Transforms => {
             let file = model.unwrap_or_else(|| source.join("transforms.json"));
-            load_transforms(&file)
+            let mut raw = load_transforms(&file)?;
+            raw.source = format!("transforms.json {}", rel(source, &file));
+            Ok(raw)
         }
         SourceFormat::Llff => {
             let images = images.unwrap_or_else(|| match args.llff_factor {
                 0 | 1 => source.join("images"),
                 f => source.join(format!("images_{f}")),
             });
-            load_llff(source, &images)
+            let mut raw = load_llff(source, &images)?;
+            raw.source = format!("LLFF poses_bounds.npy with images {}", rel(source, &images));
+            Ok(raw)
         }
         SourceFormat::Auto => unreachable!("resolved above"),
     }
@@ -170,7 +191,7 @@ pub struct ImportScene;
 
 impl Node for ImportScene {
     const KIND: &'static str = "ImportScene";
-    const VERSION: u32 = 1;
+    const VERSION: u32 = 2;
     type Args = ImportSceneArgs;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {

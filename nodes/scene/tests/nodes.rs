@@ -253,6 +253,13 @@ fn import_is_identical_for_one_and_two_threads() {
     run_node::<ImportScene>(&ImportSceneArgs::default(), &[("source", &src)], &a, 1).unwrap();
     run_node::<ImportScene>(&ImportSceneArgs::default(), &[("source", &src)], &b, 2).unwrap();
     assert_eq!(tree(&a.join("scene")), tree(&b.join("scene")));
+    // The same source content at another path gives the same bytes (no absolute paths).
+    let moved = tmp.path().join("elsewhere/source");
+    std::fs::create_dir_all(moved.parent().unwrap()).unwrap();
+    std::fs::rename(&src, &moved).unwrap();
+    let c = tmp.path().join("c");
+    run_node::<ImportScene>(&ImportSceneArgs::default(), &[("source", &moved)], &c, 2).unwrap();
+    assert_eq!(tree(&a.join("scene")), tree(&c.join("scene")));
 }
 
 /// A valid COLMAP text source exported from a generated scene, for corrupting.
