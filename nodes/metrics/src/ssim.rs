@@ -183,10 +183,10 @@ fn filter_row(p: &[f32], out: &mut [f32], g: &[f32; WINDOW]) {
     for (o, &c) in out.iter_mut().zip(&p[PAD..PAD + w]) {
         *o = g[PAD] * c;
     }
-    for k in 0..PAD {
+    for (k, &gk) in g.iter().enumerate().take(PAD) {
         let (l, r) = (&p[k..k + w], &p[WINDOW - 1 - k..WINDOW - 1 - k + w]);
         for ((o, &a), &b) in out.iter_mut().zip(l).zip(r) {
-            *o += g[k] * (a + b);
+            *o += gk * (a + b);
         }
     }
 }
@@ -252,9 +252,9 @@ fn chunk_sum_generic(
             for (d, &c) in dst.iter_mut().zip(row(PAD)) {
                 *d = g[PAD] * c;
             }
-            for k in 0..PAD {
+            for (k, &gk) in g.iter().enumerate().take(PAD) {
                 for ((d, &a), &b) in dst.iter_mut().zip(row(k)).zip(row(WINDOW - 1 - k)) {
-                    *d += g[k] * (a + b);
+                    *d += gk * (a + b);
                 }
             }
         }

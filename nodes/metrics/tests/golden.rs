@@ -85,3 +85,11 @@ fn lpips_alex_matches_golden() {
 fn lpips_vgg_matches_golden_small_images() {
     lpips_golden("vgg", 64 * 64);
 }
+
+/// VGG on the 504×378 pairs costs several seconds per pair: run by hand with
+/// `cargo test -p augsplat-metrics --release --test golden -- --ignored`.
+#[test]
+#[ignore]
+fn lpips_vgg_matches_golden_full_size() {
+    lpips_golden("vgg", usize::MAX);
+}
