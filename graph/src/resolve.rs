@@ -375,7 +375,13 @@ pub fn load_plan(registry: &Registry, store: &Store, file: &Path, sets: &[String
         }
     }
     let instances = perm.into_iter().map(|i| instances[i].clone()).collect();
-    Ok(Plan { file: file.to_path_buf(), id: pipeline_id(file), comps, instances, points })
+    Ok(Plan {
+        file: file.to_path_buf(),
+        id: pipeline_id(file),
+        comps,
+        instances,
+        points,
+    })
 }
 
 struct Builder<'a> {
@@ -643,10 +649,12 @@ impl Builder<'_> {
                     }
                 };
                 if let Err(msg) = node.validate(&typed) {
-                    errors.push(Diagnostic::at(
-                        &a.origin,
-                        format!("invalid args for node `{name}` ({kind_name}): {msg}"),
-                    ));
+                    let mut d = Diagnostic::at(&a.origin, format!("invalid args for node `{name}` ({kind_name}): {msg}"));
+                    let overrides = overrides_in(&a);
+                    if !overrides.is_empty() {
+                        d = d.hint(format!("values here come from {}", overrides.join(", ")));
+                    }
+                    errors.push(d);
                     break;
                 }
                 let inst_name = if repeat.is_some() { format!("{name}[{i}]") } else { name.clone() };
@@ -992,6 +1000,27 @@ impl Builder<'_> {
         }
         Ok(out)
     }
+}
+
+/// The `--set` / sweep / engine origins of values inside `v` (for messages about whole args).
+fn overrides_in(v: &Value) -> Vec<String> {
+    fn walk(v: &Value, out: &mut Vec<String>) {
+        if !matches!(v.origin, Origin::File { .. }) {
+            let s = v.origin.to_string();
+            if !out.contains(&s) {
+                out.push(s);
+            }
+        }
+        match &v.kind {
+            ValueKind::List(items) | ValueKind::Tuple(_, items) => items.iter().for_each(|i| walk(i, out)),
+            ValueKind::Map(e) => e.iter().for_each(|(_, x)| walk(x, out)),
+            ValueKind::Struct(_, f) => f.iter().for_each(|(_, x)| walk(x, out)),
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    walk(v, &mut out);
+    out
 }
 
 fn doc_nodes_mut(doc: &mut Value) -> Option<&mut ValueKind> {

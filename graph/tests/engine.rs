@@ -356,6 +356,12 @@ fn errors_have_locations_and_hints_and_run_nothing() {
         "(nodes: {\n  \"a\": (kind: \"Fail\", args: (fail: true, panic: true)),\n})",
     );
     assert!(e.contains(&at("validate.ron", 2, 29)) && e.contains("cannot both"), "{e}");
+    let f = env.write("v2.ron", "(nodes: {\"a\": (kind: \"Fail\", args: (fail: true))})");
+    let e = env.engine.load(&f, &["a.panic=true".into()]).err().unwrap().to_string();
+    assert!(
+        e.contains("cannot both") && e.contains("values here come from --set a.panic=true"),
+        "{e}"
+    );
     let e = load_err(&env, "top.ron", "(nodez: {})");
     assert!(e.contains(&at("top.ron", 1, 9)) && e.contains("unknown pipeline field"), "{e}");
     let e = load_err(&env, "param.ron", "(nodes: {\"a\": (kind: \"Seeded\", repeat: Param(\"n\"))})");
