@@ -870,7 +870,8 @@ pub struct EvalError {
 }
 
 /// Renders every view (colour clamped to [0, 1], as gsplat's evaluation) and averages PSNR,
-/// SSIM, MSE (and LPIPS) over views with `augsplat-metrics`.
+/// SSIM, MSE (and LPIPS) over views with `augsplat-metrics`. A view rendered exactly counts
+/// as 100 dB (instead of +∞) so the mean stays finite.
 pub fn evaluate(
     g: &Gaussians,
     views: &[RealView],
