@@ -45,7 +45,7 @@ fn main() {
             .find(|(s, _)| *s as u64 == p.step)
             .map(|x| x.1)
             .unwrap_or(0.0);
-        println!("step {:5}: held-out PSNR {:.2} dB, train loss {:.5}, {:.1} s (training only, before this evaluation)", p.step, p.psnr, p.loss, t);
+        println!("step {:5}: held-out PSNR {:.2} dB, train loss {:.5}, {:.1} s wall since start (earlier evaluations included)", p.step, p.psnr, p.loss, t);
     }
     println!(
         "total {:.1} s including evaluations",
