@@ -717,6 +717,7 @@ impl Builder<'_> {
                     ValueKind::List(items) => items.iter().collect(),
                     _ => vec![v],
                 };
+                let errors_before = errors.len();
                 let mut sources = Vec::new();
                 for item in items {
                     match self.resolve_ref(l, item, decl, &by_node, &locals, &all_names) {
@@ -729,6 +730,12 @@ impl Builder<'_> {
                         &v.origin,
                         format!("input `{iname}` of `{}` takes one reference, found {}", l.name, sources.len()),
                     ));
+                }
+                if decl.many && sources.is_empty() && errors.len() == errors_before {
+                    errors.push(
+                        Diagnostic::at(&v.origin, format!("list input `{iname}` of `{}` gets no folder", l.name))
+                            .hint("a list input needs at least one reference (is a `repeat` 0?)"),
+                    );
                 }
                 slots.push((iname.to_string(), sources));
             }

@@ -362,6 +362,12 @@ fn errors_have_locations_and_hints_and_run_nothing() {
         e.contains("cannot both") && e.contains("values here come from --set a.panic=true"),
         "{e}"
     );
+    let e = load_err(
+        &env,
+        "empty.ron",
+        "(nodes: {\"s\": (kind: \"Seeded\", repeat: 0), \"c\": (kind: \"Concat\", inputs: {\"items\": \"s[*]\"})})",
+    );
+    assert!(e.contains("gets no folder"), "{e}");
     let e = load_err(&env, "top.ron", "(nodez: {})");
     assert!(e.contains(&at("top.ron", 1, 9)) && e.contains("unknown pipeline field"), "{e}");
     let e = load_err(&env, "param.ron", "(nodes: {\"a\": (kind: \"Seeded\", repeat: Param(\"n\"))})");
