@@ -48,17 +48,29 @@ impl Node for Grayscale {
     }
     fn validate(args: &GrayscaleArgs) -> Result<(), String> {
         if !(0.0..=1.0).contains(&args.strength) {
-            return Err(format!("strength must lie in [0, 1], got {}", args.strength));
+            return Err(format!(
+                "strength must lie in [0, 1], got {}",
+                args.strength
+            ));
         }
         Ok(())
     }
     fn run(args: &GrayscaleArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
-        let (src, dst) = (ctx.input("images")?.to_path_buf(), ctx.output("images")?.to_path_buf());
-        let mut names: Vec<_> = std::fs::read_dir(&src)?.filter_map(|e| e.ok().map(|e| e.file_name())).collect();
+        let (src, dst) = (
+            ctx.input("images")?.to_path_buf(),
+            ctx.output("images")?.to_path_buf(),
+        );
+        let mut names: Vec<_> = std::fs::read_dir(&src)?
+            .filter_map(|e| e.ok().map(|e| e.file_name()))
+            .collect();
         names.sort(); // deterministic order
-        let pngs: Vec<_> = names.into_iter().filter(|n| n.to_string_lossy().ends_with(".png")).collect();
+        let pngs: Vec<_> = names
+            .into_iter()
+            .filter(|n| n.to_string_lossy().ends_with(".png"))
+            .collect();
         for (i, name) in pngs.iter().enumerate() {
-            let mut img = read_rgb(&src.join(name)).map_err(|e| NodeError::from(e).context(src.join(name).display()))?;
+            let mut img = read_rgb(&src.join(name))
+                .map_err(|e| NodeError::from(e).context(src.join(name).display()))?;
             for px in img.data.chunks_exact_mut(3) {
                 let y = 0.2126 * px[0] + 0.7152 * px[1] + 0.0722 * px[2];
                 for c in px.iter_mut() {

@@ -28,7 +28,9 @@ impl Env {
     }
     fn cmd(&self, args: &[&str]) -> Command {
         let mut c = Command::new(BIN);
-        c.args(args).current_dir(self.dir.path()).env("AUGSPLAT_CACHE", self.path("cache"));
+        c.args(args)
+            .current_dir(self.dir.path())
+            .env("AUGSPLAT_CACHE", self.path("cache"));
         c
     }
     fn run(&self, args: &[&str]) -> Output {
@@ -46,7 +48,11 @@ impl Env {
     }
     fn actions(&self) -> usize {
         let mut n = 0;
-        for sub in std::fs::read_dir(self.path("cache/actions")).into_iter().flatten().flatten() {
+        for sub in std::fs::read_dir(self.path("cache/actions"))
+            .into_iter()
+            .flatten()
+            .flatten()
+        {
             n += std::fs::read_dir(sub.path()).into_iter().flatten().count();
         }
         n
@@ -54,7 +60,11 @@ impl Env {
 }
 
 fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
 }
 
 /// A three-node chain whose middle node sleeps (only on its first attempt when `once`).
@@ -83,19 +93,29 @@ fn chain(env: &Env, sleep: &str) -> PathBuf {
 fn wait_for(env: &Env, line: &str, limit: Duration) {
     let t = Instant::now();
     while !env.log().iter().any(|l| l == line) {
-        assert!(t.elapsed() < limit, "timed out waiting for `{line}` in the log");
+        assert!(
+            t.elapsed() < limit,
+            "timed out waiting for `{line}` in the log"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
 }
 
 fn read_output(env: &Env, summary: &Path, node: &str) -> String {
     let s: serde_json::Value = serde_json::from_slice(&std::fs::read(summary).unwrap()).unwrap();
-    let key = s["nodes"].as_array().unwrap().iter().find(|n| n["name"] == node).unwrap()["key"]
+    let key = s["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["name"] == node)
+        .unwrap()["key"]
         .as_str()
         .unwrap()
         .to_string();
-    let entry: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(env.path(&format!("cache/actions/{}/{key}.json", &key[..2]))).unwrap()).unwrap();
+    let entry: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(env.path(&format!("cache/actions/{}/{key}.json", &key[..2]))).unwrap(),
+    )
+    .unwrap();
     let m = entry["outputs"]["out"].as_str().unwrap();
     std::fs::read_to_string(env.path(&format!("cache/outputs/{m}/x"))).unwrap()
 }
@@ -105,7 +125,13 @@ fn sigkill_in_the_middle_of_a_node_then_a_clean_rerun() {
     let env = Env::new();
     // The middle node sleeps only on its first attempt (marker file outside the key).
     let mark = env.path("mark");
-    let f = chain(&env, &format!("if [ ! -f {0} ]; then touch {0}; sleep 30; fi", mark.display()));
+    let f = chain(
+        &env,
+        &format!(
+            "if [ ! -f {0} ]; then touch {0}; sleep 30; fi",
+            mark.display()
+        ),
+    );
     let mut child = env
         .cmd(&["run", f.to_str().unwrap(), "-q"])
         .stdout(Stdio::null())
@@ -116,13 +142,25 @@ fn sigkill_in_the_middle_of_a_node_then_a_clean_rerun() {
     std::thread::sleep(Duration::from_millis(200));
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
-    assert_eq!(env.actions(), 1, "only the finished node `a` may have an entry");
+    assert_eq!(
+        env.actions(),
+        1,
+        "only the finished node `a` may have an entry"
+    );
     // Scratch of the killed node exists but is not a result.
     let out = env.run(&["plan", f.to_str().unwrap()]);
     let t = text(&out);
-    assert!(t.contains("a     Command  cached") && t.contains("slow  Command  will run"), "{t}");
+    assert!(
+        t.contains("a     Command  cached") && t.contains("slow  Command  will run"),
+        "{t}"
+    );
     let summary = env.path("s.json");
-    let out = env.run(&["run", f.to_str().unwrap(), "--summary-json", summary.to_str().unwrap()]);
+    let out = env.run(&[
+        "run",
+        f.to_str().unwrap(),
+        "--summary-json",
+        summary.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "{}", text(&out));
     assert_eq!(
         env.log(),
@@ -146,13 +184,23 @@ fn two_concurrent_runs_compute_each_node_once() {
     let s1 = env.path("s1.json");
     let s2 = env.path("s2.json");
     let c1 = env
-        .cmd(&["run", f.to_str().unwrap(), "--summary-json", s1.to_str().unwrap()])
+        .cmd(&[
+            "run",
+            f.to_str().unwrap(),
+            "--summary-json",
+            s1.to_str().unwrap(),
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     let c2 = env
-        .cmd(&["run", f.to_str().unwrap(), "--summary-json", s2.to_str().unwrap()])
+        .cmd(&[
+            "run",
+            f.to_str().unwrap(),
+            "--summary-json",
+            s2.to_str().unwrap(),
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -184,10 +232,20 @@ fn summary_json_and_table() {
     let env = Env::new();
     let f = chain(&env, "true");
     let s = env.path("s.json");
-    let out = env.run(&["run", f.to_str().unwrap(), "--summary-json", s.to_str().unwrap(), "-j", "2"]);
+    let out = env.run(&[
+        "run",
+        f.to_str().unwrap(),
+        "--summary-json",
+        s.to_str().unwrap(),
+        "-j",
+        "2",
+    ]);
     assert!(out.status.success(), "{}", text(&out));
     let t = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(t.contains("node") && t.contains("slow  Command  ran"), "{t}");
+    assert!(
+        t.contains("node") && t.contains("slow  Command  ran"),
+        "{t}"
+    );
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&s).unwrap()).unwrap();
     let nodes = v["nodes"].as_array().unwrap();
     assert_eq!(nodes.len(), 3);
@@ -198,10 +256,19 @@ fn summary_json_and_table() {
         assert_eq!(n["key"].as_str().unwrap().len(), 64);
         assert!(n["seconds"].as_f64().unwrap() >= 0.0);
     }
-    let out = env.run(&["run", f.to_str().unwrap(), "--summary-json", s.to_str().unwrap()]);
+    let out = env.run(&[
+        "run",
+        f.to_str().unwrap(),
+        "--summary-json",
+        s.to_str().unwrap(),
+    ]);
     assert!(out.status.success());
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&s).unwrap()).unwrap();
-    assert!(v["nodes"].as_array().unwrap().iter().all(|n| n["status"] == "cached"));
+    assert!(v["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|n| n["status"] == "cached"));
 }
 
 #[test]
@@ -229,11 +296,21 @@ fn pipeline_errors_exit_nonzero_with_location_and_run_nothing() {
             t.contains(&format!("{name}{loc}")) || (loc.ends_with(':') && t.contains(loc)),
             "{name}: expected {loc} in {t}"
         );
-        assert!(t.contains(what) && t.contains("hint") || name == "type.ron", "{name}: {t}");
+        assert!(
+            t.contains(what) && t.contains("hint") || name == "type.ron",
+            "{name}: {t}"
+        );
     }
-    let f = env.write("ok.ron", "(nodes: {\"a\": (kind: \"Command\", args: (program: \"true\"))})");
+    let f = env.write(
+        "ok.ron",
+        "(nodes: {\"a\": (kind: \"Command\", args: (program: \"true\"))})",
+    );
     let out = env.run(&["run", f.to_str().unwrap(), "--set", "a.program=("]);
-    assert!(!out.status.success() && text(&out).contains("--set a.program=("), "{}", text(&out));
+    assert!(
+        !out.status.success() && text(&out).contains("--set a.program=("),
+        "{}",
+        text(&out)
+    );
     assert_eq!(env.actions(), 0, "nothing ran");
 }
 
@@ -280,7 +357,10 @@ fn plan_why_expand_gc_commands() {
     );
     let fs = f.to_str().unwrap();
     let t = text(&env.run(&["expand", fs]));
-    assert!(t.contains("// sweep point version=1") && t.contains("gen[1]"), "{t}");
+    assert!(
+        t.contains("// sweep point version=1") && t.contains("gen[1]"),
+        "{t}"
+    );
     let t = text(&env.run(&["plan", fs]));
     assert!(
         t.contains("version=1: 3 new, 0 cached") && t.contains("version=2: 3 new, 0 cached"),
@@ -289,7 +369,10 @@ fn plan_why_expand_gc_commands() {
     let out = env.run(&["run", fs]);
     assert!(out.status.success(), "{}", text(&out));
     let t = text(&env.run(&["plan", fs, "--set", "params.n=3"]));
-    assert!(t.contains("gen[2]") && t.contains("version=1: 2 new, 2 cached"), "{t}");
+    assert!(
+        t.contains("gen[2]") && t.contains("version=1: 2 new, 2 cached"),
+        "{t}"
+    );
     let t = text(&env.run(&["why", fs, "all@version=2", "--set", "params.n=3"]));
     assert!(t.contains("input `m` now comes from"), "{t}");
     let out = env.run(&["why", fs, "nope"]);

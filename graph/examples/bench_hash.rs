@@ -10,7 +10,10 @@ use std::io::Read;
 use std::time::Instant;
 
 fn main() {
-    let mib: u64 = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(1024);
+    let mib: u64 = std::env::args()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1024);
     let dir = std::env::args()
         .nth(2)
         .map(std::path::PathBuf::from)
@@ -59,7 +62,8 @@ fn main() {
     });
     let (t_one, h1) = best(&|| {
         let mut h = blake3::Hasher::new();
-        h.update_reader(std::fs::File::open(&path).expect("open")).expect("hash");
+        h.update_reader(std::fs::File::open(&path).expect("open"))
+            .expect("hash");
         h.finalize().to_hex().to_string()
     });
     let (t_mmap1, h2) = best(&|| {
@@ -76,7 +80,11 @@ fn main() {
         t_read,
         gib_s(t_read)
     );
-    println!("blake3, read + hash, 1 thread:           {:.3} s  {:.2} GiB/s", t_one, gib_s(t_one));
+    println!(
+        "blake3, read + hash, 1 thread:           {:.3} s  {:.2} GiB/s",
+        t_one,
+        gib_s(t_one)
+    );
     println!(
         "blake3, mmap, 1 thread:                  {:.3} s  {:.2} GiB/s",
         t_mmap1,
@@ -90,7 +98,10 @@ fn main() {
     match std::process::Command::new("b3sum").arg(&path).output() {
         Ok(o) if o.status.success() => {
             let t = Instant::now();
-            let o = std::process::Command::new("b3sum").arg(&path).output().expect("b3sum");
+            let o = std::process::Command::new("b3sum")
+                .arg(&path)
+                .output()
+                .expect("b3sum");
             let secs = t.elapsed().as_secs_f64();
             let same = String::from_utf8_lossy(&o.stdout).starts_with(&h3);
             println!(

@@ -5,7 +5,9 @@
 //! cargo run --release -p augsplat-graph --example bench_plan [-- NODES]
 //! ```
 
-use augsplat_graph::{exec::plan_keys, Engine, InputDecl, Node, NodeError, Registry, RunContext, RunOptions};
+use augsplat_graph::{
+    exec::plan_keys, Engine, InputDecl, Node, NodeError, Registry, RunContext, RunOptions,
+};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -35,13 +37,19 @@ impl Node for Step {
             Some(p) => std::fs::read_to_string(p.join("v"))?,
             None => String::new(),
         };
-        std::fs::write(ctx.output("out")?.join("v"), format!("{}{}:{}", prev.len(), args.index, args.scale))?;
+        std::fs::write(
+            ctx.output("out")?.join("v"),
+            format!("{}{}:{}", prev.len(), args.index, args.scale),
+        )?;
         Ok(())
     }
 }
 
 fn main() {
-    let n: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(1000);
+    let n: usize = std::env::args()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1000);
     let dir = tempfile::tempdir().expect("tempdir");
     let mut text = String::from("(\n  nodes: {\n");
     for i in 0..n {
@@ -66,13 +74,19 @@ fn main() {
     let plan = engine.load(&file, &[]).expect("load");
     let report = engine.run(&plan, &RunOptions::default()).expect("run");
     assert!(report.success());
-    println!("first run of {n} nodes (all ran): {:.3} s", t.elapsed().as_secs_f64());
+    println!(
+        "first run of {n} nodes (all ran): {:.3} s",
+        t.elapsed().as_secs_f64()
+    );
     let mut times = Vec::new();
     for _ in 0..10 {
         let t = Instant::now();
         let plan = engine.load(&file, &[]).expect("load");
         let keys = plan_keys(&plan, engine.store()).expect("keys");
-        assert!(keys.iter().all(|k| matches!(k, Some((_, Some(_))))), "everything must be cached");
+        assert!(
+            keys.iter().all(|k| matches!(k, Some((_, Some(_))))),
+            "everything must be cached"
+        );
         times.push(t.elapsed().as_secs_f64() * 1e3);
     }
     times.sort_by(f64::total_cmp);
@@ -86,6 +100,13 @@ fn main() {
     let t = Instant::now();
     let plan = engine.load(&file, &[]).expect("load");
     let report = engine.run(&plan, &RunOptions::default()).expect("run");
-    assert!(report.results.iter().flatten().all(|r| r.status == augsplat_graph::Status::Cached));
-    println!("full cached `run` (plan, keys, records): {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
+    assert!(report
+        .results
+        .iter()
+        .flatten()
+        .all(|r| r.status == augsplat_graph::Status::Cached));
+    println!(
+        "full cached `run` (plan, keys, records): {:.1} ms",
+        t.elapsed().as_secs_f64() * 1e3
+    );
 }

@@ -104,10 +104,17 @@ impl Node for Command {
         if args.program.is_empty() {
             return Err("`program` is empty".into());
         }
-        let ins: Vec<&String> = args.inputs.iter().chain(&args.list_inputs).chain(&args.optional_inputs).collect();
+        let ins: Vec<&String> = args
+            .inputs
+            .iter()
+            .chain(&args.list_inputs)
+            .chain(&args.optional_inputs)
+            .collect();
         for (i, n) in ins.iter().enumerate() {
             if !valid_name(n) {
-                return Err(format!("input name `{n}` may only hold ASCII letters, digits and `_`"));
+                return Err(format!(
+                    "input name `{n}` may only hold ASCII letters, digits and `_`"
+                ));
             }
             if ins[..i].contains(n) {
                 return Err(format!("input `{n}` is declared twice"));
@@ -141,15 +148,25 @@ impl Node for Command {
     fn run(args: &CommandArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
         let mut vars: Vec<(String, Vec<String>)> = Vec::new();
         for n in args.inputs.iter().chain(&args.list_inputs) {
-            let v = ctx.input_list(n)?.iter().map(|p| p.display().to_string()).collect();
+            let v = ctx
+                .input_list(n)?
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect();
             vars.push((format!("in:{n}"), v));
         }
         for n in &args.optional_inputs {
-            let v = ctx.optional_input(n).map(|p| vec![p.display().to_string()]).unwrap_or_default();
+            let v = ctx
+                .optional_input(n)
+                .map(|p| vec![p.display().to_string()])
+                .unwrap_or_default();
             vars.push((format!("in:{n}"), v));
         }
         for n in &args.outputs {
-            vars.push((format!("out:{n}"), vec![ctx.output(n)?.display().to_string()]));
+            vars.push((
+                format!("out:{n}"),
+                vec![ctx.output(n)?.display().to_string()],
+            ));
         }
         vars.push(("scratch".into(), vec![ctx.scratch().display().to_string()]));
         vars.push(("seed".into(), vec![ctx.seed().to_string()]));
@@ -198,9 +215,12 @@ impl Node for Command {
             }
         }
         ctx.log(format!("$ {} {}", args.program, argv.join(" ")));
-        let mut child = cmd
-            .spawn()
-            .map_err(|e| NodeError::new(format!("cannot start `{}`: {e} (is it on PATH?)", args.program)))?;
+        let mut child = cmd.spawn().map_err(|e| {
+            NodeError::new(format!(
+                "cannot start `{}`: {e} (is it on PATH?)",
+                args.program
+            ))
+        })?;
         let stdout = child.stdout.take().expect("piped");
         let stderr = child.stderr.take().expect("piped");
         let (tx, rx) = std::sync::mpsc::channel::<String>();
@@ -224,7 +244,10 @@ impl Node for Command {
             .wait()
             .map_err(|e| NodeError::new(format!("waiting for `{}`: {e}", args.program)))?;
         if !status.success() {
-            return Err(NodeError::new(format!("`{}` exited with {status}", args.program)));
+            return Err(NodeError::new(format!(
+                "`{}` exited with {status}",
+                args.program
+            )));
         }
         Ok(())
     }

@@ -80,7 +80,13 @@ pub fn expand_text(plan: &Plan) -> String {
         for &i in &p.instances {
             let inst = &plan.instances[i];
             let comp = &plan.comps[inst.comp];
-            let _ = writeln!(s, "//   {} ({}) args {}", inst.name, comp.node.kind(), comp.args_json);
+            let _ = writeln!(
+                s,
+                "//   {} ({}) args {}",
+                inst.name,
+                comp.node.kind(),
+                comp.args_json
+            );
         }
         s.push('\n');
     }

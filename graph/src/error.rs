@@ -138,7 +138,10 @@ pub enum EngineError {
 }
 
 /// Builds an [`EngineError::Io`] mapper: `.map_err(io("reading", &path))`.
-pub fn io<'a>(what: &'static str, path: &'a std::path::Path) -> impl FnOnce(std::io::Error) -> EngineError + 'a {
+pub fn io<'a>(
+    what: &'static str,
+    path: &'a std::path::Path,
+) -> impl FnOnce(std::io::Error) -> EngineError + 'a {
     move |source| EngineError::Io {
         what,
         path: path.to_path_buf(),

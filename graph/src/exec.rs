@@ -6,7 +6,9 @@
 use crate::error::EngineError;
 use crate::node::{ProgressSink, RunContext, Threads};
 use crate::resolve::{compute_key, Plan, Source};
-use crate::store::{hex, hostname, now_unix, remove_tree, unhex, ActionEntry, Hash, Store, STORE_FORMAT};
+use crate::store::{
+    hex, hostname, now_unix, remove_tree, unhex, ActionEntry, Hash, Store, STORE_FORMAT,
+};
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::collections::{BTreeMap, VecDeque};
 use std::path::PathBuf;
@@ -27,7 +29,9 @@ pub struct RunOptions {
 impl Default for RunOptions {
     fn default() -> Self {
         RunOptions {
-            jobs: std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+            jobs: std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1),
             targets: Vec::new(),
             progress: false,
         }
@@ -96,13 +100,21 @@ impl RunReport {
             .iter()
             .enumerate()
             .filter_map(|(c, r)| match r.as_ref().map(|r| &r.status) {
-                Some(Status::Failed(m)) => Some((plan.comps[c].display_name(plan).to_string(), m.clone())),
+                Some(Status::Failed(m)) => {
+                    Some((plan.comps[c].display_name(plan).to_string(), m.clone()))
+                }
                 _ => None,
             })
             .collect()
     }
     /// The folder of output `output` of the instance named `instance`, if it ran or was cached.
-    pub fn output_dir(&self, plan: &Plan, store: &Store, instance: &str, output: &str) -> Option<PathBuf> {
+    pub fn output_dir(
+        &self,
+        plan: &Plan,
+        store: &Store,
+        instance: &str,
+        output: &str,
+    ) -> Option<PathBuf> {
         let inst = plan.instances.iter().find(|i| i.name == instance)?;
         let r = self.results[inst.comp].as_ref()?;
         r.outputs.get(output).map(|m| store.output_dir(m))
@@ -111,7 +123,9 @@ impl RunReport {
     pub fn summary_json(&self, plan: &Plan) -> serde_json::Value {
         let mut nodes = Vec::new();
         for inst in &plan.instances {
-            let Some(r) = &self.results[inst.comp] else { continue };
+            let Some(r) = &self.results[inst.comp] else {
+                continue;
+            };
             nodes.push(serde_json::json!({
                 "name": inst.name,
                 "kind": plan.comps[inst.comp].node.kind(),
@@ -124,9 +138,16 @@ impl RunReport {
     }
     /// A text table: node, kind, cached/ran, seconds.
     pub fn table(&self, plan: &Plan) -> String {
-        let mut rows = vec![("node".to_string(), "kind".to_string(), "status".to_string(), "seconds".to_string())];
+        let mut rows = vec![(
+            "node".to_string(),
+            "kind".to_string(),
+            "status".to_string(),
+            "seconds".to_string(),
+        )];
         for inst in &plan.instances {
-            let Some(r) = &self.results[inst.comp] else { continue };
+            let Some(r) = &self.results[inst.comp] else {
+                continue;
+            };
             let status = if r.waited && r.status == Status::Cached {
                 "cached (waited)".into()
             } else {
@@ -205,13 +226,15 @@ pub fn plan_keys(plan: &Plan, store: &Store) -> Result<PlannedKeys, EngineError>
                 match s {
                     Source::External { hash, .. } => v.push(*hash),
                     Source::Node { comp: up, output } => match &out[*up] {
-                        Some((_, Some(entry))) => match entry.outputs.get(output).and_then(|m| unhex(m)) {
-                            Some(m) => v.push(m),
-                            None => {
-                                known = false;
-                                break 'slots;
+                        Some((_, Some(entry))) => {
+                            match entry.outputs.get(output).and_then(|m| unhex(m)) {
+                                Some(m) => v.push(m),
+                                None => {
+                                    known = false;
+                                    break 'slots;
+                                }
                             }
-                        },
+                        }
                         _ => {
                             known = false;
                             break 'slots;
@@ -356,8 +379,15 @@ pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunRepor
                 running_need.insert(c, want);
                 let bar = if opts.progress {
                     let b = multi.add(ProgressBar::new_spinner());
-                    b.set_style(ProgressStyle::with_template("  {spinner} {prefix} [{elapsed}] {wide_msg}").expect("template"));
-                    b.set_prefix(format!("{} ({})", comp.display_name(plan), comp.node.kind()));
+                    b.set_style(
+                        ProgressStyle::with_template("  {spinner} {prefix} [{elapsed}] {wide_msg}")
+                            .expect("template"),
+                    );
+                    b.set_prefix(format!(
+                        "{} ({})",
+                        comp.display_name(plan),
+                        comp.node.kind()
+                    ));
                     b.enable_steady_tick(Duration::from_millis(200));
                     Some(b)
                 } else {
@@ -376,7 +406,9 @@ pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunRepor
             if running == 0 {
                 break;
             }
-            let Ok(Msg::Done(c, r)) = rx.recv() else { break };
+            let Ok(Msg::Done(c, r)) = rx.recv() else {
+                break;
+            };
             running -= 1;
             free += running_need.remove(&c).unwrap_or(0);
             overall.inc(1);
@@ -387,7 +419,15 @@ pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunRepor
                     m.lines().next().unwrap_or("")
                 ));
             }
-            finish(c, r, &mut results, &dependents, &mut waiting, &mut ready, &need);
+            finish(
+                c,
+                r,
+                &mut results,
+                &dependents,
+                &mut waiting,
+                &mut ready,
+                &need,
+            );
         }
         Ok(())
     })?;
@@ -417,9 +457,9 @@ fn outputs_of(entry: &ActionEntry) -> Result<BTreeMap<String, Hash>, EngineError
         .outputs
         .iter()
         .map(|(k, v)| {
-            unhex(v)
-                .map(|h| (k.clone(), h))
-                .ok_or_else(|| EngineError::Other(format!("action {} has a bad manifest hash", entry.key)))
+            unhex(v).map(|h| (k.clone(), h)).ok_or_else(|| {
+                EngineError::Other(format!("action {} has a bad manifest hash", entry.key))
+            })
         })
         .collect()
 }
@@ -523,7 +563,8 @@ fn run_in_scratch(
         outputs.push((o.clone(), p));
     }
     let work = scratch.join("work");
-    std::fs::create_dir_all(&work).map_err(|e| (format!("creating {}: {e}", work.display()), 0.0))?;
+    std::fs::create_dir_all(&work)
+        .map_err(|e| (format!("creating {}: {e}", work.display()), 0.0))?;
     let sink = Arc::new(NodeSink {
         lines: Mutex::new(Vec::new()),
         bar,
@@ -543,7 +584,11 @@ fn run_in_scratch(
         .build()
         .map_err(|e| (format!("building a thread pool: {e}"), 0.0))?;
     let t = Instant::now();
-    let res = pool.install(|| std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| comp.node.run(&comp.args, &mut ctx))));
+    let res = pool.install(|| {
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            comp.node.run(&comp.args, &mut ctx)
+        }))
+    });
     let secs = t.elapsed().as_secs_f64();
     let log_text = sink.lines.lock().map(|l| l.join("\n")).unwrap_or_default();
     let tail = |log: &str| -> String {
@@ -552,7 +597,10 @@ fn run_in_scratch(
         if lines.is_empty() {
             String::new()
         } else {
-            format!("\n  last lines of its log:\n    {}", lines[start..].join("\n    "))
+            format!(
+                "\n  last lines of its log:\n    {}",
+                lines[start..].join("\n    ")
+            )
         }
     };
     let err = match res {
@@ -567,9 +615,16 @@ fn run_in_scratch(
         )),
     };
     if let Some(m) = err {
-        let msg = format!("node `{name}` ({}) failed: {m}{}", comp.node.kind(), tail(&log_text));
+        let msg = format!(
+            "node `{name}` ({}) failed: {m}{}",
+            comp.node.kind(),
+            tail(&log_text)
+        );
         let _ = store.write_atomic(
-            &store.root().join("runs").join(format!("failed-{}.log", hex(&key))),
+            &store
+                .root()
+                .join("runs")
+                .join(format!("failed-{}.log", hex(&key))),
             format!("{msg}\n\n{log_text}\n").as_bytes(),
         );
         return Err((msg, secs));
@@ -578,7 +633,10 @@ fn run_in_scratch(
     for (o, p) in &outputs {
         if !p.is_dir() {
             return Err((
-                format!("node `{name}` ({}) removed its output folder `{o}`", comp.node.kind()),
+                format!(
+                    "node `{name}` ({}) removed its output folder `{o}`",
+                    comp.node.kind()
+                ),
                 secs,
             ));
         }
@@ -607,7 +665,9 @@ fn run_in_scratch(
         threads,
         log,
     };
-    store.write_action(&key, &entry).map_err(|e| (e.to_string(), secs))?;
+    store
+        .write_action(&key, &entry)
+        .map_err(|e| (e.to_string(), secs))?;
     Ok(CompResult {
         status: Status::Ran,
         key: Some(key),
@@ -624,7 +684,11 @@ pub fn flatten_args(v: &serde_json::Value) -> BTreeMap<String, serde_json::Value
         match v {
             serde_json::Value::Object(m) if !m.is_empty() => {
                 for (k, x) in m {
-                    let p = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+                    let p = if prefix.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{prefix}.{k}")
+                    };
                     walk(x, &p, out);
                 }
             }
@@ -643,8 +707,13 @@ pub fn arg_origin(plan: &Plan, c: usize, path: &str) -> String {
     let mut cur = &plan.comps[c].args_value;
     for seg in path.split('.').filter(|s| !s.is_empty()) {
         let next = match &cur.kind {
-            crate::syntax::ValueKind::Struct(_, f) => f.iter().find(|(n, _)| n == seg).map(|(_, v)| v),
-            crate::syntax::ValueKind::Map(e) => e.iter().find(|(k, _)| k.as_str() == Some(seg)).map(|(_, v)| v),
+            crate::syntax::ValueKind::Struct(_, f) => {
+                f.iter().find(|(n, _)| n == seg).map(|(_, v)| v)
+            }
+            crate::syntax::ValueKind::Map(e) => e
+                .iter()
+                .find(|(k, _)| k.as_str() == Some(seg))
+                .map(|(_, v)| v),
             _ => None,
         };
         match next {
@@ -662,10 +731,19 @@ pub fn arg_origin(plan: &Plan, c: usize, path: &str) -> String {
 }
 
 /// The per-instance record of a computation (kept in `runs/latest` for `why` and GC).
-pub fn instance_record(plan: &Plan, c: usize, key: &Hash, results: &[Option<CompResult>], status: &str) -> serde_json::Value {
+pub fn instance_record(
+    plan: &Plan,
+    c: usize,
+    key: &Hash,
+    results: &[Option<CompResult>],
+    status: &str,
+) -> serde_json::Value {
     let comp = &plan.comps[c];
     let flat = flatten_args(&comp.args_json);
-    let origins: BTreeMap<String, String> = flat.keys().map(|k| (k.clone(), arg_origin(plan, c, k))).collect();
+    let origins: BTreeMap<String, String> = flat
+        .keys()
+        .map(|k| (k.clone(), arg_origin(plan, c, k)))
+        .collect();
     let inputs: BTreeMap<String, Vec<serde_json::Value>> = comp
         .inputs
         .iter()
@@ -676,7 +754,10 @@ pub fn instance_record(plan: &Plan, c: usize, key: &Hash, results: &[Option<Comp
                 .map(|(s, shown)| {
                     let m = match s {
                         Source::External { hash, .. } => Some(hex(hash)),
-                        Source::Node { comp: up, output } => results[*up].as_ref().and_then(|r| r.outputs.get(output)).map(hex),
+                        Source::Node { comp: up, output } => results[*up]
+                            .as_ref()
+                            .and_then(|r| r.outputs.get(output))
+                            .map(hex),
                     };
                     serde_json::json!({ "from": shown, "manifest": m })
                 })
@@ -697,7 +778,9 @@ pub fn instance_record(plan: &Plan, c: usize, key: &Hash, results: &[Option<Comp
 }
 
 fn write_records(plan: &Plan, store: &Store, report: &RunReport) -> Result<(), EngineError> {
-    let mut latest = store.read_latest(&plan.id).unwrap_or_else(|| serde_json::json!({}));
+    let mut latest = store
+        .read_latest(&plan.id)
+        .unwrap_or_else(|| serde_json::json!({}));
     if !latest.get("instances").is_some_and(|v| v.is_object()) {
         latest = serde_json::json!({ "instances": {} });
     }
@@ -705,7 +788,9 @@ fn write_records(plan: &Plan, store: &Store, report: &RunReport) -> Result<(), E
     // Instances no longer in the pipeline stop being roots.
     insts.retain(|name, _| plan.instances.iter().any(|i| i.name == *name));
     for inst in &plan.instances {
-        let Some(r) = &report.results[inst.comp] else { continue };
+        let Some(r) = &report.results[inst.comp] else {
+            continue;
+        };
         // Only successful results replace the previous record: `why` compares against the
         // last good run, and GC keeps it.
         if let (Some(key), Status::Ran | Status::Cached) = (&r.key, &r.status) {

@@ -30,7 +30,11 @@ impl Expect {
 }
 
 /// Per computation, what will happen (`None` when not needed for the targets).
-pub fn expectations(plan: &Plan, store: &Store, targets: &[String]) -> Result<Vec<Option<Expect>>, EngineError> {
+pub fn expectations(
+    plan: &Plan,
+    store: &Store,
+    targets: &[String],
+) -> Result<Vec<Option<Expect>>, EngineError> {
     let need = plan.needed(targets)?;
     let keys = plan_keys(plan, store)?;
     Ok(keys
@@ -51,15 +55,41 @@ pub fn expectations(plan: &Plan, store: &Store, targets: &[String]) -> Result<Ve
 pub fn plan_text(plan: &Plan, store: &Store, targets: &[String]) -> Result<String, EngineError> {
     let ex = expectations(plan, store, targets)?;
     let mut s = String::new();
-    let w = plan.instances.iter().map(|i| i.name.chars().count()).max().unwrap_or(4).max(4);
-    let wk = plan.comps.iter().map(|c| c.node.kind().len()).max().unwrap_or(4).max(4);
+    let w = plan
+        .instances
+        .iter()
+        .map(|i| i.name.chars().count())
+        .max()
+        .unwrap_or(4)
+        .max(4);
+    let wk = plan
+        .comps
+        .iter()
+        .map(|c| c.node.kind().len())
+        .max()
+        .unwrap_or(4)
+        .max(4);
     let _ = writeln!(s, "{:w$}  {:wk$}  status", "node", "kind");
     for inst in &plan.instances {
         let Some(e) = &ex[inst.comp] else { continue };
-        let _ = writeln!(s, "{:w$}  {:wk$}  {}", inst.name, plan.comps[inst.comp].node.kind(), e.as_str());
+        let _ = writeln!(
+            s,
+            "{:w$}  {:wk$}  {}",
+            inst.name,
+            plan.comps[inst.comp].node.kind(),
+            e.as_str()
+        );
     }
-    let unique_new = ex.iter().flatten().filter(|e| **e != Expect::Cached).count();
-    let unique_cached = ex.iter().flatten().filter(|e| **e == Expect::Cached).count();
+    let unique_new = ex
+        .iter()
+        .flatten()
+        .filter(|e| **e != Expect::Cached)
+        .count();
+    let unique_cached = ex
+        .iter()
+        .flatten()
+        .filter(|e| **e == Expect::Cached)
+        .count();
     if plan.points.len() > 1 {
         let _ = writeln!(s, "\nsweep points ({}):", plan.points.len());
         for p in &plan.points {
@@ -69,8 +99,17 @@ pub fn plan_text(plan: &Plan, store: &Store, targets: &[String]) -> Result<Strin
                 .map(|&i| plan.instances[i].comp)
                 .filter(|&c| ex[c].is_some())
                 .collect();
-            let cached = comps.iter().filter(|&&c| ex[c] == Some(Expect::Cached)).count();
-            let _ = writeln!(s, "  {}: {} new, {} cached", p.label, comps.len() - cached, cached);
+            let cached = comps
+                .iter()
+                .filter(|&&c| ex[c] == Some(Expect::Cached))
+                .count();
+            let _ = writeln!(
+                s,
+                "  {}: {} new, {} cached",
+                p.label,
+                comps.len() - cached,
+                cached
+            );
         }
     }
     let _ = writeln!(
@@ -140,7 +179,9 @@ fn explain(
         );
         return;
     }
-    let prev = record.and_then(|r| r.get("instances")).and_then(|i| i.get(name));
+    let prev = record
+        .and_then(|r| r.get("instances"))
+        .and_then(|i| i.get(name));
     let Some(prev) = prev else {
         let _ = writeln!(
             out,
@@ -150,10 +191,19 @@ fn explain(
         );
         return;
     };
-    let _ = writeln!(out, "{pad}`{name}` ({}) will run because:", comp.node.kind());
+    let _ = writeln!(
+        out,
+        "{pad}`{name}` ({}) will run because:",
+        comp.node.kind()
+    );
     let before = out.len();
     if prev["kind"].as_str() != Some(comp.node.kind()) {
-        let _ = writeln!(out, "{pad}  kind changed: {} -> {}", show(&prev["kind"]), comp.node.kind());
+        let _ = writeln!(
+            out,
+            "{pad}  kind changed: {} -> {}",
+            show(&prev["kind"]),
+            comp.node.kind()
+        );
     } else if prev["version"].as_u64() != Some(comp.node.version() as u64) {
         let _ = writeln!(
             out,
@@ -174,9 +224,15 @@ fn explain(
     let new = flatten_args(&comp.args_json);
     let paths: BTreeSet<&String> = old.keys().chain(new.keys()).collect();
     for p in paths {
-        let (o, n) = (old.get(p).cloned().unwrap_or_default(), new.get(p).cloned().unwrap_or_default());
+        let (o, n) = (
+            old.get(p).cloned().unwrap_or_default(),
+            new.get(p).cloned().unwrap_or_default(),
+        );
         if o != n {
-            let was = prev["origins"].get(p.as_str()).and_then(|x| x.as_str()).unwrap_or("?");
+            let was = prev["origins"]
+                .get(p.as_str())
+                .and_then(|x| x.as_str())
+                .unwrap_or("?");
             let _ = writeln!(
                 out,
                 "{pad}  arg `{p}`: {} -> {}  (set at {}; was set at {was})",
@@ -192,8 +248,15 @@ fn explain(
             .and_then(|v| v.as_array())
             .cloned()
             .unwrap_or_default();
-        let old_from: Vec<&str> = old_list.iter().map(|x| x["from"].as_str().unwrap_or("?")).collect();
-        let new_from: Vec<&str> = slot.sources.iter().map(|(_, shown)| shown.as_str()).collect();
+        let old_from: Vec<&str> = old_list
+            .iter()
+            .map(|x| x["from"].as_str().unwrap_or("?"))
+            .collect();
+        let new_from: Vec<&str> = slot
+            .sources
+            .iter()
+            .map(|(_, shown)| shown.as_str())
+            .collect();
         if old_from != new_from {
             let _ = writeln!(
                 out,
@@ -205,7 +268,10 @@ fn explain(
             continue;
         }
         for (j, (s, shown)) in slot.sources.iter().enumerate() {
-            let old_m = old_list.get(j).and_then(|x| x["manifest"].as_str()).unwrap_or("");
+            let old_m = old_list
+                .get(j)
+                .and_then(|x| x["manifest"].as_str())
+                .unwrap_or("");
             match s {
                 Source::External { hash, path } => {
                     if hex(hash) != old_m {
@@ -233,7 +299,11 @@ fn explain(
                         }
                     }
                     _ => {
-                        let _ = writeln!(out, "{pad}  input `{}` comes from `{shown}`, which will run first:", slot.name);
+                        let _ = writeln!(
+                            out,
+                            "{pad}  input `{}` comes from `{shown}`, which will run first:",
+                            slot.name
+                        );
                         let up_inst = plan.comps[*up]
                             .instances
                             .iter()
@@ -249,7 +319,8 @@ fn explain(
         }
     }
     if out.len() == before {
-        let same_key = keys[c].as_ref().map(|(k, _)| hex(k)) == prev["key"].as_str().map(str::to_string);
+        let same_key =
+            keys[c].as_ref().map(|(k, _)| hex(k)) == prev["key"].as_str().map(str::to_string);
         let _ = writeln!(
             out,
             "{pad}  nothing changed since its previous run{}, but that result is no longer in the store (removed by gc, or the store is new)",

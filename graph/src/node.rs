@@ -68,7 +68,9 @@ pub struct NodeError {
 impl NodeError {
     /// An error with this message.
     pub fn new(message: impl Into<String>) -> Self {
-        NodeError { message: message.into() }
+        NodeError {
+            message: message.into(),
+        }
     }
     /// The message.
     pub fn message(&self) -> &str {
@@ -169,7 +171,10 @@ impl RunContext {
     pub fn input(&self, name: &str) -> Result<&Path, NodeError> {
         match self.inputs.iter().find(|(n, _)| n == name) {
             Some((_, paths)) if paths.len() == 1 => Ok(&paths[0]),
-            Some((_, paths)) => Err(NodeError::new(format!("input `{name}` has {} folders, expected one", paths.len()))),
+            Some((_, paths)) => Err(NodeError::new(format!(
+                "input `{name}` has {} folders, expected one",
+                paths.len()
+            ))),
             None => Err(NodeError::new(format!("input `{name}` was not connected"))),
         }
     }

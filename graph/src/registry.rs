@@ -49,7 +49,8 @@ struct Adapter<N: Node>(std::marker::PhantomData<fn() -> N>);
 
 impl<N: Node> Adapter<N> {
     fn typed(args: &ArgsBox) -> &N::Args {
-        args.downcast_ref::<N::Args>().expect("args were parsed by the same kind")
+        args.downcast_ref::<N::Args>()
+            .expect("args were parsed by the same kind")
     }
 }
 
@@ -66,15 +67,24 @@ impl<N: Node> DynNode for Adapter<N> {
             N::Args::default()
         } else {
             // `implicit_some`: an `Option` field may be written `steps: 100` as well as `Some(100)`.
-            let opts = ron::Options::default().with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME);
-            let mut de = ron::Deserializer::from_str_with_options(trimmed, &opts).map_err(|e| ArgsError {
-                path: String::new(),
-                message: e.to_string(),
+            let opts = ron::Options::default()
+                .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME);
+            let mut de = ron::Deserializer::from_str_with_options(trimmed, &opts).map_err(|e| {
+                ArgsError {
+                    path: String::new(),
+                    message: e.to_string(),
+                }
             })?;
-            let value: N::Args = serde_path_to_error::deserialize(&mut de).map_err(|e| ArgsError {
-                path: e.path().to_string().trim_start_matches('.').replace('?', "").to_string(),
-                message: e.inner().to_string(),
-            })?;
+            let value: N::Args =
+                serde_path_to_error::deserialize(&mut de).map_err(|e| ArgsError {
+                    path: e
+                        .path()
+                        .to_string()
+                        .trim_start_matches('.')
+                        .replace('?', "")
+                        .to_string(),
+                    message: e.inner().to_string(),
+                })?;
             de.end().map_err(|e| ArgsError {
                 path: String::new(),
                 message: e.to_string(),
@@ -128,7 +138,8 @@ impl Registry {
     }
     /// Registers kind `N` under `N::KIND` (a later registration of the same name replaces it).
     pub fn register<N: Node>(&mut self) -> &mut Self {
-        self.kinds.insert(N::KIND, Arc::new(Adapter::<N>(std::marker::PhantomData)));
+        self.kinds
+            .insert(N::KIND, Arc::new(Adapter::<N>(std::marker::PhantomData)));
         self
     }
     /// The kind called `name`.

@@ -80,7 +80,10 @@ pub struct Comp {
 impl Comp {
     /// The first instance name, for display.
     pub fn display_name<'a>(&self, plan: &'a Plan) -> &'a str {
-        self.instances.first().map(|&i| plan.instances[i].name.as_str()).unwrap_or("?")
+        self.instances
+            .first()
+            .map(|&i| plan.instances[i].name.as_str())
+            .unwrap_or("?")
     }
 }
 
@@ -128,7 +131,9 @@ impl Plan {
         (0..self.instances.len())
             .filter(|&i| {
                 let inst = &self.instances[i];
-                inst.name == target || inst.base == target || inst.name.split('@').next() == Some(target)
+                inst.name == target
+                    || inst.base == target
+                    || inst.name.split('@').next() == Some(target)
             })
             .collect()
     }
@@ -204,7 +209,12 @@ pub fn pipeline_id(file: &Path) -> String {
 
 /// Loads `file`, applies `--set` overrides, expands sweeps and resolves everything against the
 /// registry. Hashes external inputs through `store` (cached by path + size + mtime).
-pub fn load_plan(registry: &Registry, store: &Store, file: &Path, sets: &[String]) -> Result<Plan, PipelineError> {
+pub fn load_plan(
+    registry: &Registry,
+    store: &Store,
+    file: &Path,
+    sets: &[String],
+) -> Result<Plan, PipelineError> {
     let mut doc = spec::load_document(file)?;
     for s in sets {
         let (path, value) = spec::parse_set(s)?;
@@ -287,7 +297,8 @@ pub fn load_plan(registry: &Registry, store: &Store, file: &Path, sets: &[String
                     for a in 0..s.axes.len() {
                         let differs = (0..coords.len()).any(|p| {
                             (0..coords.len()).any(|q| {
-                                (0..s.axes.len()).all(|k| (k == a) != (coords[p][k] == coords[q][k]))
+                                (0..s.axes.len())
+                                    .all(|k| (k == a) != (coords[p][k] == coords[q][k]))
                                     && comps_at[p].is_some()
                                     && comps_at[q].is_some()
                                     && comps_at[p] != comps_at[q]
@@ -430,7 +441,9 @@ enum RefIndex {
 
 fn parse_ref(s: &str) -> Option<RefSpec> {
     let (head, output) = match s.find(['.']) {
-        Some(dot) if !s[..dot].contains('[') || s[..dot].contains(']') => (&s[..dot], Some(s[dot + 1..].to_string())),
+        Some(dot) if !s[..dot].contains('[') || s[..dot].contains(']') => {
+            (&s[..dot], Some(s[dot + 1..].to_string()))
+        }
         _ => match s.find("].") {
             Some(p) => (&s[..=p], Some(s[p + 2..].to_string())),
             None => (s, None),
@@ -522,7 +535,10 @@ impl Builder<'_> {
     }
 
     /// Resolves one point's document; returns (instance name, node name, comp) per instance.
-    fn resolve_point(&mut self, doc: &mut Value) -> Result<Vec<(String, String, usize)>, PipelineError> {
+    fn resolve_point(
+        &mut self,
+        doc: &mut Value,
+    ) -> Result<Vec<(String, String, usize)>, PipelineError> {
         let params = spec::params_of(doc)?;
         let mut errors = Vec::new();
         let mut locals: Vec<Local> = Vec::new();
@@ -535,7 +551,10 @@ impl Builder<'_> {
                     .into())
             }
         };
-        let all_names: Vec<String> = nodes.iter().filter_map(|(k, _)| k.as_str().map(str::to_string)).collect();
+        let all_names: Vec<String> = nodes
+            .iter()
+            .filter_map(|(k, _)| k.as_str().map(str::to_string))
+            .collect();
         // Substitute params everywhere in node bodies (so `expand` shows the values).
         let mut nodes = nodes;
         for (_, v) in nodes.iter_mut() {
@@ -552,7 +571,10 @@ impl Builder<'_> {
         for (k, v) in &nodes {
             let name = k.as_str().unwrap_or_default().to_string();
             let Some(kind_v) = v.field("kind") else {
-                errors.push(Diagnostic::at(&v.origin, format!("node `{name}` has no `kind`")).hint("write `kind: \"KindName\"`"));
+                errors.push(
+                    Diagnostic::at(&v.origin, format!("node `{name}` has no `kind`"))
+                        .hint("write `kind: \"KindName\"`"),
+                );
                 continue;
             };
             let Some(kind_name) = kind_v.as_str() else {
@@ -561,23 +583,39 @@ impl Builder<'_> {
             };
             let Some(node) = self.registry.get(kind_name).cloned() else {
                 let names = self.registry.names();
-                let close: Vec<&str> = names.iter().copied().filter(|n| similar(n, kind_name)).collect();
+                let close: Vec<&str> = names
+                    .iter()
+                    .copied()
+                    .filter(|n| similar(n, kind_name))
+                    .collect();
                 let hint = if close.is_empty() {
                     format!("registered kinds: {}", names.join(", "))
                 } else {
-                    format!("did you mean {}? (registered kinds: {})", close.join(" or "), names.join(", "))
+                    format!(
+                        "did you mean {}? (registered kinds: {})",
+                        close.join(" or "),
+                        names.join(", ")
+                    )
                 };
-                errors.push(Diagnostic::at(&kind_v.origin, format!("unknown node kind `{kind_name}`")).hint(hint));
+                errors.push(
+                    Diagnostic::at(&kind_v.origin, format!("unknown node kind `{kind_name}`"))
+                        .hint(hint),
+                );
                 continue;
             };
             let repeat = match v.field("repeat") {
                 None => None,
                 Some(r) => match &r.kind {
-                    ValueKind::Num(n) if n.parse::<usize>().is_ok() => Some(n.parse::<usize>().expect("checked")),
+                    ValueKind::Num(n) if n.parse::<usize>().is_ok() => {
+                        Some(n.parse::<usize>().expect("checked"))
+                    }
                     _ => {
                         errors.push(Diagnostic::at(
                             &r.origin,
-                            format!("`repeat` must be a non-negative integer, found {}", r.describe()),
+                            format!(
+                                "`repeat` must be a non-negative integer, found {}",
+                                r.describe()
+                            ),
                         ));
                         continue;
                     }
@@ -590,7 +628,10 @@ impl Builder<'_> {
             if args_v.fields().is_none() {
                 errors.push(Diagnostic::at(
                     &args_v.origin,
-                    format!("`args` must be a struct `(name: value, ..)`, found {}", args_v.describe()),
+                    format!(
+                        "`args` must be a struct `(name: value, ..)`, found {}",
+                        args_v.describe()
+                    ),
                 ));
                 continue;
             }
@@ -605,15 +646,24 @@ impl Builder<'_> {
                     if has_seed {
                         // Instance i gets seed + i.
                         let base = match node.parse_args(&a.to_ron()) {
-                            Ok(t) => node.args_json(&t).get("seed").and_then(|s| s.as_u64()).unwrap_or(0),
+                            Ok(t) => node
+                                .args_json(&t)
+                                .get("seed")
+                                .and_then(|s| s.as_u64())
+                                .unwrap_or(0),
                             Err(_) => 0,
                         };
-                        let origin = Origin::Engine(Arc::from(format!("repeat instance {i}: seed {base} + {i}")));
+                        let origin = Origin::Engine(Arc::from(format!(
+                            "repeat instance {i}: seed {base} + {i}"
+                        )));
                         if let ValueKind::Unit = a.kind {
                             a.kind = ValueKind::Struct(None, Vec::new());
                         }
                         if let ValueKind::Struct(_, f) = &mut a.kind {
-                            let v = Value::new(ValueKind::Num(base.wrapping_add(i as u64).to_string()), origin);
+                            let v = Value::new(
+                                ValueKind::Num(base.wrapping_add(i as u64).to_string()),
+                                origin,
+                            );
                             match f.iter_mut().find(|(n, _)| n == "seed") {
                                 Some(slot) => slot.1 = v,
                                 None => f.push(("seed".into(), v)),
@@ -639,7 +689,10 @@ impl Builder<'_> {
                                 e.message
                             ),
                         );
-                        let fields: Vec<String> = defaults.as_object().map(|o| o.keys().cloned().collect()).unwrap_or_default();
+                        let fields: Vec<String> = defaults
+                            .as_object()
+                            .map(|o| o.keys().cloned().collect())
+                            .unwrap_or_default();
                         d = match default_at(&defaults, &e.path).filter(|_| !e.path.is_empty()) {
                             Some(dv) => d.hint(format!("`{}` defaults to {dv}", e.path)),
                             None => d.hint(format!("{kind_name} args: {}", fields.join(", "))),
@@ -649,7 +702,10 @@ impl Builder<'_> {
                     }
                 };
                 if let Err(msg) = node.validate(&typed) {
-                    let mut d = Diagnostic::at(&a.origin, format!("invalid args for node `{name}` ({kind_name}): {msg}"));
+                    let mut d = Diagnostic::at(
+                        &a.origin,
+                        format!("invalid args for node `{name}` ({kind_name}): {msg}"),
+                    );
                     let overrides = overrides_in(&a);
                     if !overrides.is_empty() {
                         d = d.hint(format!("values here come from {}", overrides.join(", ")));
@@ -657,7 +713,11 @@ impl Builder<'_> {
                     errors.push(d);
                     break;
                 }
-                let inst_name = if repeat.is_some() { format!("{name}[{i}]") } else { name.clone() };
+                let inst_name = if repeat.is_some() {
+                    format!("{name}[{i}]")
+                } else {
+                    name.clone()
+                };
                 locals.push(Local {
                     name: inst_name,
                     base: name.clone(),
@@ -689,7 +749,10 @@ impl Builder<'_> {
                     let v = l.inputs_value.as_ref().expect("matched Some");
                     errors.push(Diagnostic::at(
                         &v.origin,
-                        format!("`inputs` of `{}` must be a map {{ \"input\": \"node.output\" }}", l.base),
+                        format!(
+                            "`inputs` of `{}` must be a map {{ \"input\": \"node.output\" }}",
+                            l.base
+                        ),
                     ));
                     edges.push(slots);
                     continue;
@@ -703,13 +766,19 @@ impl Builder<'_> {
                 };
                 let Some(decl) = l.decls.iter().find(|d| d.name == iname) else {
                     errors.push(
-                        Diagnostic::at(&k.origin, format!("node `{}` ({}) has no input `{iname}`", l.base, l.node.kind())).hint(
-                            if declared.is_empty() {
-                                "this kind takes no inputs".to_string()
-                            } else {
-                                format!("its inputs: {}", declared.join(", "))
-                            },
-                        ),
+                        Diagnostic::at(
+                            &k.origin,
+                            format!(
+                                "node `{}` ({}) has no input `{iname}`",
+                                l.base,
+                                l.node.kind()
+                            ),
+                        )
+                        .hint(if declared.is_empty() {
+                            "this kind takes no inputs".to_string()
+                        } else {
+                            format!("its inputs: {}", declared.join(", "))
+                        }),
                     );
                     continue;
                 };
@@ -725,16 +794,26 @@ impl Builder<'_> {
                         Err(d) => errors.push(d),
                     }
                 }
-                if !decl.many && sources.len() != 1 && !errors.iter().any(|e| e.origin.as_ref() == Some(&v.origin)) {
+                if !decl.many
+                    && sources.len() != 1
+                    && !errors.iter().any(|e| e.origin.as_ref() == Some(&v.origin))
+                {
                     errors.push(Diagnostic::at(
                         &v.origin,
-                        format!("input `{iname}` of `{}` takes one reference, found {}", l.name, sources.len()),
+                        format!(
+                            "input `{iname}` of `{}` takes one reference, found {}",
+                            l.name,
+                            sources.len()
+                        ),
                     ));
                 }
                 if decl.many && sources.is_empty() && errors.len() == errors_before {
                     errors.push(
-                        Diagnostic::at(&v.origin, format!("list input `{iname}` of `{}` gets no folder", l.name))
-                            .hint("a list input needs at least one reference (is a `repeat` 0?)"),
+                        Diagnostic::at(
+                            &v.origin,
+                            format!("list input `{iname}` of `{}` gets no folder", l.name),
+                        )
+                        .hint("a list input needs at least one reference (is a `repeat` 0?)"),
                     );
                 }
                 slots.push((iname.to_string(), sources));
@@ -744,9 +823,17 @@ impl Builder<'_> {
                     errors.push(
                         Diagnostic::at(
                             &l.node_origin,
-                            format!("node `{}` ({}) needs input `{}`", l.base, l.node.kind(), d.name),
+                            format!(
+                                "node `{}` ({}) needs input `{}`",
+                                l.base,
+                                l.node.kind(),
+                                d.name
+                            ),
                         )
-                        .hint(format!("add `inputs: {{ \"{}\": \"other_node.output\" }}`", d.name)),
+                        .hint(format!(
+                            "add `inputs: {{ \"{}\": \"other_node.output\" }}`",
+                            d.name
+                        )),
                     );
                 }
             }
@@ -776,7 +863,8 @@ impl Builder<'_> {
                     .into_iter()
                     .find(|c| c.len() > 1 || g.contains_edge(c[0], c[0]))
                     .unwrap_or_default();
-                let mut names: Vec<&str> = cyc.iter().map(|n| locals[g[*n]].name.as_str()).collect();
+                let mut names: Vec<&str> =
+                    cyc.iter().map(|n| locals[g[*n]].name.as_str()).collect();
                 names.reverse();
                 let first = cyc.last().map(|n| g[*n]).unwrap_or(0);
                 let origin = locals[first]
@@ -808,7 +896,10 @@ impl Builder<'_> {
                                     comp: global[*j],
                                     output: out.clone(),
                                 },
-                                LSource::External(p, h) => Source::External { path: p.clone(), hash: *h },
+                                LSource::External(p, h) => Source::External {
+                                    path: p.clone(),
+                                    hash: *h,
+                                },
                             };
                             (src, shown.clone())
                         })
@@ -884,15 +975,23 @@ impl Builder<'_> {
     ) -> Result<Vec<(LSource, String)>, Diagnostic> {
         if let ValueKind::Tuple(Some(t), items) = &item.kind {
             if t == "Path" {
-                let Some(rel) = items.first().and_then(|v| v.as_str()).filter(|_| items.len() == 1) else {
-                    return Err(Diagnostic::at(&item.origin, "write `Path(\"relative/or/absolute/path\")`"));
+                let Some(rel) = items
+                    .first()
+                    .and_then(|v| v.as_str())
+                    .filter(|_| items.len() == 1)
+                else {
+                    return Err(Diagnostic::at(
+                        &item.origin,
+                        "write `Path(\"relative/or/absolute/path\")`",
+                    ));
                 };
                 let p = item.origin.base_dir().join(rel);
                 if !p.exists() {
-                    return Err(
-                        Diagnostic::at(&item.origin, format!("external input {} does not exist", p.display()))
-                            .hint("paths are relative to the pipeline file that writes them"),
-                    );
+                    return Err(Diagnostic::at(
+                        &item.origin,
+                        format!("external input {} does not exist", p.display()),
+                    )
+                    .hint("paths are relative to the pipeline file that writes them"));
                 }
                 let abs = std::fs::canonicalize(&p).unwrap_or(p);
                 let h = self.ext_hash(&abs, &item.origin)?;
@@ -916,7 +1015,11 @@ impl Builder<'_> {
                 .hint("write \"node.output\", \"node\", \"node[i].output\", \"node[*].output\" or \"node[2].output\""));
         };
         let Some((ids, repeated)) = by_node.get(&r.node) else {
-            let close: Vec<&str> = all_names.iter().map(|s| s.as_str()).filter(|n| similar(n, &r.node)).collect();
+            let close: Vec<&str> = all_names
+                .iter()
+                .map(|s| s.as_str())
+                .filter(|n| similar(n, &r.node))
+                .collect();
             let hint = if close.is_empty() {
                 format!("nodes: {}", all_names.join(", "))
             } else {
@@ -924,7 +1027,10 @@ impl Builder<'_> {
             };
             return Err(Diagnostic::at(
                 &item.origin,
-                format!("input `{}` of `{}` refers to `{}`, which is not a node", decl.name, l.base, r.node),
+                format!(
+                    "input `{}` of `{}` refers to `{}`, which is not a node",
+                    decl.name, l.base, r.node
+                ),
             )
             .hint(hint));
         };
@@ -932,18 +1038,23 @@ impl Builder<'_> {
             (RefIndex::None, false) => ids.clone(),
             (RefIndex::None, true) if decl.many => ids.clone(),
             (RefIndex::None, true) => {
-                return Err(
-                    Diagnostic::at(&item.origin, format!("`{}` has {} instances; say which", r.node, ids.len())).hint(format!(
-                        "write `{0}[i]` for the same index, `{0}[0]` for one, or `{0}[*]` for a list input",
-                        r.node
-                    )),
+                return Err(Diagnostic::at(
+                    &item.origin,
+                    format!("`{}` has {} instances; say which", r.node, ids.len()),
                 )
+                .hint(format!(
+                "write `{0}[i]` for the same index, `{0}[0]` for one, or `{0}[*]` for a list input",
+                r.node
+            )))
             }
             (RefIndex::All, _) => {
                 if !decl.many {
                     return Err(Diagnostic::at(
                         &item.origin,
-                        format!("input `{}` takes one folder, but `{}[*]` is a list", decl.name, r.node),
+                        format!(
+                            "input `{}` takes one folder, but `{}[*]` is a list",
+                            decl.name, r.node
+                        ),
                     )
                     .hint("use `[i]` or a fixed index, or connect a list input"));
                 }
@@ -951,15 +1062,19 @@ impl Builder<'_> {
             }
             (RefIndex::Same, _) => {
                 let Some(i) = l.index else {
-                    return Err(
-                        Diagnostic::at(&item.origin, format!("`{}[i]` needs `{}` to have `repeat`", r.node, l.base))
-                            .hint("use a fixed index such as `[0]`"),
-                    );
+                    return Err(Diagnostic::at(
+                        &item.origin,
+                        format!("`{}[i]` needs `{}` to have `repeat`", r.node, l.base),
+                    )
+                    .hint("use a fixed index such as `[0]`"));
                 };
                 if !repeated {
                     return Err(Diagnostic::at(
                         &item.origin,
-                        format!("`{}` has no `repeat`; write `{}` without an index", r.node, r.node),
+                        format!(
+                            "`{}` has no `repeat`; write `{}` without an index",
+                            r.node, r.node
+                        ),
                     ));
                 }
                 match ids.get(i) {
@@ -967,7 +1082,12 @@ impl Builder<'_> {
                     None => {
                         return Err(Diagnostic::at(
                             &item.origin,
-                            format!("`{}[i]` with i = {i}: `{}` has only {} instances", r.node, r.node, ids.len()),
+                            format!(
+                                "`{}[i]` with i = {i}: `{}` has only {} instances",
+                                r.node,
+                                r.node,
+                                ids.len()
+                            ),
                         )
                         .hint("give both nodes the same `repeat`"))
                     }
@@ -978,7 +1098,12 @@ impl Builder<'_> {
                 _ => {
                     return Err(Diagnostic::at(
                         &item.origin,
-                        format!("`{}[{k}]`: `{}` has {} instance(s)", r.node, r.node, ids.len()),
+                        format!(
+                            "`{}[{k}]`: `{}` has {} instance(s)",
+                            r.node,
+                            r.node,
+                            ids.len()
+                        ),
                     ))
                 }
             },
@@ -989,21 +1114,34 @@ impl Builder<'_> {
             let output = match &r.output {
                 Some(o) if t.outputs.contains(o) => o.clone(),
                 Some(o) => {
-                    return Err(
-                        Diagnostic::at(&item.origin, format!("`{}` ({}) has no output `{o}`", r.node, t.node.kind()))
-                            .hint(format!("its outputs: {}", t.outputs.join(", "))),
+                    return Err(Diagnostic::at(
+                        &item.origin,
+                        format!("`{}` ({}) has no output `{o}`", r.node, t.node.kind()),
                     )
+                    .hint(format!("its outputs: {}", t.outputs.join(", "))))
                 }
                 None if t.outputs.len() == 1 => t.outputs[0].clone(),
                 None => {
                     return Err(Diagnostic::at(
                         &item.origin,
-                        format!("`{}` ({}) has {} outputs; say which", r.node, t.node.kind(), t.outputs.len()),
+                        format!(
+                            "`{}` ({}) has {} outputs; say which",
+                            r.node,
+                            t.node.kind(),
+                            t.outputs.len()
+                        ),
                     )
-                    .hint(format!("write `{}.OUTPUT` with OUTPUT one of {}", r.node, t.outputs.join(", "))))
+                    .hint(format!(
+                        "write `{}.OUTPUT` with OUTPUT one of {}",
+                        r.node,
+                        t.outputs.join(", ")
+                    )))
                 }
             };
-            out.push((LSource::Local(j, output.clone()), format!("{}.{output}", t.name)));
+            out.push((
+                LSource::Local(j, output.clone()),
+                format!("{}.{output}", t.name),
+            ));
         }
         Ok(out)
     }
@@ -1019,7 +1157,9 @@ fn overrides_in(v: &Value) -> Vec<String> {
             }
         }
         match &v.kind {
-            ValueKind::List(items) | ValueKind::Tuple(_, items) => items.iter().for_each(|i| walk(i, out)),
+            ValueKind::List(items) | ValueKind::Tuple(_, items) => {
+                items.iter().for_each(|i| walk(i, out))
+            }
             ValueKind::Map(e) => e.iter().for_each(|(_, x)| walk(x, out)),
             ValueKind::Struct(_, f) => f.iter().for_each(|(_, x)| walk(x, out)),
             _ => {}
@@ -1032,7 +1172,10 @@ fn overrides_in(v: &Value) -> Vec<String> {
 
 fn doc_nodes_mut(doc: &mut Value) -> Option<&mut ValueKind> {
     match &mut doc.kind {
-        ValueKind::Struct(_, f) => f.iter_mut().find(|(n, _)| n == "nodes").map(|(_, v)| &mut v.kind),
+        ValueKind::Struct(_, f) => f
+            .iter_mut()
+            .find(|(n, _)| n == "nodes")
+            .map(|(_, v)| &mut v.kind),
         _ => None,
     }
 }
@@ -1064,13 +1207,19 @@ mod tests {
     #[test]
     fn refs() {
         let r = parse_ref("field[i].weights").unwrap();
-        assert_eq!((r.node.as_str(), r.output.as_deref()), ("field", Some("weights")));
+        assert_eq!(
+            (r.node.as_str(), r.output.as_deref()),
+            ("field", Some("weights"))
+        );
         assert!(matches!(r.index, RefIndex::Same));
         let r = parse_ref("render[*].renders").unwrap();
         assert!(matches!(r.index, RefIndex::All));
         let r = parse_ref("scene").unwrap();
         assert!(r.output.is_none() && matches!(r.index, RefIndex::None));
-        assert!(matches!(parse_ref("a[3]").unwrap().index, RefIndex::Fixed(3)));
+        assert!(matches!(
+            parse_ref("a[3]").unwrap().index,
+            RefIndex::Fixed(3)
+        ));
         assert!(parse_ref("a[x].b").is_none());
         assert!(parse_ref("a.").is_none());
         assert!(similar("TrainField", "TrainFeild"));

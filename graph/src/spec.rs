@@ -30,15 +30,19 @@ pub fn load_document(path: &Path) -> Result<Value, Diagnostic> {
 }
 
 fn load_rec(path: &Path, chain: &mut Vec<PathBuf>) -> Result<Value, Diagnostic> {
-    let canon = std::fs::canonicalize(path).map_err(|e| Diagnostic::bare(format!("cannot open pipeline {}: {e}", path.display())))?;
+    let canon = std::fs::canonicalize(path)
+        .map_err(|e| Diagnostic::bare(format!("cannot open pipeline {}: {e}", path.display())))?;
     if chain.contains(&canon) {
         let names: Vec<String> = chain.iter().map(|p| p.display().to_string()).collect();
-        return Err(
-            Diagnostic::bare(format!("`extends` loops: {} -> {}", names.join(" -> "), canon.display()))
-                .hint("remove one of the `extends` lines"),
-        );
+        return Err(Diagnostic::bare(format!(
+            "`extends` loops: {} -> {}",
+            names.join(" -> "),
+            canon.display()
+        ))
+        .hint("remove one of the `extends` lines"));
     }
-    let text = std::fs::read_to_string(&canon).map_err(|e| Diagnostic::bare(format!("cannot read pipeline {}: {e}", canon.display())))?;
+    let text = std::fs::read_to_string(&canon)
+        .map_err(|e| Diagnostic::bare(format!("cannot read pipeline {}: {e}", canon.display())))?;
     let file: Arc<Path> = Arc::from(canon.as_path());
     let doc = syntax::parse(&text, Some(file), None)?;
     check_shape(&doc)?;
@@ -46,14 +50,20 @@ fn load_rec(path: &Path, chain: &mut Vec<PathBuf>) -> Result<Value, Diagnostic> 
     let result = match doc.field("extends") {
         None => Ok(strip_extends(doc)),
         Some(ext) => {
-            let rel = ext
-                .as_str()
-                .ok_or_else(|| Diagnostic::at(&ext.origin, format!("`extends` must be a string path, found {}", ext.describe())))?;
+            let rel = ext.as_str().ok_or_else(|| {
+                Diagnostic::at(
+                    &ext.origin,
+                    format!("`extends` must be a string path, found {}", ext.describe()),
+                )
+            })?;
             let base_path = ext.origin.base_dir().join(rel);
             if !base_path.exists() {
                 return Err(Diagnostic::at(
                     &ext.origin,
-                    format!("`extends` names {}, which does not exist", base_path.display()),
+                    format!(
+                        "`extends` names {}, which does not exist",
+                        base_path.display()
+                    ),
                 )
                 .hint("the path is relative to the file that writes it"));
             }
@@ -77,27 +87,41 @@ pub fn check_shape(doc: &Value) -> Result<(), Diagnostic> {
     let fields = doc.fields().ok_or_else(|| {
         Diagnostic::at(
             &doc.origin,
-            format!("a pipeline must be a struct `( nodes: {{ .. }} )`, found {}", doc.describe()),
+            format!(
+                "a pipeline must be a struct `( nodes: {{ .. }} )`, found {}",
+                doc.describe()
+            ),
         )
     })?;
     for (name, v) in fields {
         if !TOP_FIELDS.contains(&name.as_str()) {
-            return Err(Diagnostic::at(&v.origin, format!("unknown pipeline field `{name}`"))
-                .hint(format!("a pipeline has the fields {}", TOP_FIELDS.join(", "))));
+            return Err(
+                Diagnostic::at(&v.origin, format!("unknown pipeline field `{name}`")).hint(
+                    format!("a pipeline has the fields {}", TOP_FIELDS.join(", ")),
+                ),
+            );
         }
     }
     if let Some(nodes) = doc.field("nodes") {
         let ValueKind::Map(entries) = &nodes.kind else {
             return Err(Diagnostic::at(
                 &nodes.origin,
-                format!("`nodes` must be a map {{ \"name\": (kind: ..) }}, found {}", nodes.describe()),
+                format!(
+                    "`nodes` must be a map {{ \"name\": (kind: ..) }}, found {}",
+                    nodes.describe()
+                ),
             ));
         };
         for (k, v) in entries {
             let Some(name) = k.as_str() else {
-                return Err(Diagnostic::at(&k.origin, "node names must be strings").hint("write `\"name\": (kind: \"Kind\")`"));
+                return Err(Diagnostic::at(&k.origin, "node names must be strings")
+                    .hint("write `\"name\": (kind: \"Kind\")`"));
             };
-            if name.is_empty() || !name.chars().all(|c| c.is_alphanumeric() || c == '_' || c == '-') {
+            if name.is_empty()
+                || !name
+                    .chars()
+                    .all(|c| c.is_alphanumeric() || c == '_' || c == '-')
+            {
                 return Err(Diagnostic::at(
                     &k.origin,
                     format!("node name `{name}` may only hold letters, digits, `_` and `-`"),
@@ -117,8 +141,11 @@ pub fn check_shape(doc: &Value) -> Result<(), Diagnostic> {
             })?;
             for (f, fv) in nf {
                 if !NODE_FIELDS.contains(&f.as_str()) {
-                    return Err(Diagnostic::at(&fv.origin, format!("unknown field `{f}` in node `{name}`"))
-                        .hint(format!("a node has the fields {}", NODE_FIELDS.join(", "))));
+                    return Err(Diagnostic::at(
+                        &fv.origin,
+                        format!("unknown field `{f}` in node `{name}`"),
+                    )
+                    .hint(format!("a node has the fields {}", NODE_FIELDS.join(", "))));
                 }
             }
         }
@@ -234,7 +261,10 @@ fn field_mut<'a>(v: &'a mut Value, name: &str) -> Option<&'a mut Value> {
 
 fn map_entry_mut<'a>(v: &'a mut Value, key: &str) -> Option<&'a mut Value> {
     match &mut v.kind {
-        ValueKind::Map(e) => e.iter_mut().find(|(k, _)| key_text(k) == key).map(|(_, v)| v),
+        ValueKind::Map(e) => e
+            .iter_mut()
+            .find(|(k, _)| key_text(k) == key)
+            .map(|(_, v)| v),
         _ => None,
     }
 }
@@ -250,12 +280,16 @@ pub fn node_names(doc: &Value) -> Vec<String> {
 /// Parses a `--set PATH=VALUE` argument into the path and a value whose origin is the override.
 pub fn parse_set(text: &str) -> Result<(String, Value), Diagnostic> {
     let Some((path, value)) = text.split_once('=') else {
-        return Err(Diagnostic::bare(format!("--set `{text}` has no `=`")).hint("write --set NODE.ARG=VALUE, e.g. --set train.steps=300"));
+        return Err(Diagnostic::bare(format!("--set `{text}` has no `=`"))
+            .hint("write --set NODE.ARG=VALUE, e.g. --set train.steps=300"));
     };
     let origin = Origin::Set(Arc::from(text));
     let v = syntax::parse(value, None, Some(origin.clone())).map_err(|e| {
-        Diagnostic::at(&origin, format!("the value `{value}` is not RON: {}", e.message))
-            .hint("strings need quotes: --set node.name='\"text\"'")
+        Diagnostic::at(
+            &origin,
+            format!("the value `{value}` is not RON: {}", e.message),
+        )
+        .hint("strings need quotes: --set node.name='\"text\"'")
     })?;
     Ok((path.trim().to_string(), v))
 }
@@ -295,14 +329,28 @@ pub fn apply_set(doc: &mut Value, path: &str, value: Value) -> Result<(), Diagno
     }
     let names = node_names(doc);
     let node_name = parts[0];
-    let Some(node) = field_mut(doc, "nodes").and_then(|nodes| map_entry_mut(nodes, node_name)) else {
-        return Err(Diagnostic::at(&origin, format!("there is no node `{node_name}`")).hint(format!("nodes: {}", names.join(", "))));
+    let Some(node) = field_mut(doc, "nodes").and_then(|nodes| map_entry_mut(nodes, node_name))
+    else {
+        return Err(
+            Diagnostic::at(&origin, format!("there is no node `{node_name}`"))
+                .hint(format!("nodes: {}", names.join(", "))),
+        );
     };
-    let args = ensure_field(node, "args", || ValueKind::Struct(None, Vec::new()), &origin);
+    let args = ensure_field(
+        node,
+        "args",
+        || ValueKind::Struct(None, Vec::new()),
+        &origin,
+    );
     set_in(args, &parts[1..], value, path)
 }
 
-fn ensure_field<'a>(v: &'a mut Value, name: &str, make: impl FnOnce() -> ValueKind, origin: &Origin) -> &'a mut Value {
+fn ensure_field<'a>(
+    v: &'a mut Value,
+    name: &str,
+    make: impl FnOnce() -> ValueKind,
+    origin: &Origin,
+) -> &'a mut Value {
     if matches!(v.kind, ValueKind::Unit) {
         v.kind = ValueKind::Struct(None, Vec::new());
     }
@@ -353,7 +401,11 @@ fn set_in(slot: &mut Value, rest: &[&str], value: Value, full: &str) -> Result<(
         }
         _ => Err(Diagnostic::at(
             &origin,
-            format!("`{full}`: `{}` is {}, which has no fields", rest[0], slot.describe()),
+            format!(
+                "`{full}`: `{}` is {}, which has no fields",
+                rest[0],
+                slot.describe()
+            ),
         )
         .hint(format!("it was set at {}", slot.origin))),
     }
@@ -379,7 +431,9 @@ pub struct Sweep {
 
 /// Reads the document's `sweep`, if any.
 pub fn sweep_of(doc: &Value) -> Result<Option<Sweep>, Diagnostic> {
-    let Some(s) = doc.field("sweep") else { return Ok(None) };
+    let Some(s) = doc.field("sweep") else {
+        return Ok(None);
+    };
     if matches!(&s.kind, ValueKind::Ident(i) if i == "None") {
         return Ok(None);
     }
@@ -398,20 +452,37 @@ pub fn sweep_of(doc: &Value) -> Result<Option<Sweep>, Diagnostic> {
     let grid = match name.as_str() {
         "Grid" => true,
         "Zip" => false,
-        _ => return Err(bad().hint("the sweep kinds are Grid (every combination) and Zip (values taken in step)")),
+        _ => {
+            return Err(bad().hint(
+                "the sweep kinds are Grid (every combination) and Zip (values taken in step)",
+            ))
+        }
     };
-    let [m] = items.as_slice() else { return Err(bad()) };
-    let ValueKind::Map(entries) = &m.kind else { return Err(bad()) };
+    let [m] = items.as_slice() else {
+        return Err(bad());
+    };
+    let ValueKind::Map(entries) = &m.kind else {
+        return Err(bad());
+    };
     let mut axes = Vec::new();
     for (k, v) in entries {
         let Some(path) = k.as_str() else {
-            return Err(Diagnostic::at(&k.origin, "sweep paths must be strings like \"node.arg\""));
+            return Err(Diagnostic::at(
+                &k.origin,
+                "sweep paths must be strings like \"node.arg\"",
+            ));
         };
         let ValueKind::List(values) = &v.kind else {
-            return Err(Diagnostic::at(&v.origin, format!("sweep axis `{path}` must be a list of values")));
+            return Err(Diagnostic::at(
+                &v.origin,
+                format!("sweep axis `{path}` must be a list of values"),
+            ));
         };
         if values.is_empty() {
-            return Err(Diagnostic::at(&v.origin, format!("sweep axis `{path}` has no values")));
+            return Err(Diagnostic::at(
+                &v.origin,
+                format!("sweep axis `{path}` has no values"),
+            ));
         }
         axes.push((path.to_string(), String::new(), values.clone()));
     }
@@ -433,7 +504,10 @@ pub fn sweep_of(doc: &Value) -> Result<Option<Sweep>, Diagnostic> {
         }
     }
     // Short names: the last path component, unless two axes share it.
-    let lasts: Vec<String> = axes.iter().map(|a| a.0.rsplit('.').next().unwrap_or(&a.0).to_string()).collect();
+    let lasts: Vec<String> = axes
+        .iter()
+        .map(|a| a.0.rsplit('.').next().unwrap_or(&a.0).to_string())
+        .collect();
     for (i, a) in axes.iter_mut().enumerate() {
         a.1 = if lasts.iter().filter(|l| **l == lasts[i]).count() > 1 {
             a.0.clone()
@@ -447,9 +521,13 @@ pub fn sweep_of(doc: &Value) -> Result<Option<Sweep>, Diagnostic> {
 /// Expands a sweep into its points (one empty point without a sweep). Grid points vary the last
 /// axis fastest.
 pub fn sweep_points(sweep: Option<&Sweep>) -> Vec<Vec<usize>> {
-    let Some(s) = sweep else { return vec![Vec::new()] };
+    let Some(s) = sweep else {
+        return vec![Vec::new()];
+    };
     if !s.grid {
-        return (0..s.axes[0].2.len()).map(|i| vec![i; s.axes.len()]).collect();
+        return (0..s.axes[0].2.len())
+            .map(|i| vec![i; s.axes.len()])
+            .collect();
     }
     let mut points = vec![Vec::new()];
     for (_, _, values) in &s.axes {
@@ -478,7 +556,11 @@ pub fn point(sweep: Option<&Sweep>, coords: &[usize]) -> SweepPoint {
     let mut assignments = Vec::new();
     for ((path, short, values), &i) in s.axes.iter().zip(coords) {
         let text = format!("{short}={}", values[i].to_ron());
-        let origin = Origin::Sweep(Arc::from(format!("{path}={} (sweep at {})", values[i].to_ron(), values[i].origin)));
+        let origin = Origin::Sweep(Arc::from(format!(
+            "{path}={} (sweep at {})",
+            values[i].to_ron(),
+            values[i].origin
+        )));
         assignments.push((path.clone(), values[i].clone().with_origin_deep(&origin)));
         labels.push(text);
     }
@@ -502,11 +584,13 @@ pub fn substitute_params(v: &mut Value, params: &[(String, Value)]) -> Result<()
             let Some((_, val)) = params.iter().find(|(k, _)| *k == name) else {
                 let known: Vec<&str> = params.iter().map(|(k, _)| k.as_str()).collect();
                 return Err(
-                    Diagnostic::at(&v.origin, format!("unknown parameter `{name}`")).hint(if known.is_empty() {
-                        "declare it under `params: { .. }`".to_string()
-                    } else {
-                        format!("params: {}", known.join(", "))
-                    }),
+                    Diagnostic::at(&v.origin, format!("unknown parameter `{name}`")).hint(
+                        if known.is_empty() {
+                            "declare it under `params: { .. }`".to_string()
+                        } else {
+                            format!("params: {}", known.join(", "))
+                        },
+                    ),
                 );
             };
             *v = val.clone();
@@ -514,20 +598,31 @@ pub fn substitute_params(v: &mut Value, params: &[(String, Value)]) -> Result<()
         }
     }
     match &mut v.kind {
-        ValueKind::List(items) | ValueKind::Tuple(_, items) => items.iter_mut().try_for_each(|i| substitute_params(i, params)),
-        ValueKind::Map(entries) => entries.iter_mut().try_for_each(|(_, v)| substitute_params(v, params)),
-        ValueKind::Struct(_, fields) => fields.iter_mut().try_for_each(|(_, v)| substitute_params(v, params)),
+        ValueKind::List(items) | ValueKind::Tuple(_, items) => items
+            .iter_mut()
+            .try_for_each(|i| substitute_params(i, params)),
+        ValueKind::Map(entries) => entries
+            .iter_mut()
+            .try_for_each(|(_, v)| substitute_params(v, params)),
+        ValueKind::Struct(_, fields) => fields
+            .iter_mut()
+            .try_for_each(|(_, v)| substitute_params(v, params)),
         _ => Ok(()),
     }
 }
 
 /// The document's params as (name, value), after substitution among themselves is not allowed.
 pub fn params_of(doc: &Value) -> Result<Vec<(String, Value)>, Diagnostic> {
-    let Some(p) = doc.field("params") else { return Ok(Vec::new()) };
+    let Some(p) = doc.field("params") else {
+        return Ok(Vec::new());
+    };
     let ValueKind::Map(entries) = &p.kind else {
         return Err(Diagnostic::at(
             &p.origin,
-            format!("`params` must be a map {{ \"name\": value }}, found {}", p.describe()),
+            format!(
+                "`params` must be a map {{ \"name\": value }}, found {}",
+                p.describe()
+            ),
         ));
     };
     let mut out = Vec::new();
@@ -553,7 +648,9 @@ mod tests {
         let base = parse(
             r#"(params: {"a": 1, "b": 2}, nodes: {"x": (kind: "K", args: (p: 1, q: (r: 1, s: 2)), inputs: {"i": "y"}), "z": (kind: "Z")}, sweep: Grid({"x.p": [1, 2]}))"#,
         );
-        let child = parse(r#"(params: {"b": 3}, nodes: {"x": (args: (q: (s: 5), l: [1])), "z": Remove, "w": (kind: "W")}, sweep: None)"#);
+        let child = parse(
+            r#"(params: {"b": 3}, nodes: {"x": (args: (q: (s: 5), l: [1])), "z": Remove, "w": (kind: "W")}, sweep: None)"#,
+        );
         let m = merge_documents(base, child);
         assert_eq!(
             m.to_ron(),
@@ -579,7 +676,10 @@ mod tests {
             r#"(nodes: {"x": (kind: "K", args: (a: (b: [1, 2])))}, params: {"m": 3})"#
         );
         let (p, v) = parse_set("nope.a=1").unwrap();
-        assert!(apply_set(&mut d, &p, v).unwrap_err().message.contains("no node"));
+        assert!(apply_set(&mut d, &p, v)
+            .unwrap_err()
+            .message
+            .contains("no node"));
     }
 
     #[test]

@@ -214,7 +214,8 @@ impl Store {
     /// Takes the store lock shared (held by every run for its whole duration; `gc` waits for it).
     pub fn lock_shared(&self) -> Result<File, EngineError> {
         let f = self.lock_file()?;
-        f.lock_shared().map_err(io("locking", &self.root.join("store.lock")))?;
+        f.lock_shared()
+            .map_err(io("locking", &self.root.join("store.lock")))?;
         Ok(f)
     }
     /// Tries to take the store lock exclusively (for `gc`); `None` if a run holds it.
@@ -233,7 +234,10 @@ impl Store {
 
     fn action_path(&self, key: &Hash) -> PathBuf {
         let h = hex(key);
-        self.root.join("actions").join(&h[..2]).join(format!("{h}.json"))
+        self.root
+            .join("actions")
+            .join(&h[..2])
+            .join(format!("{h}.json"))
     }
     /// The materialised, read-only folder of an output manifest.
     pub fn output_dir(&self, manifest: &Hash) -> PathBuf {
@@ -244,7 +248,9 @@ impl Store {
     }
     /// The path of a blob (e.g. a node log).
     pub fn blob(&self, h: &str) -> Option<PathBuf> {
-        (h.len() == 64).then(|| self.blob_path(h)).filter(|p| p.exists())
+        (h.len() == 64)
+            .then(|| self.blob_path(h))
+            .filter(|p| p.exists())
     }
 
     /// The action entry of `key`, if present and complete (every output folder exists).
@@ -286,10 +292,16 @@ impl Store {
             .open(&p)
             .map_err(io("opening claim", &p))?;
         match f.try_lock() {
-            Ok(()) => Ok(Claim { _file: f, waited: false }),
+            Ok(()) => Ok(Claim {
+                _file: f,
+                waited: false,
+            }),
             Err(fs::TryLockError::WouldBlock) => {
                 f.lock().map_err(io("waiting for claim", &p))?;
-                Ok(Claim { _file: f, waited: true })
+                Ok(Claim {
+                    _file: f,
+                    waited: true,
+                })
             }
             Err(fs::TryLockError::Error(e)) => Err(EngineError::Io {
                 what: "claiming",
@@ -301,7 +313,10 @@ impl Store {
 
     /// A fresh scratch folder for one node run.
     pub fn new_scratch(&self, key: &Hash) -> Result<PathBuf, EngineError> {
-        let p = self.root.join("tmp").join(format!("run-{}-{}", &hex(key)[..16], unique_suffix()));
+        let p = self
+            .root
+            .join("tmp")
+            .join(format!("run-{}-{}", &hex(key)[..16], unique_suffix()));
         fs::create_dir_all(&p).map_err(io("creating scratch folder", &p))?;
         Ok(p)
     }
@@ -350,9 +365,15 @@ impl Store {
             }
         }
         let mh = manifest.hash();
-        let mpath = self.root.join("manifests").join(format!("{}.json", hex(&mh)));
+        let mpath = self
+            .root
+            .join("manifests")
+            .join(format!("{}.json", hex(&mh)));
         if !mpath.exists() {
-            self.write_atomic(&mpath, &serde_json::to_vec(&manifest).expect("manifest serialises"))?;
+            self.write_atomic(
+                &mpath,
+                &serde_json::to_vec(&manifest).expect("manifest serialises"),
+            )?;
         }
         let dest = self.output_dir(&mh);
         if dest.is_dir() {
@@ -385,7 +406,10 @@ impl Store {
     pub fn hash_external(&self, path: &Path) -> Result<Hash, EngineError> {
         let abs = fs::canonicalize(path).map_err(io("reading input", path))?;
         let id = blake3::hash(abs.to_string_lossy().as_bytes()).to_hex();
-        let cpath = self.root.join("extcache").join(format!("{}.json", &id[..32]));
+        let cpath = self
+            .root
+            .join("extcache")
+            .join(format!("{}.json", &id[..32]));
         type Cache = BTreeMap<String, (u64, i128, String)>;
         let old: Cache = fs::read(&cpath)
             .ok()
@@ -422,26 +446,35 @@ impl Store {
     /// Reads the record of the latest run of pipeline `id`.
     pub fn read_latest(&self, id: &str) -> Option<serde_json::Value> {
         let p = self.root.join("runs/latest").join(format!("{id}.json"));
-        fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok())
+        fs::read(p)
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok())
     }
     /// Appends a run record (the run's summary) to `runs/records`.
     pub fn write_record(&self, record: &serde_json::Value) -> Result<PathBuf, EngineError> {
-        let p = self
-            .root
-            .join("runs/records")
-            .join(format!("{}-{}.json", now_unix(), unique_suffix()));
+        let p =
+            self.root
+                .join("runs/records")
+                .join(format!("{}-{}.json", now_unix(), unique_suffix()));
         self.write_atomic(&p, &serde_json::to_vec_pretty(record).expect("json"))?;
         Ok(p)
     }
     /// Pins a set of keys under `name` (a GC root until unpinned by deleting `pins/<name>.json`).
     pub fn pin(&self, name: &str, keys: &[String]) -> Result<(), EngineError> {
-        if name.is_empty() || !name.chars().all(|c| c.is_alphanumeric() || "-_.".contains(c)) {
+        if name.is_empty()
+            || !name
+                .chars()
+                .all(|c| c.is_alphanumeric() || "-_.".contains(c))
+        {
             return Err(EngineError::Other(format!(
                 "pin name `{name}` may only hold letters, digits, `-`, `_` and `.`"
             )));
         }
         let p = self.root.join("pins").join(format!("{name}.json"));
-        self.write_atomic(&p, &serde_json::to_vec_pretty(&serde_json::json!({ "keys": keys })).expect("json"))
+        self.write_atomic(
+            &p,
+            &serde_json::to_vec_pretty(&serde_json::json!({ "keys": keys })).expect("json"),
+        )
     }
 
     /// Garbage collection: keeps every action reachable from a root (the latest run of each
@@ -459,11 +492,19 @@ impl Store {
         let mut keep_keys: BTreeSet<String> = BTreeSet::new();
         for dir in ["runs/latest", "pins"] {
             for f in list_dir(&self.root.join(dir)) {
-                let Some(v) = fs::read(&f).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok()) else {
+                let Some(v) = fs::read(&f)
+                    .ok()
+                    .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+                else {
                     continue;
                 };
                 collect_keys(&v, &mut keep_keys);
-                rep.root_files.push(f.strip_prefix(&self.root).unwrap_or(&f).display().to_string());
+                rep.root_files.push(
+                    f.strip_prefix(&self.root)
+                        .unwrap_or(&f)
+                        .display()
+                        .to_string(),
+                );
             }
         }
         rep.roots = keep_keys.len();
@@ -471,9 +512,15 @@ impl Store {
         let mut keep_blobs = BTreeSet::new();
         for sub in list_dir(&self.root.join("actions")) {
             for f in list_dir(&sub) {
-                let stem = f.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+                let stem = f
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().to_string())
+                    .unwrap_or_default();
                 if keep_keys.contains(&stem) {
-                    if let Some(entry) = fs::read(&f).ok().and_then(|b| serde_json::from_slice::<ActionEntry>(&b).ok()) {
+                    if let Some(entry) = fs::read(&f)
+                        .ok()
+                        .and_then(|b| serde_json::from_slice::<ActionEntry>(&b).ok())
+                    {
                         keep_manifests.extend(entry.outputs.values().cloned());
                         keep_blobs.extend(entry.log.clone());
                         rep.actions_kept += 1;
@@ -487,10 +534,21 @@ impl Store {
             }
         }
         for f in list_dir(&self.root.join("manifests")) {
-            let stem = f.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+            let stem = f
+                .file_stem()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or_default();
             if keep_manifests.contains(&stem) {
-                if let Some(m) = fs::read(&f).ok().and_then(|b| serde_json::from_slice::<Manifest>(&b).ok()) {
-                    keep_blobs.extend(m.entries.into_iter().filter(|e| !e.hash.is_empty()).map(|e| e.hash));
+                if let Some(m) = fs::read(&f)
+                    .ok()
+                    .and_then(|b| serde_json::from_slice::<Manifest>(&b).ok())
+                {
+                    keep_blobs.extend(
+                        m.entries
+                            .into_iter()
+                            .filter(|e| !e.hash.is_empty())
+                            .map(|e| e.hash),
+                    );
                 }
                 rep.outputs_kept += 1;
                 continue;
@@ -503,8 +561,17 @@ impl Store {
         }
         // Output folders whose manifest file is missing (interrupted promotion) go too.
         for d in list_dir(&self.root.join("outputs")) {
-            let name = d.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
-            if !keep_manifests.contains(&name) && !self.root.join("manifests").join(format!("{name}.json")).exists() {
+            let name = d
+                .file_name()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or_default();
+            if !keep_manifests.contains(&name)
+                && !self
+                    .root
+                    .join("manifests")
+                    .join(format!("{name}.json"))
+                    .exists()
+            {
                 rep.scratch_removed += 1;
                 if !dry_run {
                     remove_tree(&d);
@@ -513,7 +580,10 @@ impl Store {
         }
         for sub in list_dir(&self.root.join("blobs")) {
             for f in list_dir(&sub) {
-                let name = f.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+                let name = f
+                    .file_name()
+                    .map(|s| s.to_string_lossy().to_string())
+                    .unwrap_or_default();
                 if keep_blobs.contains(&name) {
                     rep.blobs_kept += 1;
                     continue;
@@ -603,7 +673,10 @@ pub fn hash_file(path: &Path) -> Result<String, EngineError> {
 
 /// Lists a folder recursively (sorted, `/`-separated, folders end with `/`), hashing each file
 /// with `hash(rel, path, size)`. Symbolic links are refused.
-pub fn scan_folder(root: &Path, mut hash: impl FnMut(&str, &Path, u64) -> Result<String, EngineError>) -> Result<Manifest, EngineError> {
+pub fn scan_folder(
+    root: &Path,
+    mut hash: impl FnMut(&str, &Path, u64) -> Result<String, EngineError>,
+) -> Result<Manifest, EngineError> {
     let mut entries = Vec::new();
     let mut stack = vec![(root.to_path_buf(), String::new())];
     while let Some((dir, prefix)) = stack.pop() {
@@ -632,7 +705,11 @@ pub fn scan_folder(root: &Path, mut hash: impl FnMut(&str, &Path, u64) -> Result
             } else {
                 let size = e.metadata().map_err(io("reading", &p))?.len();
                 let h = hash(&rel, &p, size)?;
-                entries.push(ManifestEntry { path: rel, size, hash: h });
+                entries.push(ManifestEntry {
+                    path: rel,
+                    size,
+                    hash: h,
+                });
             }
         }
     }

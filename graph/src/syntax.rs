@@ -110,7 +110,10 @@ impl Value {
     }
     /// The field `name` of a struct value.
     pub fn field(&self, name: &str) -> Option<&Value> {
-        self.fields()?.iter().find(|(n, _)| n == name).map(|(_, v)| v)
+        self.fields()?
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v)
     }
     /// The string inside a string value.
     pub fn as_str(&self) -> Option<&str> {
@@ -139,7 +142,9 @@ impl Value {
         fn walk(v: &mut Value, o: &Origin) {
             v.origin = o.clone();
             match &mut v.kind {
-                ValueKind::List(items) | ValueKind::Tuple(_, items) => items.iter_mut().for_each(|i| walk(i, o)),
+                ValueKind::List(items) | ValueKind::Tuple(_, items) => {
+                    items.iter_mut().for_each(|i| walk(i, o))
+                }
                 ValueKind::Map(entries) => entries.iter_mut().for_each(|(k, v)| {
                     walk(k, o);
                     walk(v, o)
@@ -271,7 +276,11 @@ fn write_value(out: &mut String, v: &Value, pretty: Option<usize>, level: usize)
 
 /// Parses RON text into a [`Value`] tree. `file` names the source for origins; for command-line
 /// text pass `None` and give `origin` for every value.
-pub fn parse(text: &str, file: Option<Arc<Path>>, cli_origin: Option<Origin>) -> Result<Value, SyntaxError> {
+pub fn parse(
+    text: &str,
+    file: Option<Arc<Path>>,
+    cli_origin: Option<Origin>,
+) -> Result<Value, SyntaxError> {
     let mut p = Parser {
         chars: text.chars().collect(),
         pos: 0,
@@ -286,7 +295,10 @@ pub fn parse(text: &str, file: Option<Arc<Path>>, cli_origin: Option<Origin>) ->
     let v = p.value()?;
     p.skip_ws()?;
     if p.pos < p.chars.len() {
-        return Err(p.err(format!("unexpected `{}` after the end of the value", p.chars[p.pos])));
+        return Err(p.err(format!(
+            "unexpected `{}` after the end of the value",
+            p.chars[p.pos]
+        )));
     }
     Ok(v)
 }
@@ -315,7 +327,9 @@ impl Parser {
     }
     fn err(&self, message: String) -> SyntaxError {
         let origin = match &self.cli_origin {
-            Some(Origin::Set(s)) if self.file.is_none() => Origin::Set(format!("{s} (at character {})", self.col).into()),
+            Some(Origin::Set(s)) if self.file.is_none() => {
+                Origin::Set(format!("{s} (at character {})", self.col).into())
+            }
             _ => self.origin(),
         };
         SyntaxError { origin, message }
@@ -433,7 +447,9 @@ impl Parser {
         };
         let kind = match c {
             '"' => ValueKind::Str(self.string()?),
-            'r' if matches!(self.peek_at(1), Some('"') | Some('#')) => ValueKind::Str(self.raw_string()?),
+            'r' if matches!(self.peek_at(1), Some('"') | Some('#')) => {
+                ValueKind::Str(self.raw_string()?)
+            }
             '\'' => ValueKind::Char(self.char_lit()?),
             '[' => {
                 self.bump();
@@ -481,7 +497,9 @@ impl Parser {
                 ValueKind::Map(entries)
             }
             '(' => self.paren_body(None)?,
-            c if c.is_ascii_digit() || c == '-' || c == '+' || c == '.' => ValueKind::Num(self.number()?),
+            c if c.is_ascii_digit() || c == '-' || c == '+' || c == '.' => {
+                ValueKind::Num(self.number()?)
+            }
             c if c.is_alphabetic() || c == '_' => {
                 let id = self.ident();
                 let save = (self.pos, self.line, self.col);
@@ -517,7 +535,11 @@ impl Parser {
         let save = (self.pos, self.line, self.col);
         let is_struct = {
             let first_ok = self.peek().is_some_and(|c| c.is_alphabetic() || c == '_');
-            let id = if first_ok { self.ident() } else { String::new() };
+            let id = if first_ok {
+                self.ident()
+            } else {
+                String::new()
+            };
             self.skip_ws()?;
             let r = !id.is_empty() && self.peek() == Some(':');
             (self.pos, self.line, self.col) = save;
@@ -726,7 +748,12 @@ mod tests {
 
     #[test]
     fn errors_have_positions() {
-        let e = parse("(\n  a: 1,\n  b: ]\n)", Some(Arc::from(Path::new("t.ron"))), None).unwrap_err();
+        let e = parse(
+            "(\n  a: 1,\n  b: ]\n)",
+            Some(Arc::from(Path::new("t.ron"))),
+            None,
+        )
+        .unwrap_err();
         assert_eq!(
             e.origin,
             Origin::File {
@@ -735,8 +762,14 @@ mod tests {
                 col: 6
             }
         );
-        assert!(parse("(a: 1, a: 2)", None, None).unwrap_err().message.contains("twice"));
-        assert!(parse("\"abc", None, None).unwrap_err().message.contains("unterminated"));
+        assert!(parse("(a: 1, a: 2)", None, None)
+            .unwrap_err()
+            .message
+            .contains("twice"));
+        assert!(parse("\"abc", None, None)
+            .unwrap_err()
+            .message
+            .contains("unterminated"));
         assert!(parse("(a: 1) x", None, None).is_err());
     }
 }

@@ -32,9 +32,17 @@ impl Env {
             },
         )
     }
-    fn run_opts(&self, file: &Path, sets: &[&str], opts: &RunOptions) -> (augsplat_graph::Plan, augsplat_graph::RunReport) {
+    fn run_opts(
+        &self,
+        file: &Path,
+        sets: &[&str],
+        opts: &RunOptions,
+    ) -> (augsplat_graph::Plan, augsplat_graph::RunReport) {
         let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-        let plan = self.engine.load(file, &sets).unwrap_or_else(|e| panic!("{e}"));
+        let plan = self
+            .engine
+            .load(file, &sets)
+            .unwrap_or_else(|e| panic!("{e}"));
         let report = self.engine.run(&plan, opts).unwrap();
         (plan, report)
     }
@@ -45,10 +53,21 @@ impl Env {
             .as_array()
             .unwrap()
             .iter()
-            .map(|n| (n["name"].as_str().unwrap().to_string(), n["key"].as_str().unwrap().to_string()))
+            .map(|n| {
+                (
+                    n["name"].as_str().unwrap().to_string(),
+                    n["key"].as_str().unwrap().to_string(),
+                )
+            })
             .collect()
     }
-    fn read(&self, plan: &augsplat_graph::Plan, report: &augsplat_graph::RunReport, inst: &str, out: &str) -> String {
+    fn read(
+        &self,
+        plan: &augsplat_graph::Plan,
+        report: &augsplat_graph::RunReport,
+        inst: &str,
+        out: &str,
+    ) -> String {
         let d = report
             .output_dir(plan, self.engine.store(), inst, out)
             .unwrap_or_else(|| panic!("no output {inst}.{out}"));
@@ -67,13 +86,21 @@ const CHAIN: &str = r#"// a small chain with a fan-out
 )
 "#;
 
-fn statuses(plan: &augsplat_graph::Plan, report: &augsplat_graph::RunReport) -> Vec<(String, String)> {
+fn statuses(
+    plan: &augsplat_graph::Plan,
+    report: &augsplat_graph::RunReport,
+) -> Vec<(String, String)> {
     let s = report.summary_json(plan);
     let mut v: Vec<(String, String)> = s["nodes"]
         .as_array()
         .unwrap()
         .iter()
-        .map(|n| (n["name"].as_str().unwrap().into(), n["status"].as_str().unwrap().into()))
+        .map(|n| {
+            (
+                n["name"].as_str().unwrap().into(),
+                n["status"].as_str().unwrap().into(),
+            )
+        })
         .collect();
     v.sort();
     v
@@ -96,10 +123,15 @@ fn first_run_runs_all_second_none_and_arg_change_reruns_descendants() {
     let f2 = env.write("p.ron", &CHAIN.replace(r#"suffix: "!""#, r#"suffix: "%""#));
     let (plan, report) = env.run(&f2, &[]);
     assert_eq!(take(), ["app", "len"]);
-    let expect: Vec<(String, String)> = [("app", "ran"), ("len", "ran"), ("other", "cached"), ("src", "cached")]
-        .iter()
-        .map(|(a, b)| (a.to_string(), b.to_string()))
-        .collect();
+    let expect: Vec<(String, String)> = [
+        ("app", "ran"),
+        ("len", "ran"),
+        ("other", "cached"),
+        ("src", "cached"),
+    ]
+    .iter()
+    .map(|(a, b)| (a.to_string(), b.to_string()))
+    .collect();
     assert_eq!(statuses(&plan, &report), expect);
     // Changing the source reruns everything downstream of it.
     let f3 = env.write("p.ron", &CHAIN.replace("count: 2", "count: 3"));
@@ -160,7 +192,11 @@ fn formatting_only_edits_change_no_key() {
     ka.sort();
     kb.sort();
     assert_eq!(ka, kb);
-    assert_eq!(take(), ["app", "src"], "the second file must run nothing new");
+    assert_eq!(
+        take(),
+        ["app", "src"],
+        "the second file must run nothing new"
+    );
 }
 
 #[test]
@@ -179,7 +215,10 @@ fn set_behaves_like_editing_the_file() {
             .replace("count: 2", "count: 2, nested: (alpha: 0.25)"),
     );
     let ed = env.keys(&edited, &[]);
-    assert!(take().is_empty(), "the edited file must find everything cached");
+    assert!(
+        take().is_empty(),
+        "the edited file must find everything cached"
+    );
     assert_eq!(set, ed);
 }
 
@@ -201,7 +240,10 @@ fn sweep_runs_shared_upstream_once_with_readable_names() {
     let rec = take();
     assert_eq!(rec.iter().filter(|n| *n == "src").count(), 1, "{rec:?}");
     assert_eq!(rec.len(), 5);
-    let names: Vec<String> = statuses(&plan, &report).into_iter().map(|(n, _)| n).collect();
+    let names: Vec<String> = statuses(&plan, &report)
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
     assert_eq!(
         names,
         [
@@ -212,7 +254,10 @@ fn sweep_runs_shared_upstream_once_with_readable_names() {
             "src"
         ]
     );
-    assert_eq!(env.read(&plan, &report, "app@suffix=\"c\"", "out"), "v|0.5c");
+    assert_eq!(
+        env.read(&plan, &report, "app@suffix=\"c\"", "out"),
+        "v|0.5c"
+    );
     // Zip over two axes, one upstream, one downstream: the upstream varies too.
     let f = env.write(
         "z.ron",
@@ -234,7 +279,10 @@ fn sweep_runs_shared_upstream_once_with_readable_names() {
             "src@suffix=\"b\",count=3"
         ]
     );
-    assert_eq!(env.read(&plan, &report, "app@suffix=\"b\",count=3", "out"), "vvv|0.5b");
+    assert_eq!(
+        env.read(&plan, &report, "app@suffix=\"b\",count=3", "out"),
+        "vvv|0.5b"
+    );
     // Plan shows new vs cached per point.
     let f = env.write(
         "s.ron",
@@ -269,7 +317,10 @@ fn repeat_growing_runs_one_new_instance_with_its_own_seed() {
     let parts: Vec<&str> = all.split(',').collect();
     assert_eq!(parts.len(), 5);
     for (i, p) in parts.iter().enumerate() {
-        assert!(p.starts_with(&format!("{} ", 10 + i)), "instance {i} must get seed 10 + {i}: {p}");
+        assert!(
+            p.starts_with(&format!("{} ", 10 + i)),
+            "instance {i} must get seed 10 + {i}: {p}"
+        );
     }
     let (plan, report) = env.run(&f, &["params.members=6"]);
     assert_eq!(take(), ["all", "member[5]", "tag[5]"]);
@@ -301,11 +352,24 @@ fn errors_have_locations_and_hints_and_run_nothing() {
     let env = Env::new();
     let dir = env.dir.path().canonicalize().unwrap();
     let at = |f: &str, l: u32, c: u32| format!("{}:{l}:{c}", dir.join(f).display());
-    let e = load_err(&env, "syntax.ron", "(nodes: {\n  \"a\": (kind: \"Source\" args: ()),\n})");
-    assert!(e.contains(&at("syntax.ron", 2, 24)) && e.contains("syntax error"), "{e}");
-    let e = load_err(&env, "kind.ron", "(nodes: {\n  \"a\": (kind: \"Sorce\"),\n})");
+    let e = load_err(
+        &env,
+        "syntax.ron",
+        "(nodes: {\n  \"a\": (kind: \"Source\" args: ()),\n})",
+    );
     assert!(
-        e.contains(&at("kind.ron", 2, 15)) && e.contains("unknown node kind `Sorce`") && e.contains("did you mean Source"),
+        e.contains(&at("syntax.ron", 2, 24)) && e.contains("syntax error"),
+        "{e}"
+    );
+    let e = load_err(
+        &env,
+        "kind.ron",
+        "(nodes: {\n  \"a\": (kind: \"Sorce\"),\n})",
+    );
+    assert!(
+        e.contains(&at("kind.ron", 2, 15))
+            && e.contains("unknown node kind `Sorce`")
+            && e.contains("did you mean Source"),
         "{e}"
     );
     let e = load_err(
@@ -323,7 +387,9 @@ fn errors_have_locations_and_hints_and_run_nothing() {
         "(nodes: {\n  \"a\": (kind: \"Source\", args: (nested: (alpha: \"high\"))),\n})",
     );
     assert!(
-        e.contains(&at("type.ron", 2, 48)) && e.contains("nested.alpha") && e.contains("defaults to 0.5"),
+        e.contains(&at("type.ron", 2, 48))
+            && e.contains("nested.alpha")
+            && e.contains("defaults to 0.5"),
         "{e}"
     );
     let e = load_err(
@@ -332,7 +398,9 @@ fn errors_have_locations_and_hints_and_run_nothing() {
         "(nodes: {\n  \"a\": (kind: \"Len\", inputs: {\"a\": \"scr.out\"}),\n  \"src\": (kind: \"Source\"),\n})",
     );
     assert!(
-        e.contains(&at("dangling.ron", 2, 36)) && e.contains("`scr`") && e.contains("did you mean `src`"),
+        e.contains(&at("dangling.ron", 2, 36))
+            && e.contains("`scr`")
+            && e.contains("did you mean `src`"),
         "{e}"
     );
     let e = load_err(
@@ -346,18 +414,42 @@ fn errors_have_locations_and_hints_and_run_nothing() {
         "cycle.ron",
         "(nodes: {\n  \"a\": (kind: \"Len\", inputs: {\"a\": \"b.out\"}),\n  \"b\": (kind: \"Append\", inputs: {\"a\": \"a\"}),\n})",
     );
-    assert!(e.contains("cycle") && e.contains("a -> b -> a") || e.contains("b -> a -> b"), "{e}");
-    assert!(e.contains(&dir.join("cycle.ron").display().to_string()), "{e}");
-    let e = load_err(&env, "missing.ron", "(nodes: {\n  \"a\": (kind: \"Len\"),\n})");
-    assert!(e.contains(&at("missing.ron", 2, 3)) && e.contains("needs input `a`"), "{e}");
+    assert!(
+        e.contains("cycle") && e.contains("a -> b -> a") || e.contains("b -> a -> b"),
+        "{e}"
+    );
+    assert!(
+        e.contains(&dir.join("cycle.ron").display().to_string()),
+        "{e}"
+    );
+    let e = load_err(
+        &env,
+        "missing.ron",
+        "(nodes: {\n  \"a\": (kind: \"Len\"),\n})",
+    );
+    assert!(
+        e.contains(&at("missing.ron", 2, 3)) && e.contains("needs input `a`"),
+        "{e}"
+    );
     let e = load_err(
         &env,
         "validate.ron",
         "(nodes: {\n  \"a\": (kind: \"Fail\", args: (fail: true, panic: true)),\n})",
     );
-    assert!(e.contains(&at("validate.ron", 2, 29)) && e.contains("cannot both"), "{e}");
-    let f = env.write("v2.ron", "(nodes: {\"a\": (kind: \"Fail\", args: (fail: true))})");
-    let e = env.engine.load(&f, &["a.panic=true".into()]).err().unwrap().to_string();
+    assert!(
+        e.contains(&at("validate.ron", 2, 29)) && e.contains("cannot both"),
+        "{e}"
+    );
+    let f = env.write(
+        "v2.ron",
+        "(nodes: {\"a\": (kind: \"Fail\", args: (fail: true))})",
+    );
+    let e = env
+        .engine
+        .load(&f, &["a.panic=true".into()])
+        .err()
+        .unwrap()
+        .to_string();
     assert!(
         e.contains("cannot both") && e.contains("values here come from --set a.panic=true"),
         "{e}"
@@ -369,14 +461,34 @@ fn errors_have_locations_and_hints_and_run_nothing() {
     );
     assert!(e.contains("gets no folder"), "{e}");
     let e = load_err(&env, "top.ron", "(nodez: {})");
-    assert!(e.contains(&at("top.ron", 1, 9)) && e.contains("unknown pipeline field"), "{e}");
-    let e = load_err(&env, "param.ron", "(nodes: {\"a\": (kind: \"Seeded\", repeat: Param(\"n\"))})");
+    assert!(
+        e.contains(&at("top.ron", 1, 9)) && e.contains("unknown pipeline field"),
+        "{e}"
+    );
+    let e = load_err(
+        &env,
+        "param.ron",
+        "(nodes: {\"a\": (kind: \"Seeded\", repeat: Param(\"n\"))})",
+    );
     assert!(e.contains("unknown parameter `n`"), "{e}");
     let f = env.write("ok.ron", CHAIN);
-    let e = env.engine.load(&f, &["app.suffix=oops(".into()]).err().unwrap().to_string();
+    let e = env
+        .engine
+        .load(&f, &["app.suffix=oops(".into()])
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("--set app.suffix=oops("), "{e}");
-    let e = env.engine.load(&f, &["app.suffix=3".into()]).err().unwrap().to_string();
-    assert!(e.contains("--set app.suffix=3") && e.contains("suffix"), "{e}");
+    let e = env
+        .engine
+        .load(&f, &["app.suffix=3".into()])
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("--set app.suffix=3") && e.contains("suffix"),
+        "{e}"
+    );
     assert!(take().is_empty(), "nothing may run");
 }
 
@@ -395,17 +507,27 @@ fn failing_node_stores_nothing_and_keeps_ancestors() {
     assert!(!report.success());
     assert_eq!(take(), ["bad", "side", "src"]);
     let st = statuses(&plan, &report);
-    let expect: Vec<(String, String)> = [("after", "skipped"), ("bad", "failed"), ("side", "ran"), ("src", "ran")]
-        .iter()
-        .map(|(a, b)| (a.to_string(), b.to_string()))
-        .collect();
+    let expect: Vec<(String, String)> = [
+        ("after", "skipped"),
+        ("bad", "failed"),
+        ("side", "ran"),
+        ("src", "ran"),
+    ]
+    .iter()
+    .map(|(a, b)| (a.to_string(), b.to_string()))
+    .collect();
     assert_eq!(st, expect);
     let fails = report.failures(&plan);
     assert!(
         fails[0].1.contains("toy failure") && fails[0].1.contains("about to decide"),
         "{fails:?}"
     );
-    let bad = plan.instances.iter().find(|i| i.name == "bad").unwrap().comp;
+    let bad = plan
+        .instances
+        .iter()
+        .find(|i| i.name == "bad")
+        .unwrap()
+        .comp;
     let key = report.results[bad].as_ref().unwrap().key.unwrap();
     assert!(
         env.engine.store().action(&key).unwrap().is_none(),
@@ -416,7 +538,10 @@ fn failing_node_stores_nothing_and_keeps_ancestors() {
     assert_eq!(take(), ["bad"]);
     assert!(!report.success());
     // A panic is a failure too.
-    let f = env.write("p.ron", r#"(nodes: {"bad": (kind: "Fail", args: (panic: true))})"#);
+    let f = env.write(
+        "p.ron",
+        r#"(nodes: {"bad": (kind: "Fail", args: (panic: true))})"#,
+    );
     let (plan, report) = env.run(&f, &[]);
     assert!(report.failures(&plan)[0].1.contains("toy panic"));
     take();
@@ -475,7 +600,10 @@ fn independent_nodes_run_in_parallel_and_heavy_nodes_run_alone() {
         },
     );
     assert_eq!(take().len(), 5);
-    assert_eq!(common::MAX_ACTIVE.load(std::sync::atomic::Ordering::SeqCst), 3);
+    assert_eq!(
+        common::MAX_ACTIVE.load(std::sync::atomic::Ordering::SeqCst),
+        3
+    );
     assert_eq!(
         common::VIOLATIONS.load(std::sync::atomic::Ordering::SeqCst),
         0,
@@ -499,7 +627,10 @@ fn independent_nodes_run_in_parallel_and_heavy_nodes_run_alone() {
             ..Default::default()
         },
     );
-    assert_eq!(common::MAX_ACTIVE.load(std::sync::atomic::Ordering::SeqCst), 1);
+    assert_eq!(
+        common::MAX_ACTIVE.load(std::sync::atomic::Ordering::SeqCst),
+        1
+    );
     take();
 }
 
@@ -537,19 +668,30 @@ fn extends_merges_and_paths_resolve_against_their_file() {
     assert_eq!(env.read(&plan, &report, "ext", "out"), "8");
     assert_eq!(env.read(&plan, &report, "app", "out"), "8base");
     assert_eq!(env.read(&plan, &report, "src", "out"), "v|2");
-    let src = plan.instances.iter().find(|i| i.name == "src").unwrap().comp;
+    let src = plan
+        .instances
+        .iter()
+        .find(|i| i.name == "src")
+        .unwrap()
+        .comp;
     assert_eq!(
         plan.comps[src].args_json["nested"]["tags"],
         serde_json::json!(["x"]),
         "nested struct fields merge"
     );
     let text = augsplat_graph::expand_text(&plan);
-    assert!(text.contains("alpha: 2.0") && !text.contains("gone"), "{text}");
+    assert!(
+        text.contains("alpha: 2.0") && !text.contains("gone"),
+        "{text}"
+    );
     // Editing the external file reruns its reader; `why` says so.
     std::fs::write(env.dir.path().join("base/data/value.txt"), "external!").unwrap();
     let plan = env.engine.load(&f, &[]).unwrap();
     let why = env.engine.why_text(&plan, "ext").unwrap();
-    assert!(why.contains("the content of") && why.contains("changed"), "{why}");
+    assert!(
+        why.contains("the content of") && why.contains("changed"),
+        "{why}"
+    );
     env.run(&f, &[]);
     assert_eq!(take(), ["app", "ext"]);
 }
@@ -562,21 +704,40 @@ fn why_names_the_changed_arg_with_its_location_or_override() {
     env.run(&f, &[]);
     take();
     let plan = env.engine.load(&f, &[]).unwrap();
-    assert!(env.engine.why_text(&plan, "len").unwrap().contains("is cached"));
+    assert!(env
+        .engine
+        .why_text(&plan, "len")
+        .unwrap()
+        .contains("is cached"));
     let f = env.write("p.ron", &CHAIN.replace(r#"suffix: "!""#, r#"suffix: "%""#));
     let plan = env.engine.load(&f, &[]).unwrap();
     let why = env.engine.why_text(&plan, "len").unwrap();
     let file = f.canonicalize().unwrap();
-    assert!(why.contains("input `a` comes from `app.out`, which will run first"), "{why}");
+    assert!(
+        why.contains("input `a` comes from `app.out`, which will run first"),
+        "{why}"
+    );
     assert!(why.contains(r#"arg `suffix`: "!" -> "%""#), "{why}");
     assert!(why.contains(&format!("{}:5:48", file.display())), "{why}");
     let plan = env.engine.load(&f, &["src.count=5".into()]).unwrap();
     let why = env.engine.why_text(&plan, "src").unwrap();
-    assert!(why.contains("arg `count`: 2 -> 5") && why.contains("--set src.count=5"), "{why}");
+    assert!(
+        why.contains("arg `count`: 2 -> 5") && why.contains("--set src.count=5"),
+        "{why}"
+    );
     // A never-run node.
-    let f = env.write("p.ron", &CHAIN.replace("\"other\"", "\"fresh\"").replace("\"?\"", "\"??\""));
+    let f = env.write(
+        "p.ron",
+        &CHAIN
+            .replace("\"other\"", "\"fresh\"")
+            .replace("\"?\"", "\"??\""),
+    );
     let plan = env.engine.load(&f, &[]).unwrap();
-    assert!(env.engine.why_text(&plan, "fresh").unwrap().contains("no previous successful run"));
+    assert!(env
+        .engine
+        .why_text(&plan, "fresh")
+        .unwrap()
+        .contains("no previous successful run"));
 }
 
 #[test]
@@ -676,11 +837,17 @@ fn keys_and_outputs_do_not_depend_on_thread_budget() {
             .map(|n| n["key"].clone())
             .collect::<Vec<_>>()
     );
-    assert_eq!(env1.read(&p1, &r1, "c", "out"), env2.read(&p2, &r2, "c", "out"));
+    assert_eq!(
+        env1.read(&p1, &r1, "c", "out"),
+        env2.read(&p2, &r2, "c", "out")
+    );
     let s = r1.summary_json(&p1);
     for n in s["nodes"].as_array().unwrap() {
         let o = n.as_object().unwrap();
-        assert_eq!(o.keys().cloned().collect::<Vec<_>>(), ["key", "kind", "name", "seconds", "status"]);
+        assert_eq!(
+            o.keys().cloned().collect::<Vec<_>>(),
+            ["key", "kind", "name", "seconds", "status"]
+        );
     }
     take();
 }
@@ -703,16 +870,29 @@ fn command_kind_runs_a_program_without_a_shell() {
     })"#,
     );
     let (plan, report) = env.run(&f, &[]);
-    let d = report.output_dir(&plan, env.engine.store(), "cmd", "out").unwrap();
-    assert_eq!(std::fs::read_to_string(d.join("copied.txt")).unwrap(), "hello|0.5");
+    let d = report
+        .output_dir(&plan, env.engine.store(), "cmd", "out")
+        .unwrap();
+    assert_eq!(
+        std::fs::read_to_string(d.join("copied.txt")).unwrap(),
+        "hello|0.5"
+    );
     let fails = report.failures(&plan);
     assert_eq!(fails.len(), 1);
     assert!(
-        fails[0].1.contains("exit status: 3") && fails[0].1.contains("to-stdout") && fails[0].1.contains("to-stderr"),
+        fails[0].1.contains("exit status: 3")
+            && fails[0].1.contains("to-stdout")
+            && fails[0].1.contains("to-stderr"),
         "{fails:?}"
     );
-    let d = report.output_dir(&plan, env.engine.store(), "env", "out").unwrap();
-    assert!(std::fs::read_to_string(d.join("seed.txt")).unwrap().trim().parse::<u64>().is_ok());
+    let d = report
+        .output_dir(&plan, env.engine.store(), "env", "out")
+        .unwrap();
+    assert!(std::fs::read_to_string(d.join("seed.txt"))
+        .unwrap()
+        .trim()
+        .parse::<u64>()
+        .is_ok());
     let e = load_err(
         &env,
         "bad.ron",

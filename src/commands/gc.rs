@@ -20,7 +20,11 @@ pub struct Args {
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
     let engine = open_engine(registry, args.cache)?;
     let r = engine.gc(args.dry_run).map_err(|e| e.to_string())?;
-    let verb = if args.dry_run { "would remove" } else { "removed" };
+    let verb = if args.dry_run {
+        "would remove"
+    } else {
+        "removed"
+    };
     println!(
         "roots: {} keys from {} root file(s) (latest run of each pipeline, pins)",
         r.roots,

@@ -18,7 +18,9 @@ pub struct Args {
 /// Runs `augsplat plan`.
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
     let (engine, plan) = args.pipeline.load(registry)?;
-    let text = engine.plan_text(&plan, &args.targets).map_err(|e| e.to_string())?;
+    let text = engine
+        .plan_text(&plan, &args.targets)
+        .map_err(|e| e.to_string())?;
     print!("{text}");
     Ok(())
 }

@@ -65,7 +65,10 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
     if failures.is_empty() {
         Ok(())
     } else {
-        let mut msg = format!("{} node(s) failed; nothing was stored for them:", failures.len());
+        let mut msg = format!(
+            "{} node(s) failed; nothing was stored for them:",
+            failures.len()
+        );
         for (_, m) in failures {
             msg.push_str("\n  ");
             msg.push_str(&m.replace('\n', "\n  "));
@@ -92,7 +95,9 @@ impl PipelineArgs {
     /// Opens the store and resolves the pipeline.
     pub fn load(&self, registry: &Registry) -> Result<(Engine, Plan), String> {
         let engine = open_engine(registry, self.cache.clone())?;
-        let plan = engine.load(&self.file, &self.sets).map_err(|e| e.to_string())?;
+        let plan = engine
+            .load(&self.file, &self.sets)
+            .map_err(|e| e.to_string())?;
         Ok((engine, plan))
     }
 }

@@ -17,7 +17,9 @@ pub struct Args {
 /// Runs `augsplat why`.
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
     let (engine, plan) = args.pipeline.load(registry)?;
-    let text = engine.why_text(&plan, &args.node).map_err(|e| e.to_string())?;
+    let text = engine
+        .why_text(&plan, &args.node)
+        .map_err(|e| e.to_string())?;
     print!("{text}");
     Ok(())
 }

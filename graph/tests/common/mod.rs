@@ -87,7 +87,10 @@ impl Node for Source {
         record(ctx);
         enter(args.sleep_ms);
         let text = args.value.repeat(args.count.max(1) as usize);
-        std::fs::write(ctx.output("out")?.join("value.txt"), format!("{text}|{}", args.nested.alpha))?;
+        std::fs::write(
+            ctx.output("out")?.join("value.txt"),
+            format!("{text}|{}", args.nested.alpha),
+        )?;
         Ok(())
     }
 }
@@ -195,7 +198,10 @@ impl Node for Seeded {
     }
     fn run(args: &SeededArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
         record(ctx);
-        std::fs::write(ctx.output("out")?.join("value.txt"), format!("{} {}", args.seed, ctx.seed()))?;
+        std::fs::write(
+            ctx.output("out")?.join("value.txt"),
+            format!("{} {}", args.seed, ctx.seed()),
+        )?;
         Ok(())
     }
 }
@@ -269,7 +275,10 @@ impl Node for Heavy {
         std::thread::sleep(std::time::Duration::from_millis(args.sleep_ms));
         HEAVY_RUNNING.fetch_sub(1, Ordering::SeqCst);
         let pool = rayon::current_num_threads();
-        std::fs::write(ctx.output("out")?.join("value.txt"), format!("{} {}", ctx.threads(), pool))?;
+        std::fs::write(
+            ctx.output("out")?.join("value.txt"),
+            format!("{} {}", ctx.threads(), pool),
+        )?;
         Ok(())
     }
 }
@@ -277,7 +286,12 @@ impl Node for Heavy {
 /// Every toy kind plus the engine's own.
 pub fn registry() -> Registry {
     let mut r = Registry::with_engine_kinds();
-    r.register::<Source>().register::<Append>().register::<Len>().register::<Concat>();
-    r.register::<Seeded>().register::<Fail>().register::<Heavy>();
+    r.register::<Source>()
+        .register::<Append>()
+        .register::<Len>()
+        .register::<Concat>();
+    r.register::<Seeded>()
+        .register::<Fail>()
+        .register::<Heavy>();
     r
 }

@@ -112,11 +112,7 @@ impl Scene {
         image::read_rgb(&dir.join(&self.views[index].image))
     }
     /// Loads the depth (Z) and weight (W) planes of view `index`, if it has depth.
-    pub fn load_depth(
-        &self,
-        dir: &Path,
-        index: usize,
-    ) -> Result<Option<DepthPlanes>, CoreError> {
+    pub fn load_depth(&self, dir: &Path, index: usize) -> Result<Option<DepthPlanes>, CoreError> {
         let Some(rel) = &self.views[index].depth else {
             return Ok(None);
         };

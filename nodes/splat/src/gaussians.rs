@@ -28,7 +28,10 @@ pub struct Gaussians {
 impl Gaussians {
     /// An empty set with SH storage for `sh_degree`.
     pub fn empty(sh_degree: u32) -> Self {
-        Gaussians { sh_degree, ..Default::default() }
+        Gaussians {
+            sh_degree,
+            ..Default::default()
+        }
     }
     /// Number of Gaussians.
     pub fn len(&self) -> usize {

@@ -20,6 +20,8 @@ pub mod train;
 
 pub use error::SplatError;
 pub use gaussians::Gaussians;
-pub use ply::{read_ply, write_ply};
-pub use render::{backward, render, render_masked, Gradients, RenderOutput, RenderSettings, RenderStats};
 pub use node::{register, OptimizeSplats};
+pub use ply::{read_ply, write_ply};
+pub use render::{
+    backward, render, render_masked, Gradients, RenderOutput, RenderSettings, RenderStats,
+};
