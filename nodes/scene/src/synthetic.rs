@@ -1,7 +1,7 @@
 //! The generated default scene: a deterministic, exactly ray-traced procedural scene.
 //!
 //! Content (design frame, z up, metres-like units): a textured ground disk (soft checker of
-//! 0.4-unit cells over a colour gradient, radius 3.2), two textured spheres (soft latitude
+//! 0.5-unit cells over a colour gradient, radius 3.2), two textured spheres (soft latitude
 //! stripes; a checker in longitude/latitude), a rotated box with a different colour and a
 //! soft grid per face, a small gradient sphere, and a background dome (radius 6: a sky
 //! gradient with a low-frequency azimuthal tint above the horizon, a darker soft band below).
@@ -272,7 +272,7 @@ impl World {
                 }
             }
             OBJ_GROUND => {
-                let c = soft_checker(p[0] / 0.4, p[1] / 0.4, 0.08);
+                let c = soft_checker(p[0] / 0.5, p[1] / 0.5, 0.12);
                 let g = 0.5 + 0.5 * (0.7 * p[0] - 0.5 * p[1]).sin();
                 let base_a = [0.82, 0.74, 0.58];
                 let base_b = [0.45, 0.5, 0.38];
@@ -287,7 +287,7 @@ impl World {
                 // Big sphere: soft latitude stripes, red/yellow.
                 let n = h.n;
                 let lat = n[2].clamp(-1.0, 1.0).asin();
-                let s = 0.5 + 0.5 * (lat * 10.0).sin();
+                let s = 0.5 + 0.5 * (lat * 8.0).sin();
                 lerp3([0.85, 0.2, 0.15], [0.95, 0.8, 0.25], s)
             }
             3 => {
@@ -321,7 +321,7 @@ impl World {
                 let pl = linalg::mat3_vec(&self.box_r, linalg::sub(p, self.box_c));
                 let axis = face / 2;
                 let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
-                let g = soft_grid(pl[a] / 0.175, pl[b] / 0.175, 0.12);
+                let g = soft_grid(pl[a] / 0.2333, pl[b] / 0.2333, 0.15);
                 let c = hues[face];
                 lerp3(c, linalg::scale(c, 0.45), g)
             }
