@@ -1,8 +1,9 @@
 //! Issue 4's baseline acceptance run: the generated scene, all 30 views at 128×96 (every 8th
 //! held out), Baseline schedule with default arguments; held-out PSNR must exceed 30 dB.
-//! Minutes of CPU, so `#[ignore]`d: run with
-//! `cargo test -p augsplat-splat --test train_acceptance -- --ignored --nocapture`
-//! (`AUGSPLAT_ACCEPT_STEPS` overrides the 3000 steps). The same run with a printed curve:
+//! 2,000 steps (about 1.5–2.5 minutes of CPU on the 2-core CI machine; it reached 32.4 dB when
+//! measured). Run it alone with
+//! `cargo test -p augsplat-splat --test train_acceptance -- --nocapture`
+//! (`AUGSPLAT_ACCEPT_STEPS` overrides the 2,000 steps). The 3,000-step run with a printed curve:
 //! `cargo run --release -p augsplat-splat --example train_baseline_curve`.
 
 mod train_util;
@@ -14,12 +15,11 @@ use augsplat_splat::train::TrainArgs;
 use augsplat_splat::OptimizeSplats;
 
 #[test]
-#[ignore = "minutes of CPU; run explicitly"]
 fn baseline_on_generated_scene_exceeds_30_db() {
     let steps: u64 = std::env::var("AUGSPLAT_ACCEPT_STEPS")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or(3000);
+        .unwrap_or(2000);
     let tmp = tempfile::tempdir().unwrap();
     let (train, test) = train_util::make_scene(tmp.path(), 128, 96, 30, 3000);
     let args = TrainArgs {
