@@ -242,7 +242,7 @@ pub struct SyntheticScene;
 
 impl Node for SyntheticScene {
     const KIND: &'static str = "SyntheticScene";
-    const VERSION: u32 = 1;
+    const VERSION: u32 = 2;
     type Args = SyntheticParams;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {
