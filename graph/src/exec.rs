@@ -119,20 +119,33 @@ impl RunReport {
         let r = self.results[inst.comp].as_ref()?;
         r.outputs.get(output).map(|m| store.output_dir(m))
     }
-    /// `{"nodes":[{"name","kind","key","status","seconds"}..]}`: one entry per needed instance.
+    /// `{"nodes":[{"name","kind","key","status","seconds"}..]}`: one entry per needed instance;
+    /// `status` is `ran`, `cached` or `failed` (a node not run because an input failed is
+    /// `failed` too); failed entries add `"error"` with the reason.
     pub fn summary_json(&self, plan: &Plan) -> serde_json::Value {
         let mut nodes = Vec::new();
         for inst in &plan.instances {
             let Some(r) = &self.results[inst.comp] else {
                 continue;
             };
-            nodes.push(serde_json::json!({
+            // The summary's vocabulary is ran | cached | failed: a computation that did not
+            // run because an input failed is reported as failed, with the reason.
+            let (status, error) = match &r.status {
+                Status::Failed(msg) => ("failed", Some(msg.clone())),
+                Status::Skipped => ("failed", Some("not run: an input failed".to_string())),
+                other => (other.as_str(), None),
+            };
+            let mut entry = serde_json::json!({
                 "name": inst.name,
                 "kind": plan.comps[inst.comp].node.kind(),
                 "key": r.key.as_ref().map(hex).unwrap_or_default(),
-                "status": r.status.as_str(),
+                "status": status,
                 "seconds": r.seconds,
-            }));
+            });
+            if let Some(e) = error {
+                entry["error"] = serde_json::Value::String(e);
+            }
+            nodes.push(entry);
         }
         serde_json::json!({ "nodes": nodes })
     }

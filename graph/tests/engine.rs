@@ -508,7 +508,7 @@ fn failing_node_stores_nothing_and_keeps_ancestors() {
     assert_eq!(take(), ["bad", "side", "src"]);
     let st = statuses(&plan, &report);
     let expect: Vec<(String, String)> = [
-        ("after", "skipped"),
+        ("after", "failed"),
         ("bad", "failed"),
         ("side", "ran"),
         ("src", "ran"),
@@ -517,6 +517,19 @@ fn failing_node_stores_nothing_and_keeps_ancestors() {
     .map(|(a, b)| (a.to_string(), b.to_string()))
     .collect();
     assert_eq!(st, expect);
+    let summary = report.summary_json(&plan);
+    let error_of = |name: &str| {
+        summary["nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|n| n["name"] == name)
+            .map(|n| n["error"].as_str().unwrap_or("").to_string())
+            .unwrap()
+    };
+    assert!(error_of("bad").contains("toy failure"));
+    assert!(error_of("after").contains("an input failed"));
+    assert_eq!(error_of("side"), "");
     let fails = report.failures(&plan);
     assert!(
         fails[0].1.contains("toy failure") && fails[0].1.contains("about to decide"),
