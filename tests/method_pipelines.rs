@@ -157,6 +157,18 @@ fn demo_runs_end_to_end_and_edits_rerun_exactly_what_they_touch() {
             assert!(m["at_baseline"].is_object(), "{node}: {text}");
         }
     }
+    // The ensemble's own held-out quality: every member and the median, on the test views.
+    let dir = output_dir(&cache, &first, "eval_ensemble", "eval");
+    let text = std::fs::read_to_string(dir.join("metrics.json")).unwrap();
+    let m: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(m["members"].as_u64(), Some(5), "{text}");
+    assert_eq!(m["member"].as_array().map(Vec::len), Some(5), "{text}");
+    assert!(
+        m["median"]["mean"]["psnr"]
+            .as_f64()
+            .is_some_and(|p| p.is_finite() && p > 0.0),
+        "{text}"
+    );
     let report = output_dir(&cache, &first, "report", "report");
     let summary = std::fs::read_to_string(report.join("summary.md")).unwrap();
     for label in ["3DGS", "Staged", "Dual"] {
@@ -189,7 +201,7 @@ fn demo_runs_end_to_end_and_edits_rerun_exactly_what_they_touch() {
     );
     assert_eq!(ran(&decay), set(&["dual", "eval_dual", "report"]));
 
-    // 5. M 5 → 6: exactly one new field (and its render), then everything the ensemble feeds.
+    // 5. M 5 → 6: exactly one new field (and its renders), then everything the ensemble feeds.
     let six = run(
         "demo.ron",
         &cache,
@@ -210,6 +222,8 @@ fn demo_runs_end_to_end_and_edits_rerun_exactly_what_they_touch() {
         set(&[
             "field[5]",
             "render[5]",
+            "render_test[5]",
+            "eval_ensemble",
             "aggregate",
             "staged",
             "dual",
@@ -234,7 +248,9 @@ fn gamma_sweep_trains_the_ensemble_once() {
             .collect()
     };
     assert_eq!(keys_of("TrainField").len(), 2, "{entries:?}");
-    assert_eq!(keys_of("RenderField").len(), 2);
+    // Each member renders the synthetic poses and the test views once for all points.
+    assert_eq!(keys_of("RenderField").len(), 4);
+    assert_eq!(keys_of("EvaluateEnsemble").len(), 1);
     assert_eq!(keys_of("AggregateEnsemble").len(), 5);
     // The baseline does not depend on γ either.
     assert_eq!(

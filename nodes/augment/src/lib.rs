@@ -4,7 +4,8 @@
 //!   neighbour interpolations, then N drawn), with a report of how near they stay;
 //! - [`aggregate`]: ensemble aggregation kernels — per-pixel median target and variance-based
 //!   confidence weights `(1 − V_norm)^γ`;
-//! - [`nodes`]: the node kinds `SynthesizePoses` and `AggregateEnsemble`.
+//! - [`nodes`]: the node kinds `SynthesizePoses`, `AggregateEnsemble` and `ScenePoses` (the
+//!   poses of a scene's real views, e.g. to render the ensemble at the held-out views).
 //!
 //! Rendering the ensemble at the poses is a separate node (`RenderField`), so changing γ
 //! reruns only the aggregation and what follows it.
@@ -13,10 +14,11 @@ pub mod aggregate;
 pub mod nodes;
 pub mod poses;
 
-pub use nodes::{AggregateEnsemble, SynthesizePoses};
+pub use nodes::{AggregateEnsemble, ScenePoses, SynthesizePoses};
 
 /// Registers this family's node kinds.
 pub fn register(registry: &mut augsplat_graph::Registry) {
     registry.register::<SynthesizePoses>();
     registry.register::<AggregateEnsemble>();
+    registry.register::<ScenePoses>();
 }

@@ -89,6 +89,92 @@ impl Node for SynthesizePoses {
     }
 }
 
+/// Args of [`ScenePoses`].
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ScenePosesArgs {
+    /// Integer downscale of the cameras (1 = the scene's image resolution).
+    pub downscale: u32,
+}
+
+impl Default for ScenePosesArgs {
+    fn default() -> Self {
+        ScenePosesArgs { downscale: 1 }
+    }
+}
+
+/// `ScenePoses`: input `scene` (a scene folder) → output `poses` (`poses.json`, a
+/// [`PoseSet`] with one pose per view: the view's name and camera, at 1/`downscale` of its
+/// resolution, origin `scene:<name>`). It lets a field ensemble be rendered at real views —
+/// e.g. the held-out ones, to measure each member and the ensemble median (`EvaluateEnsemble`).
+pub struct ScenePoses;
+
+impl Node for ScenePoses {
+    const KIND: &'static str = "ScenePoses";
+    const VERSION: u32 = 1;
+    type Args = ScenePosesArgs;
+
+    fn inputs(_: &ScenePosesArgs) -> Vec<InputDecl> {
+        vec![InputDecl::one("scene")]
+    }
+    fn outputs(_: &ScenePosesArgs) -> Vec<String> {
+        vec!["poses".into()]
+    }
+    fn threads(_: &ScenePosesArgs) -> Threads {
+        Threads::One
+    }
+    fn validate(args: &ScenePosesArgs) -> Result<(), String> {
+        if args.downscale == 0 {
+            return Err("downscale must be ≥ 1".into());
+        }
+        Ok(())
+    }
+    fn run(args: &ScenePosesArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let dir = ctx.input("scene")?.to_path_buf();
+        let poses = scene_poses(&dir, args.downscale)?;
+        let out = ctx.output("poses")?;
+        artifacts::write_json(&out.join(files::POSES), &poses)?;
+        Ok(())
+    }
+}
+
+/// The poses of every view of the scene folder `dir`, cameras at 1/`downscale` (rounded up).
+/// Errors name the scene file and the view whose camera is invalid.
+pub fn scene_poses(dir: &Path, downscale: u32) -> Result<PoseSet, NodeError> {
+    let scene = Scene::load(dir)?;
+    if scene.views.is_empty() {
+        return Err(NodeError::new(format!(
+            "{}: the scene has no views",
+            dir.join(augsplat_core::scene::SCENE_FILE).display()
+        )));
+    }
+    let downscale = downscale.max(1);
+    let mut views = Vec::with_capacity(scene.views.len());
+    for v in &scene.views {
+        v.camera.validate().map_err(|e| {
+            NodeError::new(format!(
+                "{}: view {:?}: {e}",
+                dir.join(augsplat_core::scene::SCENE_FILE).display(),
+                v.name
+            ))
+        })?;
+        let camera = if downscale > 1 {
+            v.camera.resized(
+                v.camera.width.div_ceil(downscale),
+                v.camera.height.div_ceil(downscale),
+            )
+        } else {
+            v.camera.clone()
+        };
+        views.push(augsplat_core::artifacts::PoseView {
+            name: v.name.clone(),
+            camera,
+            origin: format!("scene:{}", v.name),
+        });
+    }
+    Ok(PoseSet { views })
+}
+
 /// Per-view statistics of an aggregation (`aggregate_report.json`).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct AggregateViewStats {

@@ -2,9 +2,10 @@
 //! and clear errors on bad inputs.
 
 use augsplat_augment::aggregate::{aggregate_view, AggregateParams, Workspace};
+use augsplat_augment::nodes::ScenePosesArgs;
 use augsplat_augment::nodes::{AggregateReport, AGGREGATE_REPORT, POSES_REPORT};
 use augsplat_augment::poses::{PoseParams, PosesReport};
-use augsplat_augment::{AggregateEnsemble, SynthesizePoses};
+use augsplat_augment::{AggregateEnsemble, ScenePoses, SynthesizePoses};
 use augsplat_core::artifacts::{self, files, PoseSet, RenderSet, RenderedView, SyntheticSet};
 use augsplat_core::linalg::{self, mat4_from_rt};
 use augsplat_core::{image, Camera, Rng, Scene, SceneView};
@@ -162,6 +163,58 @@ fn synthesize_poses_writes_pose_set_and_report() {
     assert_eq!(rep.training_views, 9);
     assert!(rep.nearest_distance_rel.max <= 1.0);
     assert!(rep.nearest_view_angle_deg.max < 45.0);
+}
+
+#[test]
+fn scene_poses_lists_every_view_at_the_asked_resolution() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("test");
+    write_scene(&scene, 3);
+    for downscale in [1u32, 3] {
+        let root = tmp.path().join(format!("o{downscale}"));
+        run_in_pool::<ScenePoses>(
+            &ScenePosesArgs { downscale },
+            vec![("scene".to_string(), vec![scene.clone()])],
+            &["poses"],
+            &root,
+            1,
+        )
+        .unwrap();
+        let set: PoseSet = artifacts::read_json(&root.join("poses").join(files::POSES)).unwrap();
+        assert_eq!(set.views.len(), 3);
+        let stored = Scene::load(&scene).unwrap();
+        for (i, v) in set.views.iter().enumerate() {
+            let cam = &stored.views[i].camera;
+            assert_eq!(v.name, format!("img{i}"));
+            assert_eq!(v.origin, format!("scene:img{i}"));
+            assert_eq!(v.camera.world_to_camera, cam.world_to_camera);
+            assert_eq!(
+                (v.camera.width, v.camera.height),
+                (80u32.div_ceil(downscale), 60u32.div_ceil(downscale))
+            );
+            let (sx, sy) = (v.camera.width as f64 / 80.0, v.camera.height as f64 / 60.0);
+            assert!(
+                (v.camera.fx - cam.fx * sx).abs() < 1e-9
+                    && (v.camera.fy - cam.fy * sy).abs() < 1e-9
+            );
+        }
+    }
+    // Bad inputs: a zero downscale is rejected before running; an empty scene names its file.
+    assert!(ScenePoses::validate(&ScenePosesArgs { downscale: 0 }).is_err());
+    let empty = tmp.path().join("empty");
+    write_scene(&empty, 0);
+    let err = run_in_pool::<ScenePoses>(
+        &ScenePosesArgs::default(),
+        vec![("scene".to_string(), vec![empty])],
+        &["poses"],
+        &tmp.path().join("oe"),
+        1,
+    )
+    .unwrap_err();
+    assert!(
+        err.contains("scene.json") && err.contains("no views"),
+        "{err}"
+    );
 }
 
 #[test]

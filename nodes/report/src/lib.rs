@@ -8,10 +8,13 @@
 //! - [`html`]: HTML helpers (escaping, base64 PNG data URIs, tables with the best value per
 //!   column marked);
 //! - [`evaluate`]: the `Evaluate` node (render held-out views, per-view/mean metrics);
+//! - [`ensemble`]: the `EvaluateEnsemble` node (each radiance-field member and their per-pixel
+//!   median on the held-out views);
 //! - [`report`], [`report_node`]: the report builder and the `Report` node;
 //! - [`compare`]: metric deltas across runs (ablation points).
 
 pub mod compare;
+pub mod ensemble;
 pub mod error;
 pub mod evalset;
 pub mod evaluate;
@@ -21,12 +24,14 @@ pub mod report_node;
 pub mod select;
 pub mod svg;
 
+pub use ensemble::EvaluateEnsembleNode;
 pub use error::ReportError;
 pub use evaluate::EvaluateNode;
 pub use report_node::ReportNode;
 
-/// Registers this family's node kinds (`Report`; `Evaluate`).
+/// Registers this family's node kinds (`Report`; `Evaluate`; `EvaluateEnsemble`).
 pub fn register(registry: &mut augsplat_graph::Registry) {
     registry.register::<EvaluateNode>();
+    registry.register::<EvaluateEnsembleNode>();
     registry.register::<ReportNode>();
 }
