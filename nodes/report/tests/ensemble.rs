@@ -168,8 +168,8 @@ fn member_and_median_metrics_match_a_direct_computation() {
         assert_eq!(got.member.len(), m);
         for (v, gt) in gts.iter().enumerate() {
             // Members, clamped.
-            for j in 0..m {
-                let img: Vec<f64> = renders[j][v].iter().map(|&x| x as f64).collect();
+            for (j, member_renders) in renders.iter().enumerate() {
+                let img: Vec<f64> = member_renders[v].iter().map(|&x| x as f64).collect();
                 let want = psnr(&img, gt);
                 let have = got.member[j].views[v].metrics.psnr;
                 assert!(
