@@ -1,13 +1,15 @@
 //! Initialisation of a Gaussian set, as gsplat `simple_trainer`: from the scene's sparse
 //! points (opacity 0.1, isotropic scale = root-mean-square distance to the 3 nearest
 //! neighbours, SH DC from the point colour, higher SH zero, quaternions uniform in [0,1)⁴) or,
-//! without points, from points drawn uniformly in a cube around the cameras.
+//! without points, from random points: by default on random training-camera rays between the
+//! scene's near and far bounds ([`RandomInit::Frusta`]), or uniformly in a cube around the
+//! cameras as gsplat's `init_type = "random"` ([`RandomInit::Cube`]).
 //!
 //! The nearest neighbours come from a uniform grid (cell ≈ bounding-box volume / N, searched
 //! in growing shells) so initialisation is O(N) for well-spread clouds, not O(N²).
 
 use crate::Gaussians;
-use augsplat_core::{PointCloud, Rng};
+use augsplat_core::{Camera, PointCloud, Rng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -24,8 +26,32 @@ pub struct InitArgs {
     /// Number of random points when the scene has none (gsplat uses 100k; a CPU-sized
     /// default here).
     pub random_points: usize,
-    /// Half-extent of the random cube, in scene scales (gsplat `init_extent`).
+    /// Half-extent of the random cube, in scene scales (gsplat `init_extent`); used by
+    /// [`RandomInit::Cube`].
     pub random_extent: f64,
+    /// Where random points are drawn when the scene has no sparse points.
+    pub random_in: RandomInit,
+}
+
+/// Where random initial points are drawn when the scene has no sparse points.
+///
+/// gsplat's cube (half-side 3 scene scales around the cameras' mean) suits captures whose
+/// content surrounds the cameras. For forward-facing captures (LLFF) the content lies far in
+/// front of cameras that barely move — fern's bounds are 3.3–15 in units where the cameras fit
+/// in a unit ball — so the cube holds almost nothing that is visible at the right depth, and
+/// the mean learning rate (∝ scene scale) cannot carry points there. `Frusta` puts the points
+/// where the training views can see them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RandomInit {
+    /// On rays through uniformly random pixels of uniformly drawn training views, at a depth
+    /// (along the optical axis) uniform in disparity between the scene's near and far
+    /// bounds, coloured by the pixel the ray passes through. Falls back to `Cube` when the
+    /// bounds are not finite with 0 < near < far.
+    #[default]
+    Frusta,
+    /// Uniform in the cube of half-side `random_extent · scene_scale` around the cameras'
+    /// mean, random colours (gsplat `init_type = "random"`).
+    Cube,
 }
 
 impl Default for InitArgs {
@@ -35,6 +61,7 @@ impl Default for InitArgs {
             scale_factor: 1.0,
             random_points: 20_000,
             random_extent: 3.0,
+            random_in: RandomInit::Frusta,
         }
     }
 }
@@ -222,6 +249,62 @@ pub fn random(
             (center[a] + half * (2.0 * rng.next_f64() - 1.0)) as f32
         }));
         colors.push(std::array::from_fn(|_| rng.next_f32()));
+    }
+    build(positions, colors, sh_degree, args, scene_scale, seed)
+}
+
+/// One training view for [`random_in_frusta`]: its camera and interleaved RGB image of the
+/// camera's size.
+pub struct InitView<'a> {
+    /// The camera.
+    pub camera: &'a Camera,
+    /// Interleaved RGB, `height · width · 3`.
+    pub image: &'a [f32],
+}
+
+/// Gaussians at `args.random_points` points on rays through uniformly random pixels of
+/// uniformly drawn `views`, at a depth along the optical axis uniform in disparity between
+/// `near` and `far`, with the colour of the pixel the ray passes through. Views whose image
+/// does not match their camera's size are given a grey colour.
+pub fn random_in_frusta(
+    views: &[InitView<'_>],
+    near: f64,
+    far: f64,
+    sh_degree: u32,
+    args: &InitArgs,
+    scene_scale: f64,
+    seed: u64,
+) -> Gaussians {
+    let mut rng = Rng::stream(seed, 0x1418);
+    let mut positions = Vec::with_capacity(args.random_points);
+    let mut colors = Vec::with_capacity(args.random_points);
+    if views.is_empty() {
+        return build(positions, colors, sh_degree, args, scene_scale, seed);
+    }
+    let (d_near, d_far) = (1.0 / near, 1.0 / far);
+    for _ in 0..args.random_points {
+        let v = &views[((rng.next_f64() * views.len() as f64) as usize).min(views.len() - 1)];
+        let cam = v.camera;
+        let u = rng.next_f64() * cam.width as f64;
+        let w = rng.next_f64() * cam.height as f64;
+        let disparity = d_far + (d_near - d_far) * rng.next_f64();
+        let z = 1.0 / disparity;
+        let (origin, dir) = cam.ray(u, w);
+        // `dir` is unit; the camera-space direction with z = 1 is |(x, y, 1)| long.
+        let (x, y) = ((u - cam.cx) / cam.fx, (w - cam.cy) / cam.fy);
+        let dist = z * (x * x + y * y + 1.0).sqrt();
+        positions.push(std::array::from_fn(|a| (origin[a] + dir[a] * dist) as f32));
+        let (px, py) = (
+            (u as usize).min(cam.width as usize - 1),
+            (w as usize).min(cam.height as usize - 1),
+        );
+        let idx = (py * cam.width as usize + px) * 3;
+        let col = if v.image.len() == cam.width as usize * cam.height as usize * 3 {
+            [v.image[idx], v.image[idx + 1], v.image[idx + 2]]
+        } else {
+            [0.5; 3]
+        };
+        colors.push(col);
     }
     build(positions, colors, sh_degree, args, scene_scale, seed)
 }

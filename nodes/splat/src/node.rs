@@ -221,11 +221,48 @@ impl Node for OptimizeSplats {
             let cs: Vec<[f64; 3]> = cams.iter().map(|c| c.center()).collect();
             let center =
                 std::array::from_fn(|k| cs.iter().map(|c| c[k]).sum::<f64>() / cs.len() as f64);
-            ctx.log(format!(
-                "no sparse points: {} random Gaussians",
-                a.init.random_points
-            ));
-            init::random(center, a.sh_degree, &a.init, sscale, a.seed)
+            let bounds_ok = scene.near.is_finite()
+                && scene.far.is_finite()
+                && scene.near > 0.0
+                && scene.far > scene.near;
+            match a.init.random_in {
+                init::RandomInit::Frusta if bounds_ok => {
+                    ctx.log(format!(
+                        "no sparse points: {} random Gaussians on training rays, depth {:.3}–{:.3} (uniform in disparity)",
+                        a.init.random_points, scene.near, scene.far
+                    ));
+                    let views: Vec<init::InitView<'_>> = real
+                        .views
+                        .iter()
+                        .map(|v| init::InitView {
+                            camera: &v.camera,
+                            image: &v.image,
+                        })
+                        .collect();
+                    init::random_in_frusta(
+                        &views,
+                        scene.near,
+                        scene.far,
+                        a.sh_degree,
+                        &a.init,
+                        sscale,
+                        a.seed,
+                    )
+                }
+                mode => {
+                    ctx.log(format!(
+                        "no sparse points: {} random Gaussians in a cube of half-side {} scene scales{}",
+                        a.init.random_points,
+                        a.init.random_extent,
+                        if mode == init::RandomInit::Frusta {
+                            format!(" (the scene's bounds {}–{} are unusable for Frusta)", scene.near, scene.far)
+                        } else {
+                            String::new()
+                        }
+                    ));
+                    init::random(center, a.sh_degree, &a.init, sscale, a.seed)
+                }
+            }
         } else {
             init::from_points(&cloud, a.sh_degree, &a.init, sscale, a.seed)
         };

@@ -257,6 +257,95 @@ fn init_from_points_and_random() {
 }
 
 #[test]
+fn random_frusta_init_lies_in_the_views_between_near_and_far_with_pixel_colours() {
+    use augsplat_core::Camera;
+    let cam = |tx: f64| Camera {
+        width: 24,
+        height: 16,
+        fx: 20.0,
+        fy: 22.0,
+        cx: 11.0,
+        cy: 8.5,
+        world_to_camera: [
+            [1.0, 0.0, 0.0, tx],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+    };
+    let cams = [cam(0.0), cam(-0.5)];
+    // Each view's pixel colour encodes (view, column, row).
+    let images: Vec<Vec<f32>> = (0..2)
+        .map(|v| {
+            (0..16 * 24)
+                .flat_map(|p| {
+                    [
+                        v as f32 * 0.5,
+                        (p % 24) as f32 / 24.0,
+                        (p / 24) as f32 / 16.0,
+                    ]
+                })
+                .collect()
+        })
+        .collect();
+    let views: Vec<init::InitView<'_>> = cams
+        .iter()
+        .zip(&images)
+        .map(|(camera, image)| init::InitView { camera, image })
+        .collect();
+    let args = InitArgs {
+        random_points: 2000,
+        ..Default::default()
+    };
+    let (near, far) = (2.0, 10.0);
+    let g = init::random_in_frusta(&views, near, far, 0, &args, 1.0, 3);
+    assert_eq!(g.len(), 2000);
+    let c0 = 0.282_094_791_773_878_14;
+    let mut disparity_sum = 0.0;
+    for i in 0..g.len() {
+        let col: Vec<f64> = (0..3).map(|c| g.sh[i * 3 + c] as f64 * c0 + 0.5).collect();
+        let v = (col[0] / 0.5).round() as usize;
+        let p = [
+            g.means[i][0] as f64,
+            g.means[i][1] as f64,
+            g.means[i][2] as f64,
+        ];
+        let (u, w, z) = cams[v].project(p);
+        // Depth in bounds, inside the image, in the pixel whose colour it carries.
+        assert!(
+            z >= near * (1.0 - 1e-5) && z <= far * (1.0 + 1e-5),
+            "depth {z}"
+        );
+        assert!(
+            (0.0..24.0).contains(&u) && (0.0..16.0).contains(&w),
+            "({u}, {w})"
+        );
+        assert!(((u.floor() / 24.0) - col[1]).abs() < 1e-4 || (u - u.round()).abs() < 1e-3);
+        assert!(((w.floor() / 16.0) - col[2]).abs() < 1e-4 || (w - w.round()).abs() < 1e-3);
+        disparity_sum += 1.0 / z;
+    }
+    // Uniform in disparity: the mean disparity is the midpoint of [1/far, 1/near].
+    let mean = disparity_sum / g.len() as f64;
+    assert!(
+        (mean - 0.5 * (1.0 / near + 1.0 / far)).abs() < 0.01,
+        "{mean}"
+    );
+    // Both views are used, and the draw is reproducible.
+    let from_second = (0..g.len())
+        .filter(|&i| g.sh[i * 3] as f64 * c0 + 0.5 > 0.25)
+        .count();
+    assert!(from_second > 800 && from_second < 1200, "{from_second}");
+    assert_eq!(
+        g,
+        init::random_in_frusta(&views, near, far, 0, &args, 1.0, 3)
+    );
+    assert_ne!(
+        g,
+        init::random_in_frusta(&views, near, far, 0, &args, 1.0, 4)
+    );
+}
+
+#[test]
 fn densify_clones_small_splits_large_prunes_and_keeps_adam_aligned() {
     // 0: small, high grad → clone; 1: large, high grad → split; 2: low grad, kept;
     // 3: transparent → pruned; 4: huge, low grad → pruned only when prune_large.
