@@ -16,10 +16,10 @@ use augsplat_core::{image, Camera};
 use augsplat_splat::loss::{self, WeightNorm};
 use augsplat_splat::train::SynthView;
 use augsplat_splat::{backward, read_ply, render_masked, RenderSettings};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-fn load(dir: &PathBuf, skip_below: f64) -> Vec<SynthView> {
+fn load(dir: &Path, skip_below: f64) -> Vec<SynthView> {
     let set: SyntheticSet =
         artifacts::read_json(&dir.join(artifacts::files::SYNTHETIC)).expect("synthetic.json");
     set.views
