@@ -560,13 +560,21 @@ fn time_section(evals: &[EvalDir], labels: &[String], md: &mut String) -> String
     ));
     out.push_str("</div>");
     md.push_str("## Wall time\n\n| Method | training s | evaluation s |\n|---|---:|---:|\n");
-    for ((l, t), ev) in labels.iter().zip(&train).zip(&eval) {
-        let t = if t.is_finite() {
-            format!("{t:.1}")
+    let seconds = |v: f64| {
+        if v.is_finite() {
+            format!("{v:.1}")
         } else {
-            "—".into()
-        };
-        let _ = writeln!(md, "| {} | {t} | {ev:.1} |", l.replace('|', "\\|"));
+            "—".to_string()
+        }
+    };
+    for ((l, t), ev) in labels.iter().zip(&train).zip(&eval) {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} |",
+            l.replace('|', "\\|"),
+            seconds(*t),
+            seconds(*ev)
+        );
     }
     md.push_str("\nPlots, images and synthetic views: see `index.html`.\n");
     out

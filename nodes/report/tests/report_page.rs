@@ -131,6 +131,8 @@ fn page_is_well_formed_self_contained_and_complete() {
     assert!(md.contains("| Method | PSNR ↑ | SSIM ↑ | LPIPS ↓ | Avg. error ↓ |"));
     assert!(md.contains("| 3DGS (best @ step 400) |"), "{md}");
     assert!(md.contains("## Wall time"));
+    // Times that were not recorded show as a dash, never as NaN.
+    assert!(!md.contains("NaN"), "{md}");
 }
 
 #[test]
