@@ -151,7 +151,7 @@ fn dw_block<const OB: usize, const IB: usize, const FMA: bool>(
 
 /// Horizontal sum in a fixed pairwise order.
 #[inline(always)]
-fn hsum(a: &[f32; LANES]) -> f32 {
+pub(crate) fn hsum(a: &[f32; LANES]) -> f32 {
     let mut h = [0f32; 8];
     for l in 0..8 {
         h[l] = a[l] + a[l + 8];
@@ -239,22 +239,14 @@ pub fn linear_forward(
     ld: usize,
     relu: bool,
 ) {
+    check_lengths(w.len(), inp * out, "weights");
+    check_lengths(x.len(), inp * ld, "input batch");
+    check_lengths(y.len(), out * ld, "output batch");
+    if let Some(b) = b {
+        check_lengths(b.len(), out, "biases");
+    }
     #[cfg(target_arch = "x86_64")]
     {
-        #[target_feature(enable = "avx512f,fma")]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn v512(
-            w: &[f32],
-            b: Option<&[f32]>,
-            x: &[f32],
-            y: &mut [f32],
-            inp: usize,
-            out: usize,
-            ld: usize,
-            relu: bool,
-        ) {
-            fwd_body::<8, true>(w, b, x, y, inp, out, ld, relu)
-        }
         #[target_feature(enable = "avx2,fma")]
         #[allow(clippy::too_many_arguments)]
         unsafe fn v256(
@@ -270,8 +262,13 @@ pub fn linear_forward(
             fwd_body::<4, true>(w, b, x, y, inp, out, ld, relu)
         }
         if has_avx512() {
-            // SAFETY: the CPU supports the enabled features (checked).
-            return unsafe { v512(w, b, x, y, inp, out, ld, relu) };
+            let store = if relu {
+                crate::gemm512::Store::Relu
+            } else {
+                crate::gemm512::Store::Linear
+            };
+            // SAFETY: the CPU supports AVX-512F (checked); lengths checked above.
+            return unsafe { crate::gemm512::forward(w, b, x, y, inp, out, ld, store) };
         }
         if has_avx2() {
             // SAFETY: the CPU supports the enabled features (checked).
@@ -282,7 +279,9 @@ pub fn linear_forward(
 }
 
 /// Weight gradients of a layer: `dw[o·inp + i] += Σ_n dy[o][n] · x[i][n]` and
-/// `db[o] += Σ_n dy[o][n]` (each sum in lane-blocked fixed order, independent of block sizes).
+/// `db[o] += Σ_n dy[o][n]`. Each sum runs in a fixed order that does not depend on block
+/// sizes: with AVX-512, `dw` is the sequential fused sum over the batch columns; the other
+/// paths sum 16 lane-strided partial sums and combine them pairwise (as `db` does everywhere).
 #[allow(clippy::too_many_arguments)]
 pub fn linear_backward_weights(
     dy: &[f32],
@@ -293,21 +292,12 @@ pub fn linear_backward_weights(
     out: usize,
     ld: usize,
 ) {
+    check_lengths(dy.len(), out * ld, "output gradient");
+    check_lengths(x.len(), inp * ld, "input batch");
+    check_lengths(dw.len(), inp * out, "weight gradient");
+    check_lengths(db.len(), out, "bias gradient");
     #[cfg(target_arch = "x86_64")]
     {
-        #[target_feature(enable = "avx512f,fma")]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn v512(
-            dy: &[f32],
-            x: &[f32],
-            dw: &mut [f32],
-            db: &mut [f32],
-            inp: usize,
-            out: usize,
-            ld: usize,
-        ) {
-            dw_body::<4, 4, true>(dy, x, dw, db, inp, out, ld)
-        }
         #[target_feature(enable = "avx2,fma")]
         #[allow(clippy::too_many_arguments)]
         unsafe fn v256(
@@ -322,8 +312,8 @@ pub fn linear_backward_weights(
             dw_body::<4, 2, true>(dy, x, dw, db, inp, out, ld)
         }
         if has_avx512() {
-            // SAFETY: the CPU supports the enabled features (checked).
-            return unsafe { v512(dy, x, dw, db, inp, out, ld) };
+            // SAFETY: the CPU supports AVX-512F (checked); lengths checked above.
+            return unsafe { crate::gemm512::backward_weights(dy, x, dw, db, inp, out, ld) };
         }
         if has_avx2() {
             // SAFETY: the CPU supports the enabled features (checked).
@@ -345,6 +335,26 @@ pub fn linear_backward_input(
     ld: usize,
     wt: &mut Vec<f32>,
 ) {
+    linear_backward_input_masked(w, dy, dx, inp, out, ld, wt, None)
+}
+
+/// [`linear_backward_input`] followed by [`relu_backward`] with `mask` (the post-activation
+/// output of the layer below, laid out like `dx`), fused into the kernel's store where the
+/// CPU allows.
+#[allow(clippy::too_many_arguments)]
+pub fn linear_backward_input_masked(
+    w: &[f32],
+    dy: &[f32],
+    dx: &mut [f32],
+    inp: usize,
+    out: usize,
+    ld: usize,
+    wt: &mut Vec<f32>,
+    mask: Option<&[f32]>,
+) {
+    check_lengths(w.len(), inp * out, "weights");
+    check_lengths(dy.len(), out * ld, "output gradient");
+    check_lengths(dx.len(), inp * ld, "input gradient");
     wt.clear();
     wt.resize(inp * out, 0.0);
     for o in 0..out {
@@ -352,7 +362,33 @@ pub fn linear_backward_input(
             wt[i * out + o] = w[o * inp + i];
         }
     }
+    #[cfg(target_arch = "x86_64")]
+    if has_avx512() {
+        let store = match mask {
+            Some(m) => {
+                check_lengths(m.len(), inp * ld, "ReLU mask");
+                crate::gemm512::Store::MaskPositive(m)
+            }
+            None => crate::gemm512::Store::Linear,
+        };
+        // SAFETY: the CPU supports AVX-512F (checked); lengths checked above.
+        unsafe { crate::gemm512::forward(wt, None, dy, dx, out, inp, ld, store) };
+        return;
+    }
     linear_forward(wt, None, dy, dx, out, inp, ld, false);
+    if let Some(m) = mask {
+        relu_backward(&mut dx[..inp * ld], &m[..inp * ld]);
+    }
+}
+
+/// Panics with a message naming the buffer when a kernel argument is too short (a caller bug,
+/// never data-dependent: shapes come from the layer definitions).
+#[inline]
+fn check_lengths(have: usize, need: usize, what: &str) {
+    assert!(
+        have >= need,
+        "dense-layer kernel: {what} has {have} floats, needs {need}"
+    );
 }
 
 /// Multiplies `d` by the ReLU derivative read from the layer's post-activation output `y`
@@ -431,10 +467,19 @@ impl Mlp {
             let (done, rest) = acts.split_at_mut(l);
             let input: &[f32] = if l == 0 { x } else { &done[l - 1] };
             let y = &mut rest[0];
-            y.clear();
+            // Every element of `y[..out·ld]` is overwritten: no need to clear it first.
             y.resize(s.out * ld, 0.0);
             let relu = l + 1 < self.layers.len();
-            linear_forward(w, Some(b), input, y, s.inp, s.out, ld, relu);
+            linear_forward(
+                w,
+                Some(b),
+                input,
+                &mut y[..s.out * ld],
+                s.inp,
+                s.out,
+                ld,
+                relu,
+            );
         }
     }
 
@@ -463,15 +508,24 @@ impl Mlp {
             let (gw, gb) = grad[off..off + s.params()].split_at_mut(s.inp * s.out);
             let input: &[f32] = if l == 0 { x } else { &acts[l - 1] };
             linear_backward_weights(d_out, input, gw, gb, s.inp, s.out, ld);
+            // The input-gradient kernels overwrite all of `[..inp·ld]`: no clearing needed.
             if l > 0 {
-                scratch.clear();
                 scratch.resize(s.inp * ld, 0.0);
-                linear_backward_input(w, d_out, scratch, s.inp, s.out, ld, wt);
-                relu_backward(scratch, &acts[l - 1]);
+                scratch.truncate(s.inp * ld);
+                linear_backward_input_masked(
+                    w,
+                    d_out,
+                    scratch,
+                    s.inp,
+                    s.out,
+                    ld,
+                    wt,
+                    Some(&acts[l - 1][..s.inp * ld]),
+                );
                 std::mem::swap(d_out, scratch);
             } else if let Some(dx) = d_x.take() {
-                dx.clear();
                 dx.resize(s.inp * ld, 0.0);
+                dx.truncate(s.inp * ld);
                 linear_backward_input(w, d_out, dx, s.inp, s.out, ld, wt);
             }
         }
@@ -489,6 +543,113 @@ impl Mlp {
                 *v = 0.0;
             }
             off += s.params();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use augsplat_core::Rng;
+
+    fn batch(rng: &mut Rng, rows: usize, n: usize, ld: usize) -> Vec<f32> {
+        let mut v = vec![0f32; rows * ld];
+        for r in 0..rows {
+            for i in 0..n {
+                v[r * ld + i] = rng.uniform(-1.0, 1.0) as f32;
+            }
+        }
+        v
+    }
+
+    /// Every kernel (whichever instruction set this machine selects) against f64 sums, for
+    /// shapes that exercise all tile remainders (odd widths, 1–4 column vectors, long batches
+    /// that span several transposed blocks).
+    #[test]
+    fn kernels_match_f64_sums() {
+        let mut rng = Rng::new(11);
+        for &(inp, out, n) in &[
+            (5usize, 12usize, 21usize),
+            (31, 64, 300),
+            (64, 3, 47),
+            (64, 16, 700),
+            (17, 9, 16),
+            (100, 70, 129),
+        ] {
+            let ld = padded(n);
+            let w: Vec<f32> = (0..inp * out)
+                .map(|_| rng.uniform(-0.5, 0.5) as f32)
+                .collect();
+            let b: Vec<f32> = (0..out).map(|_| rng.uniform(-0.5, 0.5) as f32).collect();
+            let x = batch(&mut rng, inp, n, ld);
+            let dy = batch(&mut rng, out, n, ld);
+            let mask = batch(&mut rng, inp, n, ld);
+            let mut y = vec![f32::NAN; out * ld];
+            linear_forward(&w, Some(&b), &x, &mut y, inp, out, ld, true);
+            for o in 0..out {
+                for c in 0..n {
+                    let r: f64 = b[o] as f64
+                        + (0..inp)
+                            .map(|i| w[o * inp + i] as f64 * x[i * ld + c] as f64)
+                            .sum::<f64>();
+                    let got = y[o * ld + c] as f64;
+                    assert!(
+                        (got - r.max(0.0)).abs() < 1e-5 * (1.0 + r.abs()),
+                        "fwd {inp}x{out} ({o},{c})"
+                    );
+                }
+            }
+            let mut dx = vec![f32::NAN; inp * ld];
+            let mut wt = Vec::new();
+            linear_backward_input_masked(&w, &dy, &mut dx, inp, out, ld, &mut wt, Some(&mask));
+            for i in 0..inp {
+                for c in 0..ld {
+                    let r: f64 = (0..out)
+                        .map(|o| w[o * inp + i] as f64 * dy[o * ld + c] as f64)
+                        .sum();
+                    let r = if mask[i * ld + c] > 0.0 { r } else { 0.0 };
+                    let got = dx[i * ld + c] as f64;
+                    assert!(
+                        (got - r).abs() < 1e-5 * (1.0 + r.abs()),
+                        "dx {inp}x{out} ({i},{c})"
+                    );
+                }
+            }
+            let mut dw = vec![0.25f32; inp * out];
+            let mut db = vec![-0.5f32; out];
+            linear_backward_weights(&dy, &x, &mut dw, &mut db, inp, out, ld);
+            for o in 0..out {
+                for i in 0..inp {
+                    let r: f64 = 0.25
+                        + (0..n)
+                            .map(|c| dy[o * ld + c] as f64 * x[i * ld + c] as f64)
+                            .sum::<f64>();
+                    let got = dw[o * inp + i] as f64;
+                    assert!(
+                        (got - r).abs() < 1e-4 * (1.0 + r.abs()),
+                        "dw {inp}x{out} ({o},{i}): {got} vs {r}"
+                    );
+                }
+                let r: f64 = -0.5 + (0..n).map(|c| dy[o * ld + c] as f64).sum::<f64>();
+                assert!((db[o] as f64 - r).abs() < 1e-4 * (1.0 + r.abs()), "db {o}");
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn transpose16_is_a_transpose() {
+        if !has_avx512() {
+            return;
+        }
+        let src: [f32; 256] = std::array::from_fn(|i| i as f32);
+        let mut dst = [0f32; 256];
+        // SAFETY: AVX-512F checked above.
+        unsafe { crate::gemm512::transpose16_slice(&src, &mut dst) };
+        for r in 0..16 {
+            for c in 0..16 {
+                assert_eq!(dst[c * 16 + r], src[r * 16 + c], "({r},{c})");
+            }
         }
     }
 }
