@@ -125,6 +125,28 @@ fn corners_block<const DENSE: bool>(
     }
 }
 
+/// Hints the cache about the table entries of one block (x86-64; no-op elsewhere). Only the
+/// hashed levels need it: their tables are far larger than the caches and every fine-level
+/// sample lands on new cache lines.
+#[inline(always)]
+fn prefetch_block<const F: usize>(t: &[f32], idx: &[[u32; BLOCK]; 8], cnt: usize) {
+    #[cfg(target_arch = "x86_64")]
+    for c in 0..8 {
+        for l in 0..cnt {
+            let e = (idx[c][l] as usize * F).min(t.len().saturating_sub(1));
+            // SAFETY: `e` is within `t` (clamped above); prefetching has no architectural
+            // effect beyond the cache.
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                    t.as_ptr().add(e) as *const i8,
+                )
+            };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (t, idx, cnt);
+}
+
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn encode_level_body<const F: usize, const DENSE: bool>(
@@ -139,10 +161,31 @@ fn encode_level_body<const F: usize, const DENSE: bool>(
     out: &mut [f32],
 ) {
     let t = &t[..size * F];
-    let mut idx = [[0u32; BLOCK]; 8];
-    let mut w = [[0f32; BLOCK]; 8];
+    // Double-buffered corners: block b + 1 is computed and prefetched while block b is
+    // gathered.
+    let mut idx = [[[0u32; BLOCK]; 8]; 2];
+    let mut w = [[[0f32; BLOCK]; 8]; 2];
+    if n == 0 {
+        return;
+    }
+    corners_block::<DENSE>(res, size, px, py, pz, 0, n, &mut idx[0], &mut w[0]);
+    let mut cur = 0;
     for start in (0..n).step_by(BLOCK) {
-        corners_block::<DENSE>(res, size, px, py, pz, start, n, &mut idx, &mut w);
+        let next = start + BLOCK;
+        if next < n {
+            let (a, b) = idx.split_at_mut(1);
+            let (wa, wb) = w.split_at_mut(1);
+            let (ni, nw) = if cur == 0 {
+                (&mut b[0], &mut wb[0])
+            } else {
+                (&mut a[0], &mut wa[0])
+            };
+            corners_block::<DENSE>(res, size, px, py, pz, next, n, ni, nw);
+            if !DENSE {
+                prefetch_block::<F>(t, ni, (n - next).min(BLOCK));
+            }
+        }
+        let (idx, w) = (&idx[cur], &w[cur]);
         let cnt = (n - start).min(BLOCK);
         for l in 0..cnt {
             let mut acc = [0f32; F];
@@ -157,6 +200,7 @@ fn encode_level_body<const F: usize, const DENSE: bool>(
                 out[k * ld + start + l] = acc[k];
             }
         }
+        cur ^= 1;
     }
 }
 
@@ -174,19 +218,46 @@ fn backward_level_body<const F: usize, const DENSE: bool>(
     d_out: &[f32],
 ) {
     let grad = &mut grad[..size * F];
-    let mut idx = [[0u32; BLOCK]; 8];
-    let mut w = [[0f32; BLOCK]; 8];
-    for start in (0..n).step_by(BLOCK) {
+    let mut idx = [[[0u32; BLOCK]; 8]; 2];
+    let mut w = [[[0f32; BLOCK]; 8]; 2];
+    let live = |start: usize| {
         let cnt = (n - start).min(BLOCK);
-        let any = (0..F).any(|k| {
+        (0..F).any(|k| {
             d_out[k * ld + start..k * ld + start + cnt]
                 .iter()
                 .any(|&v| v != 0.0)
-        });
-        if !any {
-            continue;
+        })
+    };
+    // The next block with a non-zero gradient, from `start` on.
+    let next_live = |mut start: usize| {
+        while start < n && !live(start) {
+            start += BLOCK;
         }
-        corners_block::<DENSE>(res, size, px, py, pz, start, n, &mut idx, &mut w);
+        start
+    };
+    let mut start = next_live(0);
+    if start >= n {
+        return;
+    }
+    corners_block::<DENSE>(res, size, px, py, pz, start, n, &mut idx[0], &mut w[0]);
+    let mut cur = 0;
+    while start < n {
+        let next = next_live(start + BLOCK);
+        if next < n {
+            let (a, b) = idx.split_at_mut(1);
+            let (wa, wb) = w.split_at_mut(1);
+            let (ni, nw) = if cur == 0 {
+                (&mut b[0], &mut wb[0])
+            } else {
+                (&mut a[0], &mut wa[0])
+            };
+            corners_block::<DENSE>(res, size, px, py, pz, next, n, ni, nw);
+            if !DENSE {
+                prefetch_block::<F>(grad, ni, (n - next).min(BLOCK));
+            }
+        }
+        let (idx, w) = (&idx[cur], &w[cur]);
+        let cnt = (n - start).min(BLOCK);
         for l in 0..cnt {
             let mut d = [0f32; F];
             for k in 0..F {
@@ -200,6 +271,8 @@ fn backward_level_body<const F: usize, const DENSE: bool>(
                 }
             }
         }
+        cur ^= 1;
+        start = next;
     }
 }
 
