@@ -198,6 +198,7 @@ pub struct ChunkState {
     scratch2: Vec<f32>,
     wt: Vec<f32>,
     d_sigma: Vec<f32>,
+    d_cin: Vec<f32>,
 }
 
 impl ChunkState {
@@ -391,7 +392,7 @@ impl Field {
         let ld = padded(n);
         st.ld = ld;
         let lf = self.grid.output_dim();
-        st.enc.clear();
+        // `encode` writes every entry (padding columns included): no clearing needed.
         st.enc.resize(lf * ld, 0.0);
         self.grid.encode(
             &params[..self.density_offset],
@@ -426,8 +427,11 @@ impl Field {
         st.ldc = ldc;
         let e = self.config.appearance_dim as usize;
         let cin = GEO_FEAT_DIM + SH_COMPONENTS + e;
-        st.col_in.clear();
+        // Columns `< nc` are written below; only the padding columns need zeros.
         st.col_in.resize(cin * ldc, 0.0);
+        for k in 0..cin {
+            st.col_in[k * ldc + nc..(k + 1) * ldc].fill(0.0);
+        }
         let mut j = 0;
         for (r, ray) in rays.iter().enumerate() {
             let sh = sh_encode(ray.dir);
@@ -456,8 +460,10 @@ impl Field {
         let cp = &params[self.color_offset..self.embedding_offset];
         self.color.forward(cp, &st.col_in, ldc, &mut st.col_acts);
         let cout = &st.col_acts[st.col_acts.len() - 1];
-        st.rgb.clear();
         st.rgb.resize(3 * ldc, 0.0);
+        for k in 0..3 {
+            st.rgb[k * ldc + nc..(k + 1) * ldc].fill(0.0);
+        }
         for k in 0..3 {
             for j in 0..nc {
                 st.rgb[k * ldc + j] = sigmoid(cout[k * ldc + j]);
@@ -559,16 +565,16 @@ impl Field {
         }
         // Colour MLP backward.
         let mut d_out = std::mem::take(&mut st.scratch2);
-        d_out.clear();
         d_out.resize(3 * ldc, 0.0);
         for k in 0..3 {
+            d_out[k * ldc + nc..(k + 1) * ldc].fill(0.0);
             for j in 0..nc {
                 let c = st.rgb[k * ldc + j];
                 d_out[k * ldc + j] = st.d_rgb[k * ldc + j] * c * (1.0 - c);
             }
         }
         let cp = &params[self.color_offset..self.embedding_offset];
-        let mut d_cin = Vec::new();
+        let mut d_cin = std::mem::take(&mut st.d_cin);
         {
             let (cg, eg) = grad[self.color_offset - base..]
                 .split_at_mut(self.embedding_offset - self.color_offset);
@@ -627,5 +633,6 @@ impl Field {
         );
         st.d_enc = d_enc;
         st.scratch2 = d_out;
+        st.d_cin = d_cin;
     }
 }

@@ -17,17 +17,7 @@
 
 use std::arch::x86_64::*;
 
-/// What the forward kernel applies when storing a tile.
-#[derive(Clone, Copy)]
-pub(crate) enum Store<'a> {
-    /// `y = acc`.
-    Linear,
-    /// `y = max(acc, 0)` (NaN → 0).
-    Relu,
-    /// `y = acc` where `mask > 0`, else 0 (ReLU backward through the layer below; `mask` is
-    /// laid out like `y`).
-    MaskPositive(&'a [f32]),
-}
+use crate::mlp::Store;
 
 /// Store modes of the forward tile (const generic so the store loop is fully unrolled).
 const LINEAR: u8 = 0;
@@ -44,17 +34,17 @@ unsafe fn fwd_tile<const OB: usize, const T: usize, const MODE: u8>(
     mask: *const f32,
     inp: usize,
     o0: usize,
-    ld: usize,
+    ld: Strides,
     base: usize,
     prefetch_next: bool,
 ) {
     // Bring the tile's output (and mask) lines in while the reduction runs.
     for k in 0..OB {
         for t in 0..T {
-            let at = (o0 + k) * ld + base + 16 * t;
-            _mm_prefetch::<_MM_HINT_T0>(y.add(at) as *const i8);
+            let c = base + 16 * t;
+            _mm_prefetch::<_MM_HINT_T0>(y.add((o0 + k) * ld.y + c) as *const i8);
             if MODE == MASK {
-                _mm_prefetch::<_MM_HINT_T0>(mask.add(at) as *const i8);
+                _mm_prefetch::<_MM_HINT_T0>(mask.add((o0 + k) * ld.m + c) as *const i8);
             }
         }
     }
@@ -72,12 +62,12 @@ unsafe fn fwd_tile<const OB: usize, const T: usize, const MODE: u8>(
     for i in 0..inp {
         let mut xv = [_mm512_setzero_ps(); T];
         for t in 0..T {
-            xv[t] = _mm512_loadu_ps(xp.add(i * ld + 16 * t));
+            xv[t] = _mm512_loadu_ps(xp.add(i * ld.x + 16 * t));
         }
         if prefetch_next {
             // The next column panel (the row stride defeats the hardware prefetcher).
             for t in 0..3 {
-                _mm_prefetch::<_MM_HINT_T0>(xp.add(i * ld + 16 * (T + t)) as *const i8);
+                _mm_prefetch::<_MM_HINT_T0>(xp.add(i * ld.x + 16 * (T + t)) as *const i8);
             }
         }
         for k in 0..OB {
@@ -90,17 +80,18 @@ unsafe fn fwd_tile<const OB: usize, const T: usize, const MODE: u8>(
     let zero = _mm512_setzero_ps();
     for k in 0..OB {
         for t in 0..T {
-            let at = (o0 + k) * ld + base + 16 * t;
+            let c = base + 16 * t;
             let v = if MODE == RELU {
                 // max(acc, 0) returns the second operand (0) when acc is NaN.
                 _mm512_max_ps(acc[k][t], zero)
             } else if MODE == MASK {
-                let keep = _mm512_cmp_ps_mask::<_CMP_GT_OQ>(_mm512_loadu_ps(mask.add(at)), zero);
+                let mv = _mm512_loadu_ps(mask.add((o0 + k) * ld.m + c));
+                let keep = _mm512_cmp_ps_mask::<_CMP_GT_OQ>(mv, zero);
                 _mm512_maskz_mov_ps(keep, acc[k][t])
             } else {
                 acc[k][t]
             };
-            _mm512_storeu_ps(y.add(at), v);
+            _mm512_storeu_ps(y.add((o0 + k) * ld.y + c), v);
         }
     }
 }
@@ -115,11 +106,12 @@ unsafe fn fwd_columns<const T: usize, const MODE: u8>(
     mask: *const f32,
     inp: usize,
     out: usize,
-    ld: usize,
+    ld: Strides,
+    ncols: usize,
     base: usize,
 ) {
     // Prefetch the next panel during the first tile (if there is a next panel).
-    let pf = base + 16 * T < ld;
+    let pf = base + 16 * T < ncols;
     let mut o0 = 0;
     while o0 + 8 <= out {
         fwd_tile::<8, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf && o0 == 0);
@@ -148,42 +140,56 @@ unsafe fn fwd_all<const MODE: u8>(
     mask: *const f32,
     inp: usize,
     out: usize,
-    ld: usize,
+    ld: Strides,
+    ncols: usize,
 ) {
     let mut base = 0;
-    while base < ld {
-        match (ld - base) / 16 {
+    while base < ncols {
+        match (ncols - base) / 16 {
             1 => {
-                fwd_columns::<1, MODE>(w, b, x, y, mask, inp, out, ld, base);
+                fwd_columns::<1, MODE>(w, b, x, y, mask, inp, out, ld, ncols, base);
                 base += 16;
             }
             2 => {
-                fwd_columns::<2, MODE>(w, b, x, y, mask, inp, out, ld, base);
+                fwd_columns::<2, MODE>(w, b, x, y, mask, inp, out, ld, ncols, base);
                 base += 32;
             }
             _ => {
-                fwd_columns::<3, MODE>(w, b, x, y, mask, inp, out, ld, base);
+                fwd_columns::<3, MODE>(w, b, x, y, mask, inp, out, ld, ncols, base);
                 base += 48;
             }
         }
     }
 }
 
-/// `y[o] = store(b[o] + Σ_i w[o·inp + i] · x[i])` over a channel-major batch.
+/// Row strides of the forward kernel's operands.
+#[derive(Clone, Copy)]
+struct Strides {
+    x: usize,
+    y: usize,
+    m: usize,
+}
+
+/// `y[o][c] = store(b[o] + Σ_i w[o·inp + i] · x[i][c])` for columns `c < ncols` of
+/// channel-major operands (`x` rows `ldx` apart, `y` rows `ldy` apart, a mask's rows its own
+/// stride apart).
 ///
 /// # Safety
-/// AVX-512F must be available; `w.len() ≥ out·inp`, `b.len() ≥ out`, `x.len() ≥ inp·ld`,
-/// `y.len() ≥ out·ld` (and the mask likewise), `ld` a multiple of 16.
+/// AVX-512F must be available; `ncols` is a multiple of 16; `w.len() ≥ out·inp`,
+/// `b.len() ≥ out`, and every row `r` read or written lies inside its slice
+/// (`r·ld + ncols ≤ len`).
 #[target_feature(enable = "avx512f")]
 #[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn forward(
     w: &[f32],
     b: Option<&[f32]>,
     x: &[f32],
+    ldx: usize,
     y: &mut [f32],
+    ldy: usize,
     inp: usize,
     out: usize,
-    ld: usize,
+    ncols: usize,
     store: Store<'_>,
 ) {
     let (wp, bp, xp, yp) = (
@@ -192,10 +198,18 @@ pub(crate) unsafe fn forward(
         x.as_ptr(),
         y.as_mut_ptr(),
     );
+    let mut ld = Strides {
+        x: ldx,
+        y: ldy,
+        m: 0,
+    };
     match store {
-        Store::Linear => fwd_all::<LINEAR>(wp, bp, xp, yp, std::ptr::null(), inp, out, ld),
-        Store::Relu => fwd_all::<RELU>(wp, bp, xp, yp, std::ptr::null(), inp, out, ld),
-        Store::MaskPositive(m) => fwd_all::<MASK>(wp, bp, xp, yp, m.as_ptr(), inp, out, ld),
+        Store::Linear => fwd_all::<LINEAR>(wp, bp, xp, yp, std::ptr::null(), inp, out, ld, ncols),
+        Store::Relu => fwd_all::<RELU>(wp, bp, xp, yp, std::ptr::null(), inp, out, ld, ncols),
+        Store::MaskPositive(m, ldm) => {
+            ld.m = ldm;
+            fwd_all::<MASK>(wp, bp, xp, yp, m.as_ptr(), inp, out, ld, ncols)
+        }
     }
 }
 
@@ -263,7 +277,7 @@ unsafe fn dw_tile<const OB: usize, const IV: usize>(
     inp_pad: usize,
     o0: usize,
     i0: usize,
-    ld: usize,
+    lddy: usize,
     kb: usize,
     kc: usize,
 ) {
@@ -273,7 +287,7 @@ unsafe fn dw_tile<const OB: usize, const IV: usize>(
             acc[k][v] = _mm512_loadu_ps(dwp.add((o0 + k) * inp_pad + i0 + 16 * v));
         }
     }
-    let dyp = dy.add(o0 * ld + kb);
+    let dyp = dy.add(o0 * lddy + kb);
     for n in 0..kc {
         let xr = xt.add(n * inp_pad + i0);
         let mut xv = [_mm512_setzero_ps(); IV];
@@ -281,7 +295,7 @@ unsafe fn dw_tile<const OB: usize, const IV: usize>(
             xv[v] = _mm512_loadu_ps(xr.add(16 * v));
         }
         for k in 0..OB {
-            let d = _mm512_set1_ps(*dyp.add(k * ld + n));
+            let d = _mm512_set1_ps(*dyp.add(k * lddy + n));
             for v in 0..IV {
                 acc[k][v] = _mm512_fmadd_ps(d, xv[v], acc[k][v]);
             }
@@ -322,43 +336,45 @@ unsafe fn dw_rows<const OB: usize, const IV: usize>(
     }
 }
 
-/// `dw[o·inp + i] += Σ_n dy[o][n] · x[i][n]` (sequential fused sum over `n`) and
-/// `db[o] += Σ_n dy[o][n]` (16 lane sums combined pairwise, as the portable kernel does).
+/// Weight-gradient accumulation over columns `c < ncols`: `dwp[o·inp_pad + i] +=
+/// Σ_c dy[o][c] · x[i][c]` as one sequential fused sum per entry (`inp_pad` = `inp` rounded up
+/// to 16; padding entries stay as they are), and `lanes[o·16 + l] += Σ dy[o][c]` over the
+/// columns `c ≡ l (mod 16)`. `xt` is scratch.
 ///
 /// # Safety
-/// AVX-512F must be available; `dy.len() ≥ out·ld`, `x.len() ≥ inp·ld`,
-/// `dw.len() ≥ out·inp`, `db.len() ≥ out`, `ld` a multiple of 16.
+/// AVX-512F must be available; `ncols` is a multiple of 16; `dwp.len() ≥ out·inp_pad`,
+/// `lanes.len() ≥ 16·out`, and the rows of `dy` (stride `lddy`) and `x` (stride `ldx`) hold
+/// `ncols` columns inside their slices.
 #[target_feature(enable = "avx512f")]
 #[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn backward_weights(
     dy: &[f32],
+    lddy: usize,
     x: &[f32],
-    dw: &mut [f32],
-    db: &mut [f32],
+    ldx: usize,
+    dwp: &mut [f32],
+    lanes: &mut [f32],
     inp: usize,
     out: usize,
-    ld: usize,
+    ncols: usize,
+    xt: &mut Vec<f32>,
 ) {
     let inp_pad = inp.div_ceil(16) * 16;
     // Keep the transposed block (kc × inp_pad floats) within ~16 KiB of L1.
     let kc_max = (4096 / inp_pad).max(1).div_ceil(16) * 16;
-    let mut dwp = vec![0f32; out * inp_pad];
-    for o in 0..out {
-        dwp[o * inp_pad..o * inp_pad + inp].copy_from_slice(&dw[o * inp..(o + 1) * inp]);
-    }
-    let mut xt = vec![0f32; kc_max * inp_pad];
+    xt.resize(kc_max * inp_pad, 0.0);
     let (dyp, xp, dwpp, xtp) = (dy.as_ptr(), x.as_ptr(), dwp.as_mut_ptr(), xt.as_mut_ptr());
     let zero = _mm512_setzero_ps();
     let mut kb = 0;
-    while kb < ld {
-        let kc = kc_max.min(ld - kb);
+    while kb < ncols {
+        let kc = kc_max.min(ncols - kb);
         // Transpose x[.., kb..kb + kc] into xt (sample-major, zero-padded channels).
         for i0 in (0..inp_pad).step_by(16) {
             for n0 in (0..kc).step_by(16) {
                 let mut r = [zero; 16];
                 for q in 0..16 {
                     if i0 + q < inp {
-                        r[q] = _mm512_loadu_ps(xp.add((i0 + q) * ld + kb + n0));
+                        r[q] = _mm512_loadu_ps(xp.add((i0 + q) * ldx + kb + n0));
                     }
                 }
                 let o = transpose16(r);
@@ -371,19 +387,19 @@ pub(crate) unsafe fn backward_weights(
         while i0 < inp_pad {
             match (inp_pad - i0) / 16 {
                 1 => {
-                    dw_rows::<16, 1>(dyp, xtp, dwpp, inp_pad, out, i0, ld, kb, kc);
+                    dw_rows::<16, 1>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
                     i0 += 16;
                 }
                 2 => {
-                    dw_rows::<12, 2>(dyp, xtp, dwpp, inp_pad, out, i0, ld, kb, kc);
+                    dw_rows::<12, 2>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
                     i0 += 32;
                 }
                 3 => {
-                    dw_rows::<8, 3>(dyp, xtp, dwpp, inp_pad, out, i0, ld, kb, kc);
+                    dw_rows::<8, 3>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
                     i0 += 48;
                 }
                 _ => {
-                    dw_rows::<6, 4>(dyp, xtp, dwpp, inp_pad, out, i0, ld, kb, kc);
+                    dw_rows::<6, 4>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
                     i0 += 64;
                 }
             }
@@ -391,15 +407,11 @@ pub(crate) unsafe fn backward_weights(
         kb += kc;
     }
     for o in 0..out {
-        dw[o * inp..(o + 1) * inp].copy_from_slice(&dwp[o * inp_pad..o * inp_pad + inp]);
-    }
-    for o in 0..out {
-        let mut acc = zero;
-        for base in (0..ld).step_by(16) {
-            acc = _mm512_add_ps(acc, _mm512_loadu_ps(dyp.add(o * ld + base)));
+        let lp = lanes.as_mut_ptr().add(16 * o);
+        let mut acc = _mm512_loadu_ps(lp);
+        for base in (0..ncols).step_by(16) {
+            acc = _mm512_add_ps(acc, _mm512_loadu_ps(dyp.add(o * lddy + base)));
         }
-        let mut a = [0f32; 16];
-        _mm512_storeu_ps(a.as_mut_ptr(), acc);
-        db[o] += crate::mlp::hsum(&a);
+        _mm512_storeu_ps(lp, acc);
     }
 }
