@@ -600,7 +600,7 @@ impl Mlp {
     }
 
     /// Backward pass. `d_out` is the gradient of the network output (`out × ld`, zero in the
-    /// padding columns); it is not modified. Gradients are *added* to `grad` (same layout as
+    /// padding columns). Gradients are *added* to `grad` (same layout as
     /// `params`). When `d_x` is given it receives the input gradient (`inp × ld`). `scratch`
     /// and `wt` are reusable scratch. The batch runs through all layers one block of
     /// [`COLUMN_BLOCK`] columns at a time; every gradient sum runs over the columns in order,
@@ -612,7 +612,7 @@ impl Mlp {
         x: &[f32],
         acts: &[Vec<f32>],
         ld: usize,
-        d_out: &mut Vec<f32>,
+        d_out: &[f32],
         grad: &mut [f32],
         d_x: Option<&mut Vec<f32>>,
         scratch: &mut Vec<f32>,
@@ -866,13 +866,13 @@ mod tests {
         let mut want_grad = grad.clone();
         let mut dx = Vec::new();
         let (mut s1, mut s2) = (Vec::new(), Vec::new());
-        let mut d_out = d_top.clone();
+        let d_out = d_top.clone();
         mlp.backward(
             &params,
             &x,
             &acts,
             ld,
-            &mut d_out,
+            &d_out,
             &mut grad,
             Some(&mut dx),
             &mut s1,
