@@ -23,19 +23,24 @@ thread_local! {
     static CHUNK_STATE: std::cell::RefCell<ChunkState> = std::cell::RefCell::new(ChunkState::default());
 }
 
-/// Runs `f` with this thread's reusable [`ChunkState`], its colour threshold set to
-/// `min_color_weight`.
-fn with_chunk_state<R>(min_color_weight: f32, f: impl FnOnce(&mut ChunkState) -> R) -> R {
+/// Runs `f` with this thread's reusable [`ChunkState`], set up for rendering (colour threshold
+/// [`RENDER_MIN_COLOR_WEIGHT`], densities only until early termination) or for training /
+/// density queries (neither).
+fn with_chunk_state<R>(render: bool, f: impl FnOnce(&mut ChunkState) -> R) -> R {
+    let setup = |st: &mut ChunkState| {
+        st.min_color_weight = if render { RENDER_MIN_COLOR_WEIGHT } else { 0.0 };
+        st.stop_at_termination = render;
+    };
     CHUNK_STATE.with(|cell| match cell.try_borrow_mut() {
         Ok(mut st) => {
-            st.min_color_weight = min_color_weight;
+            setup(&mut st);
             f(&mut st)
         }
         // Re-entered on this thread (a nested parallel call ran here while the state was in
         // use): fall back to a fresh state.
         Err(_) => {
             let mut st = ChunkState::default();
-            st.min_color_weight = min_color_weight;
+            setup(&mut st);
             f(&mut st)
         }
     })
@@ -337,7 +342,7 @@ pub fn update_occupancy(
     let values: Vec<f32> = (0..n.div_ceil(CELLS))
         .into_par_iter()
         .map(|c| {
-            with_chunk_state(0.0, |st| {
+            with_chunk_state(false, |st| {
                 let mut rng = Rng::stream(
                     seed ^ 0x6f63_6375_7061_6e63,
                     ((step as u64) << 32) | c as u64,
@@ -401,7 +406,7 @@ pub fn train_step(
     let results: Vec<ChunkResult> = (0..n_chunks)
         .into_par_iter()
         .map(|c| {
-            with_chunk_state(0.0, |st| {
+            with_chunk_state(false, |st| {
                 let mut rng = Rng::stream(opts.seed, ((step as u64) << 32) | c as u64);
                 let count = chunk.min(total - c * chunk);
                 let rays: Vec<TrainRay> = (0..count)
@@ -563,7 +568,7 @@ pub fn render_camera(
     let parts: Vec<RenderPart> = (0..n.div_ceil(chunk))
         .into_par_iter()
         .map(|c| {
-            with_chunk_state(RENDER_MIN_COLOR_WEIGHT, |st| {
+            with_chunk_state(true, |st| {
                 let lo = c * chunk;
                 let hi = (lo + chunk).min(n);
                 let mut rays = Vec::with_capacity(hi - lo);
