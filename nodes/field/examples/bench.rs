@@ -2,7 +2,9 @@
 //! --example bench -- [threads] [what]`):
 //! - `step`: forward+backward samples per second and time per step (16 levels × 2 features,
 //!   2^17 table, 64-wide MLPs) for 1024- and 4096-ray steps on a random scene;
-//! - `kernels`: per-kernel timings on one chunk.
+//! - `kernels`: per-kernel timings on one chunk (best of 30);
+//! - `mlp`: GFLOP/s of the dense-layer kernels (forward, weight gradient, input gradient) on
+//!   chunk-sized batches, best of 300, next to a register-only FMA peak probe.
 #![allow(clippy::needless_range_loop)]
 
 use augsplat_core::{Camera, Rng};

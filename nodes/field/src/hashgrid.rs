@@ -6,6 +6,11 @@
 //! (`(level·F + f) × ld`), i.e. directly the first MLP layer's input batch. The backward pass
 //! runs one level at a time (levels own disjoint parts of the table), so levels can be
 //! processed in parallel while each level accumulates its samples in a fixed order.
+//!
+//! The level kernels work on blocks of 16 points: corner indices and weights of the next block
+//! are computed (and, on hashed levels, prefetched) while the current block is gathered or
+//! scattered; two-feature levels gather with AVX-512 when available, with the same operation
+//! order as the scalar loop.
 
 use crate::error::FieldError;
 use serde::{Deserialize, Serialize};

@@ -50,6 +50,15 @@ fn with_chunk_state<R>(render: bool, f: impl FnOnce(&mut ChunkState) -> R) -> R 
 /// step reuses the previous step's allocations (contents are always overwritten).
 static BUFFER_POOL: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
 
+/// Frees the pooled hand-off buffers (called when a training run ends; the pool refills on
+/// the next step that needs it).
+pub fn release_buffers() {
+    if let Ok(mut p) = BUFFER_POOL.lock() {
+        p.clear();
+        p.shrink_to_fit();
+    }
+}
+
 /// A pooled buffer holding a copy of `src`.
 fn pooled_copy(src: &[f32]) -> Vec<f32> {
     let mut v = BUFFER_POOL
@@ -749,6 +758,7 @@ pub fn train(
             loss_acc = (0.0, 0);
         }
     }
+    release_buffers();
     if state.params.iter().any(|p| !p.is_finite()) {
         return Err(FieldError::Diverged("parameters became non-finite".into()));
     }
