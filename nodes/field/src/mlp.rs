@@ -845,6 +845,91 @@ mod tests {
         }
     }
 
+    /// The portable kernels (used where AVX-512 and AVX2 are missing, hence not reached
+    /// through the dispatch on this machine) against f64 sums, with separate row strides.
+    #[test]
+    fn portable_kernels_match_f64_sums() {
+        let mut rng = Rng::new(12);
+        for &(inp, out, n) in &[
+            (5usize, 12usize, 21usize),
+            (31, 64, 130),
+            (64, 3, 47),
+            (17, 9, 16),
+        ] {
+            let ld = padded(n);
+            let ldy = ld + 16; // a different output stride
+            let w: Vec<f32> = (0..inp * out)
+                .map(|_| rng.uniform(-0.5, 0.5) as f32)
+                .collect();
+            let b: Vec<f32> = (0..out).map(|_| rng.uniform(-0.5, 0.5) as f32).collect();
+            let x = batch(&mut rng, inp, n, ld);
+            let dy = batch(&mut rng, out, n, ld);
+            let mask = batch(&mut rng, out, n, ld);
+            for mode in 0..3 {
+                let store = match mode {
+                    0 => Store::Linear,
+                    1 => Store::Relu,
+                    _ => Store::MaskPositive(&mask, ld),
+                };
+                let mut y = vec![f32::NAN; out * ldy];
+                fwd_body::<4, false>(&w, Some(&b), &x, ld, &mut y, ldy, inp, out, ld, store);
+                for o in 0..out {
+                    for c in 0..n {
+                        let r: f64 = b[o] as f64
+                            + (0..inp)
+                                .map(|i| w[o * inp + i] as f64 * x[i * ld + c] as f64)
+                                .sum::<f64>();
+                        let r = match mode {
+                            0 => r,
+                            1 => r.max(0.0),
+                            _ => {
+                                if mask[o * ld + c] > 0.0 {
+                                    r
+                                } else {
+                                    0.0
+                                }
+                            }
+                        };
+                        let got = y[o * ldy + c] as f64;
+                        assert!(
+                            (got - r).abs() < 1e-5 * (1.0 + r.abs()),
+                            "fwd mode {mode} ({o},{c})"
+                        );
+                    }
+                }
+            }
+            let inp_pad = inp.div_ceil(LANES) * LANES;
+            let mut dwp = vec![0.25f32; out * inp_pad];
+            let mut lane_sums = vec![0f32; out * LANES];
+            let mut xt = Vec::new();
+            dw_body::<false>(
+                &dy,
+                ld,
+                &x,
+                ld,
+                &mut dwp,
+                &mut lane_sums,
+                inp,
+                out,
+                ld,
+                &mut xt,
+            );
+            for o in 0..out {
+                for i in 0..inp {
+                    let r: f64 = 0.25
+                        + (0..n)
+                            .map(|c| dy[o * ld + c] as f64 * x[i * ld + c] as f64)
+                            .sum::<f64>();
+                    let got = dwp[o * inp_pad + i] as f64;
+                    assert!((got - r).abs() < 1e-4 * (1.0 + r.abs()), "dw ({o},{i})");
+                }
+                let r: f64 = (0..n).map(|c| dy[o * ld + c] as f64).sum();
+                let got = hsum(lane_sums[o * LANES..(o + 1) * LANES].try_into().unwrap()) as f64;
+                assert!((got - r).abs() < 1e-4 * (1.0 + r.abs()), "db {o}");
+            }
+        }
+    }
+
     /// The column-blocked MLP passes give exactly the bits of whole-batch layer-by-layer
     /// kernel calls (the blocking is not part of the result).
     #[test]
