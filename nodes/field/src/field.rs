@@ -178,6 +178,12 @@ pub struct ChunkState {
     /// Samples whose weight is below this get no colour evaluation (rendering only: the
     /// backward pass needs 0, i.e. every sample before early termination).
     pub min_color_weight: f32,
+    /// Rendering only: evaluate densities ray segment by ray segment and stop once a ray's
+    /// transmittance has fallen below the early-termination threshold, dropping its later
+    /// samples. Colour and every kept weight are unchanged; the opacity and depth sums lose
+    /// the post-termination mass (less than the threshold, 1e-4). Training must leave this off
+    /// (the backward pass uses every sample).
+    pub stop_at_termination: bool,
     /// Padded alive count.
     pub ldc: usize,
     /// Colour MLP input.
@@ -198,6 +204,17 @@ pub struct ChunkState {
     scratch2: Vec<f32>,
     wt: Vec<f32>,
     d_sigma: Vec<f32>,
+    d_cin: Vec<f32>,
+    seg_ids: Vec<u32>,
+    seg_px: Vec<f32>,
+    seg_py: Vec<f32>,
+    seg_pz: Vec<f32>,
+    seg_out: Vec<f32>,
+    render_out: Vec<f32>,
+    ray_cursor: Vec<usize>,
+    ray_keep: Vec<usize>,
+    ray_trans: Vec<f32>,
+    active: Vec<u32>,
 }
 
 impl ChunkState {
@@ -364,6 +381,136 @@ impl Field {
         (0..n).map(|i| trunc_exp(out[i])).collect()
     }
 
+    /// Rendering: evaluates the density network on the marched samples in growing segments
+    /// per ray (16, 32, 64, then 128 samples), all rays of a round in one batch, and stops a
+    /// ray after the sample at which its transmittance falls below the threshold — computed
+    /// exactly as [`volume::weights_forward`] does, so every kept density, weight and the
+    /// colour cut are bit-identical to a full evaluation. The chunk's sample arrays are then
+    /// compacted to the kept samples and `render_out` holds their density-network outputs
+    /// (`(1 + GEO_FEAT_DIM) × ld`).
+    fn densities_until_termination(&self, params: &[f32], st: &mut ChunkState) {
+        let n = st.n();
+        let nr = st.ray_start.len() - 1;
+        let rows = 1 + GEO_FEAT_DIM;
+        let lf = self.grid.output_dim();
+        let table = &params[..self.density_offset];
+        let dp = &params[self.density_offset..self.color_offset];
+        // Outputs by original sample index (row stride n); only evaluated samples are read.
+        st.seg_out.resize(rows * n, 0.0);
+        st.ray_cursor.clear();
+        st.ray_cursor.extend_from_slice(&st.ray_start[..nr]);
+        st.ray_keep.clear();
+        st.ray_keep.extend_from_slice(&st.ray_start[1..]);
+        st.ray_trans.clear();
+        st.ray_trans.resize(nr, 1.0);
+        st.active.clear();
+        st.active.extend(
+            (0..nr as u32).filter(|&r| st.ray_start[r as usize + 1] > st.ray_start[r as usize]),
+        );
+        let mut round = 0u32;
+        while !st.active.is_empty() {
+            let seg = 16usize << round.min(3);
+            round += 1;
+            st.seg_ids.clear();
+            for &r in &st.active {
+                let r = r as usize;
+                let a = st.ray_cursor[r];
+                let b = (a + seg).min(st.ray_start[r + 1]);
+                st.seg_ids.extend(a as u32..b as u32);
+            }
+            let nb = st.seg_ids.len();
+            let ldb = padded(nb);
+            for (dst, src) in [
+                (&mut st.seg_px, &st.px),
+                (&mut st.seg_py, &st.py),
+                (&mut st.seg_pz, &st.pz),
+            ] {
+                dst.clear();
+                dst.extend(st.seg_ids.iter().map(|&i| src[i as usize]));
+            }
+            st.enc.resize(lf * ldb, 0.0);
+            self.grid.encode(
+                table,
+                &st.seg_px,
+                &st.seg_py,
+                &st.seg_pz,
+                nb,
+                ldb,
+                &mut st.enc,
+            );
+            self.density.forward(dp, &st.enc, ldb, &mut st.dens_acts);
+            let out = &st.dens_acts[st.dens_acts.len() - 1];
+            for k in 0..rows {
+                for (j, &i) in st.seg_ids.iter().enumerate() {
+                    st.seg_out[k * n + i as usize] = out[k * ldb + j];
+                }
+            }
+            // Transmittance along each active ray's new samples (as `weights_forward`).
+            let mut still = 0;
+            for q in 0..st.active.len() {
+                let r = st.active[q] as usize;
+                let a = st.ray_cursor[r];
+                let end = st.ray_start[r + 1];
+                let b = (a + seg).min(end);
+                let mut t = st.ray_trans[r];
+                let mut stopped = false;
+                for i in a..b {
+                    let sigma = trunc_exp(st.seg_out[i]);
+                    let trans = (-sigma * st.dt[i]).exp();
+                    t *= trans;
+                    if t < crate::constants::TRANSMITTANCE_THRESHOLD {
+                        st.ray_keep[r] = i + 1;
+                        stopped = true;
+                        break;
+                    }
+                }
+                st.ray_trans[r] = t;
+                st.ray_cursor[r] = b;
+                if !stopped && b < end {
+                    st.active[still] = r as u32;
+                    still += 1;
+                }
+            }
+            st.active.truncate(still);
+        }
+        // Compact the samples to the kept ones (in place: kept indices never run ahead).
+        let mut o = 0;
+        let mut starts = Vec::with_capacity(nr + 1);
+        for r in 0..nr {
+            starts.push(o);
+            for i in st.ray_start[r]..st.ray_keep[r] {
+                st.px[o] = st.px[i];
+                st.py[o] = st.py[i];
+                st.pz[o] = st.pz[i];
+                st.t[o] = st.t[i];
+                st.dt[o] = st.dt[i];
+                st.m[o] = st.m[i];
+                o += 1;
+            }
+        }
+        starts.push(o);
+        let kept = o;
+        for v in [
+            &mut st.px, &mut st.py, &mut st.pz, &mut st.t, &mut st.dt, &mut st.m,
+        ] {
+            v.truncate(kept);
+        }
+        let ld = padded(kept);
+        st.ld = ld;
+        st.render_out.clear();
+        st.render_out.resize(rows * ld, 0.0);
+        let mut o = 0;
+        for r in 0..nr {
+            for i in st.ray_start[r]..st.ray_keep[r] {
+                for k in 0..rows {
+                    st.render_out[k * ld + o] = st.seg_out[k * n + i];
+                }
+                o += 1;
+            }
+        }
+        st.ray_start = starts;
+    }
+
     /// Forward pass over a chunk of rays: marching, encoding, density, weights, early
     /// termination, colour of the surviving samples, compositing. `jitter(r)` gives ray `r`'s
     /// stratification offset. `mean_emb` is used for rays with `image == u32::MAX`.
@@ -387,24 +534,34 @@ impl Field {
             self.march(ray, occ, jitter(r), st);
         }
         st.ray_start.push(st.t.len());
+        if st.stop_at_termination {
+            self.densities_until_termination(params, st);
+        } else {
+            let n = st.n();
+            let ld = padded(n);
+            st.ld = ld;
+            let lf = self.grid.output_dim();
+            // `encode` writes every entry (padding columns included): no clearing needed.
+            st.enc.resize(lf * ld, 0.0);
+            self.grid.encode(
+                &params[..self.density_offset],
+                &st.px,
+                &st.py,
+                &st.pz,
+                n,
+                ld,
+                &mut st.enc,
+            );
+            let dp = &params[self.density_offset..self.color_offset];
+            self.density.forward(dp, &st.enc, ld, &mut st.dens_acts);
+        }
         let n = st.n();
-        let ld = padded(n);
-        st.ld = ld;
-        let lf = self.grid.output_dim();
-        st.enc.clear();
-        st.enc.resize(lf * ld, 0.0);
-        self.grid.encode(
-            &params[..self.density_offset],
-            &st.px,
-            &st.py,
-            &st.pz,
-            n,
-            ld,
-            &mut st.enc,
-        );
-        let dp = &params[self.density_offset..self.color_offset];
-        self.density.forward(dp, &st.enc, ld, &mut st.dens_acts);
-        let dout = &st.dens_acts[st.dens_acts.len() - 1];
+        let ld = st.ld;
+        let dout: &[f32] = if st.stop_at_termination {
+            &st.render_out
+        } else {
+            &st.dens_acts[st.dens_acts.len() - 1]
+        };
         st.sigma.clear();
         st.sigma.extend((0..n).map(|i| trunc_exp(dout[i])));
         st.w.clear();
@@ -426,8 +583,11 @@ impl Field {
         st.ldc = ldc;
         let e = self.config.appearance_dim as usize;
         let cin = GEO_FEAT_DIM + SH_COMPONENTS + e;
-        st.col_in.clear();
+        // Columns `< nc` are written below; only the padding columns need zeros.
         st.col_in.resize(cin * ldc, 0.0);
+        for k in 0..cin {
+            st.col_in[k * ldc + nc..(k + 1) * ldc].fill(0.0);
+        }
         let mut j = 0;
         for (r, ray) in rays.iter().enumerate() {
             let sh = sh_encode(ray.dir);
@@ -456,8 +616,10 @@ impl Field {
         let cp = &params[self.color_offset..self.embedding_offset];
         self.color.forward(cp, &st.col_in, ldc, &mut st.col_acts);
         let cout = &st.col_acts[st.col_acts.len() - 1];
-        st.rgb.clear();
         st.rgb.resize(3 * ldc, 0.0);
+        for k in 0..3 {
+            st.rgb[k * ldc + nc..(k + 1) * ldc].fill(0.0);
+        }
         for k in 0..3 {
             for j in 0..nc {
                 st.rgb[k * ldc + j] = sigmoid(cout[k * ldc + j]);
@@ -559,16 +721,16 @@ impl Field {
         }
         // Colour MLP backward.
         let mut d_out = std::mem::take(&mut st.scratch2);
-        d_out.clear();
         d_out.resize(3 * ldc, 0.0);
         for k in 0..3 {
+            d_out[k * ldc + nc..(k + 1) * ldc].fill(0.0);
             for j in 0..nc {
                 let c = st.rgb[k * ldc + j];
                 d_out[k * ldc + j] = st.d_rgb[k * ldc + j] * c * (1.0 - c);
             }
         }
         let cp = &params[self.color_offset..self.embedding_offset];
-        let mut d_cin = Vec::new();
+        let mut d_cin = std::mem::take(&mut st.d_cin);
         {
             let (cg, eg) = grad[self.color_offset - base..]
                 .split_at_mut(self.embedding_offset - self.color_offset);
@@ -577,7 +739,7 @@ impl Field {
                 &st.col_in,
                 &st.col_acts,
                 ldc,
-                &mut d_out,
+                &d_out,
                 cg,
                 Some(&mut d_cin),
                 &mut st.scratch,
@@ -619,7 +781,7 @@ impl Field {
             &st.enc,
             &st.dens_acts,
             ld,
-            &mut d_out,
+            &d_out,
             dg,
             Some(&mut d_enc),
             &mut st.scratch,
@@ -627,5 +789,6 @@ impl Field {
         );
         st.d_enc = d_enc;
         st.scratch2 = d_out;
+        st.d_cin = d_cin;
     }
 }

@@ -6,6 +6,11 @@
 //! (`(level·F + f) × ld`), i.e. directly the first MLP layer's input batch. The backward pass
 //! runs one level at a time (levels own disjoint parts of the table), so levels can be
 //! processed in parallel while each level accumulates its samples in a fixed order.
+//!
+//! The level kernels work on blocks of 16 points: corner indices and weights of the next block
+//! are computed (and, on hashed levels, prefetched) while the current block is gathered or
+//! scattered; two-feature levels gather with AVX-512 when available, with the same operation
+//! order as the scalar loop.
 
 use crate::error::FieldError;
 use serde::{Deserialize, Serialize};
@@ -76,9 +81,20 @@ fn corners_block<const DENSE: bool>(
     let mask = size as u32 - 1;
     let mut pos = [[0f32; BLOCK]; 3];
     let cnt = (n - start).min(BLOCK);
-    pos[0][..cnt].copy_from_slice(&px[start..start + cnt]);
-    pos[1][..cnt].copy_from_slice(&py[start..start + cnt]);
-    pos[2][..cnt].copy_from_slice(&pz[start..start + cnt]);
+    if cnt == BLOCK {
+        // Fixed-size copies compile to register moves (no libc memmove call per block).
+        pos[0] = px[start..start + BLOCK].try_into().expect("block");
+        pos[1] = py[start..start + BLOCK].try_into().expect("block");
+        pos[2] = pz[start..start + BLOCK].try_into().expect("block");
+    } else {
+        // A plain loop: `copy_from_slice` of a variable length becomes a libc call.
+        #[allow(clippy::manual_memcpy)]
+        for l in 0..cnt {
+            pos[0][l] = px[start + l];
+            pos[1][l] = py[start + l];
+            pos[2][l] = pz[start + l];
+        }
+    }
     let valid: [f32; BLOCK] = std::array::from_fn(|l| if l < cnt { 1.0 } else { 0.0 });
     let mut lo = [[0u32; BLOCK]; 3];
     let mut hi = [[0u32; BLOCK]; 3];
@@ -125,6 +141,66 @@ fn corners_block<const DENSE: bool>(
     }
 }
 
+/// Hints the cache about the table entries of one block (x86-64; no-op elsewhere). Only the
+/// hashed levels need it: their tables are far larger than the caches and every fine-level
+/// sample lands on new cache lines.
+#[inline(always)]
+fn prefetch_block<const F: usize>(t: &[f32], idx: &[[u32; BLOCK]; 8], cnt: usize) {
+    #[cfg(target_arch = "x86_64")]
+    for c in 0..8 {
+        for l in 0..cnt {
+            // A prefetch never faults; `wrapping_add` keeps the address computation defined.
+            let p = t.as_ptr().wrapping_add(idx[c][l] as usize * F);
+            // SAFETY: prefetching has no architectural effect beyond the cache.
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                    p as *const i8,
+                )
+            };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (t, idx, cnt);
+}
+
+/// Two-feature levels on AVX-512: the 8 corner entries of 16 points are fetched with 64-bit
+/// gathers (one entry = both features), de-interleaved and blended with the same separate
+/// multiply and add, in the same corner order, as the scalar loop (so the bits match it).
+///
+/// # Safety
+/// AVX-512F must be available; `idx` entries must be `< t.len() / 2`; `out` must hold rows
+/// `0` and `1` (stride `ld`) up to column `start + 16`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn gather2_block(
+    t: &[f32],
+    idx: &[[u32; BLOCK]; 8],
+    w: &[[f32; BLOCK]; 8],
+    out: &mut [f32],
+    ld: usize,
+    start: usize,
+) {
+    use std::arch::x86_64::*;
+    let base = t.as_ptr() as *const f64;
+    let even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+    let odd = _mm512_setr_epi32(1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
+    let mut a0 = _mm512_setzero_ps();
+    let mut a1 = _mm512_setzero_ps();
+    for c in 0..8 {
+        let lo = _mm256_loadu_si256(idx[c].as_ptr() as *const __m256i);
+        let hi = _mm256_loadu_si256(idx[c].as_ptr().add(8) as *const __m256i);
+        let g_lo = _mm512_castpd_ps(_mm512_i32gather_pd::<8>(lo, base));
+        let g_hi = _mm512_castpd_ps(_mm512_i32gather_pd::<8>(hi, base));
+        let f0 = _mm512_permutex2var_ps(g_lo, even, g_hi);
+        let f1 = _mm512_permutex2var_ps(g_lo, odd, g_hi);
+        let wc = _mm512_loadu_ps(w[c].as_ptr());
+        a0 = _mm512_add_ps(a0, _mm512_mul_ps(wc, f0));
+        a1 = _mm512_add_ps(a1, _mm512_mul_ps(wc, f1));
+    }
+    _mm512_storeu_ps(out.as_mut_ptr().add(start), a0);
+    _mm512_storeu_ps(out.as_mut_ptr().add(ld + start), a1);
+}
+
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn encode_level_body<const F: usize, const DENSE: bool>(
@@ -139,11 +215,43 @@ fn encode_level_body<const F: usize, const DENSE: bool>(
     out: &mut [f32],
 ) {
     let t = &t[..size * F];
-    let mut idx = [[0u32; BLOCK]; 8];
-    let mut w = [[0f32; BLOCK]; 8];
+    #[cfg(target_arch = "x86_64")]
+    let gather2 =
+        F == 2 && BLOCK == 16 && ld >= BLOCK && std::arch::is_x86_feature_detected!("avx512f");
+    // Double-buffered corners: block b + 1 is computed and prefetched while block b is
+    // gathered.
+    let mut idx = [[[0u32; BLOCK]; 8]; 2];
+    let mut w = [[[0f32; BLOCK]; 8]; 2];
+    if n == 0 {
+        return;
+    }
+    corners_block::<DENSE>(res, size, px, py, pz, 0, n, &mut idx[0], &mut w[0]);
+    let mut cur = 0;
     for start in (0..n).step_by(BLOCK) {
-        corners_block::<DENSE>(res, size, px, py, pz, start, n, &mut idx, &mut w);
+        let next = start + BLOCK;
+        if next < n {
+            let (a, b) = idx.split_at_mut(1);
+            let (wa, wb) = w.split_at_mut(1);
+            let (ni, nw) = if cur == 0 {
+                (&mut b[0], &mut wb[0])
+            } else {
+                (&mut a[0], &mut wa[0])
+            };
+            corners_block::<DENSE>(res, size, px, py, pz, next, n, ni, nw);
+            if !DENSE {
+                prefetch_block::<F>(t, ni, (n - next).min(BLOCK));
+            }
+        }
+        let (idx, w) = (&idx[cur], &w[cur]);
         let cnt = (n - start).min(BLOCK);
+        #[cfg(target_arch = "x86_64")]
+        if gather2 {
+            // SAFETY: AVX-512F checked; every index is a valid entry (< size) and the output
+            // rows hold `start + BLOCK ≤ ld` columns (`start` is a multiple of BLOCK < n).
+            unsafe { gather2_block(t, idx, w, out, ld, start) };
+            cur ^= 1;
+            continue;
+        }
         for l in 0..cnt {
             let mut acc = [0f32; F];
             for c in 0..8 {
@@ -157,6 +265,7 @@ fn encode_level_body<const F: usize, const DENSE: bool>(
                 out[k * ld + start + l] = acc[k];
             }
         }
+        cur ^= 1;
     }
 }
 
@@ -174,19 +283,46 @@ fn backward_level_body<const F: usize, const DENSE: bool>(
     d_out: &[f32],
 ) {
     let grad = &mut grad[..size * F];
-    let mut idx = [[0u32; BLOCK]; 8];
-    let mut w = [[0f32; BLOCK]; 8];
-    for start in (0..n).step_by(BLOCK) {
+    let mut idx = [[[0u32; BLOCK]; 8]; 2];
+    let mut w = [[[0f32; BLOCK]; 8]; 2];
+    let live = |start: usize| {
         let cnt = (n - start).min(BLOCK);
-        let any = (0..F).any(|k| {
+        (0..F).any(|k| {
             d_out[k * ld + start..k * ld + start + cnt]
                 .iter()
                 .any(|&v| v != 0.0)
-        });
-        if !any {
-            continue;
+        })
+    };
+    // The next block with a non-zero gradient, from `start` on.
+    let next_live = |mut start: usize| {
+        while start < n && !live(start) {
+            start += BLOCK;
         }
-        corners_block::<DENSE>(res, size, px, py, pz, start, n, &mut idx, &mut w);
+        start
+    };
+    let mut start = next_live(0);
+    if start >= n {
+        return;
+    }
+    corners_block::<DENSE>(res, size, px, py, pz, start, n, &mut idx[0], &mut w[0]);
+    let mut cur = 0;
+    while start < n {
+        let next = next_live(start + BLOCK);
+        if next < n {
+            let (a, b) = idx.split_at_mut(1);
+            let (wa, wb) = w.split_at_mut(1);
+            let (ni, nw) = if cur == 0 {
+                (&mut b[0], &mut wb[0])
+            } else {
+                (&mut a[0], &mut wa[0])
+            };
+            corners_block::<DENSE>(res, size, px, py, pz, next, n, ni, nw);
+            if !DENSE {
+                prefetch_block::<F>(grad, ni, (n - next).min(BLOCK));
+            }
+        }
+        let (idx, w) = (&idx[cur], &w[cur]);
+        let cnt = (n - start).min(BLOCK);
         for l in 0..cnt {
             let mut d = [0f32; F];
             for k in 0..F {
@@ -200,6 +336,8 @@ fn backward_level_body<const F: usize, const DENSE: bool>(
                 }
             }
         }
+        cur ^= 1;
+        start = next;
     }
 }
 

@@ -16,6 +16,8 @@ pub mod constants;
 pub mod contraction;
 pub mod error;
 pub mod field;
+#[cfg(target_arch = "x86_64")]
+mod gemm512;
 pub mod hashgrid;
 pub mod io;
 pub mod mlp;

@@ -5,12 +5,22 @@
 //! loss gradients, so they never leak into weight gradients). A layer is then a small matrix
 //! product `Y = W X + b` whose inner loop runs along the batch and vectorises.
 //!
-//! Every kernel sums in a fixed order that does not depend on block sizes or the instruction
-//! set chosen at run time (no fused multiply-add), so results are bit-identical everywhere on
-//! one machine. An f64 reference lives in [`crate::reference`].
+//! [`Mlp::forward`] and [`Mlp::backward`] walk the batch in blocks of [`COLUMN_BLOCK`]
+//! columns through all layers, so a block's activations stay in cache between layers.
+//!
+//! Every kernel sums in a fixed order that depends neither on block sizes nor on how the batch
+//! is cut into column blocks: a layer output is `b + Σ_i w_i x_i` in `i` order; a weight
+//! gradient is the sequential sum over the batch columns in order; a bias gradient sums 16
+//! lane-strided partial sums (lane `l` takes columns `≡ l mod 16`, in order) and combines them
+//! pairwise. The AVX-512 and AVX2 paths use fused multiply-adds, the portable path does not,
+//! so results are bit-identical for any thread count on one machine. An f64 reference lives in
+//! [`crate::reference`].
 
 /// Batch padding granularity (one AVX-512 register of f32).
 pub const LANES: usize = 16;
+
+/// Columns per block in [`Mlp::forward`] / [`Mlp::backward`] (a multiple of [`LANES`]).
+pub const COLUMN_BLOCK: usize = 512;
 
 /// `n` rounded up to a multiple of [`LANES`].
 pub fn padded(n: usize) -> usize {
@@ -33,18 +43,31 @@ fn lanes(s: &[f32], at: usize) -> &[f32; LANES] {
     s[at..at + LANES].try_into().expect("lane slice")
 }
 
+/// What a forward-style kernel applies when it stores an output.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Store<'a> {
+    /// `y = acc`.
+    Linear,
+    /// `y = max(acc, 0)` (NaN → 0).
+    Relu,
+    /// `y = acc` where `mask > 0`, else 0: the ReLU backward through the layer below. The mask
+    /// (that layer's post-activation output) has its rows the given stride apart.
+    MaskPositive(&'a [f32], usize),
+}
+
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn fwd_block<const OB: usize, const T: usize, const FMA: bool>(
     w: &[f32],
     b: Option<&[f32]>,
     x: &[f32],
+    ldx: usize,
     y: &mut [f32],
+    ldy: usize,
     inp: usize,
     o0: usize,
-    ld: usize,
     base: usize,
-    relu: bool,
+    store: Store<'_>,
 ) {
     let mut acc = [[[0f32; LANES]; T]; OB];
     if let Some(b) = b {
@@ -55,7 +78,7 @@ fn fwd_block<const OB: usize, const T: usize, const FMA: bool>(
     for i in 0..inp {
         let mut xv = [[0f32; LANES]; T];
         for t in 0..T {
-            xv[t] = *lanes(x, i * ld + base + t * LANES);
+            xv[t] = *lanes(x, i * ldx + base + t * LANES);
         }
         for k in 0..OB {
             let wk = w[(o0 + k) * inp + i];
@@ -68,14 +91,22 @@ fn fwd_block<const OB: usize, const T: usize, const FMA: bool>(
     }
     for k in 0..OB {
         for t in 0..T {
-            let at = (o0 + k) * ld + base + t * LANES;
+            let c = base + t * LANES;
+            let at = (o0 + k) * ldy + c;
             let row = &mut y[at..at + LANES];
-            for l in 0..LANES {
-                row[l] = if relu {
-                    acc[k][t][l].max(0.0)
-                } else {
-                    acc[k][t][l]
-                };
+            match store {
+                Store::Linear => row.copy_from_slice(&acc[k][t]),
+                Store::Relu => {
+                    for l in 0..LANES {
+                        row[l] = acc[k][t][l].max(0.0);
+                    }
+                }
+                Store::MaskPositive(m, ldm) => {
+                    let mr = lanes(m, (o0 + k) * ldm + c);
+                    for l in 0..LANES {
+                        row[l] = if mr[l] > 0.0 { acc[k][t][l] } else { 0.0 };
+                    }
+                }
             }
         }
     }
@@ -87,29 +118,31 @@ fn fwd_body<const OB: usize, const FMA: bool>(
     w: &[f32],
     b: Option<&[f32]>,
     x: &[f32],
+    ldx: usize,
     y: &mut [f32],
+    ldy: usize,
     inp: usize,
     out: usize,
-    ld: usize,
-    relu: bool,
+    ncols: usize,
+    store: Store<'_>,
 ) {
     let mut base = 0;
-    while base < ld {
-        let two = base + 2 * LANES <= ld;
+    while base < ncols {
+        let two = base + 2 * LANES <= ncols;
         let mut o0 = 0;
         while o0 + OB <= out {
             if two {
-                fwd_block::<OB, 2, FMA>(w, b, x, y, inp, o0, ld, base, relu);
+                fwd_block::<OB, 2, FMA>(w, b, x, ldx, y, ldy, inp, o0, base, store);
             } else {
-                fwd_block::<OB, 1, FMA>(w, b, x, y, inp, o0, ld, base, relu);
+                fwd_block::<OB, 1, FMA>(w, b, x, ldx, y, ldy, inp, o0, base, store);
             }
             o0 += OB;
         }
         while o0 < out {
             if two {
-                fwd_block::<1, 2, FMA>(w, b, x, y, inp, o0, ld, base, relu);
+                fwd_block::<1, 2, FMA>(w, b, x, ldx, y, ldy, inp, o0, base, store);
             } else {
-                fwd_block::<1, 1, FMA>(w, b, x, y, inp, o0, ld, base, relu);
+                fwd_block::<1, 1, FMA>(w, b, x, ldx, y, ldy, inp, o0, base, store);
             }
             o0 += 1;
         }
@@ -117,89 +150,68 @@ fn fwd_body<const OB: usize, const FMA: bool>(
     }
 }
 
+/// Portable weight-gradient accumulation (same contract as
+/// [`crate::gemm512::backward_weights`]): columns are transposed in blocks, then every
+/// `dwp` row is updated column after column (the inner loop over inputs vectorises).
 #[inline(always)]
-fn dw_block<const OB: usize, const IB: usize, const FMA: bool>(
+#[allow(clippy::too_many_arguments)]
+fn dw_body<const FMA: bool>(
     dy: &[f32],
+    lddy: usize,
     x: &[f32],
-    dw: &mut [f32],
+    ldx: usize,
+    dwp: &mut [f32],
+    lane_sums: &mut [f32],
     inp: usize,
-    o0: usize,
-    i0: usize,
-    ld: usize,
+    out: usize,
+    ncols: usize,
+    xt: &mut Vec<f32>,
 ) {
-    let mut acc = [[[0f32; LANES]; IB]; OB];
-    for base in (0..ld).step_by(LANES) {
-        let mut xv = [[0f32; LANES]; IB];
-        for j in 0..IB {
-            xv[j] = *lanes(x, (i0 + j) * ld + base);
+    let inp_pad = inp.div_ceil(LANES) * LANES;
+    const KC: usize = 64;
+    xt.resize(KC * inp_pad, 0.0);
+    let mut kb = 0;
+    while kb < ncols {
+        let kc = KC.min(ncols - kb);
+        for i in 0..inp_pad {
+            for n in 0..kc {
+                xt[n * inp_pad + i] = if i < inp { x[i * ldx + kb + n] } else { 0.0 };
+            }
         }
-        for k in 0..OB {
-            let d = lanes(dy, (o0 + k) * ld + base);
-            for j in 0..IB {
-                for l in 0..LANES {
-                    acc[k][j][l] = fmadd::<FMA>(d[l], xv[j][l], acc[k][j][l]);
+        for o in 0..out {
+            let row = &mut dwp[o * inp_pad..(o + 1) * inp_pad];
+            for n in 0..kc {
+                let d = dy[o * lddy + kb + n];
+                let xr = &xt[n * inp_pad..(n + 1) * inp_pad];
+                for i in 0..inp_pad {
+                    row[i] = fmadd::<FMA>(d, xr[i], row[i]);
                 }
             }
         }
+        kb += kc;
     }
-    for k in 0..OB {
-        for j in 0..IB {
-            dw[(o0 + k) * inp + i0 + j] += hsum(&acc[k][j]);
+    for o in 0..out {
+        let acc: &mut [f32; LANES] = (&mut lane_sums[o * LANES..(o + 1) * LANES])
+            .try_into()
+            .expect("lane sums");
+        for base in (0..ncols).step_by(LANES) {
+            let d = lanes(dy, o * lddy + base);
+            for l in 0..LANES {
+                acc[l] += d[l];
+            }
         }
     }
 }
 
 /// Horizontal sum in a fixed pairwise order.
 #[inline(always)]
-fn hsum(a: &[f32; LANES]) -> f32 {
+pub(crate) fn hsum(a: &[f32; LANES]) -> f32 {
     let mut h = [0f32; 8];
     for l in 0..8 {
         h[l] = a[l] + a[l + 8];
     }
     let q = [h[0] + h[4], h[1] + h[5], h[2] + h[6], h[3] + h[7]];
     (q[0] + q[2]) + (q[1] + q[3])
-}
-
-#[inline(always)]
-fn dw_body<const OB: usize, const IB: usize, const FMA: bool>(
-    dy: &[f32],
-    x: &[f32],
-    dw: &mut [f32],
-    db: &mut [f32],
-    inp: usize,
-    out: usize,
-    ld: usize,
-) {
-    let mut o0 = 0;
-    while o0 < out {
-        let ob = (out - o0).min(OB);
-        let mut i0 = 0;
-        while i0 < inp {
-            let ib = (inp - i0).min(IB);
-            match (ob == OB, ib == IB) {
-                (true, true) => dw_block::<OB, IB, FMA>(dy, x, dw, inp, o0, i0, ld),
-                _ => {
-                    for k in 0..ob {
-                        for j in 0..ib {
-                            dw_block::<1, 1, FMA>(dy, x, dw, inp, o0 + k, i0 + j, ld);
-                        }
-                    }
-                }
-            }
-            i0 += ib;
-        }
-        o0 += ob;
-    }
-    for o in 0..out {
-        let mut acc = [0f32; LANES];
-        for base in (0..ld).step_by(LANES) {
-            let d = lanes(dy, o * ld + base);
-            for l in 0..LANES {
-                acc[l] += d[l];
-            }
-        }
-        db[o] += hsum(&acc);
-    }
 }
 
 fn has_avx512() -> bool {
@@ -224,6 +236,156 @@ fn has_avx2() -> bool {
     }
 }
 
+/// Panics with a message naming the buffer when a kernel argument is too short (a caller bug,
+/// never data-dependent: shapes come from the layer definitions).
+#[inline]
+fn check_rows(len: usize, rows: usize, ld: usize, ncols: usize, what: &str) {
+    let need = if rows == 0 {
+        0
+    } else {
+        (rows - 1) * ld + ncols
+    };
+    assert!(
+        len >= need && ncols.is_multiple_of(LANES),
+        "dense-layer kernel: {what} has {len} floats, needs {rows} rows of stride {ld} with {ncols} columns"
+    );
+}
+
+/// Forward-style product over columns `< ncols` with separate row strides (dispatch).
+#[allow(clippy::too_many_arguments)]
+fn product(
+    w: &[f32],
+    b: Option<&[f32]>,
+    x: &[f32],
+    ldx: usize,
+    y: &mut [f32],
+    ldy: usize,
+    inp: usize,
+    out: usize,
+    ncols: usize,
+    store: Store<'_>,
+) {
+    assert!(
+        w.len() >= inp * out,
+        "dense-layer kernel: weights too short"
+    );
+    if let Some(b) = b {
+        assert!(b.len() >= out, "dense-layer kernel: biases too short");
+    }
+    check_rows(x.len(), inp, ldx, ncols, "input batch");
+    check_rows(y.len(), out, ldy, ncols, "output batch");
+    if let Store::MaskPositive(m, ldm) = store {
+        check_rows(m.len(), out, ldm, ncols, "ReLU mask");
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn v256(
+            w: &[f32],
+            b: Option<&[f32]>,
+            x: &[f32],
+            ldx: usize,
+            y: &mut [f32],
+            ldy: usize,
+            inp: usize,
+            out: usize,
+            ncols: usize,
+            store: Store<'_>,
+        ) {
+            fwd_body::<4, true>(w, b, x, ldx, y, ldy, inp, out, ncols, store)
+        }
+        if has_avx512() {
+            // SAFETY: the CPU supports AVX-512F (checked); shapes checked above.
+            return unsafe {
+                crate::gemm512::forward(w, b, x, ldx, y, ldy, inp, out, ncols, store)
+            };
+        }
+        if has_avx2() {
+            // SAFETY: the CPU supports the enabled features (checked).
+            return unsafe { v256(w, b, x, ldx, y, ldy, inp, out, ncols, store) };
+        }
+    }
+    fwd_body::<4, false>(w, b, x, ldx, y, ldy, inp, out, ncols, store)
+}
+
+/// Weight-gradient accumulation over columns `< ncols` into a padded `dwp` (`out × inp_pad`)
+/// and per-lane bias sums (dispatch).
+#[allow(clippy::too_many_arguments)]
+fn weight_grad(
+    dy: &[f32],
+    lddy: usize,
+    x: &[f32],
+    ldx: usize,
+    dwp: &mut [f32],
+    lane_sums: &mut [f32],
+    inp: usize,
+    out: usize,
+    ncols: usize,
+    xt: &mut Vec<f32>,
+) {
+    check_rows(dy.len(), out, lddy, ncols, "output gradient");
+    check_rows(x.len(), inp, ldx, ncols, "input batch");
+    assert!(
+        dwp.len() >= out * inp.div_ceil(LANES) * LANES && lane_sums.len() >= out * LANES,
+        "dense-layer kernel: gradient accumulators too short"
+    );
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn v256(
+            dy: &[f32],
+            lddy: usize,
+            x: &[f32],
+            ldx: usize,
+            dwp: &mut [f32],
+            lane_sums: &mut [f32],
+            inp: usize,
+            out: usize,
+            ncols: usize,
+            xt: &mut Vec<f32>,
+        ) {
+            dw_body::<true>(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt)
+        }
+        if has_avx512() {
+            // SAFETY: the CPU supports AVX-512F (checked); shapes checked above.
+            return unsafe {
+                crate::gemm512::backward_weights(
+                    dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt,
+                )
+            };
+        }
+        if has_avx2() {
+            // SAFETY: the CPU supports the enabled features (checked).
+            return unsafe { v256(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt) };
+        }
+    }
+    dw_body::<false>(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt)
+}
+
+/// Copies `dw` (`out × inp`) into a padded `dwp` (`out × inp_pad`, zero padding).
+fn pad_weights(dw: &[f32], dwp: &mut [f32], inp: usize, out: usize) {
+    let inp_pad = inp.div_ceil(LANES) * LANES;
+    for o in 0..out {
+        dwp[o * inp_pad..o * inp_pad + inp].copy_from_slice(&dw[o * inp..(o + 1) * inp]);
+        dwp[o * inp_pad + inp..(o + 1) * inp_pad].fill(0.0);
+    }
+}
+
+/// Writes the padded accumulators back: `dw` from `dwp`, `db[o] += hsum(lane_sums[o])`.
+fn unpad_weights(dwp: &[f32], lane_sums: &[f32], dw: &mut [f32], db: &mut [f32], inp: usize) {
+    let inp_pad = inp.div_ceil(LANES) * LANES;
+    for o in 0..db.len() {
+        dw[o * inp..(o + 1) * inp].copy_from_slice(&dwp[o * inp_pad..o * inp_pad + inp]);
+        db[o] += hsum(
+            lane_sums[o * LANES..(o + 1) * LANES]
+                .try_into()
+                .expect("lane sums"),
+        );
+    }
+}
+
 /// `y[o] = act(b[o] + Σ_i w[o·inp + i] · x[i])` for every column of a channel-major batch
 /// (`x`: `inp × ld`, `y`: `out × ld`, `w`: `out × inp` row-major). `act` is ReLU when
 /// `relu`, else identity. `ld` must be a multiple of [`LANES`]. Each output sums over `i` in
@@ -239,50 +401,13 @@ pub fn linear_forward(
     ld: usize,
     relu: bool,
 ) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx512f,fma")]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn v512(
-            w: &[f32],
-            b: Option<&[f32]>,
-            x: &[f32],
-            y: &mut [f32],
-            inp: usize,
-            out: usize,
-            ld: usize,
-            relu: bool,
-        ) {
-            fwd_body::<8, true>(w, b, x, y, inp, out, ld, relu)
-        }
-        #[target_feature(enable = "avx2,fma")]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn v256(
-            w: &[f32],
-            b: Option<&[f32]>,
-            x: &[f32],
-            y: &mut [f32],
-            inp: usize,
-            out: usize,
-            ld: usize,
-            relu: bool,
-        ) {
-            fwd_body::<4, true>(w, b, x, y, inp, out, ld, relu)
-        }
-        if has_avx512() {
-            // SAFETY: the CPU supports the enabled features (checked).
-            return unsafe { v512(w, b, x, y, inp, out, ld, relu) };
-        }
-        if has_avx2() {
-            // SAFETY: the CPU supports the enabled features (checked).
-            return unsafe { v256(w, b, x, y, inp, out, ld, relu) };
-        }
-    }
-    fwd_body::<4, false>(w, b, x, y, inp, out, ld, relu)
+    let store = if relu { Store::Relu } else { Store::Linear };
+    product(w, b, x, ld, y, ld, inp, out, ld, store)
 }
 
-/// Weight gradients of a layer: `dw[o·inp + i] += Σ_n dy[o][n] · x[i][n]` and
-/// `db[o] += Σ_n dy[o][n]` (each sum in lane-blocked fixed order, independent of block sizes).
+/// Weight gradients of a layer: `dw[o·inp + i] += Σ_n dy[o][n] · x[i][n]` (the sequential sum
+/// over the columns, after the existing value) and `db[o] += Σ_n dy[o][n]` (16 lane sums
+/// combined pairwise).
 #[allow(clippy::too_many_arguments)]
 pub fn linear_backward_weights(
     dy: &[f32],
@@ -293,44 +418,37 @@ pub fn linear_backward_weights(
     out: usize,
     ld: usize,
 ) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx512f,fma")]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn v512(
-            dy: &[f32],
-            x: &[f32],
-            dw: &mut [f32],
-            db: &mut [f32],
-            inp: usize,
-            out: usize,
-            ld: usize,
-        ) {
-            dw_body::<4, 4, true>(dy, x, dw, db, inp, out, ld)
-        }
-        #[target_feature(enable = "avx2,fma")]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn v256(
-            dy: &[f32],
-            x: &[f32],
-            dw: &mut [f32],
-            db: &mut [f32],
-            inp: usize,
-            out: usize,
-            ld: usize,
-        ) {
-            dw_body::<4, 2, true>(dy, x, dw, db, inp, out, ld)
-        }
-        if has_avx512() {
-            // SAFETY: the CPU supports the enabled features (checked).
-            return unsafe { v512(dy, x, dw, db, inp, out, ld) };
-        }
-        if has_avx2() {
-            // SAFETY: the CPU supports the enabled features (checked).
-            return unsafe { v256(dy, x, dw, db, inp, out, ld) };
+    assert!(
+        dw.len() >= inp * out && db.len() >= out,
+        "dense-layer kernel: gradient buffers too short"
+    );
+    let inp_pad = inp.div_ceil(LANES) * LANES;
+    let mut dwp = vec![0f32; out * inp_pad];
+    let mut lane_sums = vec![0f32; out * LANES];
+    pad_weights(dw, &mut dwp, inp, out);
+    let mut xt = Vec::new();
+    weight_grad(
+        dy,
+        ld,
+        x,
+        ld,
+        &mut dwp,
+        &mut lane_sums,
+        inp,
+        out,
+        ld,
+        &mut xt,
+    );
+    unpad_weights(&dwp, &lane_sums, dw, &mut db[..out], inp);
+}
+
+/// Transposed weights (`inp × out`) into `wt`.
+fn transpose_weights(w: &[f32], wt: &mut [f32], inp: usize, out: usize) {
+    for o in 0..out {
+        for i in 0..inp {
+            wt[i * out + o] = w[o * inp + i];
         }
     }
-    dw_body::<4, 2, false>(dy, x, dw, db, inp, out, ld)
 }
 
 /// Input gradient of a layer: `dx[i] = Σ_o w[o·inp + i] · dy[o]` per column. `wt` is scratch
@@ -345,14 +463,34 @@ pub fn linear_backward_input(
     ld: usize,
     wt: &mut Vec<f32>,
 ) {
+    linear_backward_input_masked(w, dy, dx, inp, out, ld, wt, None)
+}
+
+/// [`linear_backward_input`] followed by [`relu_backward`] with `mask` (the post-activation
+/// output of the layer below, laid out like `dx`), fused into the kernel's store.
+#[allow(clippy::too_many_arguments)]
+pub fn linear_backward_input_masked(
+    w: &[f32],
+    dy: &[f32],
+    dx: &mut [f32],
+    inp: usize,
+    out: usize,
+    ld: usize,
+    wt: &mut Vec<f32>,
+    mask: Option<&[f32]>,
+) {
+    assert!(
+        w.len() >= inp * out,
+        "dense-layer kernel: weights too short"
+    );
     wt.clear();
     wt.resize(inp * out, 0.0);
-    for o in 0..out {
-        for i in 0..inp {
-            wt[i * out + o] = w[o * inp + i];
-        }
-    }
-    linear_forward(wt, None, dy, dx, out, inp, ld, false);
+    transpose_weights(w, wt, inp, out);
+    let store = match mask {
+        Some(m) => Store::MaskPositive(m, ld),
+        None => Store::Linear,
+    };
+    product(wt, None, dy, ld, dx, ld, out, inp, ld, store)
 }
 
 /// Multiplies `d` by the ReLU derivative read from the layer's post-activation output `y`
@@ -423,24 +561,50 @@ impl Mlp {
     }
 
     /// Forward pass. `acts` receives one buffer per layer output (`out × ld`); the last one
-    /// holds the (linear) network output.
+    /// holds the (linear) network output. The batch runs through all layers one block of
+    /// [`COLUMN_BLOCK`] columns at a time (results do not depend on the blocking).
     pub fn forward(&self, params: &[f32], x: &[f32], ld: usize, acts: &mut Vec<Vec<f32>>) {
-        acts.resize_with(self.layers.len(), Vec::new);
+        let nl = self.layers.len();
+        acts.resize_with(nl, Vec::new);
         for (l, s) in self.layers.iter().enumerate() {
-            let (w, b) = self.split(params, l);
-            let (done, rest) = acts.split_at_mut(l);
-            let input: &[f32] = if l == 0 { x } else { &done[l - 1] };
-            let y = &mut rest[0];
-            y.clear();
-            y.resize(s.out * ld, 0.0);
-            let relu = l + 1 < self.layers.len();
-            linear_forward(w, Some(b), input, y, s.inp, s.out, ld, relu);
+            // Every element of `acts[l][..out·ld]` is overwritten: no need to clear it.
+            acts[l].resize(s.out * ld, 0.0);
+        }
+        let mut c0 = 0;
+        while c0 < ld {
+            let nb = COLUMN_BLOCK.min(ld - c0);
+            for (l, s) in self.layers.iter().enumerate() {
+                let (w, b) = self.split(params, l);
+                let (done, rest) = acts.split_at_mut(l);
+                let input: &[f32] = if l == 0 { x } else { &done[l - 1] };
+                let store = if l + 1 < nl {
+                    Store::Relu
+                } else {
+                    Store::Linear
+                };
+                product(
+                    w,
+                    Some(b),
+                    &input[c0..],
+                    ld,
+                    &mut rest[0][c0..],
+                    ld,
+                    s.inp,
+                    s.out,
+                    nb,
+                    store,
+                );
+            }
+            c0 += nb;
         }
     }
 
     /// Backward pass. `d_out` is the gradient of the network output (`out × ld`, zero in the
-    /// padding columns); it is consumed as scratch. Gradients are *added* to `grad` (same
-    /// layout as `params`). When `d_x` is given it receives the input gradient.
+    /// padding columns). Gradients are *added* to `grad` (same layout as
+    /// `params`). When `d_x` is given it receives the input gradient (`inp × ld`). `scratch`
+    /// and `wt` are reusable scratch. The batch runs through all layers one block of
+    /// [`COLUMN_BLOCK`] columns at a time; every gradient sum runs over the columns in order,
+    /// so the blocking does not change the result.
     #[allow(clippy::too_many_arguments)]
     pub fn backward(
         &self,
@@ -448,32 +612,131 @@ impl Mlp {
         x: &[f32],
         acts: &[Vec<f32>],
         ld: usize,
-        d_out: &mut Vec<f32>,
+        d_out: &[f32],
         grad: &mut [f32],
         d_x: Option<&mut Vec<f32>>,
         scratch: &mut Vec<f32>,
         wt: &mut Vec<f32>,
     ) {
         let nl = self.layers.len();
+        let pad = |n: usize| n.div_ceil(LANES) * LANES;
+        // Scratch layout: two block buffers, padded weight-gradient accumulators and lane
+        // sums of every layer, transposed-input block.
+        let widest = self
+            .layers
+            .iter()
+            .map(|s| s.inp.max(s.out))
+            .max()
+            .unwrap_or(0);
+        let blk = COLUMN_BLOCK.min(ld.max(LANES));
+        let acc_len: usize = self.layers.iter().map(|s| s.out * pad(s.inp)).sum();
+        let lane_len: usize = self.layers.iter().map(|s| s.out * LANES).sum();
+        scratch.resize(2 * widest * blk + acc_len + lane_len, 0.0);
+        let (bufs, rest) = scratch.split_at_mut(2 * widest * blk);
+        let (buf_a, buf_b) = bufs.split_at_mut(widest * blk);
+        let (accs, lane_sums) = rest.split_at_mut(acc_len);
+        lane_sums.fill(0.0);
+        // Transposed weights of every layer.
+        let wt_len: usize = self.layers.iter().map(|s| s.inp * s.out).sum();
+        wt.resize(wt_len, 0.0);
+        let mut xt = Vec::new();
+        {
+            let (mut wo, mut ao) = (0, 0);
+            for (l, s) in self.layers.iter().enumerate() {
+                let (w, _) = self.split(params, l);
+                transpose_weights(w, &mut wt[wo..wo + s.inp * s.out], s.inp, s.out);
+                let off: usize = self.layers[..l].iter().map(LayerShape::params).sum();
+                pad_weights(
+                    &grad[off..off + s.inp * s.out],
+                    &mut accs[ao..ao + s.out * pad(s.inp)],
+                    s.inp,
+                    s.out,
+                );
+                wo += s.inp * s.out;
+                ao += s.out * pad(s.inp);
+            }
+        }
         let mut d_x = d_x;
-        for l in (0..nl).rev() {
-            let s = self.layers[l];
-            let (w, _) = self.split(params, l);
+        if let Some(dx) = d_x.as_deref_mut() {
+            dx.resize(self.layers[0].inp * ld, 0.0);
+        }
+        let mut c0 = 0;
+        while c0 < ld {
+            let nb = blk.min(ld - c0);
+            // The gradient of layer l's output for this block: rows `ldd` apart.
+            let mut cur: &mut [f32] = &mut buf_a[..];
+            let mut next: &mut [f32] = &mut buf_b[..];
+            let mut from_top = true;
+            let (mut wo, mut ao, mut lo) = (wt_len, acc_len, lane_len);
+            for l in (0..nl).rev() {
+                let s = self.layers[l];
+                wo -= s.inp * s.out;
+                ao -= s.out * pad(s.inp);
+                lo -= s.out * LANES;
+                let (dy, lddy): (&[f32], usize) = if from_top {
+                    (&d_out[c0..], ld)
+                } else {
+                    (&cur[..], blk)
+                };
+                let input: &[f32] = if l == 0 { x } else { &acts[l - 1] };
+                weight_grad(
+                    dy,
+                    lddy,
+                    &input[c0..],
+                    ld,
+                    &mut accs[ao..ao + s.out * pad(s.inp)],
+                    &mut lane_sums[lo..lo + s.out * LANES],
+                    s.inp,
+                    s.out,
+                    nb,
+                    &mut xt,
+                );
+                let wtl = &wt[wo..wo + s.inp * s.out];
+                if l > 0 {
+                    product(
+                        wtl,
+                        None,
+                        dy,
+                        lddy,
+                        next,
+                        blk,
+                        s.out,
+                        s.inp,
+                        nb,
+                        Store::MaskPositive(&acts[l - 1][c0..], ld),
+                    );
+                    std::mem::swap(&mut cur, &mut next);
+                    from_top = false;
+                } else if let Some(dx) = d_x.as_deref_mut() {
+                    product(
+                        wtl,
+                        None,
+                        dy,
+                        lddy,
+                        &mut dx[c0..],
+                        ld,
+                        s.out,
+                        s.inp,
+                        nb,
+                        Store::Linear,
+                    );
+                }
+            }
+            c0 += nb;
+        }
+        let (mut ao, mut lo) = (0, 0);
+        for (l, s) in self.layers.iter().enumerate() {
             let off: usize = self.layers[..l].iter().map(LayerShape::params).sum();
             let (gw, gb) = grad[off..off + s.params()].split_at_mut(s.inp * s.out);
-            let input: &[f32] = if l == 0 { x } else { &acts[l - 1] };
-            linear_backward_weights(d_out, input, gw, gb, s.inp, s.out, ld);
-            if l > 0 {
-                scratch.clear();
-                scratch.resize(s.inp * ld, 0.0);
-                linear_backward_input(w, d_out, scratch, s.inp, s.out, ld, wt);
-                relu_backward(scratch, &acts[l - 1]);
-                std::mem::swap(d_out, scratch);
-            } else if let Some(dx) = d_x.take() {
-                dx.clear();
-                dx.resize(s.inp * ld, 0.0);
-                linear_backward_input(w, d_out, dx, s.inp, s.out, ld, wt);
-            }
+            unpad_weights(
+                &accs[ao..ao + s.out * pad(s.inp)],
+                &lane_sums[lo..lo + s.out * LANES],
+                gw,
+                gb,
+                s.inp,
+            );
+            ao += s.out * pad(s.inp);
+            lo += s.out * LANES;
         }
     }
 
@@ -489,6 +752,277 @@ impl Mlp {
                 *v = 0.0;
             }
             off += s.params();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use augsplat_core::Rng;
+
+    fn batch(rng: &mut Rng, rows: usize, n: usize, ld: usize) -> Vec<f32> {
+        let mut v = vec![0f32; rows * ld];
+        for r in 0..rows {
+            for i in 0..n {
+                v[r * ld + i] = rng.uniform(-1.0, 1.0) as f32;
+            }
+        }
+        v
+    }
+
+    /// Every kernel (whichever instruction set this machine selects) against f64 sums, for
+    /// shapes that exercise all tile remainders (odd widths, 1–4 column vectors, long batches
+    /// that span several transposed blocks).
+    #[test]
+    fn kernels_match_f64_sums() {
+        let mut rng = Rng::new(11);
+        for &(inp, out, n) in &[
+            (5usize, 12usize, 21usize),
+            (31, 64, 300),
+            (64, 3, 47),
+            (64, 16, 700),
+            (17, 9, 16),
+            (100, 70, 129),
+        ] {
+            let ld = padded(n);
+            let w: Vec<f32> = (0..inp * out)
+                .map(|_| rng.uniform(-0.5, 0.5) as f32)
+                .collect();
+            let b: Vec<f32> = (0..out).map(|_| rng.uniform(-0.5, 0.5) as f32).collect();
+            let x = batch(&mut rng, inp, n, ld);
+            let dy = batch(&mut rng, out, n, ld);
+            let mask = batch(&mut rng, inp, n, ld);
+            let mut y = vec![f32::NAN; out * ld];
+            linear_forward(&w, Some(&b), &x, &mut y, inp, out, ld, true);
+            for o in 0..out {
+                for c in 0..n {
+                    let r: f64 = b[o] as f64
+                        + (0..inp)
+                            .map(|i| w[o * inp + i] as f64 * x[i * ld + c] as f64)
+                            .sum::<f64>();
+                    let got = y[o * ld + c] as f64;
+                    assert!(
+                        (got - r.max(0.0)).abs() < 1e-5 * (1.0 + r.abs()),
+                        "fwd {inp}x{out} ({o},{c})"
+                    );
+                }
+            }
+            let mut dx = vec![f32::NAN; inp * ld];
+            let mut wt = Vec::new();
+            linear_backward_input_masked(&w, &dy, &mut dx, inp, out, ld, &mut wt, Some(&mask));
+            for i in 0..inp {
+                for c in 0..ld {
+                    let r: f64 = (0..out)
+                        .map(|o| w[o * inp + i] as f64 * dy[o * ld + c] as f64)
+                        .sum();
+                    let r = if mask[i * ld + c] > 0.0 { r } else { 0.0 };
+                    let got = dx[i * ld + c] as f64;
+                    assert!(
+                        (got - r).abs() < 1e-5 * (1.0 + r.abs()),
+                        "dx {inp}x{out} ({i},{c})"
+                    );
+                }
+            }
+            let mut dw = vec![0.25f32; inp * out];
+            let mut db = vec![-0.5f32; out];
+            linear_backward_weights(&dy, &x, &mut dw, &mut db, inp, out, ld);
+            for o in 0..out {
+                for i in 0..inp {
+                    let r: f64 = 0.25
+                        + (0..n)
+                            .map(|c| dy[o * ld + c] as f64 * x[i * ld + c] as f64)
+                            .sum::<f64>();
+                    let got = dw[o * inp + i] as f64;
+                    assert!(
+                        (got - r).abs() < 1e-4 * (1.0 + r.abs()),
+                        "dw {inp}x{out} ({o},{i}): {got} vs {r}"
+                    );
+                }
+                let r: f64 = -0.5 + (0..n).map(|c| dy[o * ld + c] as f64).sum::<f64>();
+                assert!((db[o] as f64 - r).abs() < 1e-4 * (1.0 + r.abs()), "db {o}");
+            }
+        }
+    }
+
+    /// The portable kernels (used where AVX-512 and AVX2 are missing, hence not reached
+    /// through the dispatch on this machine) against f64 sums, with separate row strides.
+    #[test]
+    fn portable_kernels_match_f64_sums() {
+        let mut rng = Rng::new(12);
+        for &(inp, out, n) in &[
+            (5usize, 12usize, 21usize),
+            (31, 64, 130),
+            (64, 3, 47),
+            (17, 9, 16),
+        ] {
+            let ld = padded(n);
+            let ldy = ld + 16; // a different output stride
+            let w: Vec<f32> = (0..inp * out)
+                .map(|_| rng.uniform(-0.5, 0.5) as f32)
+                .collect();
+            let b: Vec<f32> = (0..out).map(|_| rng.uniform(-0.5, 0.5) as f32).collect();
+            let x = batch(&mut rng, inp, n, ld);
+            let dy = batch(&mut rng, out, n, ld);
+            let mask = batch(&mut rng, out, n, ld);
+            for mode in 0..3 {
+                let store = match mode {
+                    0 => Store::Linear,
+                    1 => Store::Relu,
+                    _ => Store::MaskPositive(&mask, ld),
+                };
+                let mut y = vec![f32::NAN; out * ldy];
+                fwd_body::<4, false>(&w, Some(&b), &x, ld, &mut y, ldy, inp, out, ld, store);
+                for o in 0..out {
+                    for c in 0..n {
+                        let r: f64 = b[o] as f64
+                            + (0..inp)
+                                .map(|i| w[o * inp + i] as f64 * x[i * ld + c] as f64)
+                                .sum::<f64>();
+                        let r = match mode {
+                            0 => r,
+                            1 => r.max(0.0),
+                            _ => {
+                                if mask[o * ld + c] > 0.0 {
+                                    r
+                                } else {
+                                    0.0
+                                }
+                            }
+                        };
+                        let got = y[o * ldy + c] as f64;
+                        assert!(
+                            (got - r).abs() < 1e-5 * (1.0 + r.abs()),
+                            "fwd mode {mode} ({o},{c})"
+                        );
+                    }
+                }
+            }
+            let inp_pad = inp.div_ceil(LANES) * LANES;
+            let mut dwp = vec![0.25f32; out * inp_pad];
+            let mut lane_sums = vec![0f32; out * LANES];
+            let mut xt = Vec::new();
+            dw_body::<false>(
+                &dy,
+                ld,
+                &x,
+                ld,
+                &mut dwp,
+                &mut lane_sums,
+                inp,
+                out,
+                ld,
+                &mut xt,
+            );
+            for o in 0..out {
+                for i in 0..inp {
+                    let r: f64 = 0.25
+                        + (0..n)
+                            .map(|c| dy[o * ld + c] as f64 * x[i * ld + c] as f64)
+                            .sum::<f64>();
+                    let got = dwp[o * inp_pad + i] as f64;
+                    assert!((got - r).abs() < 1e-4 * (1.0 + r.abs()), "dw ({o},{i})");
+                }
+                let r: f64 = (0..n).map(|c| dy[o * ld + c] as f64).sum();
+                let got = hsum(lane_sums[o * LANES..(o + 1) * LANES].try_into().unwrap()) as f64;
+                assert!((got - r).abs() < 1e-4 * (1.0 + r.abs()), "db {o}");
+            }
+        }
+    }
+
+    /// The column-blocked MLP passes give exactly the bits of whole-batch layer-by-layer
+    /// kernel calls (the blocking is not part of the result).
+    #[test]
+    fn blocked_mlp_matches_whole_batch_layers_bitwise() {
+        let mlp = Mlp::new(31, 24, 2, 3);
+        let mut rng = Rng::new(4);
+        let mut params = vec![0f32; mlp.n_params()];
+        mlp.init(&mut params, &mut rng);
+        for p in params.iter_mut() {
+            *p += rng.uniform(-0.1, 0.1) as f32;
+        }
+        let n = 2 * COLUMN_BLOCK + 37;
+        let ld = padded(n);
+        let x = batch(&mut rng, 31, n, ld);
+        let mut acts = Vec::new();
+        mlp.forward(&params, &x, ld, &mut acts);
+        let d_top = batch(&mut rng, 3, n, ld);
+        let mut grad: Vec<f32> = (0..mlp.n_params()).map(|k| k as f32 * 1e-3).collect();
+        let mut want_grad = grad.clone();
+        let mut dx = Vec::new();
+        let (mut s1, mut s2) = (Vec::new(), Vec::new());
+        let d_out = d_top.clone();
+        mlp.backward(
+            &params,
+            &x,
+            &acts,
+            ld,
+            &d_out,
+            &mut grad,
+            Some(&mut dx),
+            &mut s1,
+            &mut s2,
+        );
+        // Whole-batch reference with the public per-layer kernels.
+        let mut want_acts: Vec<Vec<f32>> = Vec::new();
+        for (l, s) in mlp.layers.iter().enumerate() {
+            let (w, b) = mlp.split(&params, l);
+            let mut y = vec![0f32; s.out * ld];
+            let input = if l == 0 { &x } else { &want_acts[l - 1] };
+            linear_forward(
+                w,
+                Some(b),
+                input,
+                &mut y,
+                s.inp,
+                s.out,
+                ld,
+                l + 1 < mlp.layers.len(),
+            );
+            want_acts.push(y);
+        }
+        assert_eq!(acts, want_acts);
+        let mut d = d_top.clone();
+        let mut wt = Vec::new();
+        let mut want_dx = Vec::new();
+        for l in (0..mlp.layers.len()).rev() {
+            let s = mlp.layers[l];
+            let (w, _) = mlp.split(&params, l);
+            let off: usize = mlp.layers[..l].iter().map(LayerShape::params).sum();
+            let (gw, gb) = want_grad[off..off + s.params()].split_at_mut(s.inp * s.out);
+            let input = if l == 0 { &x } else { &want_acts[l - 1] };
+            linear_backward_weights(&d, input, gw, gb, s.inp, s.out, ld);
+            let mut nd = vec![0f32; s.inp * ld];
+            let mask = if l > 0 {
+                Some(&want_acts[l - 1][..])
+            } else {
+                None
+            };
+            linear_backward_input_masked(w, &d, &mut nd, s.inp, s.out, ld, &mut wt, mask);
+            if l == 0 {
+                want_dx = nd;
+            } else {
+                d = nd;
+            }
+        }
+        assert_eq!(grad, want_grad);
+        assert_eq!(dx, want_dx);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn transpose16_is_a_transpose() {
+        if !has_avx512() {
+            return;
+        }
+        let src: [f32; 256] = std::array::from_fn(|i| i as f32);
+        let mut dst = [0f32; 256];
+        // SAFETY: AVX-512F checked above.
+        unsafe { crate::gemm512::transpose16_slice(&src, &mut dst) };
+        for r in 0..16 {
+            for c in 0..16 {
+                assert_eq!(dst[c * 16 + r], src[r * 16 + c], "({r},{c})");
+            }
         }
     }
 }

@@ -17,6 +17,71 @@ use augsplat_core::{Camera, Rng, Scene};
 use rayon::prelude::*;
 use std::path::Path;
 
+thread_local! {
+    /// Each worker thread's chunk state, kept across chunks and steps so its buffers are
+    /// allocated once (a chunk overwrites everything it reads, so reuse cannot change results).
+    static CHUNK_STATE: std::cell::RefCell<ChunkState> = std::cell::RefCell::new(ChunkState::default());
+}
+
+/// Runs `f` with this thread's reusable [`ChunkState`], set up for rendering (colour threshold
+/// [`RENDER_MIN_COLOR_WEIGHT`], densities only until early termination) or for training /
+/// density queries (neither).
+fn with_chunk_state<R>(render: bool, f: impl FnOnce(&mut ChunkState) -> R) -> R {
+    let setup = |st: &mut ChunkState| {
+        st.min_color_weight = if render { RENDER_MIN_COLOR_WEIGHT } else { 0.0 };
+        st.stop_at_termination = render;
+    };
+    CHUNK_STATE.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut st) => {
+            setup(&mut st);
+            f(&mut st)
+        }
+        // Re-entered on this thread (a nested parallel call ran here while the state was in
+        // use): fall back to a fresh state.
+        Err(_) => {
+            let mut st = ChunkState::default();
+            setup(&mut st);
+            f(&mut st)
+        }
+    })
+}
+
+/// Float buffers handed from the chunk workers to the hash-table reduction and back, so each
+/// step reuses the previous step's allocations (contents are always overwritten).
+static BUFFER_POOL: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+
+/// Frees the pooled hand-off buffers (called when a training run ends; the pool refills on
+/// the next step that needs it).
+pub fn release_buffers() {
+    if let Ok(mut p) = BUFFER_POOL.lock() {
+        p.clear();
+        p.shrink_to_fit();
+    }
+}
+
+/// A pooled buffer holding a copy of `src`.
+fn pooled_copy(src: &[f32]) -> Vec<f32> {
+    let mut v = BUFFER_POOL
+        .lock()
+        .ok()
+        .and_then(|mut p| p.pop())
+        .unwrap_or_default();
+    v.clear();
+    v.extend_from_slice(src);
+    v
+}
+
+/// Returns buffers to the pool (bounded, so a one-off large step does not pin memory).
+fn recycle(bufs: impl IntoIterator<Item = Vec<f32>>) {
+    if let Ok(mut p) = BUFFER_POOL.lock() {
+        for b in bufs {
+            if p.len() < 1024 {
+                p.push(b);
+            }
+        }
+    }
+}
+
 /// One training or evaluation view, loaded into memory.
 #[derive(Clone, Debug)]
 pub struct ViewData {
@@ -285,42 +350,44 @@ pub fn update_occupancy(
     let occ_ro = occ.clone();
     let values: Vec<f32> = (0..n.div_ceil(CELLS))
         .into_par_iter()
-        .map_init(ChunkState::default, |st, c| {
-            let mut rng = Rng::stream(
-                seed ^ 0x6f63_6375_7061_6e63,
-                ((step as u64) << 32) | c as u64,
-            );
-            let lo = c * CELLS;
-            let hi = (lo + CELLS).min(n);
-            let mut px = Vec::with_capacity(hi - lo);
-            let mut py = Vec::with_capacity(hi - lo);
-            let mut pz = Vec::with_capacity(hi - lo);
-            let mut scale = Vec::with_capacity(hi - lo);
-            for i in lo..hi {
-                let (corner, edge) = occ_ro.cell_box(i);
-                let p = [
-                    corner[0] + edge * rng.next_f32(),
-                    corner[1] + edge * rng.next_f32(),
-                    corner[2] + edge * rng.next_f32(),
-                ];
-                let rho = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-                px.push((p[0] + 2.0) * 0.25);
-                py.push((p[1] + 2.0) * 0.25);
-                pz.push((p[2] + 2.0) * 0.25);
-                // σ·step with the world step the marcher takes there; cells outside the
-                // contracted ball are never visited.
-                scale.push(if rho < CONTRACTED_RADIUS {
-                    delta * rw / max_stretch(uncontract_radius(rho))
-                } else {
-                    0.0
-                });
-            }
-            let sigma = field.density_batch(params, &px, &py, &pz, st);
-            sigma
-                .iter()
-                .zip(&scale)
-                .map(|(s, k)| s * k)
-                .collect::<Vec<f32>>()
+        .map(|c| {
+            with_chunk_state(false, |st| {
+                let mut rng = Rng::stream(
+                    seed ^ 0x6f63_6375_7061_6e63,
+                    ((step as u64) << 32) | c as u64,
+                );
+                let lo = c * CELLS;
+                let hi = (lo + CELLS).min(n);
+                let mut px = Vec::with_capacity(hi - lo);
+                let mut py = Vec::with_capacity(hi - lo);
+                let mut pz = Vec::with_capacity(hi - lo);
+                let mut scale = Vec::with_capacity(hi - lo);
+                for i in lo..hi {
+                    let (corner, edge) = occ_ro.cell_box(i);
+                    let p = [
+                        corner[0] + edge * rng.next_f32(),
+                        corner[1] + edge * rng.next_f32(),
+                        corner[2] + edge * rng.next_f32(),
+                    ];
+                    let rho = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                    px.push((p[0] + 2.0) * 0.25);
+                    py.push((p[1] + 2.0) * 0.25);
+                    pz.push((p[2] + 2.0) * 0.25);
+                    // σ·step with the world step the marcher takes there; cells outside the
+                    // contracted ball are never visited.
+                    scale.push(if rho < CONTRACTED_RADIUS {
+                        delta * rw / max_stretch(uncontract_radius(rho))
+                    } else {
+                        0.0
+                    });
+                }
+                let sigma = field.density_batch(params, &px, &py, &pz, st);
+                sigma
+                    .iter()
+                    .zip(&scale)
+                    .map(|(s, k)| s * k)
+                    .collect::<Vec<f32>>()
+            })
         })
         .flatten_iter()
         .collect();
@@ -347,72 +414,74 @@ pub fn train_step(
     let inv_rays = 1.0 / total as f32;
     let results: Vec<ChunkResult> = (0..n_chunks)
         .into_par_iter()
-        .map_init(ChunkState::default, |st, c| {
-            let mut rng = Rng::stream(opts.seed, ((step as u64) << 32) | c as u64);
-            let count = chunk.min(total - c * chunk);
-            let rays: Vec<TrainRay> = (0..count)
-                .map(|_| draw_ray(views, &mut rng, opts))
-                .collect();
-            let jit: Vec<f32> = (0..count).map(|_| rng.next_f32()).collect();
-            let inputs: Vec<RayInput> = rays.iter().map(|r| r.ray).collect();
-            field.forward_chunk(params, occ, &inputs, &|r| jit[r], &mean_emb, st);
-            let (mut rgb_loss, mut depth_loss, mut dist_loss) = (0f64, 0f64, 0f64);
-            let longest = (0..count)
-                .map(|r| st.ray_start[r + 1] - st.ray_start[r])
-                .max()
-                .unwrap_or(0);
-            let ds = vec![field.config.contracted_step(); longest];
-            for (r, tr) in rays.iter().enumerate() {
-                let o = st.out[r];
-                let mut d = [0f32; 3];
-                for k in 0..3 {
-                    let e = o.rgb[k] - tr.target[k];
-                    rgb_loss += (e * e) as f64 / 3.0;
-                    d[k] = 2.0 * e / 3.0 * inv_rays;
+        .map(|c| {
+            with_chunk_state(false, |st| {
+                let mut rng = Rng::stream(opts.seed, ((step as u64) << 32) | c as u64);
+                let count = chunk.min(total - c * chunk);
+                let rays: Vec<TrainRay> = (0..count)
+                    .map(|_| draw_ray(views, &mut rng, opts))
+                    .collect();
+                let jit: Vec<f32> = (0..count).map(|_| rng.next_f32()).collect();
+                let inputs: Vec<RayInput> = rays.iter().map(|r| r.ray).collect();
+                field.forward_chunk(params, occ, &inputs, &|r| jit[r], &mean_emb, st);
+                let (mut rgb_loss, mut depth_loss, mut dist_loss) = (0f64, 0f64, 0f64);
+                let longest = (0..count)
+                    .map(|r| st.ray_start[r + 1] - st.ray_start[r])
+                    .max()
+                    .unwrap_or(0);
+                let ds = vec![field.config.contracted_step(); longest];
+                for (r, tr) in rays.iter().enumerate() {
+                    let o = st.out[r];
+                    let mut d = [0f32; 3];
+                    for k in 0..3 {
+                        let e = o.rgb[k] - tr.target[k];
+                        rgb_loss += (e * e) as f64 / 3.0;
+                        d[k] = 2.0 * e / 3.0 * inv_rays;
+                    }
+                    field.add_ray_output_grad(st, &inputs, r, d, 0.0, 0.0);
+                    let (a, b) = (st.ray_start[r], st.ray_start[r + 1]);
+                    if opts.depth_loss_weight > 0.0 && tr.depth.1 > 0.0 && b > a {
+                        let scale = opts.depth_loss_weight * tr.depth.1 * inv_rays;
+                        let s = (opts.depth_sigma * tr.depth.0).max(1e-4);
+                        let l = volume::ds_nerf_depth(
+                            &st.w[a..b],
+                            &st.t[a..b],
+                            &st.dt[a..b],
+                            tr.depth.0,
+                            s,
+                            scale,
+                            &mut st.g[a..b],
+                        );
+                        depth_loss += (l * tr.depth.1) as f64;
+                    }
+                    if opts.distortion_loss_weight > 0.0 && b > a {
+                        let scale = opts.distortion_loss_weight * inv_rays;
+                        let l = volume::distortion(
+                            &st.w[a..b],
+                            &st.m[a..b],
+                            &ds[..b - a],
+                            scale,
+                            &mut st.g[a..b],
+                        );
+                        dist_loss += l as f64;
+                    }
                 }
-                field.add_ray_output_grad(st, &inputs, r, d, 0.0, 0.0);
-                let (a, b) = (st.ray_start[r], st.ray_start[r + 1]);
-                if opts.depth_loss_weight > 0.0 && tr.depth.1 > 0.0 && b > a {
-                    let scale = opts.depth_loss_weight * tr.depth.1 * inv_rays;
-                    let s = (opts.depth_sigma * tr.depth.0).max(1e-4);
-                    let l = volume::ds_nerf_depth(
-                        &st.w[a..b],
-                        &st.t[a..b],
-                        &st.dt[a..b],
-                        tr.depth.0,
-                        s,
-                        scale,
-                        &mut st.g[a..b],
-                    );
-                    depth_loss += (l * tr.depth.1) as f64;
+                let mut g = vec![0f32; nmlp];
+                field.backward_chunk(params, &inputs, st, &mut g);
+                ChunkResult {
+                    grad: g,
+                    d_enc: pooled_copy(&st.d_enc[..field.grid.output_dim() * st.ld]),
+                    px: pooled_copy(&st.px),
+                    py: pooled_copy(&st.py),
+                    pz: pooled_copy(&st.pz),
+                    n: st.n(),
+                    ld: st.ld,
+                    rgb_loss,
+                    depth_loss,
+                    dist_loss,
+                    color_samples: st.alive.len(),
                 }
-                if opts.distortion_loss_weight > 0.0 && b > a {
-                    let scale = opts.distortion_loss_weight * inv_rays;
-                    let l = volume::distortion(
-                        &st.w[a..b],
-                        &st.m[a..b],
-                        &ds[..b - a],
-                        scale,
-                        &mut st.g[a..b],
-                    );
-                    dist_loss += l as f64;
-                }
-            }
-            let mut g = vec![0f32; nmlp];
-            field.backward_chunk(params, &inputs, st, &mut g);
-            ChunkResult {
-                grad: g,
-                d_enc: st.d_enc[..field.grid.output_dim() * st.ld].to_vec(),
-                px: st.px.clone(),
-                py: st.py.clone(),
-                pz: st.pz.clone(),
-                n: st.n(),
-                ld: st.ld,
-                rgb_loss,
-                depth_loss,
-                dist_loss,
-                color_samples: st.alive.len(),
-            }
+            })
         })
         .collect();
     // Reduce: MLP/embedding gradients in chunk order; hash table level by level.
@@ -447,6 +516,11 @@ pub fn train_step(
         stats.samples += r.n as u64;
         stats.color_samples += r.color_samples as u64;
     }
+    recycle(
+        results
+            .into_iter()
+            .flat_map(|r| [r.d_enc, r.px, r.py, r.pz]),
+    );
     stats.rgb_loss /= total as f64;
     stats.depth_loss /= total as f64;
     stats.distortion_loss /= total as f64;
@@ -502,13 +576,8 @@ pub fn render_camera(
     let fwd = camera.forward();
     let parts: Vec<RenderPart> = (0..n.div_ceil(chunk))
         .into_par_iter()
-        .map_init(
-            || {
-                let mut st = ChunkState::default();
-                st.min_color_weight = RENDER_MIN_COLOR_WEIGHT;
-                st
-            },
-            |st, c| {
+        .map(|c| {
+            with_chunk_state(true, |st| {
                 let lo = c * chunk;
                 let hi = (lo + chunk).min(n);
                 let mut rays = Vec::with_capacity(hi - lo);
@@ -537,8 +606,8 @@ pub fn render_camera(
                     acc.push(o.acc);
                 }
                 (rgb, depth, acc, st.n() as u64)
-            },
-        )
+            })
+        })
         .collect();
     let mut out = RenderedImage {
         width: camera.width,
@@ -689,6 +758,7 @@ pub fn train(
             loss_acc = (0.0, 0);
         }
     }
+    release_buffers();
     if state.params.iter().any(|p| !p.is_finite()) {
         return Err(FieldError::Diverged("parameters became non-finite".into()));
     }

@@ -142,7 +142,7 @@ fn mlp_matches_reference_and_finite_differences() {
             }
         })
         .collect();
-    let mut d_out = coef.clone();
+    let d_out = coef.clone();
     let mut grad = vec![0f32; mlp.n_params()];
     let mut dx = Vec::new();
     let (mut s1, mut s2) = (Vec::new(), Vec::new());
@@ -151,7 +151,7 @@ fn mlp_matches_reference_and_finite_differences() {
         &x,
         &acts,
         ld,
-        &mut d_out,
+        &d_out,
         &mut grad,
         Some(&mut dx),
         &mut s1,

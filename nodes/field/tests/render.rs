@@ -1,0 +1,97 @@
+//! Rendering with density evaluation stopped at early termination matches the full evaluation.
+
+use augsplat_core::Rng;
+use augsplat_field::field::{ChunkState, Field, FieldConfig, RayInput};
+use augsplat_field::hashgrid::HashGridConfig;
+use augsplat_field::occupancy::OccupancyGrid;
+
+fn field() -> Field {
+    Field::new(FieldConfig {
+        grid: HashGridConfig {
+            levels: 4,
+            features_per_level: 2,
+            log2_table_size: 10,
+            base_resolution: 4,
+            max_resolution: 40,
+        },
+        hidden_width: 16,
+        appearance_dim: 2,
+        n_images: 2,
+        center: [0.0; 3],
+        radius: 1.0,
+        near: 0.1,
+        far: 6.0,
+        march_steps: 64,
+        occupancy_resolution: 8,
+    })
+    .unwrap()
+}
+
+#[test]
+fn stopping_at_termination_keeps_colour_weights_and_cut() {
+    let f = field();
+    let mut params = f.init_params(3);
+    let mut rng = Rng::new(8);
+    for p in params[..f.density_offset].iter_mut() {
+        *p = rng.uniform(-1.0, 1.0) as f32;
+    }
+    // Density bias: a mix of opaque and semi-transparent regions along the rays.
+    let l0 = f.density.layers[0];
+    let bias0 = f.density_offset + l0.params() + f.density.layers[1].inp * f.density.layers[1].out;
+    params[bias0] = 1.5;
+    let occ = OccupancyGrid::full(8);
+    let rays: Vec<RayInput> = (0..40)
+        .map(|r| {
+            let a = r as f64 * 0.37;
+            let d = augsplat_core::linalg::normalize([0.4 * a.cos(), 0.4 * a.sin(), 1.0]);
+            RayInput {
+                origin: [0.05 * r as f32 - 1.0, 0.2, -2.5],
+                dir: d.map(|v| v as f32),
+                image: u32::MAX,
+                background: [0.9, 0.5, 0.1],
+            }
+        })
+        .collect();
+    let mean = f.mean_embedding(&params);
+    let run = |stop: bool| {
+        let mut st = ChunkState::default();
+        st.min_color_weight = 1e-5;
+        st.stop_at_termination = stop;
+        f.forward_chunk(
+            &params,
+            &occ,
+            &rays,
+            &|r| (r as f32 * 0.13) % 1.0,
+            &mean,
+            &mut st,
+        );
+        st
+    };
+    let full = run(false);
+    let stop = run(true);
+    assert!(
+        stop.n() < full.n() / 2,
+        "termination should drop most samples ({} of {})",
+        stop.n(),
+        full.n()
+    );
+    let mut terminated = 0;
+    for r in 0..rays.len() {
+        let (fa, fb) = (full.ray_start[r], full.ray_start[r + 1]);
+        let (sa, sb) = (stop.ray_start[r], stop.ray_start[r + 1]);
+        // Every kept sample has the same weight; the cut is the same.
+        assert_eq!(&full.w[fa..fa + (sb - sa)], &stop.w[sa..sb], "ray {r}");
+        assert_eq!(full.n_color[r], stop.n_color[r], "ray {r}");
+        terminated += (sb - sa < fb - fa) as usize;
+        let (o, p) = (full.out[r], stop.out[r]);
+        for k in 0..3 {
+            assert!(
+                (o.rgb[k] - p.rgb[k]).abs() <= 1e-4,
+                "ray {r}: {o:?} vs {p:?}"
+            );
+        }
+        assert!((o.acc - p.acc).abs() <= 1e-4, "ray {r}");
+        assert!((o.depth - p.depth).abs() <= 1e-4 * 6.0, "ray {r}");
+    }
+    assert!(terminated > 10, "only {terminated} rays terminated early");
+}
