@@ -184,7 +184,8 @@ pub struct TrainField;
 
 impl Node for TrainField {
     const KIND: &'static str = "TrainField";
-    const VERSION: u32 = 1;
+    // 2: register-blocked MLP kernels sum the weight gradients in a different (fixed) order.
+    const VERSION: u32 = 2;
     type Args = TrainFieldArgs;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {
@@ -339,7 +340,8 @@ pub struct RenderField;
 
 impl Node for RenderField {
     const KIND: &'static str = "RenderField";
-    const VERSION: u32 = 1;
+    // 2: rays stop at early termination (opacity/depth drop the < 1e-4 mass beyond it).
+    const VERSION: u32 = 2;
     type Args = RenderFieldArgs;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {
