@@ -32,8 +32,8 @@
 
 use crate::constants::{ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS};
 use crate::forward::{
-    detect_isa, gauss_of_sigma, row_mask_portable, smooth_cut, Isa, RowGeom, Splat2D,
-    TileCoords, PROJECT_CHUNK,
+    detect_isa, gauss_of_sigma, row_mask_portable, smooth_cut, Isa, RowGeom, Splat2D, TileCoords,
+    PROJECT_CHUNK,
 };
 use crate::gaussians::Gaussians;
 use crate::project::{project_vjp, CameraModel, ProjectedGrad};
@@ -356,7 +356,8 @@ fn finish(sp: &Splat2D, s: &LaneSums) -> PairGrad {
     ]
 }
 
-/// Walks one tile back to front, writing the pair gradient of every list entry.
+/// Walks one tile back to front and hands the pair gradient of every list entry (zero where
+/// the Gaussian contributes to no pixel) to `emit(k, gradient)`.
 ///
 /// # Safety
 /// The CPU must support `K`'s instruction set.
@@ -368,11 +369,14 @@ unsafe fn backward_tile_impl<K: BackwardKernel, const SMOOTH: bool>(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut [PairGrad],
+    emit: &mut dyn FnMut(usize, PairGrad),
 ) {
-    let max_last = tile.row_last.iter().copied().max().unwrap_or(0) as usize;
+    let max_last = (tile.row_last.iter().copied().max().unwrap_or(0) as usize).min(list.len());
+    for k in max_last..list.len() {
+        emit(k, [0.0; 10]);
+    }
     let tc = TileCoords::new(x0, y0);
-    for k in (0..max_last.min(list.len())).rev() {
+    for k in (0..max_last).rev() {
         let kk = k as u32;
         let mut live = 0u16;
         for (ly, &m) in tile.row_last.iter().enumerate() {
@@ -381,6 +385,7 @@ unsafe fn backward_tile_impl<K: BackwardKernel, const SMOOTH: bool>(
         let sp = &splats[list[k] as usize];
         let rows = K::row_mask(sp, &tc) & live;
         if rows == 0 {
+            emit(k, [0.0; 10]);
             continue;
         }
         let sums = if SMOOTH {
@@ -388,7 +393,7 @@ unsafe fn backward_tile_impl<K: BackwardKernel, const SMOOTH: bool>(
         } else {
             K::backward_gaussian(sp, kk, rows, tile, &tc, max_alpha)
         };
-        out[k] = finish(sp, &sums);
+        emit(k, finish(sp, &sums));
     }
 }
 
@@ -400,12 +405,10 @@ fn backward_tile_portable<const SMOOTH: bool>(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut [PairGrad],
+    out: &mut dyn FnMut(usize, PairGrad),
 ) {
     // SAFETY: the portable kernel has no instruction-set requirement.
-    unsafe {
-        backward_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out)
-    }
+    unsafe { backward_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
 }
 
 /// The portable tile kernel compiled for AVX2 + FMA (auto-vectorised; same results).
@@ -418,12 +421,10 @@ fn backward_tile_avx2<const SMOOTH: bool>(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut [PairGrad],
+    out: &mut dyn FnMut(usize, PairGrad),
 ) {
     // SAFETY: the portable kernel has no instruction-set requirement.
-    unsafe {
-        backward_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out)
-    }
+    unsafe { backward_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
 }
 
 /// The AVX-512 tile kernel.
@@ -436,7 +437,7 @@ fn backward_tile_avx512(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut [PairGrad],
+    out: &mut dyn FnMut(usize, PairGrad),
 ) {
     // SAFETY: this function is only compiled for, and called on, CPUs with AVX-512F/DQ + FMA.
     unsafe {
@@ -455,7 +456,7 @@ fn backward_tile_dispatch<const SMOOTH: bool>(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut [PairGrad],
+    out: &mut dyn FnMut(usize, PairGrad),
 ) {
     match isa {
         #[cfg(target_arch = "x86_64")]
@@ -510,24 +511,34 @@ pub(crate) fn backward_impl(
     let isa = detect_isa();
     let bg = s.background;
 
-    // 1. per-tile pair gradients.
-    let mut pair_grads: Vec<PairGrad> = vec![[0.0; 10]; bins.ranks.len()];
-    let mut slices: Vec<&mut [PairGrad]> = Vec::with_capacity(grid.len());
-    let mut rest: &mut [PairGrad] = &mut pair_grads;
-    for t in 0..grid.len() {
-        let (a, b) = rest.split_at_mut(bins.ranges[t + 1] - bins.ranges[t]);
-        slices.push(a);
-        rest = b;
-    }
-    slices
+    // 1. per-tile pair gradients, written rank-major (`bins.pair_slot`): each rank's pairs
+    // are contiguous, in row-major tile order. Every slot is written exactly once.
+    let total = bins.ranks.len();
+    let mut pair_grads: Vec<PairGrad> = Vec::with_capacity(total);
+    let dst = PairOut(pair_grads.as_mut_ptr());
+    (0..grid.len())
         .into_par_iter()
-        .enumerate()
-        .for_each_init(BwdTile::default, |tile, (t, slot)| {
+        .for_each_init(BwdTile::default, |tile, t| {
+            let dst = dst;
+            let lo = bins.ranges[t];
+            let slots = &bins.pair_slot[lo..bins.ranges[t + 1]];
+            let mut emit = |k: usize, v: PairGrad| {
+                let slot = slots[k] as usize;
+                assert!(slot < total);
+                // SAFETY: `pair_slot` is a permutation of 0..total (built by `bin`), and
+                // list position lo + k belongs to this tile only, so every slot is written
+                // exactly once and by one thread; the buffer has capacity `total`.
+                unsafe { dst.0.add(slot).write(v) };
+            };
             let tx = (t % grid.tiles_x as usize) as u32;
             let ty = (t / grid.tiles_x as usize) as u32;
             let (x0, y0) = (tx * TILE, ty * TILE);
             let last = &st.last[t * TILE_PIXELS..(t + 1) * TILE_PIXELS];
-            if slot.is_empty() || last.iter().all(|&l| l == 0) {
+            if slots.is_empty() {
+                return;
+            }
+            if last.iter().all(|&l| l == 0) {
+                (0..slots.len()).for_each(|k| emit(k, [0.0; 10]));
                 return;
             }
             let ft = &st.final_t[t * TILE_PIXELS..(t + 1) * TILE_PIXELS];
@@ -568,13 +579,16 @@ pub(crate) fn backward_impl(
             let list = &bins.ranks[bins.ranges[t]..bins.ranges[t + 1]];
             match st.cutoff {
                 Cutoff::Hard => backward_tile_dispatch::<false>(
-                    isa, &st.splats, list, x0, y0, tile, max_alpha, slot,
+                    isa, &st.splats, list, x0, y0, tile, max_alpha, &mut emit,
                 ),
                 Cutoff::Smooth => backward_tile_dispatch::<true>(
-                    isa, &st.splats, list, x0, y0, tile, max_alpha, slot,
+                    isa, &st.splats, list, x0, y0, tile, max_alpha, &mut emit,
                 ),
             }
         });
+    // SAFETY: every one of the `total` slots was written above (each tile emits every list
+    // entry), and `PairGrad` is plain data.
+    unsafe { pair_grads.set_len(total) };
 
     let mut id_rank = vec![u32::MAX; n];
     for (r, &i) in st.rank_id.iter().enumerate() {
@@ -606,8 +620,7 @@ pub(crate) fn backward_impl(
                 }
                 let r = r as usize;
                 let mut rg = [0.0f64; 10];
-                for &pos in &bins.pair_index[bins.pair_start[r]..bins.pair_start[r + 1]] {
-                    let pg = &pair_grads[pos as usize];
+                for pg in &pair_grads[bins.pair_start[r]..bins.pair_start[r + 1]] {
                     for q in 0..10 {
                         rg[q] += pg[q] as f64;
                     }
@@ -668,6 +681,15 @@ pub(crate) fn backward_impl(
     grads
 }
 
+/// Raw pointer to the rank-major pair buffer, written by the tiles in parallel.
+#[derive(Clone, Copy)]
+struct PairOut(*mut PairGrad);
+
+// SAFETY: the tiles write disjoint slots (see `backward_impl`).
+unsafe impl Send for PairOut {}
+// SAFETY: as above.
+unsafe impl Sync for PairOut {}
+
 #[inline]
 fn finite_or_zero(v: f32) -> f32 {
     if v.is_finite() {
@@ -703,12 +725,17 @@ mod tests {
 
     fn run(isa: Isa, smooth: bool, splats: &[Splat2D], list: &[u32]) -> Vec<u32> {
         let mut tile = tile_state(9, list.len() as u32);
-        let mut out = vec![[0.0f32; 10]; list.len()];
+        let mut out = vec![[f32::NAN; 10]; list.len()];
+        let mut emit = |k: usize, v: PairGrad| out[k] = v;
         if smooth {
-            backward_tile_dispatch::<true>(isa, splats, list, 0, 0, &mut tile, 0.99, &mut out);
+            backward_tile_dispatch::<true>(isa, splats, list, 0, 0, &mut tile, 0.99, &mut emit);
         } else {
-            backward_tile_dispatch::<false>(isa, splats, list, 0, 0, &mut tile, 0.99, &mut out);
+            backward_tile_dispatch::<false>(isa, splats, list, 0, 0, &mut tile, 0.99, &mut emit);
         }
+        assert!(
+            out.iter().flatten().all(|v| v.is_finite()),
+            "every entry is emitted"
+        );
         let mut v: Vec<u32> = out.iter().flatten().map(|x| x.to_bits()).collect();
         for row in &tile.rows {
             v.extend(row.t.iter().map(|x| x.to_bits()));
@@ -739,7 +766,11 @@ mod tests {
             let a = run(Isa::Portable, smooth, &splats, &list);
             assert!(a.iter().filter(|v| **v != 0).count() > 500);
             for &isa in &isas {
-                assert_eq!(a, run(isa, smooth, &splats, &list), "{isa:?} smooth {smooth}");
+                assert_eq!(
+                    a,
+                    run(isa, smooth, &splats, &list),
+                    "{isa:?} smooth {smooth}"
+                );
             }
         }
     }

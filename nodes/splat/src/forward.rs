@@ -376,9 +376,7 @@ impl ForwardKernel for Portable {
         py: f32,
         max_alpha: f32,
     ) -> u32 {
-        composite_row_portable::<false>(
-            splats, batch, k_base, bits, row, active, tc, py, max_alpha,
-        )
+        composite_row_portable::<false>(splats, batch, k_base, bits, row, active, tc, py, max_alpha)
     }
 }
 
@@ -426,11 +424,7 @@ pub(crate) mod avx512 {
         let zero = _mm512_setzero_ps();
         let dy = _mm512_sub_ps(_mm512_set1_ps(sp.y), py);
         let dy2 = _mm512_mul_ps(dy, dy);
-        let rem = _mm512_fnmadd_ps(
-            _mm512_set1_ps(sp.row_q),
-            dy2,
-            _mm512_set1_ps(sp.sigma_max),
-        );
+        let rem = _mm512_fnmadd_ps(_mm512_set1_ps(sp.row_q), dy2, _mm512_set1_ps(sp.sigma_max));
         let w2 = _mm512_mul_ps(_mm512_set1_ps(sp.row_w), rem);
         let half = _mm512_add_ps(
             _mm512_sqrt_ps(_mm512_max_ps(w2, zero)),
@@ -687,15 +681,7 @@ fn raster_tile_avx512(
 ) -> u64 {
     // SAFETY: this function is only compiled for, and called on, CPUs with AVX-512F/DQ + FMA.
     unsafe {
-        raster_tile_impl::<avx512::Avx512, false>(
-            splats,
-            list,
-            x0,
-            y0,
-            active_init,
-            max_alpha,
-            st,
-        )
+        raster_tile_impl::<avx512::Avx512, false>(splats, list, x0, y0, active_init, max_alpha, st)
     }
 }
 
@@ -746,9 +732,7 @@ fn raster_tile_dispatch<const SMOOTH: bool>(
         #[cfg(target_arch = "x86_64")]
         Isa::Avx512 | Isa::Avx2 => {
             // SAFETY: both variants imply AVX2 + FMA support.
-            unsafe {
-                raster_tile_avx2::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st)
-            }
+            unsafe { raster_tile_avx2::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st) }
         }
         Isa::Portable => {
             raster_tile_portable::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st)
@@ -766,8 +750,7 @@ fn make_splat(p: &crate::project::Projected, rgb: [f64; 3]) -> Option<Splat2D> {
     let row_q = 0.5 / syy;
     let row_w = 2.0 / a;
     let row_shift = b / a;
-    let sigma_max =
-        (p.opacity / ALPHA_THRESHOLD as f64).ln().max(0.0) * (1.0 + 1e-3) + 1e-3;
+    let sigma_max = (p.opacity / ALPHA_THRESHOLD as f64).ln().max(0.0) * (1.0 + 1e-3) + 1e-3;
     let lim = f32::MAX as f64;
     let sp = Splat2D {
         x: p.mean2d[0] as f32,
@@ -976,9 +959,9 @@ pub(crate) fn render_impl(
                 Cutoff::Hard => raster_tile_dispatch::<false>(
                     isa, &splats, list, x0, y0, &active, max_alpha, st,
                 ),
-                Cutoff::Smooth => raster_tile_dispatch::<true>(
-                    isa, &splats, list, x0, y0, &active, max_alpha, st,
-                ),
+                Cutoff::Smooth => {
+                    raster_tile_dispatch::<true>(isa, &splats, list, x0, y0, &active, max_alpha, st)
+                }
             };
             for ly in 0..TILE as usize {
                 let y = y0 as usize + ly;
@@ -1061,7 +1044,11 @@ pub(crate) mod tests {
                     depth: 1.0 + i as f64 * 0.01,
                     radius: [(3.33 * cov[0].sqrt()).ceil() as i32, ry as i32],
                 };
-                let rgb = [rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0)];
+                let rgb = [
+                    rng.uniform(0.0, 1.0),
+                    rng.uniform(0.0, 1.0),
+                    rng.uniform(0.0, 1.0),
+                ];
                 make_splat(&p, rgb).unwrap()
             })
             .collect()
@@ -1190,7 +1177,9 @@ pub(crate) mod tests {
             eprintln!("no AVX-512 on this CPU: skipped");
             return;
         }
-        let xs: Vec<f32> = (0..4096).map(|i| -(i as f32) * 0.0093 - 1e-3 * (i % 7) as f32).collect();
+        let xs: Vec<f32> = (0..4096)
+            .map(|i| -(i as f32) * 0.0093 - 1e-3 * (i % 7) as f32)
+            .collect();
         for chunk in xs.chunks(16) {
             let mut v = [0.0f32; 16];
             v[..chunk.len()].copy_from_slice(chunk);
@@ -1209,7 +1198,12 @@ pub(crate) mod tests {
                 go(&v, &mut out);
             }
             for l in 0..16 {
-                assert_eq!(out[l].to_bits(), gauss_of_sigma(-v[l]).to_bits(), "x {}", v[l]);
+                assert_eq!(
+                    out[l].to_bits(),
+                    gauss_of_sigma(-v[l]).to_bits(),
+                    "x {}",
+                    v[l]
+                );
             }
         }
     }

@@ -67,6 +67,9 @@ pub struct Bins {
     pub pair_start: Vec<usize>,
     /// See `pair_start`.
     pub pair_index: Vec<u32>,
+    /// The inverse of `pair_index`: list position (index into `ranks`) → rank-major pair slot,
+    /// so that per-pair results written at `pair_slot[pos]` lie contiguously per rank.
+    pub pair_slot: Vec<u32>,
 }
 
 /// Sorts visible Gaussians by (depth, index): returns their indices front to back.
@@ -105,6 +108,7 @@ pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
     let mut cursor: Vec<usize> = ranges[..ntiles].to_vec();
     let mut ranks = vec![0u32; total];
     let mut pair_index = vec![0u32; total];
+    let mut pair_slot = vec![0u32; total];
     let mut k = 0usize;
     for (rank, r) in rects.iter().enumerate() {
         for y in r[2]..r[3] {
@@ -115,6 +119,7 @@ pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
                 cursor[t] += 1;
                 ranks[pos] = rank as u32;
                 pair_index[k] = pos as u32;
+                pair_slot[pos] = k as u32;
                 k += 1;
             }
         }
@@ -124,5 +129,6 @@ pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
         ranks,
         pair_start,
         pair_index,
+        pair_slot,
     }
 }
