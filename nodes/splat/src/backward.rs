@@ -511,8 +511,8 @@ pub(crate) fn backward_impl(
     let isa = detect_isa();
     let bg = s.background;
 
-    // 1. per-tile pair gradients, written rank-major (`bins.pair_slot`): each rank's pairs
-    // are contiguous, in row-major tile order. Every slot is written exactly once.
+    // 1. per-tile pair gradients, written Gaussian-major (`bins.pair_slot`): each Gaussian's
+    // pairs are contiguous, in row-major tile order. Every slot is written exactly once.
     let total = bins.ranks.len();
     let mut pair_grads: Vec<PairGrad> = Vec::with_capacity(total);
     let dst = PairOut(pair_grads.as_mut_ptr());
@@ -590,11 +590,6 @@ pub(crate) fn backward_impl(
     // entry), and `PairGrad` is plain data.
     unsafe { pair_grads.set_len(total) };
 
-    let mut id_rank = vec![u32::MAX; n];
-    for (r, &i) in st.rank_id.iter().enumerate() {
-        id_rank[i as usize] = r as u32;
-    }
-
     // 2. per-Gaussian sums in a fixed order, then projection + SH backward.
     let cm = CameraModel::new(cam);
     let degree = st.sh_degree;
@@ -614,13 +609,12 @@ pub(crate) fn backward_impl(
             let mut g_coefs = [0.0f64; 48];
             for j in 0..gm.len() {
                 let i = ci * PROJECT_CHUNK + j;
-                let r = id_rank[i];
-                if r == u32::MAX {
+                let (lo, hi) = (bins.gauss_start[i], bins.gauss_start[i + 1]);
+                if lo == hi {
                     continue;
                 }
-                let r = r as usize;
                 let mut rg = [0.0f64; 10];
-                for pg in &pair_grads[bins.pair_start[r]..bins.pair_start[r + 1]] {
+                for pg in &pair_grads[lo..hi] {
                     for q in 0..10 {
                         rg[q] += pg[q] as f64;
                     }
@@ -681,7 +675,7 @@ pub(crate) fn backward_impl(
     grads
 }
 
-/// Raw pointer to the rank-major pair buffer, written by the tiles in parallel.
+/// Raw pointer to the Gaussian-major pair buffer, written by the tiles in parallel.
 #[derive(Clone, Copy)]
 struct PairOut(*mut PairGrad);
 

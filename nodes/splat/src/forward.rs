@@ -32,7 +32,7 @@ use crate::gaussians::Gaussians;
 use crate::project::{project, CameraModel, Outcome};
 use crate::render::{Cutoff, RenderOutput, RenderSettings, RenderStats};
 use crate::sh;
-use crate::tiles::{bin, depth_order, Bins, TileGrid};
+use crate::tiles::{bin_indexed, depth_order, Bins, TileGrid};
 use augsplat_core::Camera;
 use rayon::prelude::*;
 
@@ -93,8 +93,6 @@ pub(crate) struct RasterState {
     pub grid: TileGrid,
     /// Projected records in rank (front-to-back) order.
     pub splats: Vec<Splat2D>,
-    /// Gaussian index of each rank.
-    pub rank_id: Vec<u32>,
     pub bins: Bins,
     /// Per pixel, tile-major (`tile·256 + row·16 + col`): list entries up to and including
     /// the last contributor.
@@ -918,7 +916,7 @@ pub(crate) fn render_impl(
     let rects: Vec<[u32; 4]> = rank_id.iter().map(|&i| all_rects[i as usize]).collect();
     drop(all_splats);
     drop(all_rects);
-    let bins = bin(&grid, &rects);
+    let bins = bin_indexed(&grid, &rects, &rank_id, g.len());
     drop(rects);
 
     let max_alpha = effective_max_alpha(s);
@@ -1010,7 +1008,6 @@ pub(crate) fn render_impl(
         state: RasterState {
             grid,
             splats,
-            rank_id,
             bins,
             last,
             final_t,
