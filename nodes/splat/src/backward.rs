@@ -33,7 +33,7 @@
 use crate::constants::{ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS};
 use crate::forward::{
     detect_isa, gauss_of_sigma, row_mask_portable, smooth_cut, Isa, RowGeom, Splat2D, TileCoords,
-    PROJECT_CHUNK,
+    PREFETCH_AHEAD, PROJECT_CHUNK,
 };
 use crate::gaussians::Gaussians;
 use crate::project::{project_vjp, CameraModel, ProjectedGrad};
@@ -171,6 +171,11 @@ fn backward_gaussian_portable<const SMOOTH: bool>(
 
 /// The two vector primitives of the backward tile loop.
 trait BackwardKernel {
+    /// Hints the cache that `p` will be read soon (no effect on results).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn prefetch(_p: *const Splat2D) {}
     /// Row mask of one Gaussian (as in the forward pass).
     ///
     /// # Safety
@@ -319,6 +324,10 @@ mod avx512 {
 
     impl BackwardKernel for Avx512 {
         #[inline(always)]
+        unsafe fn prefetch(p: *const Splat2D) {
+            _mm_prefetch::<_MM_HINT_T0>(p as *const i8);
+        }
+        #[inline(always)]
         unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
             row_mask(sp, tc)
         }
@@ -377,6 +386,13 @@ unsafe fn backward_tile_impl<K: BackwardKernel, const SMOOTH: bool>(
     }
     let tc = TileCoords::new(x0, y0);
     for k in (0..max_last).rev() {
+        if k >= PREFETCH_AHEAD {
+            K::prefetch(
+                splats
+                    .as_ptr()
+                    .wrapping_add(list[k - PREFETCH_AHEAD] as usize),
+            );
+        }
         let kk = k as u32;
         let mut live = 0u16;
         for (ly, &m) in tile.row_last.iter().enumerate() {
@@ -429,7 +445,7 @@ fn backward_tile_avx2<const SMOOTH: bool>(
 
 /// The AVX-512 tile kernel.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512dq,fma,bmi1,popcnt")]
+#[target_feature(enable = "avx512f,avx512dq,avx512bw,fma,bmi1,popcnt")]
 fn backward_tile_avx512(
     splats: &[Splat2D],
     list: &[u32],

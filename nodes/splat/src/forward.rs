@@ -40,7 +40,10 @@ use rayon::prelude::*;
 pub(crate) const PROJECT_CHUNK: usize = 1024;
 
 /// List entries per compositing batch (one bit each in a row's 64-bit set).
-const BATCH: usize = 64;
+pub(crate) const BATCH: usize = 64;
+
+/// How many list entries ahead the tile loops prefetch projected records.
+pub(crate) const PREFETCH_AHEAD: usize = 8;
 
 /// σ is clamped to this before the exponential: beyond it α < 1/255 for any opacity ≤ 1,
 /// so the clamp never changes a composited value, and e^−σ stays a normal float.
@@ -330,7 +333,20 @@ fn composite_row_portable<const SMOOTH: bool>(
 }
 
 /// The two vector primitives of the forward tile loop.
-trait ForwardKernel {
+pub(crate) trait ForwardKernel {
+    /// Hints the cache that `p` will be read soon (no effect on results).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn prefetch(_p: *const Splat2D) {}
+    /// Transposes the row masks of up to 64 batch entries: bit j of row ly's set is bit ly
+    /// of `masks[j]` (entries past the batch must be zero).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn transpose(masks: &[u16; BATCH]) -> [u64; 16] {
+        transpose_portable(masks)
+    }
     /// Row mask of one Gaussian (see [`row_mask_portable`]).
     ///
     /// # Safety
@@ -352,6 +368,18 @@ trait ForwardKernel {
         py: f32,
         max_alpha: f32,
     ) -> u32;
+}
+
+/// Portable [`ForwardKernel::transpose`].
+#[inline(always)]
+pub(crate) fn transpose_portable(masks: &[u16; BATCH]) -> [u64; 16] {
+    let mut rows = [0u64; 16];
+    for (j, &m) in masks.iter().enumerate() {
+        for (ly, r) in rows.iter_mut().enumerate() {
+            *r |= (((m >> ly) & 1) as u64) << j;
+        }
+    }
+    rows
 }
 
 /// The portable kernels.
@@ -388,6 +416,7 @@ pub(crate) mod avx512 {
     pub(crate) fn available() -> bool {
         std::arch::is_x86_feature_detected!("avx512f")
             && std::arch::is_x86_feature_detected!("avx512dq")
+            && std::arch::is_x86_feature_detected!("avx512bw")
             && std::arch::is_x86_feature_detected!("fma")
     }
 
@@ -519,6 +548,23 @@ pub(crate) mod avx512 {
 
     impl ForwardKernel for Avx512 {
         #[inline(always)]
+        unsafe fn prefetch(p: *const Splat2D) {
+            _mm_prefetch::<_MM_HINT_T0>(p as *const i8);
+        }
+        #[inline(always)]
+        unsafe fn transpose(masks: &[u16; BATCH]) -> [u64; 16] {
+            let lo = _mm512_loadu_si512(masks.as_ptr() as *const __m512i);
+            let hi = _mm512_loadu_si512(masks.as_ptr().add(32) as *const __m512i);
+            let mut rows = [0u64; 16];
+            for (ly, r) in rows.iter_mut().enumerate() {
+                let bit = _mm512_set1_epi16(1i16 << ly);
+                let a = _mm512_test_epi16_mask(lo, bit) as u64;
+                let b = _mm512_test_epi16_mask(hi, bit) as u64;
+                *r = a | (b << 32);
+            }
+            rows
+        }
+        #[inline(always)]
         unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
             row_mask(sp, tc)
         }
@@ -574,20 +620,18 @@ unsafe fn raster_tile_impl<K: ForwardKernel, const SMOOTH: bool>(
         live |= ((*a != 0) as u16) << ly;
     }
     let mut pairs = 0u64;
-    let mut rowbits = [0u64; 16];
     for (bi, batch) in list.chunks(BATCH).enumerate() {
         if live == 0 {
             break;
         }
-        rowbits.iter_mut().for_each(|b| *b = 0);
+        let mut masks = [0u16; BATCH];
         for (j, &rank) in batch.iter().enumerate() {
-            let mut m = K::row_mask(&splats[rank as usize], &tc) & live;
-            while m != 0 {
-                let ly = m.trailing_zeros() as usize;
-                m &= m - 1;
-                rowbits[ly] |= 1u64 << j;
+            if let Some(&ahead) = batch.get(j + PREFETCH_AHEAD) {
+                K::prefetch(splats.as_ptr().wrapping_add(ahead as usize));
             }
+            masks[j] = K::row_mask(&splats[rank as usize], &tc) & live;
         }
+        let rowbits = K::transpose(&masks);
         let k_base = (bi * BATCH) as u32;
         let mut rows = live;
         while rows != 0 {
@@ -667,7 +711,7 @@ fn raster_tile_avx2<const SMOOTH: bool>(
 
 /// The AVX-512 tile kernel.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512dq,fma,bmi1,popcnt")]
+#[target_feature(enable = "avx512f,avx512dq,avx512bw,fma,bmi1,popcnt")]
 fn raster_tile_avx512(
     splats: &[Splat2D],
     list: &[u32],
@@ -1154,6 +1198,30 @@ pub(crate) mod tests {
         assert_eq!(pairs, direct_pairs);
     }
 
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn vector_transpose_matches_the_portable_one() {
+        if !avx512::available() {
+            eprintln!("no AVX-512 on this CPU: skipped");
+            return;
+        }
+        let mut rng = augsplat_core::Rng::new(21);
+        let masks: [u16; BATCH] = std::array::from_fn(|_| rng.below(1 << 16) as u16);
+        let want = transpose_portable(&masks);
+        for ly in 0..16 {
+            for j in 0..BATCH {
+                assert_eq!((want[ly] >> j) & 1, ((masks[j] >> ly) & 1) as u64);
+            }
+        }
+        #[target_feature(enable = "avx512f,avx512bw")]
+        fn go(m: &[u16; BATCH]) -> [u64; 16] {
+            // SAFETY: the caller checked AVX-512 support.
+            unsafe { <avx512::Avx512 as ForwardKernel>::transpose(m) }
+        }
+        // SAFETY: AVX-512 availability was checked above.
+        assert_eq!(unsafe { go(&masks) }, want);
+    }
+
     #[test]
     fn exp_neg_is_accurate() {
         let mut x = 0.0f32;
@@ -1184,7 +1252,7 @@ pub(crate) mod tests {
             // SAFETY: AVX-512 availability was checked above.
             unsafe {
                 use std::arch::x86_64::*;
-                #[target_feature(enable = "avx512f,avx512dq,fma")]
+                #[target_feature(enable = "avx512f,avx512dq,avx512bw,fma")]
                 unsafe fn go(v: &[f32; 16], out: &mut [f32; 16]) {
                     let s = _mm512_loadu_ps(v.as_ptr());
                     _mm512_storeu_ps(
