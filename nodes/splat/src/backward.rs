@@ -9,7 +9,7 @@
 //! 2. Per Gaussian (in parallel), its pair slots are summed in f64 in a fixed order (tiles in
 //!    row-major order) — results are bit-identical for any number of threads — and the
 //!    projection and SH backward ([`crate::project::project_vjp`],
-//!    [`crate::sh::eval_color_vjp`]) turn these into gradients of the raw parameters, the
+//!    [`crate::sh::eval_color_vjp_into`]) turn these into gradients of the raw parameters, the
 //!    SH view direction's dependence on the mean included.
 //!
 //! With α = α₁·s(α₁) (smooth cutoff, tests only) or α = α₁ (hard), α₁ = min(max_alpha, o·e^−σ):
@@ -223,16 +223,57 @@ mod avx512 {
     use crate::forward::avx512::{gauss_v, row_mask};
     use std::arch::x86_64::*;
 
-    /// [`tree_sum16`] with vector shuffles.
+    /// [`tree_sum16`] of ten vectors at once: each shuffle stage adds the same lane pairs
+    /// as the scalar tree ((l, l+8), (l, l+4), (l, l+2), (l, l+1)), so every sum is
+    /// bit-identical to it, but the stages serve several accumulators per instruction.
     #[inline(always)]
-    unsafe fn hsum(v: __m512) -> f32 {
-        let lo = _mm512_castps512_ps256(v);
-        let hi = _mm512_extractf32x8_ps::<1>(v);
-        let s8 = _mm256_add_ps(lo, hi);
-        let s4 = _mm_add_ps(_mm256_castps256_ps128(s8), _mm256_extractf128_ps::<1>(s8));
-        let s2 = _mm_add_ps(s4, _mm_movehl_ps(s4, s4));
-        let s1 = _mm_add_ss(s2, _mm_shuffle_ps::<0b01>(s2, s2));
-        _mm_cvtss_f32(s1)
+    unsafe fn reduce10(a: &[__m512; 10]) -> [f32; 10] {
+        // (l, l+8): [s8 of A | s8 of B].
+        let f = |x: __m512, y: __m512| {
+            _mm512_add_ps(
+                _mm512_shuffle_f32x4::<0x44>(x, y),
+                _mm512_shuffle_f32x4::<0xEE>(x, y),
+            )
+        };
+        // (l, l+4): [s4 of A | B | C | D] from [s8 A | s8 B], [s8 C | s8 D].
+        let g = |x: __m512, y: __m512| {
+            _mm512_add_ps(
+                _mm512_shuffle_f32x4::<0x88>(x, y),
+                _mm512_shuffle_f32x4::<0xDD>(x, y),
+            )
+        };
+        // (l, l+2) within each 128-bit lane.
+        let h = |x: __m512, y: __m512| {
+            _mm512_add_ps(
+                _mm512_shuffle_ps::<0x44>(x, y),
+                _mm512_shuffle_ps::<0xEE>(x, y),
+            )
+        };
+        // (l, l+1) within each 128-bit lane.
+        let k = |x: __m512, y: __m512| {
+            _mm512_add_ps(
+                _mm512_shuffle_ps::<0x88>(x, y),
+                _mm512_shuffle_ps::<0xDD>(x, y),
+            )
+        };
+        let zero = _mm512_setzero_ps();
+        let c0 = f(a[0], a[1]);
+        let c1 = f(a[2], a[3]);
+        let c2 = f(a[4], a[5]);
+        let c3 = f(a[6], a[7]);
+        let c4 = f(a[8], a[9]);
+        let e0 = g(c0, c1);
+        let e1 = g(c2, c3);
+        let e2 = g(c4, zero);
+        let r = k(h(e0, e1), h(e2, zero));
+        // 128-bit lane l holds the sums of accumulators l, 4 + l and (l < 2) 8 + l.
+        let mut buf = [0.0f32; 16];
+        _mm512_storeu_ps(buf.as_mut_ptr(), r);
+        let mut out = [0.0f32; 10];
+        for q in 0..10 {
+            out[q] = buf[4 * (q % 4) + q / 4];
+        }
+        out
     }
 
     /// [`backward_gaussian_portable`] (hard cutoff) with a row's pixels as lanes and the lane
@@ -312,11 +353,7 @@ mod avx512 {
             _mm512_store_ps(row.r.as_mut_ptr(), _mm512_mask3_fmadd_ps(gcol, w, r, ok));
             _mm512_store_ps(row.t.as_mut_ptr(), _mm512_mask_mov_ps(t, ok, ti));
         }
-        let mut out = [0.0f32; 10];
-        for q in 0..10 {
-            out[q] = hsum(acc[q]);
-        }
-        out
+        reduce10(&acc)
     }
 
     /// Marker type of the AVX-512 backward kernels.
@@ -609,7 +646,6 @@ pub(crate) fn backward_impl(
     // 2. per-Gaussian sums in a fixed order, then projection + SH backward.
     let cm = CameraModel::new(cam);
     let degree = st.sh_degree;
-    let nb = sh::basis_len(degree);
     let (hw, hh) = (width as f64 * 0.5, height as f64 * 0.5);
     grads
         .means
@@ -622,7 +658,6 @@ pub(crate) fn backward_impl(
         .zip(grads.visible.par_chunks_mut(PROJECT_CHUNK))
         .enumerate()
         .for_each(|(ci, ((((((gm, gl), gq), go), gsh), g2), gv))| {
-            let mut g_coefs = [0.0f64; 48];
             for j in 0..gm.len() {
                 let i = ci * PROJECT_CHUNK + j;
                 let (lo, hi) = (bins.gauss_start[i], bins.gauss_start[i + 1]);
@@ -670,16 +705,12 @@ pub(crate) fn backward_impl(
                 if len > 0.0 {
                     let dir = [v[0] / len, v[1] / len, v[2] / len];
                     let coefs = &g.sh[i * kcoef..(i + 1) * kcoef];
-                    g_coefs[..kcoef].iter_mut().for_each(|x| *x = 0.0);
+                    let dst = &mut gsh[j * kcoef..(j + 1) * kcoef];
                     let gd =
-                        sh::eval_color_vjp(degree, coefs, dir, [rg[6], rg[7], rg[8]], &mut g_coefs);
+                        sh::eval_color_vjp_into(degree, coefs, dir, [rg[6], rg[7], rg[8]], dst);
                     let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
                     for a in 0..3 {
                         gmean[a] += (gd[a] - dir[a] * dd) / len;
-                    }
-                    let dst = &mut gsh[j * kcoef..(j + 1) * kcoef];
-                    for q in 0..nb * 3 {
-                        dst[q] = g_coefs[q] as f32;
                     }
                 }
                 gm[j] = gmean.map(|x| x as f32);
