@@ -35,6 +35,7 @@ use crate::sh;
 use crate::tiles::{bin_indexed, depth_order, Bins, TileGrid};
 use augsplat_core::Camera;
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 
 /// Gaussians per parallel projection chunk (fixed, so results never depend on the pool).
 pub(crate) const PROJECT_CHUNK: usize = 1024;
@@ -836,18 +837,22 @@ fn project_all(
     s: &RenderSettings,
     degree: u32,
     grid: &TileGrid,
-) -> (Vec<Splat2D>, Vec<[u32; 4]>, Vec<u8>) {
+) -> ProjectedAll {
     let n = g.len();
     let k = g.coeffs() * 3;
     let sh_ok = g.sh.len() == n * k
         && g.log_scales.len() == n
         && g.quats.len() == n
         && g.opacity_logits.len() == n;
-    let mut splats = vec![Splat2D::default(); n];
-    let mut rects = vec![[0u32; 4]; n];
+    let mut splats = uninit_vec::<Splat2D>(n);
+    let mut rects = uninit_vec::<[u32; 4]>(n);
     let mut status = vec![INVALID; n];
     if !sh_ok {
-        return (splats, rects, status);
+        return ProjectedAll {
+            splats,
+            rects,
+            status,
+        };
     }
     let nb = sh::basis_len(degree);
     splats
@@ -895,8 +900,8 @@ fn project_all(
                             let col = sh::eval_color(degree, coefs, dir, &mut basis);
                             match make_splat(&p, col) {
                                 Some(sp) => {
-                                    sp_out[j] = sp;
-                                    rect_out[j] = rect;
+                                    sp_out[j].write(sp);
+                                    rect_out[j].write(rect);
                                     VISIBLE
                                 }
                                 None => CULLED,
@@ -906,7 +911,28 @@ fn project_all(
                 };
             }
         });
-    (splats, rects, status)
+    ProjectedAll {
+        splats,
+        rects,
+        status,
+    }
+}
+
+/// The per-Gaussian results of [`project_all`]: `splats[i]` and `rects[i]` are initialised
+/// exactly where `status[i] == VISIBLE`.
+struct ProjectedAll {
+    splats: Vec<MaybeUninit<Splat2D>>,
+    rects: Vec<MaybeUninit<[u32; 4]>>,
+    status: Vec<u8>,
+}
+
+/// A vector of `n` uninitialised slots (no zero-filling of buffers that are written
+/// sparsely and read only where written).
+fn uninit_vec<T>(n: usize) -> Vec<MaybeUninit<T>> {
+    let mut v = Vec::with_capacity(n);
+    // SAFETY: `MaybeUninit<T>` needs no initialisation and the capacity is `n`.
+    unsafe { v.set_len(n) };
+    v
 }
 
 /// Raw pointers to the output images, written by the tiles in parallel.
@@ -935,11 +961,19 @@ pub(crate) fn render_impl(
     let grid = TileGrid::new(width, height);
     let mask = mask.filter(|m| m.len() == npix);
     let mut stats = RenderStats::default();
-    let (all_splats, all_rects, status) = if cam.validate().is_ok() {
+    let ProjectedAll {
+        splats: all_splats,
+        rects: all_rects,
+        status,
+    } = if cam.validate().is_ok() {
         let cm = CameraModel::new(cam);
         project_all(g, &cm, s, degree, &grid)
     } else {
-        (Vec::new(), Vec::new(), vec![CULLED; g.len()])
+        ProjectedAll {
+            splats: Vec::new(),
+            rects: Vec::new(),
+            status: vec![CULLED; g.len()],
+        }
     };
     let mut visible = Vec::new();
     let mut depth = vec![0.0f32; g.len()];
@@ -947,7 +981,8 @@ pub(crate) fn render_impl(
         match *st {
             VISIBLE => {
                 visible.push(i as u32);
-                depth[i] = all_splats[i].depth;
+                // SAFETY: the record of a visible Gaussian was written by `project_all`.
+                depth[i] = unsafe { all_splats[i].assume_init_ref() }.depth;
             }
             CULLED => stats.culled += 1,
             _ => stats.invalid += 1,
@@ -956,8 +991,18 @@ pub(crate) fn render_impl(
     stats.visible = visible.len();
     let rank_id = depth_order(&visible, &depth);
     drop(depth);
-    let splats: Vec<Splat2D> = rank_id.iter().map(|&i| all_splats[i as usize]).collect();
-    let rects: Vec<[u32; 4]> = rank_id.iter().map(|&i| all_rects[i as usize]).collect();
+    // SAFETY (both gathers): `rank_id` lists visible Gaussians only, whose records and
+    // rectangles `project_all` wrote.
+    let splats: Vec<Splat2D> = rank_id
+        .par_iter()
+        .with_min_len(PROJECT_CHUNK)
+        .map(|&i| unsafe { all_splats[i as usize].assume_init() })
+        .collect();
+    let rects: Vec<[u32; 4]> = rank_id
+        .par_iter()
+        .with_min_len(PROJECT_CHUNK)
+        .map(|&i| unsafe { all_rects[i as usize].assume_init() })
+        .collect();
     drop(all_splats);
     drop(all_rects);
     let bins = bin_indexed(&grid, &rects, &rank_id, g.len());
