@@ -824,6 +824,99 @@ fn make_splat(p: &crate::project::Projected, rgb: [f64; 3]) -> Option<Splat2D> {
     ok.then_some(sp)
 }
 
+/// One chunk of [`project_all`]'s work.
+struct ProjectJob<'a> {
+    g: &'a Gaussians,
+    cm: &'a CameraModel,
+    s: &'a RenderSettings,
+    degree: u32,
+    grid: &'a TileGrid,
+    /// Index of the chunk's first Gaussian.
+    first: usize,
+}
+
+/// Projects one chunk of Gaussians (see [`project_all`]).
+#[inline(always)]
+fn project_chunk(
+    job: &ProjectJob,
+    sp_out: &mut [MaybeUninit<Splat2D>],
+    rect_out: &mut [MaybeUninit<[u32; 4]>],
+    st_out: &mut [u8],
+) {
+    let ProjectJob {
+        g,
+        cm,
+        s,
+        degree,
+        grid,
+        ..
+    } = *job;
+    let k = g.coeffs() * 3;
+    let nb = sh::basis_len(degree);
+    let mut basis = [0.0f64; 16];
+    for j in 0..sp_out.len() {
+        let i = job.first + j;
+        let coefs = &g.sh[i * k..(i + 1) * k];
+        if !coefs[..nb * 3].iter().all(|v| v.is_finite()) {
+            st_out[j] = INVALID;
+            continue;
+        }
+        st_out[j] = match project(
+            cm,
+            g.means[i],
+            g.log_scales[i],
+            g.quats[i],
+            g.opacity_logits[i],
+            s.antialiased,
+            s.near as f64,
+        ) {
+            Outcome::Invalid => INVALID,
+            Outcome::Culled => CULLED,
+            Outcome::Visible(p) => {
+                let rect = grid.rect(p.mean2d, p.radius);
+                if rect[0] >= rect[1] || rect[2] >= rect[3] {
+                    CULLED
+                } else {
+                    let m = g.means[i];
+                    let v = [
+                        m[0] as f64 - cm.center[0],
+                        m[1] as f64 - cm.center[1],
+                        m[2] as f64 - cm.center[2],
+                    ];
+                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    let dir = if len > 0.0 {
+                        [v[0] / len, v[1] / len, v[2] / len]
+                    } else {
+                        [0.0, 0.0, 1.0]
+                    };
+                    let col = sh::eval_color(degree, coefs, dir, &mut basis);
+                    match make_splat(&p, col) {
+                        Some(sp) => {
+                            sp_out[j].write(sp);
+                            rect_out[j].write(rect);
+                            VISIBLE
+                        }
+                        None => CULLED,
+                    }
+                }
+            }
+        };
+    }
+}
+
+/// [`project_chunk`] compiled for AVX2 + FMA: the same IEEE operations (Rust never fuses
+/// multiply-adds on its own), with rounding instructions inline instead of libm calls.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn project_chunk_avx2(
+    job: &ProjectJob,
+    sp_out: &mut [MaybeUninit<Splat2D>],
+    rect_out: &mut [MaybeUninit<[u32; 4]>],
+    st_out: &mut [u8],
+) {
+    project_chunk(job, sp_out, rect_out, st_out)
+}
+
 /// Projection status of one Gaussian.
 const VISIBLE: u8 = 0;
 const CULLED: u8 = 1;
@@ -854,61 +947,28 @@ fn project_all(
             status,
         };
     }
-    let nb = sh::basis_len(degree);
+    let isa = detect_isa();
     splats
         .par_chunks_mut(PROJECT_CHUNK)
         .zip(rects.par_chunks_mut(PROJECT_CHUNK))
         .zip(status.par_chunks_mut(PROJECT_CHUNK))
         .enumerate()
         .for_each(|(ci, ((sp_out, rect_out), st_out))| {
-            let mut basis = [0.0f64; 16];
-            for j in 0..sp_out.len() {
-                let i = ci * PROJECT_CHUNK + j;
-                let coefs = &g.sh[i * k..(i + 1) * k];
-                if !coefs[..nb * 3].iter().all(|v| v.is_finite()) {
-                    st_out[j] = INVALID;
-                    continue;
+            let job = ProjectJob {
+                g,
+                cm,
+                s,
+                degree,
+                grid,
+                first: ci * PROJECT_CHUNK,
+            };
+            match isa {
+                #[cfg(target_arch = "x86_64")]
+                Isa::Avx2 | Isa::Avx512 => {
+                    // SAFETY: both variants imply AVX2 + FMA support.
+                    unsafe { project_chunk_avx2(&job, sp_out, rect_out, st_out) }
                 }
-                st_out[j] = match project(
-                    cm,
-                    g.means[i],
-                    g.log_scales[i],
-                    g.quats[i],
-                    g.opacity_logits[i],
-                    s.antialiased,
-                    s.near as f64,
-                ) {
-                    Outcome::Invalid => INVALID,
-                    Outcome::Culled => CULLED,
-                    Outcome::Visible(p) => {
-                        let rect = grid.rect(p.mean2d, p.radius);
-                        if rect[0] >= rect[1] || rect[2] >= rect[3] {
-                            CULLED
-                        } else {
-                            let m = g.means[i];
-                            let v = [
-                                m[0] as f64 - cm.center[0],
-                                m[1] as f64 - cm.center[1],
-                                m[2] as f64 - cm.center[2],
-                            ];
-                            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                            let dir = if len > 0.0 {
-                                [v[0] / len, v[1] / len, v[2] / len]
-                            } else {
-                                [0.0, 0.0, 1.0]
-                            };
-                            let col = sh::eval_color(degree, coefs, dir, &mut basis);
-                            match make_splat(&p, col) {
-                                Some(sp) => {
-                                    sp_out[j].write(sp);
-                                    rect_out[j].write(rect);
-                                    VISIBLE
-                                }
-                                None => CULLED,
-                            }
-                        }
-                    }
-                };
+                Isa::Portable => project_chunk(&job, sp_out, rect_out, st_out),
             }
         });
     ProjectedAll {
