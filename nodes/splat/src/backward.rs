@@ -67,19 +67,11 @@ struct BwdRow {
 }
 
 /// The backward state of one tile.
+#[derive(Default)]
 struct BwdTile {
     rows: [BwdRow; 16],
     /// Per row, the largest `last`.
     row_last: [u32; 16],
-}
-
-impl Default for BwdTile {
-    fn default() -> Self {
-        BwdTile {
-            rows: [BwdRow::default(); 16],
-            row_last: [0; 16],
-        }
-    }
 }
 
 /// Tree sum of 16 lanes: (l, l+8), then (l, l+4), (l, l+2), (l, l+1) — the order the vector
@@ -572,7 +564,6 @@ pub(crate) fn backward_impl(
     (0..grid.len())
         .into_par_iter()
         .for_each_init(BwdTile::default, |tile, t| {
-            let dst = dst;
             let lo = bins.ranges[t];
             let slots = &bins.pair_slot[lo..bins.ranges[t + 1]];
             let mut emit = |k: usize, v: PairGrad| {
@@ -581,7 +572,7 @@ pub(crate) fn backward_impl(
                 // SAFETY: `pair_slot` is a permutation of 0..total (built by `bin`), and
                 // list position lo + k belongs to this tile only, so every slot is written
                 // exactly once and by one thread; the buffer has capacity `total`.
-                unsafe { dst.0.add(slot).write(v) };
+                unsafe { dst.slot(slot).write(v) };
             };
             let tx = (t % grid.tiles_x as usize) as u32;
             let ty = (t / grid.tiles_x as usize) as u32;
@@ -725,6 +716,14 @@ pub(crate) fn backward_impl(
 /// Raw pointer to the Gaussian-major pair buffer, written by the tiles in parallel.
 #[derive(Clone, Copy)]
 struct PairOut(*mut PairGrad);
+
+impl PairOut {
+    /// Pointer to slot `i` (the closures capture the whole wrapper through this method).
+    #[inline(always)]
+    fn slot(&self, i: usize) -> *mut PairGrad {
+        self.0.wrapping_add(i)
+    }
+}
 
 // SAFETY: the tiles write disjoint slots (see `backward_impl`).
 unsafe impl Send for PairOut {}

@@ -153,6 +153,8 @@ pub(crate) fn exp_core(x: f32) -> f32 {
 /// e^−σ as the kernels evaluate it: σ clamped to [0, SIGMA_CLAMP] first.
 #[inline(always)]
 pub(crate) fn gauss_of_sigma(sigma: f32) -> f32 {
+    // Not `clamp`: a NaN σ must become SIGMA_CLAMP here, as `_mm512_min_ps` makes it.
+    #[allow(clippy::manual_clamp)]
     let sc = sigma.min(SIGMA_CLAMP).max(0.0);
     exp_core(0.0 - sc)
 }
@@ -587,16 +589,9 @@ pub(crate) mod avx512 {
 }
 
 /// The compositing state of one tile.
+#[derive(Default)]
 pub(crate) struct TileState {
     rows: [RowState; 16],
-}
-
-impl Default for TileState {
-    fn default() -> Self {
-        TileState {
-            rows: [RowState::default(); 16],
-        }
-    }
 }
 
 /// Composites one tile front to back; returns the number of composited pairs. `active`
@@ -1003,6 +998,21 @@ struct ImageOut {
     depth: *mut f32,
 }
 
+impl ImageOut {
+    /// Writes pixel `p` (the closures capture the whole wrapper through this method).
+    ///
+    /// # Safety
+    /// `p` must lie inside the image and be written by one thread only.
+    #[inline(always)]
+    unsafe fn write(&self, p: usize, rgb: [f32; 3], alpha: f32, depth: f32) {
+        for (ch, v) in rgb.iter().enumerate() {
+            *self.rgb.add(p * 3 + ch) = *v;
+        }
+        *self.alpha.add(p) = alpha;
+        *self.depth.add(p) = depth;
+    }
+}
+
 // SAFETY: the tiles write disjoint pixels (see `render_impl`).
 unsafe impl Send for ImageOut {}
 // SAFETY: as above.
@@ -1086,7 +1096,6 @@ pub(crate) fn render_impl(
         .zip(final_t.par_chunks_mut(TILE_PIXELS))
         .enumerate()
         .map_init(TileState::default, |st, (t, (last_t, ft))| {
-            let out = out;
             let tx = (t % grid.tiles_x as usize) as u32;
             let ty = (t / grid.tiles_x as usize) as u32;
             let (x0, y0) = (tx * TILE, ty * TILE);
@@ -1134,13 +1143,8 @@ pub(crate) fn render_impl(
                     // SAFETY: pixel (x, y) lies inside the image (checked above) and inside
                     // this tile only, so no other tile writes it; the buffers outlive the
                     // parallel loop.
-                    unsafe {
-                        for ch in 0..3 {
-                            *out.rgb.add(p * 3 + ch) = row.c[ch][lx] + tt * bg[ch];
-                        }
-                        *out.alpha.add(p) = a;
-                        *out.depth.add(p) = dv;
-                    }
+                    let rgb: [f32; 3] = std::array::from_fn(|ch| row.c[ch][lx] + tt * bg[ch]);
+                    unsafe { out.write(p, rgb, a, dv) };
                 }
             }
             pairs
