@@ -3,26 +3,38 @@
 //! 1. Per tile (in parallel), Gaussians are revisited back to front starting from the
 //!    tile's largest last-contributor index; each pixel recovers its transmittance before a
 //!    Gaussian as T_i = T_{i+1} / (1 − α_i) from the final T kept by the forward pass, and the
-//!    colour/depth "behind" sums are accumulated as the walk proceeds. Each (tile, Gaussian)
+//!    "behind" sum of the loss is accumulated as the walk proceeds. Each (tile, Gaussian)
 //!    pair writes its summed screen-space gradient (mean2d, conic, opacity, colour, depth)
 //!    into its own slot of a pair buffer, so no two tiles ever write the same memory.
 //! 2. Per Gaussian (in parallel), its pair slots are summed in f64 in a fixed order (tiles in
-//!    row-major order) — results are bit-identical for any number of threads.
-//! 3. Per Gaussian, the projection and SH backward ([`crate::project::project_vjp`],
-//!    [`crate::sh::eval_color_vjp`]) turn these into gradients of the raw parameters, the
+//!    row-major order) — results are bit-identical for any number of threads — and the
+//!    projection and SH backward ([`crate::project::project_vjp`],
+//!    [`crate::sh::eval_color_vjp_into`]) turn these into gradients of the raw parameters, the
 //!    SH view direction's dependence on the mean included.
 //!
 //! With α = α₁·s(α₁) (smooth cutoff, tests only) or α = α₁ (hard), α₁ = min(max_alpha, o·e^−σ):
 //! dL/dα_i = Σ_c g_c (c_i T_i − B_c/(1 − α_i)) + g_A' T_N/(1 − α_i) + g_S (z_i T_i − B_z/(1 − α_i))
 //! with B the sums over Gaussians behind i (B_c includes T_N·background), g_S = g_D/A and
-//! g_A' = g_A − g_D·D/A from the alpha-normalised depth D = S/A.
+//! g_A' = g_A − g_D·D/A from the alpha-normalised depth D = S/A. Per pixel the kernel keeps
+//! G_i = Σ_c g_c c_i + g_S z_i and one running sum R = Σ_behind G_j α_j T_j + T_N (g·bg − g_A'),
+//! so that dL/dα_i = G_i T_i − R/(1 − α_i).
+//!
+//! Per (tile, Gaussian) the pixel lanes accumulate, with Q = dL/dα₁ · e^−σ (zero where the
+//! alpha clamp is active): P = ΣQ, S_x = ΣQ·dx, S_y = ΣQ·dy, S_xx, S_xy, S_yy, and the colour
+//! and depth sums Σ g_c·α·T, Σ g_S·α·T; since dσ = ½dx²·da + dx·dy·db + ½dy²·dc + (a dx + b dy)
+//! d(mean_x) + (b dx + c dy) d(mean_y) and dα₁/dσ = −o·e^−σ, the screen-space gradient
+//! follows from these sums per pair. As in the forward pass, every kernel has a portable
+//! twin performing the same IEEE operations, and the results are bit-identical.
 
 // Negated comparisons are deliberate: they also reject NaN. Index loops read best in
 // small fixed-size numeric code.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
 use crate::constants::{ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS};
-use crate::forward::{exp_neg, row_hits, row_range, smooth_cut, Splat2D, PROJECT_CHUNK};
+use crate::forward::{
+    detect_isa, gauss_of_sigma, row_mask_portable, smooth_cut, Isa, RowGeom, Splat2D, TileCoords,
+    PREFETCH_AHEAD, PROJECT_CHUNK,
+};
 use crate::gaussians::Gaussians;
 use crate::project::{project_vjp, CameraModel, ProjectedGrad};
 use crate::render::{Cutoff, Gradients, RenderOutput, RenderSettings};
@@ -34,204 +46,478 @@ use rayon::prelude::*;
 /// colour r, g, b; depth.
 type PairGrad = [f32; 10];
 
-/// Per-pixel upstream gradients of one tile.
-struct Upstream {
-    gc: [[f32; TILE_PIXELS]; 3],
-    ga: [f32; TILE_PIXELS],
-    gs: [f32; TILE_PIXELS],
+/// Per-pixel lane sums of one (tile, Gaussian) pair: P, S_x, S_y, S_xx, S_xy, S_yy,
+/// colour r, g, b, depth (see the module documentation).
+type LaneSums = [f32; 10];
+
+/// The backward state of one tile row (16 pixels).
+#[derive(Clone, Copy, Default)]
+#[repr(C, align(64))]
+struct BwdRow {
+    /// Transmittance after the Gaussian being visited.
+    t: [f32; 16],
+    /// The running "behind" sum R.
+    r: [f32; 16],
+    /// Upstream dL/d(colour).
+    gc: [[f32; 16]; 3],
+    /// Upstream dL/d(unnormalised depth sum).
+    gs: [f32; 16],
+    /// List entries up to and including the last contributor.
+    last: [u32; 16],
 }
 
+/// The backward state of one tile.
+#[derive(Default)]
+struct BwdTile {
+    rows: [BwdRow; 16],
+    /// Per row, the largest `last`.
+    row_last: [u32; 16],
+}
+
+/// Tree sum of 16 lanes: (l, l+8), then (l, l+4), (l, l+2), (l, l+1) — the order the vector
+/// reduction uses.
+#[inline(always)]
+fn tree_sum16(v: &[f32; 16]) -> f32 {
+    let mut s8 = [0.0f32; 8];
+    for i in 0..8 {
+        s8[i] = v[i] + v[i + 8];
+    }
+    let mut s4 = [0.0f32; 4];
+    for i in 0..4 {
+        s4[i] = s8[i] + s8[i + 4];
+    }
+    let s2 = [s4[0] + s4[2], s4[1] + s4[3]];
+    s2[0] + s2[1]
+}
+
+/// Portable backward of one Gaussian over the rows in `rows`: updates the rows' T and R and
+/// returns the lane sums. `k` is the Gaussian's list index.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn backward_tile<const SMOOTH: bool>(
+fn backward_gaussian_portable<const SMOOTH: bool>(
+    sp: &Splat2D,
+    k: u32,
+    mut rows: u16,
+    tile: &mut BwdTile,
+    tc: &TileCoords,
+    max_alpha: f32,
+) -> LaneSums {
+    let mut lanes = [[0.0f32; 16]; 10];
+    while rows != 0 {
+        let ly = rows.trailing_zeros() as usize;
+        rows &= rows - 1;
+        let g = RowGeom::new(sp, tc.py[ly]);
+        let dy2 = g.dy * g.dy;
+        let row = &mut tile.rows[ly];
+        for l in 0..16 {
+            let dx = sp.x - tc.px[l];
+            let sigma = g.sigma(dx);
+            let gauss = gauss_of_sigma(sigma);
+            let raw = sp.opacity * gauss;
+            let a1 = raw.min(max_alpha);
+            let (alpha, pass, da_da1) = if SMOOTH {
+                let (s, ds) = smooth_cut(a1);
+                (a1 * s, a1 > ALPHA_THRESHOLD, s + a1 * ds)
+            } else {
+                (a1, a1 >= ALPHA_THRESHOLD, 1.0)
+            };
+            if !(k < row.last[l] && sigma >= 0.0 && pass) {
+                continue;
+            }
+            let ra = 1.0 / (1.0 - alpha);
+            let ti = row.t[l] * ra;
+            let w = alpha * ti;
+            let mut gcol = row.gc[0][l] * sp.rgb[0];
+            gcol = row.gc[1][l].mul_add(sp.rgb[1], gcol);
+            gcol = row.gc[2][l].mul_add(sp.rgb[2], gcol);
+            gcol = row.gs[l].mul_add(sp.depth, gcol);
+            let behind = row.r[l] * ra;
+            let mut dl = gcol.mul_add(ti, -behind);
+            if SMOOTH {
+                dl *= da_da1;
+            }
+            if raw < max_alpha {
+                let q = dl * gauss;
+                lanes[0][l] += q;
+                let v = q * dx;
+                lanes[1][l] += v;
+                lanes[2][l] = q.mul_add(g.dy, lanes[2][l]);
+                lanes[3][l] = v.mul_add(dx, lanes[3][l]);
+                lanes[4][l] = v.mul_add(g.dy, lanes[4][l]);
+                lanes[5][l] = q.mul_add(dy2, lanes[5][l]);
+            }
+            for ch in 0..3 {
+                lanes[6 + ch][l] = row.gc[ch][l].mul_add(w, lanes[6 + ch][l]);
+            }
+            lanes[9][l] = row.gs[l].mul_add(w, lanes[9][l]);
+            row.r[l] = gcol.mul_add(w, row.r[l]);
+            row.t[l] = ti;
+        }
+    }
+    let mut out = [0.0f32; 10];
+    for q in 0..10 {
+        out[q] = tree_sum16(&lanes[q]);
+    }
+    out
+}
+
+/// The two vector primitives of the backward tile loop.
+trait BackwardKernel {
+    /// Hints the cache that `p` will be read soon (no effect on results).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn prefetch(_p: *const Splat2D) {}
+    /// Row mask of one Gaussian (as in the forward pass).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16;
+    /// Hard-cutoff backward of one Gaussian (see [`backward_gaussian_portable`]).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn backward_gaussian(
+        sp: &Splat2D,
+        k: u32,
+        rows: u16,
+        tile: &mut BwdTile,
+        tc: &TileCoords,
+        max_alpha: f32,
+    ) -> LaneSums;
+}
+
+/// The portable kernels.
+struct Portable;
+
+impl BackwardKernel for Portable {
+    #[inline(always)]
+    unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
+        row_mask_portable(sp, tc)
+    }
+    #[inline(always)]
+    unsafe fn backward_gaussian(
+        sp: &Splat2D,
+        k: u32,
+        rows: u16,
+        tile: &mut BwdTile,
+        tc: &TileCoords,
+        max_alpha: f32,
+    ) -> LaneSums {
+        backward_gaussian_portable::<false>(sp, k, rows, tile, tc, max_alpha)
+    }
+}
+
+/// AVX-512 kernels (16 lanes: one tile row per vector).
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::*;
+    use crate::forward::avx512::{gauss_v, row_mask};
+    use std::arch::x86_64::*;
+
+    /// [`tree_sum16`] of ten vectors at once: each shuffle stage adds the same lane pairs
+    /// as the scalar tree ((l, l+8), (l, l+4), (l, l+2), (l, l+1)), so every sum is
+    /// bit-identical to it, but the stages serve several accumulators per instruction.
+    #[inline(always)]
+    unsafe fn reduce10(a: &[__m512; 10]) -> [f32; 10] {
+        // (l, l+8): [s8 of A | s8 of B].
+        let f = |x: __m512, y: __m512| {
+            _mm512_add_ps(
+                _mm512_shuffle_f32x4::<0x44>(x, y),
+                _mm512_shuffle_f32x4::<0xEE>(x, y),
+            )
+        };
+        // (l, l+4): [s4 of A | B | C | D] from [s8 A | s8 B], [s8 C | s8 D].
+        let g = |x: __m512, y: __m512| {
+            _mm512_add_ps(
+                _mm512_shuffle_f32x4::<0x88>(x, y),
+                _mm512_shuffle_f32x4::<0xDD>(x, y),
+            )
+        };
+        // (l, l+2) within each 128-bit lane.
+        let h = |x: __m512, y: __m512| {
+            _mm512_add_ps(
+                _mm512_shuffle_ps::<0x44>(x, y),
+                _mm512_shuffle_ps::<0xEE>(x, y),
+            )
+        };
+        // (l, l+1) within each 128-bit lane.
+        let k = |x: __m512, y: __m512| {
+            _mm512_add_ps(
+                _mm512_shuffle_ps::<0x88>(x, y),
+                _mm512_shuffle_ps::<0xDD>(x, y),
+            )
+        };
+        let zero = _mm512_setzero_ps();
+        let c0 = f(a[0], a[1]);
+        let c1 = f(a[2], a[3]);
+        let c2 = f(a[4], a[5]);
+        let c3 = f(a[6], a[7]);
+        let c4 = f(a[8], a[9]);
+        let e0 = g(c0, c1);
+        let e1 = g(c2, c3);
+        let e2 = g(c4, zero);
+        let r = k(h(e0, e1), h(e2, zero));
+        // 128-bit lane l holds the sums of accumulators l, 4 + l and (l < 2) 8 + l.
+        let mut buf = [0.0f32; 16];
+        _mm512_storeu_ps(buf.as_mut_ptr(), r);
+        let mut out = [0.0f32; 10];
+        for q in 0..10 {
+            out[q] = buf[4 * (q % 4) + q / 4];
+        }
+        out
+    }
+
+    /// [`backward_gaussian_portable`] (hard cutoff) with a row's pixels as lanes and the lane
+    /// sums in registers across rows.
+    #[inline(always)]
+    pub(super) unsafe fn backward_gaussian(
+        sp: &Splat2D,
+        k: u32,
+        mut rows: u16,
+        tile: &mut BwdTile,
+        tc: &TileCoords,
+        max_alpha: f32,
+    ) -> LaneSums {
+        let px = _mm512_load_ps(tc.px.as_ptr());
+        let zero = _mm512_setzero_ps();
+        let one = _mm512_set1_ps(1.0);
+        let maxa = _mm512_set1_ps(max_alpha);
+        let thr = _mm512_set1_ps(ALPHA_THRESHOLD);
+        let kv = _mm512_set1_epi32(k as i32);
+        let xs = _mm512_set1_ps(sp.x);
+        let ha = _mm512_set1_ps(0.5 * sp.a);
+        let o = _mm512_set1_ps(sp.opacity);
+        let (cr, cg, cb, cz) = (
+            _mm512_set1_ps(sp.rgb[0]),
+            _mm512_set1_ps(sp.rgb[1]),
+            _mm512_set1_ps(sp.rgb[2]),
+            _mm512_set1_ps(sp.depth),
+        );
+        let mut acc = [zero; 10];
+        while rows != 0 {
+            let ly = rows.trailing_zeros() as usize;
+            rows &= rows - 1;
+            let g = RowGeom::new(sp, *tc.py.get_unchecked(ly));
+            let row = tile.rows.get_unchecked_mut(ly);
+            let last = _mm512_load_si512(row.last.as_ptr() as *const __m512i);
+            let dx = _mm512_sub_ps(xs, px);
+            let u = _mm512_fmadd_ps(ha, dx, _mm512_set1_ps(g.bdy));
+            let sigma = _mm512_fmadd_ps(u, dx, _mm512_set1_ps(g.hc));
+            let gauss = gauss_v(sigma);
+            let raw = _mm512_mul_ps(o, gauss);
+            let a1 = _mm512_min_ps(raw, maxa);
+            let ok = _mm512_cmpgt_epu32_mask(last, kv);
+            let ok = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(ok, sigma, zero);
+            let ok = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(ok, a1, thr);
+            if ok == 0 {
+                continue;
+            }
+            let t = _mm512_load_ps(row.t.as_ptr());
+            let r = _mm512_load_ps(row.r.as_ptr());
+            let gr = _mm512_load_ps(row.gc[0].as_ptr());
+            let gg = _mm512_load_ps(row.gc[1].as_ptr());
+            let gb = _mm512_load_ps(row.gc[2].as_ptr());
+            let gs = _mm512_load_ps(row.gs.as_ptr());
+            let ra = _mm512_div_ps(one, _mm512_sub_ps(one, a1));
+            let ti = _mm512_mul_ps(t, ra);
+            let w = _mm512_maskz_mul_ps(ok, a1, ti);
+            let gcol = _mm512_mul_ps(gr, cr);
+            let gcol = _mm512_fmadd_ps(gg, cg, gcol);
+            let gcol = _mm512_fmadd_ps(gb, cb, gcol);
+            let gcol = _mm512_fmadd_ps(gs, cz, gcol);
+            let behind = _mm512_mul_ps(r, ra);
+            let dl = _mm512_fmsub_ps(gcol, ti, behind);
+            let qm = _mm512_mask_cmp_ps_mask::<_CMP_LT_OQ>(ok, raw, maxa);
+            let q = _mm512_maskz_mul_ps(qm, dl, gauss);
+            let dy = _mm512_set1_ps(g.dy);
+            acc[0] = _mm512_add_ps(acc[0], q);
+            let v = _mm512_mul_ps(q, dx);
+            acc[1] = _mm512_add_ps(acc[1], v);
+            acc[2] = _mm512_fmadd_ps(q, dy, acc[2]);
+            acc[3] = _mm512_fmadd_ps(v, dx, acc[3]);
+            acc[4] = _mm512_fmadd_ps(v, dy, acc[4]);
+            acc[5] = _mm512_fmadd_ps(q, _mm512_set1_ps(g.dy * g.dy), acc[5]);
+            acc[6] = _mm512_fmadd_ps(gr, w, acc[6]);
+            acc[7] = _mm512_fmadd_ps(gg, w, acc[7]);
+            acc[8] = _mm512_fmadd_ps(gb, w, acc[8]);
+            acc[9] = _mm512_fmadd_ps(gs, w, acc[9]);
+            _mm512_store_ps(row.r.as_mut_ptr(), _mm512_mask3_fmadd_ps(gcol, w, r, ok));
+            _mm512_store_ps(row.t.as_mut_ptr(), _mm512_mask_mov_ps(t, ok, ti));
+        }
+        reduce10(&acc)
+    }
+
+    /// Marker type of the AVX-512 backward kernels.
+    pub(super) struct Avx512;
+
+    impl BackwardKernel for Avx512 {
+        #[inline(always)]
+        unsafe fn prefetch(p: *const Splat2D) {
+            _mm_prefetch::<_MM_HINT_T0>(p as *const i8);
+        }
+        #[inline(always)]
+        unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
+            row_mask(sp, tc)
+        }
+        #[inline(always)]
+        unsafe fn backward_gaussian(
+            sp: &Splat2D,
+            k: u32,
+            rows: u16,
+            tile: &mut BwdTile,
+            tc: &TileCoords,
+            max_alpha: f32,
+        ) -> LaneSums {
+            backward_gaussian(sp, k, rows, tile, tc, max_alpha)
+        }
+    }
+}
+
+/// The screen-space pair gradient from the lane sums (in f64, rounded once).
+#[inline(always)]
+fn finish(sp: &Splat2D, s: &LaneSums) -> PairGrad {
+    let f = |v: f32| v as f64;
+    let (a, b, c, mo) = (f(sp.a), f(sp.b), f(sp.c), -f(sp.opacity));
+    let (sx, sy) = (f(s[1]), f(s[2]));
+    [
+        (mo * (a * sx + b * sy)) as f32,
+        (mo * (b * sx + c * sy)) as f32,
+        (mo * 0.5 * f(s[3])) as f32,
+        (mo * f(s[4])) as f32,
+        (mo * 0.5 * f(s[5])) as f32,
+        s[0],
+        s[6],
+        s[7],
+        s[8],
+        s[9],
+    ]
+}
+
+/// Walks one tile back to front and hands the pair gradient of every list entry (zero where
+/// the Gaussian contributes to no pixel) to `emit(k, gradient)`.
+///
+/// # Safety
+/// The CPU must support `K`'s instruction set.
+#[inline(always)]
+unsafe fn backward_tile_impl<K: BackwardKernel, const SMOOTH: bool>(
     splats: &[Splat2D],
     list: &[u32],
     x0: u32,
     y0: u32,
-    last: &[u32],
-    final_t: &[f32],
-    up: &Upstream,
-    bg: [f32; 3],
+    tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut [PairGrad],
+    emit: &mut dyn FnMut(usize, PairGrad),
 ) {
-    let max_last = last.iter().copied().max().unwrap_or(0) as usize;
-    if max_last == 0 {
-        return;
+    let max_last = (tile.row_last.iter().copied().max().unwrap_or(0) as usize).min(list.len());
+    for k in max_last..list.len() {
+        emit(k, [0.0; 10]);
     }
-    let mut t = [0.0f32; TILE_PIXELS];
-    t.copy_from_slice(final_t);
-    let mut acc = [[0.0f32; TILE_PIXELS]; 3];
-    for ch in 0..3 {
-        for p in 0..TILE_PIXELS {
-            acc[ch][p] = final_t[p] * bg[ch];
-        }
-    }
-    let mut acc_d = [0.0f32; TILE_PIXELS];
-    let mut px = [0.0f32; 16];
-    for (lx, v) in px.iter_mut().enumerate() {
-        *v = (x0 + lx as u32) as f32 + 0.5;
-    }
-    // Largest last-contributor count per row: rows where every pixel finished before a
-    // Gaussian are skipped.
-    let mut row_last = [0u32; 16];
-    for (ly, m) in row_last.iter_mut().enumerate() {
-        *m = last[ly * 16..ly * 16 + 16]
-            .iter()
-            .copied()
-            .max()
-            .unwrap_or(0);
-    }
+    let tc = TileCoords::new(x0, y0);
     for k in (0..max_last).rev() {
-        let sp = &splats[list[k] as usize];
-        let (lo, hi) = row_range(sp, y0);
+        if k >= PREFETCH_AHEAD {
+            K::prefetch(
+                splats
+                    .as_ptr()
+                    .wrapping_add(list[k - PREFETCH_AHEAD] as usize),
+            );
+        }
         let kk = k as u32;
-        let mut lanes = [[0.0f32; 16]; 10];
-        for ly in lo..hi {
-            if kk >= row_last[ly] {
-                continue;
-            }
-            let dy = sp.y - ((y0 + ly as u32) as f32 + 0.5);
-            if !row_hits(sp, dy, x0) {
-                continue;
-            }
-            let base = ly * TILE as usize;
-            let r16 = |v: &[f32]| -> [f32; 16] { v[base..base + 16].try_into().unwrap() };
-            let (gcr, gcg, gcb) = (r16(&up.gc[0]), r16(&up.gc[1]), r16(&up.gc[2]));
-            let (ga, gsv, tf) = (r16(&up.ga), r16(&up.gs), r16(final_t));
-            let last_row: [u32; 16] = last[base..base + 16].try_into().unwrap();
-            let t_row: &mut [f32; 16] = (&mut t[base..base + 16]).try_into().unwrap();
-            let [a0, a1r, a2] = &mut acc;
-            let ar: &mut [f32; 16] = (&mut a0[base..base + 16]).try_into().unwrap();
-            let ag: &mut [f32; 16] = (&mut a1r[base..base + 16]).try_into().unwrap();
-            let ab: &mut [f32; 16] = (&mut a2[base..base + 16]).try_into().unwrap();
-            let ad: &mut [f32; 16] = (&mut acc_d[base..base + 16]).try_into().unwrap();
-            for lx in 0..16 {
-                let dx = sp.x - px[lx];
-                let sigma = 0.5 * (sp.a * dx * dx + sp.c * dy * dy) + sp.b * dx * dy;
-                let gauss = exp_neg(-sigma);
-                let raw = sp.opacity * gauss;
-                let a1 = raw.min(max_alpha);
-                let (alpha, ok, da_da1) = if SMOOTH {
-                    let (s, ds) = smooth_cut(a1);
-                    (a1 * s, a1 > ALPHA_THRESHOLD, s + a1 * ds)
-                } else {
-                    (a1, a1 >= ALPHA_THRESHOLD, 1.0)
-                };
-                let ok = ok && sigma >= 0.0 && kk < last_row[lx];
-                let ra = 1.0 / (1.0 - alpha);
-                let ti = t_row[lx] * ra;
-                let w = alpha * ti;
-                let dl_da = gcr[lx] * (sp.rgb[0] * ti - ar[lx] * ra)
-                    + gcg[lx] * (sp.rgb[1] * ti - ag[lx] * ra)
-                    + gcb[lx] * (sp.rgb[2] * ti - ab[lx] * ra)
-                    + ga[lx] * tf[lx] * ra
-                    + gsv[lx] * (sp.depth * ti - ad[lx] * ra);
-                let unclamped = raw < max_alpha;
-                let d_raw = if ok && unclamped { dl_da * da_da1 } else { 0.0 };
-                let d_sigma = -d_raw * raw;
-                // Selects (not multiplications by a 0/1 mask) keep far-away lanes, whose
-                // dx² may overflow, from turning 0·∞ into NaN.
-                let sel = |v: f32| if ok { v } else { 0.0 };
-                let wm = sel(w);
-                lanes[5][lx] += sel(d_raw * gauss);
-                lanes[2][lx] += sel(d_sigma * 0.5 * dx * dx);
-                lanes[3][lx] += sel(d_sigma * dx * dy);
-                lanes[4][lx] += sel(d_sigma * 0.5 * dy * dy);
-                lanes[0][lx] += sel(d_sigma * (sp.a * dx + sp.b * dy));
-                lanes[1][lx] += sel(d_sigma * (sp.b * dx + sp.c * dy));
-                lanes[6][lx] += gcr[lx] * wm;
-                lanes[7][lx] += gcg[lx] * wm;
-                lanes[8][lx] += gcb[lx] * wm;
-                lanes[9][lx] += gsv[lx] * wm;
-                ar[lx] += sp.rgb[0] * wm;
-                ag[lx] += sp.rgb[1] * wm;
-                ab[lx] += sp.rgb[2] * wm;
-                ad[lx] += sp.depth * wm;
-                t_row[lx] = if ok { ti } else { t_row[lx] };
-            }
+        let mut live = 0u16;
+        for (ly, &m) in tile.row_last.iter().enumerate() {
+            live |= ((kk < m) as u16) << ly;
         }
-        let slot = &mut out[k];
-        for (q, lane) in lanes.iter().enumerate() {
-            slot[q] = lane.iter().sum();
+        let sp = &splats[list[k] as usize];
+        let rows = K::row_mask(sp, &tc) & live;
+        if rows == 0 {
+            emit(k, [0.0; 10]);
+            continue;
         }
+        let sums = if SMOOTH {
+            backward_gaussian_portable::<true>(sp, kk, rows, tile, &tc, max_alpha)
+        } else {
+            K::backward_gaussian(sp, kk, rows, tile, &tc, max_alpha)
+        };
+        emit(k, finish(sp, &sums));
     }
 }
 
-/// [`backward_tile`] compiled for AVX-512F (16 lanes: one tile row per vector).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-#[allow(clippy::too_many_arguments)]
-fn backward_tile_avx512<const SMOOTH: bool>(
+/// The portable tile kernel.
+fn backward_tile_portable<const SMOOTH: bool>(
     splats: &[Splat2D],
     list: &[u32],
     x0: u32,
     y0: u32,
-    last: &[u32],
-    final_t: &[f32],
-    up: &Upstream,
-    bg: [f32; 3],
+    tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut [PairGrad],
+    out: &mut dyn FnMut(usize, PairGrad),
 ) {
-    backward_tile::<SMOOTH>(splats, list, x0, y0, last, final_t, up, bg, max_alpha, out)
+    // SAFETY: the portable kernel has no instruction-set requirement.
+    unsafe { backward_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
 }
 
-/// [`backward_tile`] compiled for AVX2.
+/// The portable tile kernel compiled for AVX2 + FMA (auto-vectorised; same results).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,fma")]
 fn backward_tile_avx2<const SMOOTH: bool>(
     splats: &[Splat2D],
     list: &[u32],
     x0: u32,
     y0: u32,
-    last: &[u32],
-    final_t: &[f32],
-    up: &Upstream,
-    bg: [f32; 3],
+    tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut [PairGrad],
+    out: &mut dyn FnMut(usize, PairGrad),
 ) {
-    backward_tile::<SMOOTH>(splats, list, x0, y0, last, final_t, up, bg, max_alpha, out)
+    // SAFETY: the portable kernel has no instruction-set requirement.
+    unsafe { backward_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
 }
 
-/// Runs [`backward_tile`] with the widest vector unit the CPU has. Every variant performs the same
-/// IEEE operations in the same order (no FMA contraction, sequential lane sums), so results
-/// are bit-identical whichever one runs.
-#[allow(clippy::too_many_arguments)]
-fn backward_tile_dispatch<const SMOOTH: bool>(
+/// The AVX-512 tile kernel.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512bw,fma,bmi1,popcnt")]
+fn backward_tile_avx512(
     splats: &[Splat2D],
     list: &[u32],
     x0: u32,
     y0: u32,
-    last: &[u32],
-    final_t: &[f32],
-    up: &Upstream,
-    bg: [f32; 3],
+    tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut [PairGrad],
+    out: &mut dyn FnMut(usize, PairGrad),
 ) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU supports AVX-512F (checked just above).
-            return unsafe {
-                backward_tile_avx512::<SMOOTH>(
-                    splats, list, x0, y0, last, final_t, up, bg, max_alpha, out,
-                )
-            };
+    // SAFETY: this function is only compiled for, and called on, CPUs with AVX-512F/DQ + FMA.
+    unsafe {
+        backward_tile_impl::<avx512::Avx512, false>(splats, list, x0, y0, tile, max_alpha, out)
+    }
+}
+
+/// Runs the backward tile kernel variant `isa` (the smooth cutoff always runs the portable
+/// twin). Every variant gives bit-identical results.
+#[allow(clippy::too_many_arguments)]
+fn backward_tile_dispatch<const SMOOTH: bool>(
+    isa: Isa,
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    tile: &mut BwdTile,
+    max_alpha: f32,
+    out: &mut dyn FnMut(usize, PairGrad),
+) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 if !SMOOTH => {
+            // SAFETY: `Isa::Avx512` is only chosen when the CPU has AVX-512F/DQ and FMA.
+            unsafe { backward_tile_avx512(splats, list, x0, y0, tile, max_alpha, out) }
         }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe {
-                backward_tile_avx2::<SMOOTH>(
-                    splats, list, x0, y0, last, final_t, up, bg, max_alpha, out,
-                )
-            };
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 | Isa::Avx2 => {
+            // SAFETY: both variants imply AVX2 + FMA support.
+            unsafe { backward_tile_avx2::<SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
+        }
+        Isa::Portable => {
+            backward_tile_portable::<SMOOTH>(splats, list, x0, y0, tile, max_alpha, out)
         }
     }
-    backward_tile::<SMOOTH>(splats, list, x0, y0, last, final_t, up, bg, max_alpha, out)
 }
 
 pub(crate) fn backward_impl(
@@ -267,113 +553,90 @@ pub(crate) fn backward_impl(
     let grid = st.grid;
     let bins = &st.bins;
     let max_alpha = crate::forward::effective_max_alpha(s);
+    let isa = detect_isa();
+    let bg = s.background;
 
-    // 1. per-tile pair gradients.
-    let mut pair_grads: Vec<PairGrad> = vec![[0.0; 10]; bins.ranks.len()];
-    let mut slices: Vec<&mut [PairGrad]> = Vec::with_capacity(grid.len());
-    let mut rest: &mut [PairGrad] = &mut pair_grads;
-    for t in 0..grid.len() {
-        let (a, b) = rest.split_at_mut(bins.ranges[t + 1] - bins.ranges[t]);
-        slices.push(a);
-        rest = b;
-    }
-    slices.into_par_iter().enumerate().for_each(|(t, slot)| {
-        let tx = (t % grid.tiles_x as usize) as u32;
-        let ty = (t / grid.tiles_x as usize) as u32;
-        let (x0, y0) = (tx * TILE, ty * TILE);
-        let last = &st.last[t * TILE_PIXELS..(t + 1) * TILE_PIXELS];
-        if slot.is_empty() || last.iter().all(|&l| l == 0) {
-            return;
-        }
-        let mut up = Upstream {
-            gc: [[0.0; TILE_PIXELS]; 3],
-            ga: [0.0; TILE_PIXELS],
-            gs: [0.0; TILE_PIXELS],
-        };
-        for ly in 0..TILE {
-            for lx in 0..TILE {
-                let (x, y) = (x0 + lx, y0 + ly);
-                if x >= width || y >= height {
-                    continue;
-                }
-                let i = (y * width + x) as usize;
-                let p = (ly * TILE + lx) as usize;
-                if let Some(d) = d_rgb {
-                    for ch in 0..3 {
-                        up.gc[ch][p] = finite_or_zero(d[i * 3 + ch]);
-                    }
-                }
-                let mut ga = d_alpha.map_or(0.0, |v| finite_or_zero(v[i]));
-                let mut gs = 0.0;
-                if let Some(dd) = d_depth {
-                    let a = out.alpha[i];
-                    if a >= DEPTH_ALPHA_EPS {
-                        let gd = finite_or_zero(dd[i]);
-                        gs = gd / a;
-                        ga -= gd * out.depth[i] / a;
-                    }
-                }
-                up.ga[p] = ga;
-                up.gs[p] = gs;
+    // 1. per-tile pair gradients, written Gaussian-major (`bins.pair_slot`): each Gaussian's
+    // pairs are contiguous, in row-major tile order. Every slot is written exactly once.
+    let total = bins.ranks.len();
+    let mut pair_grads: Vec<PairGrad> = Vec::with_capacity(total);
+    let dst = PairOut(pair_grads.as_mut_ptr());
+    (0..grid.len())
+        .into_par_iter()
+        .for_each_init(BwdTile::default, |tile, t| {
+            let lo = bins.ranges[t];
+            let slots = &bins.pair_slot[lo..bins.ranges[t + 1]];
+            let mut emit = |k: usize, v: PairGrad| {
+                let slot = slots[k] as usize;
+                assert!(slot < total);
+                // SAFETY: `pair_slot` is a permutation of 0..total (built by `bin`), and
+                // list position lo + k belongs to this tile only, so every slot is written
+                // exactly once and by one thread; the buffer has capacity `total`.
+                unsafe { dst.slot(slot).write(v) };
+            };
+            let tx = (t % grid.tiles_x as usize) as u32;
+            let ty = (t / grid.tiles_x as usize) as u32;
+            let (x0, y0) = (tx * TILE, ty * TILE);
+            let last = &st.last[t * TILE_PIXELS..(t + 1) * TILE_PIXELS];
+            if slots.is_empty() {
+                return;
             }
-        }
-        let list = &bins.ranks[bins.ranges[t]..bins.ranges[t + 1]];
-        let ft = &st.final_t[t * TILE_PIXELS..(t + 1) * TILE_PIXELS];
-        match st.cutoff {
-            Cutoff::Hard => backward_tile_dispatch::<false>(
-                &st.splats,
-                list,
-                x0,
-                y0,
-                last,
-                ft,
-                &up,
-                s.background,
-                max_alpha,
-                slot,
-            ),
-            Cutoff::Smooth => backward_tile_dispatch::<true>(
-                &st.splats,
-                list,
-                x0,
-                y0,
-                last,
-                ft,
-                &up,
-                s.background,
-                max_alpha,
-                slot,
-            ),
-        }
-    });
-
-    // 2. per-rank sums in a fixed order.
-    let nranks = st.splats.len();
-    let mut rank_grads: Vec<[f64; 10]> = vec![[0.0; 10]; nranks];
-    rank_grads
-        .par_chunks_mut(PROJECT_CHUNK)
-        .enumerate()
-        .for_each(|(ci, chunk)| {
-            for (j, acc) in chunk.iter_mut().enumerate() {
-                let r = ci * PROJECT_CHUNK + j;
-                for &pos in &bins.pair_index[bins.pair_start[r]..bins.pair_start[r + 1]] {
-                    let pg = &pair_grads[pos as usize];
-                    for q in 0..10 {
-                        acc[q] += pg[q] as f64;
+            if last.iter().all(|&l| l == 0) {
+                (0..slots.len()).for_each(|k| emit(k, [0.0; 10]));
+                return;
+            }
+            let ft = &st.final_t[t * TILE_PIXELS..(t + 1) * TILE_PIXELS];
+            for ly in 0..TILE as usize {
+                let row = &mut tile.rows[ly];
+                let base = ly * TILE as usize;
+                row.last.copy_from_slice(&last[base..base + 16]);
+                row.t.copy_from_slice(&ft[base..base + 16]);
+                tile.row_last[ly] = row.last.iter().copied().max().unwrap_or(0);
+                for lx in 0..TILE as usize {
+                    let (x, y) = (x0 as usize + lx, y0 as usize + ly);
+                    let (mut gc, mut ga, mut gs) = ([0.0f32; 3], 0.0f32, 0.0f32);
+                    if x < width as usize && y < height as usize {
+                        let i = y * width as usize + x;
+                        if let Some(d) = d_rgb {
+                            for ch in 0..3 {
+                                gc[ch] = finite_or_zero(d[i * 3 + ch]);
+                            }
+                        }
+                        ga = d_alpha.map_or(0.0, |v| finite_or_zero(v[i]));
+                        if let Some(dd) = d_depth {
+                            let a = out.alpha[i];
+                            if a >= DEPTH_ALPHA_EPS {
+                                let gd = finite_or_zero(dd[i]);
+                                gs = gd / a;
+                                ga -= gd * out.depth[i] / a;
+                            }
+                        }
                     }
+                    for ch in 0..3 {
+                        row.gc[ch][lx] = gc[ch];
+                    }
+                    row.gs[lx] = gs;
+                    let tn = row.t[lx];
+                    row.r[lx] = tn * (gc[0] * bg[0] + gc[1] * bg[1] + gc[2] * bg[2] - ga);
                 }
+            }
+            let list = &bins.ranks[bins.ranges[t]..bins.ranges[t + 1]];
+            match st.cutoff {
+                Cutoff::Hard => backward_tile_dispatch::<false>(
+                    isa, &st.splats, list, x0, y0, tile, max_alpha, &mut emit,
+                ),
+                Cutoff::Smooth => backward_tile_dispatch::<true>(
+                    isa, &st.splats, list, x0, y0, tile, max_alpha, &mut emit,
+                ),
             }
         });
-    drop(pair_grads);
-    let mut id_rank = vec![u32::MAX; n];
-    for (r, &i) in st.rank_id.iter().enumerate() {
-        id_rank[i as usize] = r as u32;
-    }
+    // SAFETY: every one of the `total` slots was written above (each tile emits every list
+    // entry), and `PairGrad` is plain data.
+    unsafe { pair_grads.set_len(total) };
 
-    // 3. per-Gaussian projection + SH backward.
+    // 2. per-Gaussian sums in a fixed order, then projection + SH backward.
     let cm = CameraModel::new(cam);
     let degree = st.sh_degree;
-    let nb = sh::basis_len(degree);
     let (hw, hh) = (width as f64 * 0.5, height as f64 * 0.5);
     grads
         .means
@@ -386,14 +649,18 @@ pub(crate) fn backward_impl(
         .zip(grads.visible.par_chunks_mut(PROJECT_CHUNK))
         .enumerate()
         .for_each(|(ci, ((((((gm, gl), gq), go), gsh), g2), gv))| {
-            let mut g_coefs = [0.0f64; 48];
             for j in 0..gm.len() {
                 let i = ci * PROJECT_CHUNK + j;
-                let r = id_rank[i];
-                if r == u32::MAX {
+                let (lo, hi) = (bins.gauss_start[i], bins.gauss_start[i + 1]);
+                if lo == hi {
                     continue;
                 }
-                let rg = &rank_grads[r as usize];
+                let mut rg = [0.0f64; 10];
+                for pg in &pair_grads[lo..hi] {
+                    for q in 0..10 {
+                        rg[q] += pg[q] as f64;
+                    }
+                }
                 gv[j] = true;
                 g2[j] = [(rg[0] * hw) as f32, (rg[1] * hh) as f32];
                 if rg.iter().all(|v| *v == 0.0) {
@@ -429,16 +696,12 @@ pub(crate) fn backward_impl(
                 if len > 0.0 {
                     let dir = [v[0] / len, v[1] / len, v[2] / len];
                     let coefs = &g.sh[i * kcoef..(i + 1) * kcoef];
-                    g_coefs[..kcoef].iter_mut().for_each(|x| *x = 0.0);
+                    let dst = &mut gsh[j * kcoef..(j + 1) * kcoef];
                     let gd =
-                        sh::eval_color_vjp(degree, coefs, dir, [rg[6], rg[7], rg[8]], &mut g_coefs);
+                        sh::eval_color_vjp_into(degree, coefs, dir, [rg[6], rg[7], rg[8]], dst);
                     let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
                     for a in 0..3 {
                         gmean[a] += (gd[a] - dir[a] * dd) / len;
-                    }
-                    let dst = &mut gsh[j * kcoef..(j + 1) * kcoef];
-                    for q in 0..nb * 3 {
-                        dst[q] = g_coefs[q] as f32;
                     }
                 }
                 gm[j] = gmean.map(|x| x as f32);
@@ -449,6 +712,23 @@ pub(crate) fn backward_impl(
         });
     grads
 }
+
+/// Raw pointer to the Gaussian-major pair buffer, written by the tiles in parallel.
+#[derive(Clone, Copy)]
+struct PairOut(*mut PairGrad);
+
+impl PairOut {
+    /// Pointer to slot `i` (the closures capture the whole wrapper through this method).
+    #[inline(always)]
+    fn slot(&self, i: usize) -> *mut PairGrad {
+        self.0.wrapping_add(i)
+    }
+}
+
+// SAFETY: the tiles write disjoint slots (see `backward_impl`).
+unsafe impl Send for PairOut {}
+// SAFETY: as above.
+unsafe impl Sync for PairOut {}
 
 #[inline]
 fn finite_or_zero(v: f32) -> f32 {
@@ -464,43 +744,81 @@ mod tests {
     use super::*;
     use crate::forward::tests::random_tile_splats;
 
+    fn tile_state(seed: u64, n: u32) -> BwdTile {
+        let mut rng = augsplat_core::Rng::new(seed);
+        let mut tile = BwdTile::default();
+        for ly in 0..16 {
+            let row = &mut tile.rows[ly];
+            for l in 0..16 {
+                row.last[l] = rng.below(n as u64 + 1) as u32;
+                row.t[l] = rng.uniform(1e-4, 1.0) as f32;
+                for ch in 0..3 {
+                    row.gc[ch][l] = rng.uniform(-1.0, 1.0) as f32;
+                }
+                row.gs[l] = rng.uniform(-0.1, 0.1) as f32;
+                row.r[l] = rng.uniform(-1.0, 1.0) as f32;
+            }
+            tile.row_last[ly] = row.last.iter().copied().max().unwrap();
+        }
+        tile
+    }
+
+    fn run(isa: Isa, smooth: bool, splats: &[Splat2D], list: &[u32]) -> Vec<u32> {
+        let mut tile = tile_state(9, list.len() as u32);
+        let mut out = vec![[f32::NAN; 10]; list.len()];
+        let mut emit = |k: usize, v: PairGrad| out[k] = v;
+        if smooth {
+            backward_tile_dispatch::<true>(isa, splats, list, 0, 0, &mut tile, 0.99, &mut emit);
+        } else {
+            backward_tile_dispatch::<false>(isa, splats, list, 0, 0, &mut tile, 0.99, &mut emit);
+        }
+        assert!(
+            out.iter().flatten().all(|v| v.is_finite()),
+            "every entry is emitted"
+        );
+        let mut v: Vec<u32> = out.iter().flatten().map(|x| x.to_bits()).collect();
+        for row in &tile.rows {
+            v.extend(row.t.iter().map(|x| x.to_bits()));
+            v.extend(row.r.iter().map(|x| x.to_bits()));
+        }
+        v
+    }
+
     #[test]
     fn vector_variants_are_bit_identical_to_the_portable_kernel() {
         let splats = random_tile_splats(5, 200);
         let list: Vec<u32> = (0..200).collect();
-        let mut rng = augsplat_core::Rng::new(9);
-        let last: Vec<u32> = (0..TILE_PIXELS).map(|_| rng.below(201) as u32).collect();
-        let final_t: Vec<f32> = (0..TILE_PIXELS)
-            .map(|_| rng.uniform(1e-4, 1.0) as f32)
-            .collect();
-        let mut up = Upstream {
-            gc: [[0.0; TILE_PIXELS]; 3],
-            ga: [0.0; TILE_PIXELS],
-            gs: [0.0; TILE_PIXELS],
-        };
-        for p in 0..TILE_PIXELS {
-            for ch in 0..3 {
-                up.gc[ch][p] = rng.uniform(-1.0, 1.0) as f32;
+        let mut isas = vec![];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                isas.push(Isa::Avx2);
             }
-            up.ga[p] = rng.uniform(-1.0, 1.0) as f32;
-            up.gs[p] = rng.uniform(-0.1, 0.1) as f32;
+            if crate::forward::avx512::available() {
+                isas.push(Isa::Avx512);
+            } else {
+                eprintln!("no AVX-512 on this CPU: only the portable variants are compared");
+            }
         }
-        let bg = [0.2, 0.4, 0.6];
-        let mut a = vec![[0.0f32; 10]; 200];
-        let mut b = vec![[0.0f32; 10]; 200];
-        backward_tile::<false>(&splats, &list, 0, 0, &last, &final_t, &up, bg, 0.99, &mut a);
-        backward_tile_dispatch::<false>(
-            &splats, &list, 0, 0, &last, &final_t, &up, bg, 0.99, &mut b,
-        );
-        let bits = |v: &[[f32; 10]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
-        assert_eq!(bits(&a), bits(&b));
-        assert!(a.iter().flatten().filter(|v| **v != 0.0).count() > 500);
-        let mut a = vec![[0.0f32; 10]; 200];
-        let mut b = vec![[0.0f32; 10]; 200];
-        backward_tile::<true>(&splats, &list, 0, 0, &last, &final_t, &up, bg, 0.99, &mut a);
-        backward_tile_dispatch::<true>(
-            &splats, &list, 0, 0, &last, &final_t, &up, bg, 0.99, &mut b,
-        );
-        assert_eq!(bits(&a), bits(&b));
+        for smooth in [false, true] {
+            let a = run(Isa::Portable, smooth, &splats, &list);
+            assert!(a.iter().filter(|v| **v != 0).count() > 500);
+            for &isa in &isas {
+                assert_eq!(
+                    a,
+                    run(isa, smooth, &splats, &list),
+                    "{isa:?} smooth {smooth}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn tree_sum_matches_plain_sum_closely() {
+        let v: [f32; 16] = std::array::from_fn(|i| (i as f32 * 0.37).sin());
+        let plain: f64 = v.iter().map(|x| *x as f64).sum();
+        assert!((tree_sum16(&v) as f64 - plain).abs() < 1e-6);
     }
 }

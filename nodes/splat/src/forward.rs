@@ -8,9 +8,18 @@
 //! Each tile keeps, per pixel, the number of list entries up to and including its last
 //! contributor and its final transmittance; the backward pass walks back from there.
 //!
-//! The projected records ([`Splat2D`]) are stored in depth-rank order, one 48-byte record per
-//! Gaussian so a tile's gather touches one cache line per Gaussian; inside a tile the kernel
-//! works on structure-of-arrays pixel lanes (rows of 16 pixels).
+//! Layout and kernels. The projected records ([`Splat2D`]) are stored in depth-rank order, one
+//! 64-byte (cache-line) record per Gaussian. A tile is processed in batches of 64 list
+//! entries: for each entry a 16-bit *row mask* (the tile rows whose pixel centres the
+//! Gaussian's α ≥ 1/255 ellipse can reach, all 16 rows evaluated at once as vector lanes) is
+//! scattered into one 64-bit set per row; each live row then walks its set front to back with
+//! its 16 pixels as the lanes of one vector and its state (T, colour, depth, last, active)
+//! held in registers. Rows whose pixels have all stopped are dropped, and the tile ends when
+//! no row is live.
+//!
+//! Every kernel exists twice: a portable scalar twin and an AVX-512 version written with
+//! intrinsics. Both perform the same IEEE operations in the same order (fused multiply-adds
+//! are `f32::mul_add` in the twin), so they give bit-identical results; the tests check it.
 
 // Negated comparisons are deliberate: they also reject NaN. Index loops read best in
 // small fixed-size numeric code.
@@ -23,16 +32,31 @@ use crate::gaussians::Gaussians;
 use crate::project::{project, CameraModel, Outcome};
 use crate::render::{Cutoff, RenderOutput, RenderSettings, RenderStats};
 use crate::sh;
-use crate::tiles::{bin, depth_order, Bins, TileGrid};
+use crate::tiles::{bin_indexed, depth_order, Bins, TileGrid};
 use augsplat_core::Camera;
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 
 /// Gaussians per parallel projection chunk (fixed, so results never depend on the pool).
-pub(crate) const PROJECT_CHUNK: usize = 4096;
+pub(crate) const PROJECT_CHUNK: usize = 1024;
 
-/// One projected Gaussian, as the compositing kernels read it.
+/// List entries per compositing batch (one bit each in a row's 64-bit set).
+pub(crate) const BATCH: usize = 64;
+
+/// How many list entries ahead the tile loops prefetch projected records.
+pub(crate) const PREFETCH_AHEAD: usize = 8;
+
+/// σ is clamped to this before the exponential: beyond it α < 1/255 for any opacity ≤ 1,
+/// so the clamp never changes a composited value, and e^−σ stays a normal float.
+pub(crate) const SIGMA_CLAMP: f32 = 30.0;
+
+/// Padding (pixels) added to the half-chord of the row test, so that rounding never drops
+/// a pixel the compositing rule would keep.
+const CHORD_PAD: f32 = 1e-2;
+
+/// One projected Gaussian, as the compositing kernels read it (64 bytes, one cache line).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[repr(C)]
+#[repr(C, align(64))]
 pub struct Splat2D {
     /// Centre x, pixels.
     pub x: f32,
@@ -54,9 +78,17 @@ pub struct Splat2D {
     pub ymin: f32,
     /// Bottom of the bounding box (y + radius_y), pixels.
     pub ymax: f32,
-    /// σ beyond which α < 1/255: ln(255·opacity), padded by a relative 1e-4 so that rounding
-    /// never skips a pixel the compositing rule would keep.
+    /// σ beyond which α < 1/255: ln(255·opacity), padded by a relative 1e-3 (+1e-3) so that
+    /// rounding never skips a pixel the compositing rule would keep.
     pub sigma_max: f32,
+    /// ½·(c − b²/a) = ½/Σ2d_yy: the minimum of σ along a pixel row at offset dy from the
+    /// centre is `row_q·dy²`.
+    pub row_q: f32,
+    /// 2/a: on a row at offset dy the α ≥ 1/255 chord has squared half-length
+    /// `row_w·(sigma_max − row_q·dy²)`.
+    pub row_w: f32,
+    /// b/a: on a row at offset dy (= y − pixel y) the chord is centred at `x + row_shift·dy`.
+    pub row_shift: f32,
 }
 
 /// State kept from the forward pass for the backward pass.
@@ -65,8 +97,6 @@ pub(crate) struct RasterState {
     pub grid: TileGrid,
     /// Projected records in rank (front-to-back) order.
     pub splats: Vec<Splat2D>,
-    /// Gaussian index of each rank.
-    pub rank_id: Vec<u32>,
     pub bins: Bins,
     /// Per pixel, tile-major (`tile·256 + row·16 + col`): list entries up to and including
     /// the last contributor.
@@ -79,36 +109,54 @@ pub(crate) struct RasterState {
     pub sh_degree: u32,
 }
 
-/// Per-Gaussian result of the projection stage.
-#[derive(Clone, Copy)]
-enum Proj {
-    Visible(Splat2D, [u32; 4]),
-    Culled,
-    Invalid,
-}
-
 /// e^x for x ≤ 0 (inputs below −87 are clamped), branch-free and free of float→int
 /// conversions so it vectorises; relative error below 3e-7.
 #[inline(always)]
 pub fn exp_neg(x: f32) -> f32 {
-    const LOG2E: f32 = std::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_145_75;
-    const LN2_LO: f32 = 1.428_606_8e-6;
-    // 1.5·2²³: adding it rounds to an integer held in the low mantissa bits.
-    const ROUND: f32 = 12_582_912.0;
-    let x = x.clamp(-87.0, 0.0);
-    let shifted = x * LOG2E + ROUND;
+    exp_core(x.clamp(-87.0, 0.0))
+}
+
+const LOG2E: f32 = std::f32::consts::LOG2_E;
+const LN2_HI: f32 = 0.693_145_75;
+const LN2_LO: f32 = 1.428_606_8e-6;
+/// 1.5·2²³: adding it rounds to an integer held in the low mantissa bits.
+const ROUND: f32 = 12_582_912.0;
+/// Taylor coefficients of e^f, highest degree first (|f| ≤ ln2/2: truncation below 1e-8).
+const EXP_POLY: [f32; 8] = [
+    1.0 / 5040.0,
+    1.0 / 720.0,
+    1.0 / 120.0,
+    1.0 / 24.0,
+    1.0 / 6.0,
+    0.5,
+    1.0,
+    1.0,
+];
+
+/// e^x for x in [−87, 0] (unchecked): x = n·ln2 + f, e^x = 2ⁿ·p(f). Fused multiply-adds
+/// throughout; the AVX-512 kernel performs exactly these operations.
+#[inline(always)]
+pub(crate) fn exp_core(x: f32) -> f32 {
+    let shifted = x.mul_add(LOG2E, ROUND);
     let n = shifted - ROUND;
-    let f = x - n * LN2_HI - n * LN2_LO;
-    let p = 1.0
-        + f * (1.0
-            + f * (0.5
-                + f * (1.0 / 6.0
-                    + f * (1.0 / 24.0
-                        + f * (1.0 / 120.0 + f * (1.0 / 720.0 + f * (1.0 / 5040.0)))))));
+    let f = (-n).mul_add(LN2_HI, x);
+    let f = (-n).mul_add(LN2_LO, f);
+    let mut p = EXP_POLY[0];
+    for c in &EXP_POLY[1..] {
+        p = p.mul_add(f, *c);
+    }
     let k = shifted.to_bits().wrapping_sub(ROUND.to_bits());
     let scale = f32::from_bits(k.wrapping_add(127) << 23);
     p * scale
+}
+
+/// e^−σ as the kernels evaluate it: σ clamped to [0, SIGMA_CLAMP] first.
+#[inline(always)]
+pub(crate) fn gauss_of_sigma(sigma: f32) -> f32 {
+    // Not `clamp`: a NaN σ must become SIGMA_CLAMP here, as `_mm512_min_ps` makes it.
+    #[allow(clippy::manual_clamp)]
+    let sc = sigma.min(SIGMA_CLAMP).max(0.0);
+    exp_core(0.0 - sc)
 }
 
 /// The smooth cutoff factor s(α) (C¹ smoothstep from 1/255 to 2/255) and its derivative.
@@ -131,314 +179,844 @@ pub(crate) fn effective_max_alpha(s: &RenderSettings) -> f32 {
     }
 }
 
-/// Per-tile pixel results.
-struct TilePixels {
-    t: [f32; TILE_PIXELS],
-    last: [u32; TILE_PIXELS],
-    c: [[f32; TILE_PIXELS]; 3],
-    d: [f32; TILE_PIXELS],
+/// Per-row scalars of one Gaussian: σ on the row at offset dy = y − pixel y is
+/// `(ha·dx + bdy)·dx + hc` with dx = x − pixel x (two fused multiply-adds per pixel).
+#[derive(Clone, Copy)]
+pub(crate) struct RowGeom {
+    pub dy: f32,
+    pub ha: f32,
+    pub bdy: f32,
+    pub hc: f32,
 }
 
-impl Default for TilePixels {
-    fn default() -> Self {
-        TilePixels {
-            t: [1.0; TILE_PIXELS],
-            last: [0; TILE_PIXELS],
-            c: [[0.0; TILE_PIXELS]; 3],
-            d: [0.0; TILE_PIXELS],
+impl RowGeom {
+    #[inline(always)]
+    pub(crate) fn new(sp: &Splat2D, py: f32) -> Self {
+        let dy = sp.y - py;
+        RowGeom {
+            dy,
+            ha: 0.5 * sp.a,
+            bdy: sp.b * dy,
+            hc: 0.5 * sp.c * dy * dy,
+        }
+    }
+    #[inline(always)]
+    pub(crate) fn sigma(&self, dx: f32) -> f32 {
+        self.ha.mul_add(dx, self.bdy).mul_add(dx, self.hc)
+    }
+}
+
+/// Pixel-centre coordinates of a tile: lane l of `px` is column x0 + l, of `py` row y0 + l.
+#[derive(Clone, Copy)]
+#[repr(C, align(64))]
+pub(crate) struct TileCoords {
+    pub px: [f32; 16],
+    pub py: [f32; 16],
+    pub left: f32,
+    pub right: f32,
+}
+
+impl TileCoords {
+    pub(crate) fn new(x0: u32, y0: u32) -> Self {
+        let mut px = [0.0f32; 16];
+        let mut py = [0.0f32; 16];
+        for l in 0..16 {
+            px[l] = (x0 + l as u32) as f32 + 0.5;
+            py[l] = (y0 + l as u32) as f32 + 0.5;
+        }
+        TileCoords {
+            px,
+            py,
+            left: px[0],
+            right: px[15],
         }
     }
 }
 
-/// Projects every Gaussian and evaluates the colour of the visible ones.
+/// Portable row test: bit ly set when row ly of the tile lies inside the Gaussian's bounding
+/// box and the α ≥ 1/255 chord on that row reaches the tile's 16 pixel centres.
+#[inline(always)]
+pub(crate) fn row_mask_portable(sp: &Splat2D, tc: &TileCoords) -> u16 {
+    let mut m = 0u16;
+    for l in 0..16 {
+        let py = tc.py[l];
+        let dy = sp.y - py;
+        let dy2 = dy * dy;
+        let rem = (-sp.row_q).mul_add(dy2, sp.sigma_max);
+        let w2 = sp.row_w * rem;
+        let half = w2.max(0.0).sqrt() + CHORD_PAD;
+        let centre = sp.row_shift.mul_add(dy, sp.x);
+        let hit = py >= sp.ymin
+            && py <= sp.ymax
+            && w2 >= 0.0
+            && centre + half >= tc.left
+            && centre - half <= tc.right;
+        m |= (hit as u16) << l;
+    }
+    m
+}
+
+/// The per-row compositing state of one tile row (16 pixels).
+#[derive(Clone, Copy)]
+#[repr(C, align(64))]
+pub(crate) struct RowState {
+    t: [f32; 16],
+    c: [[f32; 16]; 3],
+    d: [f32; 16],
+    last: [u32; 16],
+}
+
+impl Default for RowState {
+    fn default() -> Self {
+        RowState {
+            t: [1.0; 16],
+            c: [[0.0; 16]; 3],
+            d: [0.0; 16],
+            last: [0; 16],
+        }
+    }
+}
+
+/// Portable compositing of one row over the set bits of `bits` (entries of `batch`, front to
+/// back); returns the number of composited pairs.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn composite_row_portable<const SMOOTH: bool>(
+    splats: &[Splat2D],
+    batch: &[u32],
+    k_base: u32,
+    mut bits: u64,
+    row: &mut RowState,
+    active: &mut u16,
+    tc: &TileCoords,
+    py: f32,
+    max_alpha: f32,
+) -> u32 {
+    let mut pairs = 0u32;
+    let mut act = *active;
+    while bits != 0 {
+        let j = bits.trailing_zeros();
+        bits &= bits - 1;
+        let sp = &splats[batch[j as usize] as usize];
+        let g = RowGeom::new(sp, py);
+        let kk = k_base + j + 1;
+        for l in 0..16 {
+            let dx = sp.x - tc.px[l];
+            let sigma = g.sigma(dx);
+            let a1 = (sp.opacity * gauss_of_sigma(sigma)).min(max_alpha);
+            let (alpha, pass) = if SMOOTH {
+                (a1 * smooth_cut(a1).0, a1 > ALPHA_THRESHOLD)
+            } else {
+                (a1, a1 >= ALPHA_THRESHOLD)
+            };
+            if !((act >> l) & 1 != 0 && sigma >= 0.0 && pass) {
+                continue;
+            }
+            let t = row.t[l];
+            let next_t = t * (1.0 - alpha);
+            if next_t <= TRANSMITTANCE_THRESHOLD {
+                act &= !(1u16 << l);
+                continue;
+            }
+            let w = alpha * t;
+            for ch in 0..3 {
+                row.c[ch][l] = w.mul_add(sp.rgb[ch], row.c[ch][l]);
+            }
+            row.d[l] = w.mul_add(sp.depth, row.d[l]);
+            row.t[l] = next_t;
+            row.last[l] = kk;
+            pairs += 1;
+        }
+        if act == 0 {
+            break;
+        }
+    }
+    *active = act;
+    pairs
+}
+
+/// The two vector primitives of the forward tile loop.
+pub(crate) trait ForwardKernel {
+    /// Hints the cache that `p` will be read soon (no effect on results).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn prefetch(_p: *const Splat2D) {}
+    /// Transposes the row masks of up to 64 batch entries: bit j of row ly's set is bit ly
+    /// of `masks[j]` (entries past the batch must be zero).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn transpose(masks: &[u16; BATCH]) -> [u64; 16] {
+        transpose_portable(masks)
+    }
+    /// Row mask of one Gaussian (see [`row_mask_portable`]).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16;
+    /// Hard-cutoff compositing of one row (see [`composite_row_portable`]).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn composite_row(
+        splats: &[Splat2D],
+        batch: &[u32],
+        k_base: u32,
+        bits: u64,
+        row: &mut RowState,
+        active: &mut u16,
+        tc: &TileCoords,
+        py: f32,
+        max_alpha: f32,
+    ) -> u32;
+}
+
+/// Portable [`ForwardKernel::transpose`].
+#[inline(always)]
+pub(crate) fn transpose_portable(masks: &[u16; BATCH]) -> [u64; 16] {
+    let mut rows = [0u64; 16];
+    for (j, &m) in masks.iter().enumerate() {
+        for (ly, r) in rows.iter_mut().enumerate() {
+            *r |= (((m >> ly) & 1) as u64) << j;
+        }
+    }
+    rows
+}
+
+/// The portable kernels.
+struct Portable;
+
+impl ForwardKernel for Portable {
+    #[inline(always)]
+    unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
+        row_mask_portable(sp, tc)
+    }
+    #[inline(always)]
+    unsafe fn composite_row(
+        splats: &[Splat2D],
+        batch: &[u32],
+        k_base: u32,
+        bits: u64,
+        row: &mut RowState,
+        active: &mut u16,
+        tc: &TileCoords,
+        py: f32,
+        max_alpha: f32,
+    ) -> u32 {
+        composite_row_portable::<false>(splats, batch, k_base, bits, row, active, tc, py, max_alpha)
+    }
+}
+
+/// AVX-512 kernels (16 lanes: one tile row per vector).
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx512 {
+    use super::*;
+    use std::arch::x86_64::*;
+
+    /// The features the AVX-512 kernels are compiled for.
+    pub(crate) fn available() -> bool {
+        std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512dq")
+            && std::arch::is_x86_feature_detected!("avx512bw")
+            && std::arch::is_x86_feature_detected!("fma")
+    }
+
+    /// e^x for x in [−30, 0] lane-wise: exactly the operations of [`exp_core`].
+    #[inline(always)]
+    pub(crate) unsafe fn exp_core_v(x: __m512) -> __m512 {
+        let shifted = _mm512_fmadd_ps(x, _mm512_set1_ps(LOG2E), _mm512_set1_ps(ROUND));
+        let n = _mm512_sub_ps(shifted, _mm512_set1_ps(ROUND));
+        let f = _mm512_fnmadd_ps(n, _mm512_set1_ps(LN2_HI), x);
+        let f = _mm512_fnmadd_ps(n, _mm512_set1_ps(LN2_LO), f);
+        let mut p = _mm512_set1_ps(EXP_POLY[0]);
+        for c in &EXP_POLY[1..] {
+            p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(*c));
+        }
+        // p·2ⁿ with n integral and the result normal: exact, like the multiplication by the
+        // constructed power of two in the portable twin.
+        _mm512_scalef_ps(p, n)
+    }
+
+    /// [`gauss_of_sigma`] lane-wise.
+    #[inline(always)]
+    pub(crate) unsafe fn gauss_v(sigma: __m512) -> __m512 {
+        let zero = _mm512_setzero_ps();
+        let sc = _mm512_max_ps(_mm512_min_ps(sigma, _mm512_set1_ps(SIGMA_CLAMP)), zero);
+        exp_core_v(_mm512_sub_ps(zero, sc))
+    }
+
+    /// [`row_mask_portable`] with the 16 rows as lanes.
+    #[inline(always)]
+    pub(crate) unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
+        let py = _mm512_load_ps(tc.py.as_ptr());
+        let zero = _mm512_setzero_ps();
+        let dy = _mm512_sub_ps(_mm512_set1_ps(sp.y), py);
+        let dy2 = _mm512_mul_ps(dy, dy);
+        let rem = _mm512_fnmadd_ps(_mm512_set1_ps(sp.row_q), dy2, _mm512_set1_ps(sp.sigma_max));
+        let w2 = _mm512_mul_ps(_mm512_set1_ps(sp.row_w), rem);
+        let half = _mm512_add_ps(
+            _mm512_sqrt_ps(_mm512_max_ps(w2, zero)),
+            _mm512_set1_ps(CHORD_PAD),
+        );
+        let centre = _mm512_fmadd_ps(_mm512_set1_ps(sp.row_shift), dy, _mm512_set1_ps(sp.x));
+        let m = _mm512_cmp_ps_mask::<_CMP_GE_OQ>(py, _mm512_set1_ps(sp.ymin));
+        let m = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(m, py, _mm512_set1_ps(sp.ymax));
+        let m = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(m, w2, zero);
+        let m = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(
+            m,
+            _mm512_add_ps(centre, half),
+            _mm512_set1_ps(tc.left),
+        );
+        _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(
+            m,
+            _mm512_sub_ps(centre, half),
+            _mm512_set1_ps(tc.right),
+        )
+    }
+
+    /// [`composite_row_portable`] (hard cutoff) with the row's pixels as lanes and its state
+    /// in registers.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(crate) unsafe fn composite_row(
+        splats: &[Splat2D],
+        batch: &[u32],
+        k_base: u32,
+        mut bits: u64,
+        row: &mut RowState,
+        active: &mut u16,
+        tc: &TileCoords,
+        py: f32,
+        max_alpha: f32,
+    ) -> u32 {
+        let px = _mm512_load_ps(tc.px.as_ptr());
+        let zero = _mm512_setzero_ps();
+        let one = _mm512_set1_ps(1.0);
+        let maxa = _mm512_set1_ps(max_alpha);
+        let thr = _mm512_set1_ps(ALPHA_THRESHOLD);
+        let tthr = _mm512_set1_ps(TRANSMITTANCE_THRESHOLD);
+        let mut t = _mm512_load_ps(row.t.as_ptr());
+        let mut cr = _mm512_load_ps(row.c[0].as_ptr());
+        let mut cg = _mm512_load_ps(row.c[1].as_ptr());
+        let mut cb = _mm512_load_ps(row.c[2].as_ptr());
+        let mut d = _mm512_load_ps(row.d.as_ptr());
+        let mut last = _mm512_load_si512(row.last.as_ptr() as *const __m512i);
+        let mut act: __mmask16 = *active;
+        let mut pairs = 0u32;
+        while bits != 0 {
+            let j = bits.trailing_zeros();
+            bits &= bits - 1;
+            let sp = splats.get_unchecked(*batch.get_unchecked(j as usize) as usize);
+            let g = RowGeom::new(sp, py);
+            let dx = _mm512_sub_ps(_mm512_set1_ps(sp.x), px);
+            let u = _mm512_fmadd_ps(_mm512_set1_ps(g.ha), dx, _mm512_set1_ps(g.bdy));
+            let sigma = _mm512_fmadd_ps(u, dx, _mm512_set1_ps(g.hc));
+            let e = gauss_v(sigma);
+            let a1 = _mm512_min_ps(_mm512_mul_ps(_mm512_set1_ps(sp.opacity), e), maxa);
+            let ok = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(act, sigma, zero);
+            let ok = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(ok, a1, thr);
+            if ok == 0 {
+                continue;
+            }
+            let next_t = _mm512_mul_ps(t, _mm512_sub_ps(one, a1));
+            let stop = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(ok, next_t, tthr);
+            let comp = ok & !stop;
+            act &= !stop;
+            let w = _mm512_mul_ps(a1, t);
+            cr = _mm512_mask3_fmadd_ps(w, _mm512_set1_ps(sp.rgb[0]), cr, comp);
+            cg = _mm512_mask3_fmadd_ps(w, _mm512_set1_ps(sp.rgb[1]), cg, comp);
+            cb = _mm512_mask3_fmadd_ps(w, _mm512_set1_ps(sp.rgb[2]), cb, comp);
+            d = _mm512_mask3_fmadd_ps(w, _mm512_set1_ps(sp.depth), d, comp);
+            t = _mm512_mask_mov_ps(t, comp, next_t);
+            last = _mm512_mask_mov_epi32(last, comp, _mm512_set1_epi32((k_base + j + 1) as i32));
+            pairs += comp.count_ones();
+            if act == 0 {
+                break;
+            }
+        }
+        _mm512_store_ps(row.t.as_mut_ptr(), t);
+        _mm512_store_ps(row.c[0].as_mut_ptr(), cr);
+        _mm512_store_ps(row.c[1].as_mut_ptr(), cg);
+        _mm512_store_ps(row.c[2].as_mut_ptr(), cb);
+        _mm512_store_ps(row.d.as_mut_ptr(), d);
+        _mm512_store_si512(row.last.as_mut_ptr() as *mut __m512i, last);
+        *active = act;
+        pairs
+    }
+
+    /// Marker type of the AVX-512 forward kernels.
+    pub(crate) struct Avx512;
+
+    impl ForwardKernel for Avx512 {
+        #[inline(always)]
+        unsafe fn prefetch(p: *const Splat2D) {
+            _mm_prefetch::<_MM_HINT_T0>(p as *const i8);
+        }
+        #[inline(always)]
+        unsafe fn transpose(masks: &[u16; BATCH]) -> [u64; 16] {
+            let lo = _mm512_loadu_si512(masks.as_ptr() as *const __m512i);
+            let hi = _mm512_loadu_si512(masks.as_ptr().add(32) as *const __m512i);
+            let mut rows = [0u64; 16];
+            for (ly, r) in rows.iter_mut().enumerate() {
+                let bit = _mm512_set1_epi16(1i16 << ly);
+                let a = _mm512_test_epi16_mask(lo, bit) as u64;
+                let b = _mm512_test_epi16_mask(hi, bit) as u64;
+                *r = a | (b << 32);
+            }
+            rows
+        }
+        #[inline(always)]
+        unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
+            row_mask(sp, tc)
+        }
+        #[inline(always)]
+        unsafe fn composite_row(
+            splats: &[Splat2D],
+            batch: &[u32],
+            k_base: u32,
+            bits: u64,
+            row: &mut RowState,
+            active: &mut u16,
+            tc: &TileCoords,
+            py: f32,
+            max_alpha: f32,
+        ) -> u32 {
+            composite_row(splats, batch, k_base, bits, row, active, tc, py, max_alpha)
+        }
+    }
+}
+
+/// The compositing state of one tile.
+#[derive(Default)]
+pub(crate) struct TileState {
+    rows: [RowState; 16],
+}
+
+/// Composites one tile front to back; returns the number of composited pairs. `active`
+/// holds per row the pixels to composite (bit = column).
+///
+/// # Safety
+/// The CPU must support `K`'s instruction set.
+#[inline(always)]
+unsafe fn raster_tile_impl<K: ForwardKernel, const SMOOTH: bool>(
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    active_init: &[u16; 16],
+    max_alpha: f32,
+    st: &mut TileState,
+) -> u64 {
+    let tc = TileCoords::new(x0, y0);
+    let mut active = *active_init;
+    let mut live = 0u16;
+    for (ly, a) in active.iter().enumerate() {
+        live |= ((*a != 0) as u16) << ly;
+    }
+    let mut pairs = 0u64;
+    for (bi, batch) in list.chunks(BATCH).enumerate() {
+        if live == 0 {
+            break;
+        }
+        let mut masks = [0u16; BATCH];
+        for (j, &rank) in batch.iter().enumerate() {
+            if let Some(&ahead) = batch.get(j + PREFETCH_AHEAD) {
+                K::prefetch(splats.as_ptr().wrapping_add(ahead as usize));
+            }
+            masks[j] = K::row_mask(&splats[rank as usize], &tc) & live;
+        }
+        let rowbits = K::transpose(&masks);
+        let k_base = (bi * BATCH) as u32;
+        let mut rows = live;
+        while rows != 0 {
+            let ly = rows.trailing_zeros() as usize;
+            rows &= rows - 1;
+            if rowbits[ly] == 0 {
+                continue;
+            }
+            let row = &mut st.rows[ly];
+            let p = if SMOOTH {
+                composite_row_portable::<true>(
+                    splats,
+                    batch,
+                    k_base,
+                    rowbits[ly],
+                    row,
+                    &mut active[ly],
+                    &tc,
+                    tc.py[ly],
+                    max_alpha,
+                )
+            } else {
+                K::composite_row(
+                    splats,
+                    batch,
+                    k_base,
+                    rowbits[ly],
+                    row,
+                    &mut active[ly],
+                    &tc,
+                    tc.py[ly],
+                    max_alpha,
+                )
+            };
+            pairs += p as u64;
+            if active[ly] == 0 {
+                live &= !(1u16 << ly);
+            }
+        }
+    }
+    pairs
+}
+
+/// The portable tile kernel.
+fn raster_tile_portable<const SMOOTH: bool>(
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    active_init: &[u16; 16],
+    max_alpha: f32,
+    st: &mut TileState,
+) -> u64 {
+    // SAFETY: the portable kernel has no instruction-set requirement.
+    unsafe {
+        raster_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st)
+    }
+}
+
+/// The portable tile kernel compiled for AVX2 + FMA (auto-vectorised; same results).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn raster_tile_avx2<const SMOOTH: bool>(
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    active_init: &[u16; 16],
+    max_alpha: f32,
+    st: &mut TileState,
+) -> u64 {
+    // SAFETY: the portable kernel has no instruction-set requirement.
+    unsafe {
+        raster_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st)
+    }
+}
+
+/// The AVX-512 tile kernel.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512bw,fma,bmi1,popcnt")]
+fn raster_tile_avx512(
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    active_init: &[u16; 16],
+    max_alpha: f32,
+    st: &mut TileState,
+) -> u64 {
+    // SAFETY: this function is only compiled for, and called on, CPUs with AVX-512F/DQ + FMA.
+    unsafe {
+        raster_tile_impl::<avx512::Avx512, false>(splats, list, x0, y0, active_init, max_alpha, st)
+    }
+}
+
+/// Which compiled variant of the kernels runs on this CPU.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Isa {
+    Portable,
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
+}
+
+/// The widest kernel variant the CPU supports.
+pub(crate) fn detect_isa() -> Isa {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if avx512::available() {
+            return Isa::Avx512;
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            return Isa::Avx2;
+        }
+    }
+    Isa::Portable
+}
+
+/// Runs the tile kernel variant `isa` (the smooth cutoff, a test-only path, always runs the
+/// portable twin). Every variant gives bit-identical results.
+#[allow(clippy::too_many_arguments)]
+fn raster_tile_dispatch<const SMOOTH: bool>(
+    isa: Isa,
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    active_init: &[u16; 16],
+    max_alpha: f32,
+    st: &mut TileState,
+) -> u64 {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 if !SMOOTH => {
+            // SAFETY: `Isa::Avx512` is only chosen when the CPU has AVX-512F/DQ and FMA.
+            unsafe { raster_tile_avx512(splats, list, x0, y0, active_init, max_alpha, st) }
+        }
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 | Isa::Avx2 => {
+            // SAFETY: both variants imply AVX2 + FMA support.
+            unsafe { raster_tile_avx2::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st) }
+        }
+        Isa::Portable => {
+            raster_tile_portable::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st)
+        }
+    }
+}
+
+/// Builds the compositing record of a projected Gaussian, or `None` when it cannot be
+/// represented in f32 (it is then culled).
+fn make_splat(p: &crate::project::Projected, rgb: [f64; 3]) -> Option<Splat2D> {
+    let [a, b, c] = p.conic;
+    // Σ2d = conic⁻¹; Σ_yy = a / det(conic), Σ_xy = −b / det(conic).
+    let det = a * c - b * b;
+    let syy = a / det;
+    let row_q = 0.5 / syy;
+    let row_w = 2.0 / a;
+    let row_shift = b / a;
+    let sigma_max = (p.opacity / ALPHA_THRESHOLD as f64).ln().max(0.0) * (1.0 + 1e-3) + 1e-3;
+    let lim = f32::MAX as f64;
+    let sp = Splat2D {
+        x: p.mean2d[0] as f32,
+        y: p.mean2d[1] as f32,
+        a: a as f32,
+        b: b as f32,
+        c: c as f32,
+        opacity: p.opacity as f32,
+        rgb: [rgb[0] as f32, rgb[1] as f32, rgb[2] as f32],
+        depth: p.depth as f32,
+        ymin: (p.mean2d[1] - p.radius[1] as f64) as f32,
+        ymax: (p.mean2d[1] + p.radius[1] as f64) as f32,
+        sigma_max: sigma_max as f32,
+        // Clamped to finite values: the row test must never see ∞·0.
+        row_q: row_q.clamp(0.0, lim) as f32,
+        row_w: row_w.clamp(0.0, lim) as f32,
+        row_shift: row_shift.clamp(-lim, lim) as f32,
+    };
+    let core = [
+        sp.x, sp.y, sp.a, sp.b, sp.c, sp.opacity, sp.rgb[0], sp.rgb[1], sp.rgb[2], sp.depth,
+    ];
+    let ok = core.iter().all(|v| v.is_finite())
+        && det > 0.0
+        && !row_q.is_nan()
+        && !row_w.is_nan()
+        && !row_shift.is_nan()
+        && sp.sigma_max.is_finite();
+    ok.then_some(sp)
+}
+
+/// One chunk of [`project_all`]'s work.
+struct ProjectJob<'a> {
+    g: &'a Gaussians,
+    cm: &'a CameraModel,
+    s: &'a RenderSettings,
+    degree: u32,
+    grid: &'a TileGrid,
+    /// Index of the chunk's first Gaussian.
+    first: usize,
+}
+
+/// Projects one chunk of Gaussians (see [`project_all`]).
+#[inline(always)]
+fn project_chunk(
+    job: &ProjectJob,
+    sp_out: &mut [MaybeUninit<Splat2D>],
+    rect_out: &mut [MaybeUninit<[u32; 4]>],
+    st_out: &mut [u8],
+) {
+    let ProjectJob {
+        g,
+        cm,
+        s,
+        degree,
+        grid,
+        ..
+    } = *job;
+    let k = g.coeffs() * 3;
+    let nb = sh::basis_len(degree);
+    let mut basis = [0.0f64; 16];
+    for j in 0..sp_out.len() {
+        let i = job.first + j;
+        let coefs = &g.sh[i * k..(i + 1) * k];
+        if !coefs[..nb * 3].iter().all(|v| v.is_finite()) {
+            st_out[j] = INVALID;
+            continue;
+        }
+        st_out[j] = match project(
+            cm,
+            g.means[i],
+            g.log_scales[i],
+            g.quats[i],
+            g.opacity_logits[i],
+            s.antialiased,
+            s.near as f64,
+        ) {
+            Outcome::Invalid => INVALID,
+            Outcome::Culled => CULLED,
+            Outcome::Visible(p) => {
+                let rect = grid.rect(p.mean2d, p.radius);
+                if rect[0] >= rect[1] || rect[2] >= rect[3] {
+                    CULLED
+                } else {
+                    let m = g.means[i];
+                    let v = [
+                        m[0] as f64 - cm.center[0],
+                        m[1] as f64 - cm.center[1],
+                        m[2] as f64 - cm.center[2],
+                    ];
+                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    let dir = if len > 0.0 {
+                        [v[0] / len, v[1] / len, v[2] / len]
+                    } else {
+                        [0.0, 0.0, 1.0]
+                    };
+                    let col = sh::eval_color(degree, coefs, dir, &mut basis);
+                    match make_splat(&p, col) {
+                        Some(sp) => {
+                            sp_out[j].write(sp);
+                            rect_out[j].write(rect);
+                            VISIBLE
+                        }
+                        None => CULLED,
+                    }
+                }
+            }
+        };
+    }
+}
+
+/// [`project_chunk`] compiled for AVX2 + FMA: the same IEEE operations (Rust never fuses
+/// multiply-adds on its own), with rounding instructions inline instead of libm calls.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn project_chunk_avx2(
+    job: &ProjectJob,
+    sp_out: &mut [MaybeUninit<Splat2D>],
+    rect_out: &mut [MaybeUninit<[u32; 4]>],
+    st_out: &mut [u8],
+) {
+    project_chunk(job, sp_out, rect_out, st_out)
+}
+
+/// Projection status of one Gaussian.
+const VISIBLE: u8 = 0;
+const CULLED: u8 = 1;
+const INVALID: u8 = 2;
+
+/// Projects every Gaussian and evaluates the colour of the visible ones: fills `splats`,
+/// `rects` and `status` (indexed by Gaussian).
 fn project_all(
     g: &Gaussians,
     cm: &CameraModel,
     s: &RenderSettings,
     degree: u32,
     grid: &TileGrid,
-) -> Vec<Proj> {
+) -> ProjectedAll {
     let n = g.len();
     let k = g.coeffs() * 3;
     let sh_ok = g.sh.len() == n * k
         && g.log_scales.len() == n
         && g.quats.len() == n
         && g.opacity_logits.len() == n;
-    let mut out = vec![Proj::Invalid; n];
-    out.par_chunks_mut(PROJECT_CHUNK)
+    let mut splats = uninit_vec::<Splat2D>(n);
+    let mut rects = uninit_vec::<[u32; 4]>(n);
+    let mut status = vec![INVALID; n];
+    if !sh_ok {
+        return ProjectedAll {
+            splats,
+            rects,
+            status,
+        };
+    }
+    let isa = detect_isa();
+    splats
+        .par_chunks_mut(PROJECT_CHUNK)
+        .zip(rects.par_chunks_mut(PROJECT_CHUNK))
+        .zip(status.par_chunks_mut(PROJECT_CHUNK))
         .enumerate()
-        .for_each(|(ci, chunk)| {
-            let mut basis = [0.0f64; 16];
-            for (j, slot) in chunk.iter_mut().enumerate() {
-                let i = ci * PROJECT_CHUNK + j;
-                if !sh_ok {
-                    *slot = Proj::Invalid;
-                    continue;
+        .for_each(|(ci, ((sp_out, rect_out), st_out))| {
+            let job = ProjectJob {
+                g,
+                cm,
+                s,
+                degree,
+                grid,
+                first: ci * PROJECT_CHUNK,
+            };
+            match isa {
+                #[cfg(target_arch = "x86_64")]
+                Isa::Avx2 | Isa::Avx512 => {
+                    // SAFETY: both variants imply AVX2 + FMA support.
+                    unsafe { project_chunk_avx2(&job, sp_out, rect_out, st_out) }
                 }
-                let coefs = &g.sh[i * k..(i + 1) * k];
-                let nb = sh::basis_len(degree);
-                if !coefs[..nb * 3].iter().all(|v| v.is_finite()) {
-                    *slot = Proj::Invalid;
-                    continue;
-                }
-                *slot = match project(
-                    cm,
-                    g.means[i],
-                    g.log_scales[i],
-                    g.quats[i],
-                    g.opacity_logits[i],
-                    s.antialiased,
-                    s.near as f64,
-                ) {
-                    Outcome::Invalid => Proj::Invalid,
-                    Outcome::Culled => Proj::Culled,
-                    Outcome::Visible(p) => {
-                        let m = g.means[i];
-                        let v = [
-                            m[0] as f64 - cm.center[0],
-                            m[1] as f64 - cm.center[1],
-                            m[2] as f64 - cm.center[2],
-                        ];
-                        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                        let dir = if len > 0.0 {
-                            [v[0] / len, v[1] / len, v[2] / len]
-                        } else {
-                            [0.0, 0.0, 1.0]
-                        };
-                        let col = sh::eval_color(degree, coefs, dir, &mut basis);
-                        let rect = grid.rect(p.mean2d, p.radius);
-                        if rect[0] >= rect[1] || rect[2] >= rect[3] {
-                            Proj::Culled
-                        } else {
-                            Proj::Visible(
-                                Splat2D {
-                                    x: p.mean2d[0] as f32,
-                                    y: p.mean2d[1] as f32,
-                                    a: p.conic[0] as f32,
-                                    b: p.conic[1] as f32,
-                                    c: p.conic[2] as f32,
-                                    opacity: p.opacity as f32,
-                                    rgb: [col[0] as f32, col[1] as f32, col[2] as f32],
-                                    depth: p.depth as f32,
-                                    ymin: (p.mean2d[1] - p.radius[1] as f64) as f32,
-                                    ymax: (p.mean2d[1] + p.radius[1] as f64) as f32,
-                                    sigma_max: ((p.opacity / ALPHA_THRESHOLD as f64).ln().max(0.0)
-                                        * (1.0 + 1e-4)
-                                        + 1e-4)
-                                        as f32,
-                                },
-                                rect,
-                            )
-                        }
-                    }
-                };
+                Isa::Portable => project_chunk(&job, sp_out, rect_out, st_out),
             }
         });
-    out
-}
-
-/// Row range `[lo, hi)` of a tile (top pixel row `y0`) whose pixel centres lie inside both
-/// the Gaussian's bounding box and its α ≥ 1/255 ellipse.
-#[inline(always)]
-pub(crate) fn row_range(sp: &Splat2D, y0: u32) -> (usize, usize) {
-    // σ restricted to a row is minimal at dx = −b·dy/a where it equals ½·dy²·(c − b²/a).
-    let q = (sp.c - sp.b * sp.b / sp.a).max(1e-30);
-    let ext = (2.0 * sp.sigma_max / q).sqrt();
-    let base = y0 as f32 + 0.5;
-    let top = sp.ymin.max(sp.y - ext);
-    let bottom = sp.ymax.min(sp.y + ext);
-    let lo = (top - base).ceil().max(0.0);
-    let hi = ((bottom - base).floor() + 1.0).min(TILE as f32);
-    if !(hi > lo) {
-        (0, 0)
-    } else {
-        (lo as usize, hi as usize)
+    ProjectedAll {
+        splats,
+        rects,
+        status,
     }
 }
 
-/// Whether the α ≥ 1/255 chord of the Gaussian's ellipse on the row at offset `dy`
-/// (= mean_y − pixel_y) reaches the 16 pixel centres starting at `x0 + 0.5`.
-#[inline(always)]
-pub(crate) fn row_hits(sp: &Splat2D, dy: f32, x0: u32) -> bool {
-    let q = sp.c - sp.b * sp.b / sp.a;
-    let w2 = 2.0 * (sp.sigma_max - 0.5 * dy * dy * q) / sp.a;
-    if !(w2 >= 0.0) {
-        return false;
-    }
-    let w = w2.sqrt() + 1e-3;
-    let centre = sp.x + sp.b * dy / sp.a;
-    let left = x0 as f32 + 0.5;
-    centre + w >= left && centre - w <= left + 15.0
+/// The per-Gaussian results of [`project_all`]: `splats[i]` and `rects[i]` are initialised
+/// exactly where `status[i] == VISIBLE`.
+struct ProjectedAll {
+    splats: Vec<MaybeUninit<Splat2D>>,
+    rects: Vec<MaybeUninit<[u32; 4]>>,
+    status: Vec<u8>,
 }
 
-/// Alpha of one Gaussian for a row of 16 pixels (0 where it is skipped: σ < 0 or below the
-/// 1/255 cutoff). Pure arithmetic over lanes, so it vectorises.
-#[inline(always)]
-pub(crate) fn row_alpha<const SMOOTH: bool>(
-    sp: &Splat2D,
-    px: &[f32; 16],
-    dy: f32,
-    max_alpha: f32,
-    out: &mut [f32; 16],
-) {
-    for lx in 0..16 {
-        let dx = sp.x - px[lx];
-        let sigma = 0.5 * (sp.a * dx * dx + sp.c * dy * dy) + sp.b * dx * dy;
-        let a1 = (sp.opacity * exp_neg(-sigma)).min(max_alpha);
-        let (alpha, ok) = if SMOOTH {
-            let x = ((a1 - ALPHA_THRESHOLD) * (1.0 / ALPHA_THRESHOLD)).clamp(0.0, 1.0);
-            (a1 * (x * x * (3.0 - 2.0 * x)), a1 > ALPHA_THRESHOLD)
-        } else {
-            (a1, a1 >= ALPHA_THRESHOLD)
-        };
-        out[lx] = if ok && sigma >= 0.0 { alpha } else { 0.0 };
-    }
+/// A vector of `n` uninitialised slots (no zero-filling of buffers that are written
+/// sparsely and read only where written).
+fn uninit_vec<T>(n: usize) -> Vec<MaybeUninit<T>> {
+    let mut v = Vec::with_capacity(n);
+    // SAFETY: `MaybeUninit<T>` needs no initialisation and the capacity is `n`.
+    unsafe { v.set_len(n) };
+    v
 }
 
-/// Composites one tile front to back; returns the number of composited pairs.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn raster_tile<const SMOOTH: bool>(
-    splats: &[Splat2D],
-    list: &[u32],
-    x0: u32,
-    y0: u32,
-    active_init: &[u32; TILE_PIXELS],
-    max_alpha: f32,
-    out: &mut TilePixels,
-) -> u64 {
-    // 1 = still compositing, 0 = done (outside the image, masked, or saturated).
-    let mut active = *active_init;
-    let mut remaining: u32 = active.iter().sum();
-    if remaining == 0 {
-        return 0;
-    }
-    let mut px = [0.0f32; 16];
-    for (lx, v) in px.iter_mut().enumerate() {
-        *v = (x0 + lx as u32) as f32 + 0.5;
-    }
-    let mut pairs = 0u64;
-    let mut alpha = [0.0f32; 16];
-    // Pixels still compositing, per row: rows that are all done are skipped.
-    let mut row_live = [0u32; 16];
-    for (ly, live) in row_live.iter_mut().enumerate() {
-        *live = active[ly * 16..ly * 16 + 16].iter().sum();
-    }
-    for (k, &rank) in list.iter().enumerate() {
-        let sp = &splats[rank as usize];
-        let (lo, hi) = row_range(sp, y0);
-        let kk = k as u32 + 1;
-        for ly in lo..hi {
-            if row_live[ly] == 0 {
-                continue;
-            }
-            let dy = sp.y - ((y0 + ly as u32) as f32 + 0.5);
-            if !row_hits(sp, dy, x0) {
-                continue;
-            }
-            row_alpha::<SMOOTH>(sp, &px, dy, max_alpha, &mut alpha);
-            let base = ly * TILE as usize;
-            let t_row: &mut [f32; 16] = (&mut out.t[base..base + 16]).try_into().unwrap();
-            let act: &mut [u32; 16] = (&mut active[base..base + 16]).try_into().unwrap();
-            let last: &mut [u32; 16] = (&mut out.last[base..base + 16]).try_into().unwrap();
-            let [c0, c1, c2] = &mut out.c;
-            let cr: &mut [f32; 16] = (&mut c0[base..base + 16]).try_into().unwrap();
-            let cg: &mut [f32; 16] = (&mut c1[base..base + 16]).try_into().unwrap();
-            let cb: &mut [f32; 16] = (&mut c2[base..base + 16]).try_into().unwrap();
-            let dd: &mut [f32; 16] = (&mut out.d[base..base + 16]).try_into().unwrap();
-            let mut stops = 0u32;
-            let mut comps = 0u32;
-            for lx in 0..16 {
-                let a = alpha[lx];
-                let t = t_row[lx];
-                let next_t = t * (1.0 - a);
-                let ok = a > 0.0 && act[lx] != 0;
-                let stop = ok && next_t <= TRANSMITTANCE_THRESHOLD;
-                let comp = ok && !stop;
-                act[lx] = if stop { 0 } else { act[lx] };
-                stops += stop as u32;
-                comps += comp as u32;
-                let w = if comp { a * t } else { 0.0 };
-                cr[lx] += w * sp.rgb[0];
-                cg[lx] += w * sp.rgb[1];
-                cb[lx] += w * sp.rgb[2];
-                dd[lx] += w * sp.depth;
-                t_row[lx] = if comp { next_t } else { t };
-                last[lx] = if comp { kk } else { last[lx] };
-            }
-            pairs += comps as u64;
-            remaining -= stops;
-            row_live[ly] -= stops;
+/// Raw pointers to the output images, written by the tiles in parallel.
+#[derive(Clone, Copy)]
+struct ImageOut {
+    rgb: *mut f32,
+    alpha: *mut f32,
+    depth: *mut f32,
+}
+
+impl ImageOut {
+    /// Writes pixel `p` (the closures capture the whole wrapper through this method).
+    ///
+    /// # Safety
+    /// `p` must lie inside the image and be written by one thread only.
+    #[inline(always)]
+    unsafe fn write(&self, p: usize, rgb: [f32; 3], alpha: f32, depth: f32) {
+        for (ch, v) in rgb.iter().enumerate() {
+            *self.rgb.add(p * 3 + ch) = *v;
         }
-        if remaining == 0 {
-            break;
-        }
+        *self.alpha.add(p) = alpha;
+        *self.depth.add(p) = depth;
     }
-    pairs
 }
 
-/// [`raster_tile`] compiled for AVX-512F (16 lanes: one tile row per vector).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-#[allow(clippy::too_many_arguments)]
-fn raster_tile_avx512<const SMOOTH: bool>(
-    splats: &[Splat2D],
-    list: &[u32],
-    x0: u32,
-    y0: u32,
-    active_init: &[u32; TILE_PIXELS],
-    max_alpha: f32,
-    out: &mut TilePixels,
-) -> u64 {
-    raster_tile::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, out)
-}
-
-/// [`raster_tile`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
-fn raster_tile_avx2<const SMOOTH: bool>(
-    splats: &[Splat2D],
-    list: &[u32],
-    x0: u32,
-    y0: u32,
-    active_init: &[u32; TILE_PIXELS],
-    max_alpha: f32,
-    out: &mut TilePixels,
-) -> u64 {
-    raster_tile::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, out)
-}
-
-/// Runs [`raster_tile`] with the widest vector unit the CPU has. Every variant performs the same
-/// IEEE operations in the same order (no FMA contraction, sequential lane sums), so results
-/// are bit-identical whichever one runs.
-#[allow(clippy::too_many_arguments)]
-fn raster_tile_dispatch<const SMOOTH: bool>(
-    splats: &[Splat2D],
-    list: &[u32],
-    x0: u32,
-    y0: u32,
-    active_init: &[u32; TILE_PIXELS],
-    max_alpha: f32,
-    out: &mut TilePixels,
-) -> u64 {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU supports AVX-512F (checked just above).
-            return unsafe {
-                raster_tile_avx512::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, out)
-            };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe {
-                raster_tile_avx2::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, out)
-            };
-        }
-    }
-    raster_tile::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, out)
-}
+// SAFETY: the tiles write disjoint pixels (see `render_impl`).
+unsafe impl Send for ImageOut {}
+// SAFETY: as above.
+unsafe impl Sync for ImageOut {}
 
 pub(crate) fn render_impl(
     g: &Gaussians,
@@ -453,109 +1031,126 @@ pub(crate) fn render_impl(
     let grid = TileGrid::new(width, height);
     let mask = mask.filter(|m| m.len() == npix);
     let mut stats = RenderStats::default();
-    let cam_ok = cam.validate().is_ok();
-    let projs = if cam_ok {
+    let ProjectedAll {
+        splats: all_splats,
+        rects: all_rects,
+        status,
+    } = if cam.validate().is_ok() {
         let cm = CameraModel::new(cam);
         project_all(g, &cm, s, degree, &grid)
     } else {
-        vec![Proj::Culled; g.len()]
+        ProjectedAll {
+            splats: Vec::new(),
+            rects: Vec::new(),
+            status: vec![CULLED; g.len()],
+        }
     };
     let mut visible = Vec::new();
     let mut depth = vec![0.0f32; g.len()];
-    for (i, p) in projs.iter().enumerate() {
-        match p {
-            Proj::Visible(sp, _) => {
+    for (i, st) in status.iter().enumerate() {
+        match *st {
+            VISIBLE => {
                 visible.push(i as u32);
-                depth[i] = sp.depth;
+                // SAFETY: the record of a visible Gaussian was written by `project_all`.
+                depth[i] = unsafe { all_splats[i].assume_init_ref() }.depth;
             }
-            Proj::Culled => stats.culled += 1,
-            Proj::Invalid => stats.invalid += 1,
+            CULLED => stats.culled += 1,
+            _ => stats.invalid += 1,
         }
     }
     stats.visible = visible.len();
     let rank_id = depth_order(&visible, &depth);
-    let mut splats = Vec::with_capacity(rank_id.len());
-    let mut rects = Vec::with_capacity(rank_id.len());
-    for &i in &rank_id {
-        if let Proj::Visible(sp, r) = projs[i as usize] {
-            splats.push(sp);
-            rects.push(r);
-        }
-    }
-    drop(projs);
-    let bins = bin(&grid, &rects);
+    drop(depth);
+    // SAFETY (both gathers): `rank_id` lists visible Gaussians only, whose records and
+    // rectangles `project_all` wrote.
+    let splats: Vec<Splat2D> = rank_id
+        .par_iter()
+        .with_min_len(PROJECT_CHUNK)
+        .map(|&i| unsafe { all_splats[i as usize].assume_init() })
+        .collect();
+    let rects: Vec<[u32; 4]> = rank_id
+        .par_iter()
+        .with_min_len(PROJECT_CHUNK)
+        .map(|&i| unsafe { all_rects[i as usize].assume_init() })
+        .collect();
+    drop(all_splats);
+    drop(all_rects);
+    let bins = bin_indexed(&grid, &rects, &rank_id, g.len());
     drop(rects);
 
     let max_alpha = effective_max_alpha(s);
-    let mut tiles: Vec<TilePixels> = Vec::new();
-    tiles.resize_with(grid.len(), TilePixels::default);
-    let pairs: u64 = tiles
-        .par_iter_mut()
+    let isa = detect_isa();
+    let mut rgb = vec![0.0f32; npix * 3];
+    let mut alpha = vec![0.0f32; npix];
+    let mut depth_img = vec![0.0f32; npix];
+    let mut last = vec![0u32; grid.len() * TILE_PIXELS];
+    let mut final_t = vec![1.0f32; grid.len() * TILE_PIXELS];
+    let out = ImageOut {
+        rgb: rgb.as_mut_ptr(),
+        alpha: alpha.as_mut_ptr(),
+        depth: depth_img.as_mut_ptr(),
+    };
+    let bg = s.background;
+    let pairs: u64 = last
+        .par_chunks_mut(TILE_PIXELS)
+        .zip(final_t.par_chunks_mut(TILE_PIXELS))
         .enumerate()
-        .map(|(t, out)| {
+        .map_init(TileState::default, |st, (t, (last_t, ft))| {
             let tx = (t % grid.tiles_x as usize) as u32;
             let ty = (t / grid.tiles_x as usize) as u32;
             let (x0, y0) = (tx * TILE, ty * TILE);
-            let mut active = [0u32; TILE_PIXELS];
+            let mut active = [0u16; 16];
             for ly in 0..TILE {
                 for lx in 0..TILE {
                     let (x, y) = (x0 + lx, y0 + ly);
                     if x < width && y < height {
                         let on = mask.is_none_or(|m| m[(y * width + x) as usize] != 0);
-                        active[(ly * TILE + lx) as usize] = on as u32;
+                        active[ly as usize] |= (on as u16) << lx;
                     }
                 }
             }
+            *st = TileState::default();
             let list = &bins.ranks[bins.ranges[t]..bins.ranges[t + 1]];
-            match cutoff {
-                Cutoff::Hard => {
-                    raster_tile_dispatch::<false>(&splats, list, x0, y0, &active, max_alpha, out)
-                }
+            let pairs = match cutoff {
+                Cutoff::Hard => raster_tile_dispatch::<false>(
+                    isa, &splats, list, x0, y0, &active, max_alpha, st,
+                ),
                 Cutoff::Smooth => {
-                    raster_tile_dispatch::<true>(&splats, list, x0, y0, &active, max_alpha, out)
+                    raster_tile_dispatch::<true>(isa, &splats, list, x0, y0, &active, max_alpha, st)
+                }
+            };
+            for ly in 0..TILE as usize {
+                let y = y0 as usize + ly;
+                let row = &st.rows[ly];
+                last_t[ly * 16..ly * 16 + 16].copy_from_slice(&row.last);
+                ft[ly * 16..ly * 16 + 16].copy_from_slice(&row.t);
+                if y >= height as usize {
+                    continue;
+                }
+                for lx in 0..TILE as usize {
+                    let x = x0 as usize + lx;
+                    if x >= width as usize {
+                        break;
+                    }
+                    let p = y * width as usize + x;
+                    let tt = row.t[lx];
+                    let a = 1.0 - tt;
+                    let dv = if a >= DEPTH_ALPHA_EPS {
+                        row.d[lx] / a
+                    } else {
+                        0.0
+                    };
+                    // SAFETY: pixel (x, y) lies inside the image (checked above) and inside
+                    // this tile only, so no other tile writes it; the buffers outlive the
+                    // parallel loop.
+                    let rgb: [f32; 3] = std::array::from_fn(|ch| row.c[ch][lx] + tt * bg[ch]);
+                    unsafe { out.write(p, rgb, a, dv) };
                 }
             }
+            pairs
         })
         .sum();
     stats.pairs = pairs;
-
-    let mut rgb = vec![0.0f32; npix * 3];
-    let mut alpha = vec![0.0f32; npix];
-    let mut depth_img = vec![0.0f32; npix];
-    let bg = s.background;
-    let w = width as usize;
-    rgb.par_chunks_mut(w * 3)
-        .zip(alpha.par_chunks_mut(w))
-        .zip(depth_img.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, ((rgb_row, a_row), d_row))| {
-            let ty = y / TILE as usize;
-            let ly = y % TILE as usize;
-            for x in 0..w {
-                let tile = &tiles[ty * grid.tiles_x as usize + x / TILE as usize];
-                let p = ly * TILE as usize + x % TILE as usize;
-                let t = tile.t[p];
-                for ch in 0..3 {
-                    rgb_row[x * 3 + ch] = tile.c[ch][p] + t * bg[ch];
-                }
-                let a = 1.0 - t;
-                a_row[x] = a;
-                d_row[x] = if a >= DEPTH_ALPHA_EPS {
-                    tile.d[p] / a
-                } else {
-                    0.0
-                };
-            }
-        });
-    let mut last = vec![0u32; grid.len() * TILE_PIXELS];
-    let mut final_t = vec![1.0f32; grid.len() * TILE_PIXELS];
-    last.par_chunks_mut(TILE_PIXELS)
-        .zip(final_t.par_chunks_mut(TILE_PIXELS))
-        .zip(tiles.par_iter())
-        .for_each(|((l, ft), tile)| {
-            l.copy_from_slice(&tile.last);
-            ft.copy_from_slice(&tile.t);
-        });
     RenderOutput {
         width,
         height,
@@ -566,7 +1161,6 @@ pub(crate) fn render_impl(
         state: RasterState {
             grid,
             splats,
-            rank_id,
             bins,
             last,
             final_t,
@@ -592,54 +1186,149 @@ pub(crate) mod tests {
                 let det = cov[0] * cov[2] - cov[1] * cov[1];
                 let o = rng.uniform(0.02, 0.999);
                 let y = rng.uniform(-6.0, 22.0);
-                let ry = 3.33 * cov[2].sqrt();
-                Splat2D {
-                    x: rng.uniform(-6.0, 22.0) as f32,
-                    y: y as f32,
-                    a: (cov[2] / det) as f32,
-                    b: (-cov[1] / det) as f32,
-                    c: (cov[0] / det) as f32,
-                    opacity: o as f32,
-                    rgb: [rng.next_f32(), rng.next_f32(), rng.next_f32()],
-                    depth: 1.0 + i as f32 * 0.01,
-                    ymin: (y - ry) as f32,
-                    ymax: (y + ry) as f32,
-                    sigma_max: ((o * 255.0).ln().max(0.0) * 1.0001 + 1e-4) as f32,
-                }
+                let ry = (3.33 * cov[2].sqrt()).ceil();
+                let p = crate::project::Projected {
+                    mean2d: [rng.uniform(-6.0, 22.0), y],
+                    conic: [cov[2] / det, -cov[1] / det, cov[0] / det],
+                    opacity: o,
+                    depth: 1.0 + i as f64 * 0.01,
+                    radius: [(3.33 * cov[0].sqrt()).ceil() as i32, ry as i32],
+                };
+                let rgb = [
+                    rng.uniform(0.0, 1.0),
+                    rng.uniform(0.0, 1.0),
+                    rng.uniform(0.0, 1.0),
+                ];
+                make_splat(&p, rgb).unwrap()
             })
             .collect()
+    }
+
+    /// The mask of a fully active tile with pixel 17 (row 1, column 1) switched off.
+    fn active_mask() -> [u16; 16] {
+        let mut active = [0xffffu16; 16];
+        active[1] &= !(1 << 1);
+        active
+    }
+
+    fn run(isa: Isa, smooth: bool, splats: &[Splat2D], list: &[u32]) -> (u64, TileState) {
+        let mut st = TileState::default();
+        let p = if smooth {
+            raster_tile_dispatch::<true>(isa, splats, list, 0, 0, &active_mask(), 0.99, &mut st)
+        } else {
+            raster_tile_dispatch::<false>(isa, splats, list, 0, 0, &active_mask(), 0.99, &mut st)
+        };
+        (p, st)
+    }
+
+    fn bits(st: &TileState) -> Vec<u32> {
+        let mut v = Vec::new();
+        for r in &st.rows {
+            v.extend(r.t.iter().map(|x| x.to_bits()));
+            for ch in 0..3 {
+                v.extend(r.c[ch].iter().map(|x| x.to_bits()));
+            }
+            v.extend(r.d.iter().map(|x| x.to_bits()));
+            v.extend(r.last.iter().copied());
+        }
+        v
     }
 
     #[test]
     fn vector_variants_are_bit_identical_to_the_portable_kernel() {
         let splats = random_tile_splats(3, 300);
         let list: Vec<u32> = (0..300).collect();
-        let mut active = [1u32; TILE_PIXELS];
-        active[17] = 0;
-        for smooth in [false, true] {
-            let mut a = TilePixels::default();
-            let mut b = TilePixels::default();
-            let (pa, pb) = if smooth {
-                (
-                    raster_tile::<true>(&splats, &list, 0, 0, &active, 0.99, &mut a),
-                    raster_tile_dispatch::<true>(&splats, &list, 0, 0, &active, 0.99, &mut b),
-                )
-            } else {
-                (
-                    raster_tile::<false>(&splats, &list, 0, 0, &active, 0.99, &mut a),
-                    raster_tile_dispatch::<false>(&splats, &list, 0, 0, &active, 0.99, &mut b),
-                )
-            };
-            assert_eq!(pa, pb);
-            assert!(pa > 1000);
-            assert_eq!(a.last, b.last);
-            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            assert_eq!(bits(&a.t), bits(&b.t));
-            for ch in 0..3 {
-                assert_eq!(bits(&a.c[ch]), bits(&b.c[ch]));
+        let mut isas = vec![Isa::Portable];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                isas.push(Isa::Avx2);
             }
-            assert_eq!(bits(&a.d), bits(&b.d));
+            if avx512::available() {
+                isas.push(Isa::Avx512);
+            } else {
+                eprintln!("no AVX-512 on this CPU: only the portable variants are compared");
+            }
         }
+        for smooth in [false, true] {
+            let (p0, s0) = run(Isa::Portable, smooth, &splats, &list);
+            assert!(p0 > 1000);
+            for &isa in &isas[1..] {
+                let (p, s) = run(isa, smooth, &splats, &list);
+                assert_eq!(p0, p, "{isa:?}");
+                assert_eq!(bits(&s0), bits(&s), "{isa:?} smooth {smooth}");
+            }
+        }
+    }
+
+    /// The tile kernel against a direct per-pixel f32 evaluation of the same compositing rule
+    /// over the whole list (no row test, no batching): the row test must never drop a pixel.
+    #[test]
+    fn tile_kernel_matches_a_direct_per_pixel_loop() {
+        let splats = random_tile_splats(11, 400);
+        let list: Vec<u32> = (0..400).collect();
+        let (pairs, st) = run(detect_isa(), false, &splats, &list);
+        let active = active_mask();
+        let mut direct_pairs = 0u64;
+        for ly in 0..16 {
+            for lx in 0..16 {
+                let (px, py) = (lx as f32 + 0.5, ly as f32 + 0.5);
+                let (mut t, mut c, mut last) = (1.0f64, [0.0f64; 3], 0u32);
+                if (active[ly] >> lx) & 1 != 0 {
+                    for (k, sp) in splats.iter().enumerate() {
+                        let (dx, dy) = ((sp.x - px) as f64, (sp.y - py) as f64);
+                        let sigma = 0.5 * (sp.a as f64 * dx * dx + sp.c as f64 * dy * dy)
+                            + sp.b as f64 * dx * dy;
+                        let a = (sp.opacity as f64 * (-sigma).exp()).min(0.99);
+                        if sigma < 0.0 || a < ALPHA_THRESHOLD as f64 {
+                            continue;
+                        }
+                        if t * (1.0 - a) <= TRANSMITTANCE_THRESHOLD as f64 {
+                            break;
+                        }
+                        for ch in 0..3 {
+                            c[ch] += a * t * sp.rgb[ch] as f64;
+                        }
+                        t *= 1.0 - a;
+                        last = k as u32 + 1;
+                        direct_pairs += 1;
+                    }
+                }
+                let row = &st.rows[ly];
+                assert_eq!(row.last[lx], last, "pixel ({lx}, {ly})");
+                assert!((row.t[lx] as f64 - t).abs() < 1e-5, "pixel ({lx}, {ly})");
+                for ch in 0..3 {
+                    assert!((row.c[ch][lx] as f64 - c[ch]).abs() < 1e-5);
+                }
+            }
+        }
+        assert_eq!(pairs, direct_pairs);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn vector_transpose_matches_the_portable_one() {
+        if !avx512::available() {
+            eprintln!("no AVX-512 on this CPU: skipped");
+            return;
+        }
+        let mut rng = augsplat_core::Rng::new(21);
+        let masks: [u16; BATCH] = std::array::from_fn(|_| rng.below(1 << 16) as u16);
+        let want = transpose_portable(&masks);
+        for ly in 0..16 {
+            for j in 0..BATCH {
+                assert_eq!((want[ly] >> j) & 1, ((masks[j] >> ly) & 1) as u64);
+            }
+        }
+        #[target_feature(enable = "avx512f,avx512bw")]
+        fn go(m: &[u16; BATCH]) -> [u64; 16] {
+            // SAFETY: the caller checked AVX-512 support.
+            unsafe { <avx512::Avx512 as ForwardKernel>::transpose(m) }
+        }
+        // SAFETY: AVX-512 availability was checked above.
+        assert_eq!(unsafe { go(&masks) }, want);
     }
 
     #[test]
@@ -653,5 +1342,43 @@ pub(crate) mod tests {
         }
         assert_eq!(exp_neg(0.0), 1.0);
         assert!(exp_neg(-1e30) >= 0.0 && exp_neg(-1e30) < 1e-37);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn vector_exponential_matches_the_scalar_one() {
+        if !avx512::available() {
+            eprintln!("no AVX-512 on this CPU: skipped");
+            return;
+        }
+        let xs: Vec<f32> = (0..4096)
+            .map(|i| -(i as f32) * 0.0093 - 1e-3 * (i % 7) as f32)
+            .collect();
+        for chunk in xs.chunks(16) {
+            let mut v = [0.0f32; 16];
+            v[..chunk.len()].copy_from_slice(chunk);
+            let mut out = [0.0f32; 16];
+            // SAFETY: AVX-512 availability was checked above.
+            unsafe {
+                use std::arch::x86_64::*;
+                #[target_feature(enable = "avx512f,avx512dq,avx512bw,fma")]
+                unsafe fn go(v: &[f32; 16], out: &mut [f32; 16]) {
+                    let s = _mm512_loadu_ps(v.as_ptr());
+                    _mm512_storeu_ps(
+                        out.as_mut_ptr(),
+                        avx512::gauss_v(_mm512_sub_ps(_mm512_setzero_ps(), s)),
+                    );
+                }
+                go(&v, &mut out);
+            }
+            for l in 0..16 {
+                assert_eq!(
+                    out[l].to_bits(),
+                    gauss_of_sigma(-v[l]).to_bits(),
+                    "x {}",
+                    v[l]
+                );
+            }
+        }
     }
 }

@@ -146,12 +146,16 @@ struct Inter {
     s: [f64; 3],
     qn: [f64; 4],
     qnorm: f64,
-    rot: M3,
-    m: M3,
+    /// A = W·R (camera-frame axes of the Gaussian).
+    a: M3,
+    /// M' = A·diag(s): camera-frame covariance Σ_c = M' M'ᵀ.
+    mp: M3,
     pc: [f64; 3],
-    cov_c: M3,
-    jac: [[f64; 3]; 2],
+    /// Jacobian entries J00, J02, J11, J12 (J01 = J10 = 0).
+    jac: [f64; 4],
     clamp: [Option<f64>; 2],
+    /// T = J M' (2×3): Σ2d_raw = T Tᵀ.
+    tm: [[f64; 3]; 2],
     x_raw: [f64; 3],
     det_blur: f64,
     conic: [f64; 3],
@@ -159,31 +163,13 @@ struct Inter {
     opacity_base: f64,
 }
 
+#[inline(always)]
 fn finite(v: &[f32]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
 
-fn mul3(a: &M3, b: &M3) -> M3 {
-    let mut c = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in 0..3 {
-            c[i][j] = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
-        }
-    }
-    c
-}
-
-fn tr3(a: &M3) -> M3 {
-    let mut c = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in 0..3 {
-            c[i][j] = a[j][i];
-        }
-    }
-    c
-}
-
 /// Rotation matrix of a unit quaternion (w, x, y, z).
+#[inline]
 pub fn quat_rot(q: [f64; 4]) -> M3 {
     let [w, x, y, z] = q;
     [
@@ -206,10 +192,12 @@ pub fn quat_rot(q: [f64; 4]) -> M3 {
 }
 
 /// Logistic sigmoid.
+#[inline]
 pub fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())
 }
 
+#[inline(always)]
 fn intermediates(
     cam: &CameraModel,
     mean: [f32; 3],
@@ -221,6 +209,21 @@ fn intermediates(
     if !(finite(&mean) && finite(&log_scale) && finite(&quat) && logit.is_finite()) {
         return Err(Outcome::Invalid);
     }
+    let mu = [mean[0] as f64, mean[1] as f64, mean[2] as f64];
+    let mut pc = cam.t;
+    for i in 0..3 {
+        pc[i] += cam.r[i][0] * mu[0] + cam.r[i][1] * mu[1] + cam.r[i][2] * mu[2];
+    }
+    let q = [
+        quat[0] as f64,
+        quat[1] as f64,
+        quat[2] as f64,
+        quat[3] as f64,
+    ];
+    let n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
+    if !(n2 >= MIN_QUAT_NORM2) || !n2.is_finite() {
+        return Err(Outcome::Invalid);
+    }
     let s = [
         (log_scale[0] as f64).exp(),
         (log_scale[1] as f64).exp(),
@@ -229,35 +232,22 @@ fn intermediates(
     if !s.iter().all(|v| v.is_finite()) {
         return Err(Outcome::Invalid);
     }
-    let q = [
-        quat[0] as f64,
-        quat[1] as f64,
-        quat[2] as f64,
-        quat[3] as f64,
-    ];
-    let n2 = q.iter().map(|v| v * v).sum::<f64>();
-    if !(n2 >= MIN_QUAT_NORM2) || !n2.is_finite() {
-        return Err(Outcome::Invalid);
-    }
-    let qnorm = n2.sqrt();
-    let qn = [q[0] / qnorm, q[1] / qnorm, q[2] / qnorm, q[3] / qnorm];
-    let mu = [mean[0] as f64, mean[1] as f64, mean[2] as f64];
-    let mut pc = cam.t;
-    for i in 0..3 {
-        pc[i] += cam.r[i][0] * mu[0] + cam.r[i][1] * mu[1] + cam.r[i][2] * mu[2];
-    }
     if !(pc[2] >= near) {
         return Err(Outcome::Culled);
     }
+    let qnorm = n2.sqrt();
+    let inv = 1.0 / qnorm;
+    let qn = [q[0] * inv, q[1] * inv, q[2] * inv, q[3] * inv];
     let rot = quat_rot(qn);
-    let mut m = rot;
-    for row in m.iter_mut() {
+    let w = &cam.r;
+    let mut a = [[0.0; 3]; 3];
+    let mut mp = [[0.0; 3]; 3];
+    for i in 0..3 {
         for j in 0..3 {
-            row[j] *= s[j];
+            a[i][j] = w[i][0] * rot[0][j] + w[i][1] * rot[1][j] + w[i][2] * rot[2][j];
+            mp[i][j] = a[i][j] * s[j];
         }
     }
-    let cov = mul3(&m, &tr3(&m));
-    let cov_c = mul3(&mul3(&cam.r, &cov), &tr3(&cam.r));
     let (x, y, z) = (pc[0], pc[1], pc[2]);
     let (u, v) = (x / z, y / z);
     let clamp_x = if u > cam.lim_x_pos {
@@ -276,20 +266,18 @@ fn intermediates(
     };
     let txz = clamp_x.unwrap_or(u);
     let tyz = clamp_y.unwrap_or(v);
-    let jac = [
-        [cam.fx / z, 0.0, -cam.fx * txz / z],
-        [0.0, cam.fy / z, -cam.fy * tyz / z],
-    ];
-    // T = J Σ_c, Σ2d = T Jᵀ.
+    let jac = [cam.fx / z, -cam.fx * txz / z, cam.fy / z, -cam.fy * tyz / z];
     let mut tm = [[0.0; 3]; 2];
-    for i in 0..2 {
-        for k in 0..3 {
-            tm[i][k] = jac[i][0] * cov_c[0][k] + jac[i][1] * cov_c[1][k] + jac[i][2] * cov_c[2][k];
-        }
+    for k in 0..3 {
+        tm[0][k] = jac[0] * mp[0][k] + jac[1] * mp[2][k];
+        tm[1][k] = jac[2] * mp[1][k] + jac[3] * mp[2][k];
     }
-    let dotj =
-        |i: usize, j: usize| tm[i][0] * jac[j][0] + tm[i][1] * jac[j][1] + tm[i][2] * jac[j][2];
-    let x_raw = [dotj(0, 0), 0.5 * (dotj(0, 1) + dotj(1, 0)), dotj(1, 1)];
+    let dot = |p: &[f64; 3], q: &[f64; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+    let x_raw = [
+        dot(&tm[0], &tm[0]),
+        dot(&tm[0], &tm[1]),
+        dot(&tm[1], &tm[1]),
+    ];
     if !x_raw.iter().all(|v| v.is_finite()) {
         return Err(Outcome::Invalid);
     }
@@ -299,18 +287,19 @@ fn intermediates(
     if !(det_blur > 0.0) {
         return Err(Outcome::Culled);
     }
-    let conic = [r / det_blur, -q2 / det_blur, p / det_blur];
-    let ratio = det_raw / det_blur;
+    let inv_det = 1.0 / det_blur;
+    let conic = [r * inv_det, -q2 * inv_det, p * inv_det];
+    let ratio = det_raw * inv_det;
     Ok(Inter {
         s,
         qn,
         qnorm,
-        rot,
-        m,
+        a,
+        mp,
         pc,
-        cov_c,
         jac,
         clamp: [clamp_x, clamp_y],
+        tm,
         x_raw,
         det_blur,
         conic,
@@ -324,6 +313,7 @@ fn compensation(ratio: f64) -> f64 {
 }
 
 /// Projects one Gaussian.
+#[inline]
 pub fn project(
     cam: &CameraModel,
     mean: [f32; 3],
@@ -374,6 +364,7 @@ pub fn project(
 /// Backward of [`project`] for a visible Gaussian: dL/d(raw parameters) from dL/d(outputs).
 /// Returns zeros for a Gaussian that is not visible.
 #[allow(clippy::too_many_arguments)]
+#[inline]
 pub fn project_vjp(
     cam: &CameraModel,
     mean: [f32; 3],
@@ -425,29 +416,25 @@ pub fn project_vjp(
             }
         }
     }
-    // Σ2d_raw = J Σ_c Jᵀ ⇒ G_Σc = Jᵀ G J, G_J = 2 G J Σ_c.
-    let j = it.jac;
-    let mut gj_tmp = [[0.0; 3]; 2]; // G J
-    for r in 0..2 {
-        for col in 0..3 {
-            gj_tmp[r][col] = gx[r][0] * j[0][col] + gx[r][1] * j[1][col];
-        }
+    // Σ2d_raw = T Tᵀ, T = J M' ⇒ G_T = 2 G T (G symmetric); G_J = G_T M'ᵀ; G_M' = Jᵀ G_T.
+    let tm = &it.tm;
+    let mut gt = [[0.0; 3]; 2];
+    for k in 0..3 {
+        gt[0][k] = 2.0 * (gx[0][0] * tm[0][k] + gx[0][1] * tm[1][k]);
+        gt[1][k] = 2.0 * (gx[1][0] * tm[0][k] + gx[1][1] * tm[1][k]);
     }
-    let mut g_covc = [[0.0; 3]; 3];
-    for r in 0..3 {
-        for col in 0..3 {
-            g_covc[r][col] = j[0][r] * gj_tmp[0][col] + j[1][r] * gj_tmp[1][col];
-        }
-    }
-    let mut g_j = [[0.0; 3]; 2];
-    for r in 0..2 {
-        for col in 0..3 {
-            let mut acc = 0.0;
-            for kk in 0..3 {
-                acc += gj_tmp[r][kk] * it.cov_c[kk][col];
-            }
-            g_j[r][col] = 2.0 * acc;
-        }
+    let mp = &it.mp;
+    let dot = |p: &[f64; 3], q: &[f64; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+    let g_j00 = dot(&gt[0], &mp[0]);
+    let g_j02 = dot(&gt[0], &mp[2]);
+    let g_j11 = dot(&gt[1], &mp[1]);
+    let g_j12 = dot(&gt[1], &mp[2]);
+    let [j00, j02, j11, j12] = it.jac;
+    let mut g_mp = [[0.0; 3]; 3];
+    for k in 0..3 {
+        g_mp[0][k] = j00 * gt[0][k];
+        g_mp[1][k] = j11 * gt[1][k];
+        g_mp[2][k] = j02 * gt[0][k] + j12 * gt[1][k];
     }
     let (x, y, z) = (it.pc[0], it.pc[1], it.pc[2]);
     let (fx, fy) = (cam.fx, cam.fy);
@@ -458,21 +445,21 @@ pub fn project_vjp(
     g_pc[1] += g.mean2d[1] * fy / z;
     g_pc[2] -= (g.mean2d[0] * fx * x + g.mean2d[1] * fy * y) / z2;
     // J00 = fx/z, J11 = fy/z
-    g_pc[2] -= g_j[0][0] * fx / z2 + g_j[1][1] * fy / z2;
+    g_pc[2] -= g_j00 * fx / z2 + g_j11 * fy / z2;
     // J02 = −fx·tx/z²
     match it.clamp[0] {
         None => {
-            g_pc[0] -= g_j[0][2] * fx / z2;
-            g_pc[2] += g_j[0][2] * 2.0 * fx * x / z3;
+            g_pc[0] -= g_j02 * fx / z2;
+            g_pc[2] += g_j02 * 2.0 * fx * x / z3;
         }
-        Some(l) => g_pc[2] += g_j[0][2] * fx * l / z2,
+        Some(l) => g_pc[2] += g_j02 * fx * l / z2,
     }
     match it.clamp[1] {
         None => {
-            g_pc[1] -= g_j[1][2] * fy / z2;
-            g_pc[2] += g_j[1][2] * 2.0 * fy * y / z3;
+            g_pc[1] -= g_j12 * fy / z2;
+            g_pc[2] += g_j12 * 2.0 * fy * y / z3;
         }
-        Some(l) => g_pc[2] += g_j[1][2] * fy * l / z2,
+        Some(l) => g_pc[2] += g_j12 * fy * l / z2,
     }
     g_pc[2] += g.depth;
     let w = &cam.r;
@@ -480,26 +467,23 @@ pub fn project_vjp(
     for i in 0..3 {
         g_mean[i] = w[0][i] * g_pc[0] + w[1][i] * g_pc[1] + w[2][i] * g_pc[2];
     }
-    // G_Σ = Wᵀ G_Σc W
-    let g_cov = mul3(&mul3(&tr3(w), &g_covc), w);
-    // Σ = M Mᵀ ⇒ G_M = (G_Σ + G_Σᵀ) M
-    let mut gsym = g_cov;
-    for r in 0..3 {
-        for col in 0..3 {
-            gsym[r][col] = g_cov[r][col] + g_cov[col][r];
-        }
-    }
-    let g_m = mul3(&gsym, &it.m);
-    let mut g_rot = [[0.0; 3]; 3];
+    // M' = A diag(s): G_A = G_M' diag(s), G_s = colsum(A ∘ G_M'); A = W R ⇒ G_R = Wᵀ G_A.
+    let mut g_a = [[0.0; 3]; 3];
     let mut g_ls = [0.0; 3];
     for r in 0..3 {
         for col in 0..3 {
-            g_rot[r][col] = g_m[r][col] * it.s[col];
-            g_ls[col] += g_m[r][col] * it.rot[r][col];
+            g_a[r][col] = g_mp[r][col] * it.s[col];
+            g_ls[col] += g_mp[r][col] * it.a[r][col];
         }
     }
     for jj in 0..3 {
         g_ls[jj] *= it.s[jj];
+    }
+    let mut g_rot = [[0.0; 3]; 3];
+    for r in 0..3 {
+        for col in 0..3 {
+            g_rot[r][col] = w[0][r] * g_a[0][col] + w[1][r] * g_a[1][col] + w[2][r] * g_a[2][col];
+        }
     }
     let [qw, qx, qy, qz] = it.qn;
     let gr = g_rot;

@@ -16,6 +16,7 @@ pub const fn basis_len(degree: u32) -> usize {
 }
 
 /// Evaluates the basis up to `degree` (≤ 3) at unit direction `d` into `out[..basis_len]`.
+#[inline]
 pub fn basis(degree: u32, d: [f64; 3], out: &mut [f64; 16]) {
     let [x, y, z] = d;
     out[0] = C0;
@@ -48,6 +49,7 @@ pub fn basis(degree: u32, d: [f64; 3], out: &mut [f64; 16]) {
 
 /// Given dL/dY_k (`g[..basis_len]`), returns dL/dd treating the three components of `d` as
 /// independent (the caller projects through the normalisation).
+#[inline]
 pub fn basis_vjp(degree: u32, d: [f64; 3], g: &[f64; 16]) -> [f64; 3] {
     let [x, y, z] = d;
     let mut gd = [0.0f64; 3];
@@ -111,6 +113,7 @@ pub fn basis_vjp(degree: u32, d: [f64; 3], g: &[f64; 16]) -> [f64; 3] {
 
 /// Colour of one Gaussian: `coefs` holds `K·3` values (`[k·3 + c]`, K the stored count),
 /// `degree` the active degree. Returns the clamped colour; `basis_out` receives the basis.
+#[inline]
 pub fn eval_color(
     degree: u32,
     coefs: &[f32],
@@ -164,6 +167,43 @@ pub fn eval_color_vjp(
     basis_vjp(degree, dir, &gy)
 }
 
+/// Backward of [`eval_color`] writing rather than adding: `out[..basis_len·3]` receives
+/// dL/d(coefs) as f32 (the values [`eval_color_vjp`] would add to a zeroed f64 buffer, rounded
+/// once); returns dL/d(dir) (direction components independent).
+#[inline]
+pub fn eval_color_vjp_into(
+    degree: u32,
+    coefs: &[f32],
+    dir: [f64; 3],
+    g_color: [f64; 3],
+    out: &mut [f32],
+) -> [f64; 3] {
+    let n = basis_len(degree);
+    let mut y = [0.0f64; 16];
+    basis(degree, dir, &mut y);
+    let c = &coefs[..n * 3];
+    let out = &mut out[..n * 3];
+    let mut raw = [0.5f64; 3];
+    for k in 0..n {
+        for ch in 0..3 {
+            raw[ch] += c[k * 3 + ch] as f64 * y[k];
+        }
+    }
+    let gc = [
+        if raw[0] > 0.0 { g_color[0] } else { 0.0 },
+        if raw[1] > 0.0 { g_color[1] } else { 0.0 },
+        if raw[2] > 0.0 { g_color[2] } else { 0.0 },
+    ];
+    let mut gy = [0.0f64; 16];
+    for k in 0..n {
+        for ch in 0..3 {
+            out[k * 3 + ch] = (gc[ch] * y[k]) as f32;
+        }
+        gy[k] = gc[0] * c[k * 3] as f64 + gc[1] * c[k * 3 + 1] as f64 + gc[2] * c[k * 3 + 2] as f64;
+    }
+    basis_vjp(degree, dir, &gy)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -190,6 +230,29 @@ mod tests {
                     "Y{k} d{a}: fd {fd} analytic {}",
                     an[a]
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn vjp_into_matches_the_accumulating_vjp() {
+        let mut rng = augsplat_core::Rng::new(3);
+        for degree in 0..=3 {
+            let coefs: Vec<f32> = (0..48).map(|_| rng.uniform(-0.6, 0.6) as f32).collect();
+            let d = [0.3f64, -0.5, 0.81];
+            let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let d = [d[0] / n, d[1] / n, d[2] / n];
+            let g = [0.7, -0.2, 0.4];
+            let mut acc = [0.0f64; 48];
+            let ga = eval_color_vjp(degree, &coefs, d, g, &mut acc);
+            let mut out = [f32::NAN; 48];
+            let gb = eval_color_vjp_into(degree, &coefs, d, g, &mut out);
+            let nb = basis_len(degree) * 3;
+            for q in 0..nb {
+                assert_eq!(out[q], acc[q] as f32);
+            }
+            for a in 0..3 {
+                assert!((ga[a] - gb[a]).abs() <= 1e-12 * ga[a].abs().max(1.0));
             }
         }
     }

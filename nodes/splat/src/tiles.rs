@@ -67,6 +67,14 @@ pub struct Bins {
     pub pair_start: Vec<usize>,
     /// See `pair_start`.
     pub pair_index: Vec<u32>,
+    /// List position (index into `ranks`) → *Gaussian-major* pair slot: per-pair results
+    /// written at `pair_slot[pos]` lie contiguously per Gaussian, Gaussians in index order
+    /// and each one's tiles in row-major order. With [`bin`] (no index map) Gaussian-major
+    /// is rank-major and this is the inverse of `pair_index`.
+    pub pair_slot: Vec<u32>,
+    /// Gaussian i's pair slots are `gauss_start[i]..gauss_start[i + 1]` (empty when it is
+    /// not visible).
+    pub gauss_start: Vec<usize>,
 }
 
 /// Sorts visible Gaussians by (depth, index): returns their indices front to back.
@@ -80,14 +88,25 @@ pub fn depth_order(visible: &[u32], depth: &[f32]) -> Vec<u32> {
     keys.into_iter().map(|k| k as u32).collect()
 }
 
-/// Builds the per-tile lists from the tile rectangles of the ranked Gaussians.
+/// Builds the per-tile lists from the tile rectangles of the ranked Gaussians (rank r is
+/// Gaussian r: `pair_slot` and `gauss_start` are rank-major).
 pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
+    let ids: Vec<u32> = (0..rects.len() as u32).collect();
+    bin_indexed(grid, rects, &ids, rects.len())
+}
+
+/// Builds the per-tile lists from the tile rectangles of the ranked Gaussians; `rank_id[r]`
+/// is the index (below `n`) of the Gaussian of rank r, used for the Gaussian-major
+/// `pair_slot` / `gauss_start`.
+pub fn bin_indexed(grid: &TileGrid, rects: &[[u32; 4]], rank_id: &[u32], n: usize) -> Bins {
     let ntiles = grid.len();
     let tx = grid.tiles_x as usize;
+    let area = |r: &[u32; 4]| (r[1] - r[0]) as usize * (r[3] - r[2]) as usize;
     let mut counts = vec![0usize; ntiles + 1];
     let mut pair_start = Vec::with_capacity(rects.len() + 1);
+    let mut gauss_start = vec![0usize; n + 1];
     let mut total = 0usize;
-    for r in rects {
+    for (rank, r) in rects.iter().enumerate() {
         pair_start.push(total);
         for y in r[2]..r[3] {
             let row = y as usize * tx;
@@ -95,9 +114,16 @@ pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
                 counts[row + x as usize] += 1;
             }
         }
-        total += (r[1] - r[0]) as usize * (r[3] - r[2]) as usize;
+        total += area(r);
+        gauss_start[rank_id[rank] as usize] = area(r);
     }
     pair_start.push(total);
+    let mut acc = 0usize;
+    for v in gauss_start.iter_mut() {
+        let c = *v;
+        *v = acc;
+        acc += c;
+    }
     let mut ranges = vec![0usize; ntiles + 1];
     for t in 0..ntiles {
         ranges[t + 1] = ranges[t] + counts[t];
@@ -105,8 +131,10 @@ pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
     let mut cursor: Vec<usize> = ranges[..ntiles].to_vec();
     let mut ranks = vec![0u32; total];
     let mut pair_index = vec![0u32; total];
+    let mut pair_slot = vec![0u32; total];
     let mut k = 0usize;
     for (rank, r) in rects.iter().enumerate() {
+        let mut slot = gauss_start[rank_id[rank] as usize];
         for y in r[2]..r[3] {
             let row = y as usize * tx;
             for x in r[0]..r[1] {
@@ -115,6 +143,8 @@ pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
                 cursor[t] += 1;
                 ranks[pos] = rank as u32;
                 pair_index[k] = pos as u32;
+                pair_slot[pos] = slot as u32;
+                slot += 1;
                 k += 1;
             }
         }
@@ -124,5 +154,62 @@ pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
         ranks,
         pair_start,
         pair_index,
+        pair_slot,
+        gauss_start,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gaussian_major_slots_are_a_permutation_grouped_by_gaussian_in_tile_order() {
+        let grid = TileGrid::new(70, 50);
+        let mut rng = augsplat_core::Rng::new(4);
+        let n = 40;
+        // Ranks 0..30 map to a shuffled subset of the 40 Gaussians.
+        let mut ids: Vec<u32> = (0..n as u32).collect();
+        for i in (1..ids.len()).rev() {
+            ids.swap(i, rng.below(i as u64 + 1) as usize);
+        }
+        let rank_id = &ids[..30];
+        let rects: Vec<[u32; 4]> = (0..30)
+            .map(|_| {
+                let x0 = rng.below(5) as u32;
+                let y0 = rng.below(4) as u32;
+                [
+                    x0,
+                    x0 + 1 + rng.below(5 - x0 as u64) as u32,
+                    y0,
+                    y0 + 1 + rng.below(4 - y0 as u64) as u32,
+                ]
+            })
+            .collect();
+        let b = bin_indexed(&grid, &rects, rank_id, n);
+        let total = b.ranks.len();
+        let mut seen = vec![false; total];
+        for &s in &b.pair_slot {
+            assert!(!seen[s as usize]);
+            seen[s as usize] = true;
+        }
+        assert_eq!(b.gauss_start.len(), n + 1);
+        assert_eq!(b.gauss_start[n], total);
+        // Slot → (tile) must list each Gaussian's tiles in row-major order.
+        let mut tile_of_slot = vec![usize::MAX; total];
+        for t in 0..grid.len() {
+            for pos in b.ranges[t]..b.ranges[t + 1] {
+                tile_of_slot[b.pair_slot[pos] as usize] = t;
+                let i = rank_id[b.ranks[pos] as usize] as usize;
+                let s = b.pair_slot[pos] as usize;
+                assert!(b.gauss_start[i] <= s && s < b.gauss_start[i + 1]);
+            }
+        }
+        for i in 0..n {
+            let tiles = &tile_of_slot[b.gauss_start[i]..b.gauss_start[i + 1]];
+            assert!(tiles.windows(2).all(|w| w[0] < w[1]));
+            let visible = rank_id.contains(&(i as u32));
+            assert_eq!(!tiles.is_empty(), visible);
+        }
     }
 }
