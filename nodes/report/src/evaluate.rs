@@ -96,7 +96,8 @@ pub const LPIPS_HINT: &str = "connect an `lpips` input, set AUGSPLAT_LPIPS_WEIGH
 
 impl Node for EvaluateNode {
     const KIND: &'static str = "Evaluate";
-    const VERSION: u32 = 1;
+    // 2: the FMA rasteriser kernels change renders in the last bits.
+    const VERSION: u32 = 2;
     type Args = EvaluateArgs;
 
     fn inputs(_args: &EvaluateArgs) -> Vec<InputDecl> {
