@@ -138,7 +138,7 @@ fn point(step: u64, e: &Evaluation, g: &Gaussians, seconds: f64, loss: f64) -> C
 
 impl Node for OptimizeSplats {
     const KIND: &'static str = "OptimizeSplats";
-    const VERSION: u32 = 1;
+    const VERSION: u32 = 2;
     type Args = TrainArgs;
 
     fn inputs(_args: &TrainArgs) -> Vec<InputDecl> {
