@@ -1,8 +1,11 @@
 //! Benchmark of one full training step (render → loss (L2 + SSIM) → backward → gradient sum →
 //! Adam → densification statistics) and of its parts, for N Gaussians at W×H.
 //!
-//! `cargo run --release -p augsplat-splat --example train_step_bench -- [N ...] [--size WxH] [--steps S] [--threads T]`
+//! `cargo run --release -p augsplat-splat --example train_step_bench -- [N ...] [--size WxH] [--steps S] [--threads T] [--kernels]`
 //! Defaults: N = 20000 100000 500000, 256×256, 10 timed steps after 2 warm-up steps, all threads.
+//! With `--kernels`, the loss (L2 + 0.2·SSIM) and the Adam step are also timed in isolation
+//! (`--steps` repetitions each on a fixed render and fixed gradients; min and median
+//! reported, which is robust to a loaded machine).
 //! Gaussians are random in a box in front of the camera (isotropic-ish, scale ~ 1–3 px),
 //! the target image a smooth gradient.
 
@@ -70,6 +73,7 @@ fn scene(n: usize, w: u32, h: u32, seed: u64) -> (Gaussians, Camera, Vec<f32>) {
 fn main() {
     let mut ns: Vec<usize> = Vec::new();
     let (mut w, mut h, mut steps, mut threads) = (256u32, 256u32, 10usize, 0usize);
+    let mut kernels = false;
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
         match a.as_str() {
@@ -81,6 +85,7 @@ fn main() {
             }
             "--steps" => steps = it.next().unwrap().parse().unwrap(),
             "--threads" => threads = it.next().unwrap().parse().unwrap(),
+            "--kernels" => kernels = true,
             n => ns.push(n.parse().expect("a Gaussian count")),
         }
     }
@@ -118,6 +123,7 @@ fn main() {
                     opacity_logits: gr.opacity_logits,
                     sh: gr.sh,
                     visible: gr.visible.clone(),
+                    sh_active: usize::MAX,
                 };
                 let t4 = Instant::now();
                 adam.step(&mut g, &pg, &lr, 1.6e-4);
@@ -145,6 +151,62 @@ fn main() {
                 pairs as f64 / steps as f64 / 1e6,
                 (t[0] + t[2]) / pairs.max(1) as f64 * 1e9
             );
+            if kernels {
+                kernel_times(&g, &cam, &target, &s, &lr, steps);
+            }
         }
     });
+}
+
+/// Min and median of `reps` timings of `f`, in ms.
+fn time_min_median(reps: usize, mut f: impl FnMut()) -> (f64, f64) {
+    let mut v: Vec<f64> = (0..reps.max(1))
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    v.sort_by(|a, b| a.total_cmp(b));
+    (v[0], v[v.len() / 2])
+}
+
+/// Times the loss and the Adam step in isolation on one render of `g`.
+fn kernel_times(
+    g: &Gaussians,
+    cam: &Camera,
+    target: &[f32],
+    s: &RenderSettings,
+    lr: &LearningRates,
+    reps: usize,
+) {
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let out = render(g, cam, s);
+    let mut d_rgb = vec![0f32; target.len()];
+    let (lmin, lmed) = time_min_median(reps * 5, || {
+        loss::photometric(&out.rgb, target, w, h, PixelLoss::L2, 0.2, 1.0, &mut d_rgb);
+    });
+    d_rgb.iter_mut().for_each(|v| *v = 0.0);
+    loss::photometric(&out.rgb, target, w, h, PixelLoss::L2, 0.2, 1.0, &mut d_rgb);
+    let gr = backward(g, cam, s, &out, &d_rgb, None, None);
+    let visible = gr.visible.iter().filter(|&&v| v).count();
+    let pg = ParamGrads {
+        means: gr.means,
+        log_scales: gr.log_scales,
+        quats: gr.quats,
+        opacity_logits: gr.opacity_logits,
+        sh: gr.sh,
+        visible: gr.visible,
+        sh_active: usize::MAX,
+    };
+    let mut g2 = g.clone();
+    let mut adam = Adam::new(g.len(), g.coeffs());
+    let (amin, amed) = time_min_median(reps * 5, || {
+        adam.step(&mut g2, &pg, lr, 1.6e-4);
+    });
+    println!(
+        "    kernels: loss min {lmin:.3} ms, median {lmed:.3} | adam min {amin:.3} ms, median {amed:.3} ({visible} of {} visible, {:.2} M parameters updated)",
+        g.len(),
+        visible as f64 * (10 + g.coeffs() * 3) as f64 / 1e6
+    );
 }

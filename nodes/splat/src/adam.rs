@@ -18,6 +18,8 @@ use serde::{Deserialize, Serialize};
 
 /// Gaussians per parallel chunk of the update (fixed; the update is element-wise anyway).
 const CHUNK: usize = 2048;
+/// Values per SIMD block of the update.
+const LANES: usize = 16;
 
 /// Learning rates of the parameter groups (gsplat simple_trainer defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -116,6 +118,12 @@ pub struct ParamGrads {
     pub sh: Vec<f32>,
     /// Whether the Gaussian was visible (radius > 0) in any render of the step.
     pub visible: Vec<bool>,
+    /// How many leading values of each Gaussian's SH gradient row may be non-zero; the rest
+    /// are promised to be zero (the backward pass leaves the coefficients above the active
+    /// SH degree at zero, so a trainer passes `3·(active + 1)²`). [`Adam::step`] skips the
+    /// promised-zero values whose moments are still zero, which is exact: their update is
+    /// `m = v = 0` and no parameter change. Values ≥ the row width mean "all".
+    pub sh_active: usize,
 }
 
 impl ParamGrads {
@@ -128,6 +136,7 @@ impl ParamGrads {
             opacity_logits: vec![0.0; n],
             sh: vec![0.0; n * coeffs * 3],
             visible: vec![false; n],
+            sh_active: coeffs * 3,
         }
     }
     /// Number of Gaussians.
@@ -190,6 +199,8 @@ struct StepConst {
     /// Same for the values from `split` on.
     step_b: f32,
     split: usize,
+    /// Leading values of each Gaussian to update (the rest are known no-ops).
+    cols: usize,
     b1: f32,
     b2: f32,
     /// 1 / √(1 − β2ᵗ).
@@ -197,42 +208,117 @@ struct StepConst {
     eps: f32,
 }
 
-/// The update kernel of one group: element-wise, only for visible Gaussians.
+/// The Adam update of one value (torch's formula, see the module docs); returns the new
+/// parameter, updates the moments in place. Plain multiplies and adds in a fixed order (Rust
+/// never fuses them), so every instruction set gives the same bits as the scalar code.
+#[inline(always)]
+fn adam_elem(p: f32, g: f32, m: &mut f32, v: &mut f32, step: f32, c: &StepConst) -> f32 {
+    let mn = c.b1 * *m + (1.0 - c.b1) * g;
+    let vn = c.b2 * *v + (1.0 - c.b2) * g * g;
+    *m = mn;
+    *v = vn;
+    p - step * mn / (vn.sqrt() * c.inv_sqrt_bc2 + c.eps)
+}
+
+/// The update of a contiguous run of values that share one step size, in blocks of
+/// [`LANES`] (vectorised) and a scalar tail.
+#[inline(always)]
+fn adam_flat(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], step: f32, c: &StepConst) {
+    let n = p.len();
+    let (g, m, v) = (&g[..n], &mut m[..n], &mut v[..n]);
+    let full = n / LANES * LANES;
+    for (((pc, gc), mc), vc) in p[..full]
+        .chunks_exact_mut(LANES)
+        .zip(g[..full].chunks_exact(LANES))
+        .zip(m[..full].chunks_exact_mut(LANES))
+        .zip(v[..full].chunks_exact_mut(LANES))
+    {
+        for l in 0..LANES {
+            pc[l] = adam_elem(pc[l], gc[l], &mut mc[l], &mut vc[l], step, c);
+        }
+    }
+    for i in full..n {
+        p[i] = adam_elem(p[i], g[i], &mut m[i], &mut v[i], step, c);
+    }
+}
+
+/// The update of one chunk of a group (`first` = index of its first Gaussian): only runs of
+/// visible Gaussians are touched; each run is one flat update when the group has a single
+/// step size, else the first `split` values of each Gaussian use `step_a` and the rest
+/// `step_b`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn update_chunk_body(
+    p: &mut [f32],
+    g: &[f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    visible: &[bool],
+    w: usize,
+    c: &StepConst,
+) {
+    let n = visible.len();
+    let cols = c.cols.min(w);
+    let split = c.split.min(cols);
+    let uniform = (split == cols || c.step_a == c.step_b) && cols == w;
+    let mut i = 0;
+    while i < n {
+        if !visible[i] {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        while i < n && visible[i] {
+            i += 1;
+        }
+        let r = start * w..i * w;
+        let (pr, gr, mr, vr) = (
+            &mut p[r.clone()],
+            &g[r.clone()],
+            &mut m[r.clone()],
+            &mut v[r],
+        );
+        if uniform {
+            adam_flat(pr, gr, mr, vr, c.step_a, c);
+        } else {
+            for (((pg, gg), mg), vg) in pr
+                .chunks_exact_mut(w)
+                .zip(gr.chunks_exact(w))
+                .zip(mr.chunks_exact_mut(w))
+                .zip(vr.chunks_exact_mut(w))
+            {
+                let (pa, pb) = pg[..cols].split_at_mut(split);
+                let (ma, mb) = mg[..cols].split_at_mut(split);
+                let (va, vb) = vg[..cols].split_at_mut(split);
+                adam_flat(pa, &gg[..split], ma, va, c.step_a, c);
+                adam_flat(pb, &gg[split..cols], mb, vb, c.step_b, c);
+            }
+        }
+    }
+}
+
+crate::loss::multiversion!(fn update_chunk(
+    p: &mut [f32],
+    g: &[f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    visible: &[bool],
+    w: usize,
+    c: &StepConst,
+) => update_chunk_body);
+
+/// The update kernel of one group: element-wise, only for visible Gaussians, in parallel
+/// over fixed chunks of Gaussians (every value is written by one task: deterministic).
 fn update_group(p: &mut [f32], g: &[f32], st: &mut Moments, visible: &[bool], c: StepConst) {
     let w = st.width;
     debug_assert_eq!(p.len(), visible.len() * w);
     debug_assert_eq!(g.len(), p.len());
     p.par_chunks_mut(CHUNK * w)
+        .zip(g.par_chunks(CHUNK * w))
         .zip(st.m.par_chunks_mut(CHUNK * w))
         .zip(st.v.par_chunks_mut(CHUNK * w))
-        .enumerate()
-        .for_each(|(ci, ((pc, mc), vc))| {
-            let first = ci * CHUNK;
-            for (j, ((pg, mg), vg)) in pc
-                .chunks_exact_mut(w)
-                .zip(mc.chunks_exact_mut(w))
-                .zip(vc.chunks_exact_mut(w))
-                .enumerate()
-            {
-                let i = first + j;
-                if !visible[i] {
-                    continue;
-                }
-                let gg = &g[i * w..(i + 1) * w];
-                // Two branch-free runs (the columns before and after `split`).
-                for (lo, hi, step) in [(0, c.split.min(w), c.step_a), (c.split.min(w), w, c.step_b)]
-                {
-                    for k in lo..hi {
-                        let gk = gg[k];
-                        let m = c.b1 * mg[k] + (1.0 - c.b1) * gk;
-                        let v = c.b2 * vg[k] + (1.0 - c.b2) * gk * gk;
-                        mg[k] = m;
-                        vg[k] = v;
-                        pg[k] -= step * m / (v.sqrt() * c.inv_sqrt_bc2 + c.eps);
-                    }
-                }
-            }
-        });
+        .zip(visible.par_chunks(CHUNK))
+        .for_each(|((((pc, gc), mc), vc), vis)| update_chunk(pc, gc, mc, vc, vis, w, &c));
 }
 
 /// Which parameter group a rate or a reset refers to.
@@ -261,6 +347,9 @@ pub struct Adam {
     /// Steps taken per group (groups can be reset independently).
     steps: [u64; 5],
     n: usize,
+    /// Leading SH values per Gaussian whose moments may be non-zero (the others are all
+    /// zero: never updated since the state was created or cleared).
+    sh_touched: usize,
 }
 
 impl Adam {
@@ -274,6 +363,7 @@ impl Adam {
             sh: Moments::new(3 * coeffs),
             steps: [0; 5],
             n: 0,
+            sh_touched: 0,
         };
         a.append_zeros(n);
         a
@@ -326,6 +416,9 @@ impl Adam {
     /// counter is kept, as gsplat does.
     pub fn clear_group(&mut self, group: Group) {
         self.groups_mut()[group as usize].clear();
+        if group == Group::Sh {
+            self.sh_touched = 0;
+        }
     }
     /// Zeroes every moment and step counter (a fresh optimiser, e.g. at a Staged switch).
     pub fn clear(&mut self) {
@@ -333,6 +426,7 @@ impl Adam {
             g.clear();
         }
         self.steps = [0; 5];
+        self.sh_touched = 0;
     }
     /// The first and second moments of group `group` (flat, Gaussian-major), for tests.
     pub fn moments(&self, group: Group) -> (&[f32], &[f32]) {
@@ -348,7 +442,9 @@ impl Adam {
 
     /// One Adam step over every group. `means_lr` is the already-scheduled rate of the means
     /// (see [`LearningRates::means_at`]); the other rates come from `lr`. Only Gaussians with
-    /// `grads.visible[i]` change.
+    /// `grads.visible[i]` change. SH values beyond `grads.sh_active` (whose gradients are
+    /// promised zero) are skipped while their moments are zero, see [`ParamGrads::sh_active`].
+    /// With `eps = 0` such values would be `0/0` in torch; here they stay unchanged.
     ///
     /// Panics if the gradient, parameter and state sizes disagree (a programming error).
     pub fn step(
@@ -387,6 +483,7 @@ impl Adam {
                 step_a: (lr_a / bc1) as f32,
                 step_b: (lr_b / bc1) as f32,
                 split,
+                cols: usize::MAX,
                 b1: b1 as f32,
                 b2: b2 as f32,
                 inv_sqrt_bc2: (1.0 / bc2.sqrt()) as f32,
@@ -427,6 +524,233 @@ impl Adam {
             c,
         );
         let c = konst(4, lr.sh0, lr.shn, 3, &mut self.steps);
-        update_group(&mut g.sh, &grads.sh, &mut self.sh, vis, c);
+        let cols = grads.sh_active.max(self.sh_touched).min(self.sh.width);
+        self.sh_touched = cols;
+        update_group(
+            &mut g.sh,
+            &grads.sh,
+            &mut self.sh,
+            vis,
+            StepConst { cols, ..c },
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use augsplat_core::Rng;
+
+    /// `n` Gaussians of SH degree 3 with random parameters.
+    fn gaussians(n: usize, rng: &mut Rng) -> Gaussians {
+        let mut g = Gaussians::empty(3);
+        let mut r = || rng.uniform(-1.0, 1.0) as f32;
+        for _ in 0..n {
+            g.means.push([r(), r(), r()]);
+            g.log_scales.push([r(), r(), r()]);
+            g.quats.push([r(), r(), r(), r()]);
+            g.opacity_logits.push(r());
+            for _ in 0..48 {
+                g.sh.push(r());
+            }
+        }
+        g
+    }
+
+    /// Random gradients; visibility in runs of random length (some long, some single).
+    fn grads(n: usize, rng: &mut Rng, sh_active: usize) -> ParamGrads {
+        let mut p = ParamGrads::zeros(n, 16);
+        let mut i = 0;
+        let mut vis = false;
+        while i < n {
+            let run = 1 + rng.below(if vis { 300 } else { 40 }) as usize;
+            for v in p.visible.iter_mut().skip(i).take(run) {
+                *v = vis;
+            }
+            i += run;
+            vis = !vis;
+        }
+        let mut r = || (rng.uniform(-1.0, 1.0) * 1e-3) as f32;
+        for i in 0..n {
+            p.means[i] = [r(), r(), r()];
+            p.log_scales[i] = [r(), r(), r()];
+            p.quats[i] = [r(), r(), r(), r()];
+            p.opacity_logits[i] = r();
+            for k in 0..48 {
+                p.sh[i * 48 + k] = if k < sh_active { r() } else { 0.0 };
+            }
+        }
+        p.sh_active = sh_active;
+        p
+    }
+
+    #[test]
+    fn update_matches_an_f64_reference_over_runs_and_chunks() {
+        let mut rng = Rng::new(17);
+        let n = 2 * CHUNK + 777;
+        let g0 = gaussians(n, &mut rng);
+        let mut g = g0.clone();
+        let lr = LearningRates::default();
+        let mut adam = Adam::new(n, 16);
+        let steps: Vec<ParamGrads> = (0..3).map(|_| grads(n, &mut rng, 48)).collect();
+        for s in &steps {
+            adam.step(&mut g, s, &lr, 2e-3);
+        }
+        // f64 reference, value by value: (param, grads of one value per step, visible per step, lr).
+        let check = |name: &str, p0: f32, p: f32, gs: &[f64], vis: &[bool], lr: f64| {
+            let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-15f64);
+            let (mut m, mut v, mut x) = (0.0f64, 0.0f64, p0 as f64);
+            for (t, (&gv, &on)) in gs.iter().zip(vis).enumerate() {
+                if !on {
+                    continue;
+                }
+                let t = (t + 1) as i32;
+                m = b1 * m + (1.0 - b1) * gv;
+                v = b2 * v + (1.0 - b2) * gv * gv;
+                x -= lr / (1.0 - b1.powi(t)) * m / (v.sqrt() / (1.0 - b2.powi(t)).sqrt() + eps);
+            }
+            if vis.iter().all(|&v| !v) {
+                assert_eq!(p.to_bits(), p0.to_bits(), "{name}: invisible value moved");
+            }
+            assert!(
+                (p as f64 - x).abs() <= 1e-6 * (1.0 + x.abs()),
+                "{name}: {p} vs reference {x}"
+            );
+        };
+        for i in 0..n {
+            let vis: Vec<bool> = steps.iter().map(|s| s.visible[i]).collect();
+            for k in 0..3 {
+                let gs: Vec<f64> = steps.iter().map(|s| s.means[i][k] as f64).collect();
+                check("mean", g0.means[i][k], g.means[i][k], &gs, &vis, 2e-3);
+                let gs: Vec<f64> = steps.iter().map(|s| s.log_scales[i][k] as f64).collect();
+                check(
+                    "scale",
+                    g0.log_scales[i][k],
+                    g.log_scales[i][k],
+                    &gs,
+                    &vis,
+                    lr.scales,
+                );
+            }
+            let gs: Vec<f64> = steps.iter().map(|s| s.quats[i][3] as f64).collect();
+            check("quat", g0.quats[i][3], g.quats[i][3], &gs, &vis, lr.quats);
+            let gs: Vec<f64> = steps.iter().map(|s| s.opacity_logits[i] as f64).collect();
+            check(
+                "opacity",
+                g0.opacity_logits[i],
+                g.opacity_logits[i],
+                &gs,
+                &vis,
+                lr.opacities,
+            );
+            for k in [0, 2, 3, 17, 47] {
+                let gs: Vec<f64> = steps.iter().map(|s| s.sh[i * 48 + k] as f64).collect();
+                let rate = if k < 3 { lr.sh0 } else { lr.shn };
+                check("sh", g0.sh[i * 48 + k], g.sh[i * 48 + k], &gs, &vis, rate);
+            }
+        }
+    }
+
+    #[test]
+    fn inactive_sh_values_are_skipped_exactly() {
+        let mut rng = Rng::new(5);
+        let n = CHUNK + 100;
+        let g0 = gaussians(n, &mut rng);
+        let lr = LearningRates::default();
+        // Degree-1 gradients (12 values), declared once as all 48 and once as 12 active.
+        let steps: Vec<ParamGrads> = (0..3).map(|_| grads(n, &mut rng, 12)).collect();
+        let run = |declared: usize| {
+            let mut g = g0.clone();
+            let mut adam = Adam::new(n, 16);
+            for s in &steps {
+                let s = ParamGrads {
+                    sh_active: declared,
+                    ..s.clone()
+                };
+                adam.step(&mut g, &s, &lr, 1e-3);
+            }
+            (g, adam)
+        };
+        let (ga, aa) = run(48);
+        let (gb, ab) = run(12);
+        assert_eq!(
+            ga, gb,
+            "skipping zero-gradient, zero-moment values changes nothing"
+        );
+        assert_eq!(aa.moments(Group::Sh), ab.moments(Group::Sh));
+        // Once values were touched, a smaller declaration still updates them.
+        let mut g = g0.clone();
+        let mut adam = Adam::new(n, 16);
+        adam.step(&mut g, &steps[0], &lr, 1e-3);
+        let decay = ParamGrads {
+            sh: vec![0.0; n * 48],
+            sh_active: 3,
+            ..steps[1].clone()
+        };
+        let before = g.sh.clone();
+        adam.step(&mut g, &decay, &lr, 1e-3);
+        let i = (0..n)
+            .find(|&i| steps[0].visible[i] && steps[1].visible[i])
+            .unwrap();
+        assert_ne!(
+            g.sh[i * 48 + 5],
+            before[i * 48 + 5],
+            "momentum keeps moving value 5"
+        );
+    }
+
+    /// Every parameter and moment as raw bits.
+    fn bits(g: &Gaussians, a: &Adam) -> Vec<u32> {
+        let mut out: Vec<u32> = g
+            .means
+            .as_flattened()
+            .iter()
+            .chain(g.log_scales.as_flattened())
+            .chain(g.quats.as_flattened())
+            .chain(&g.opacity_logits)
+            .chain(&g.sh)
+            .map(|v| v.to_bits())
+            .collect();
+        for grp in [
+            Group::Means,
+            Group::Scales,
+            Group::Quats,
+            Group::Opacities,
+            Group::Sh,
+        ] {
+            let (m, v) = a.moments(grp);
+            out.extend(m.iter().chain(v).map(|x| x.to_bits()));
+        }
+        out
+    }
+
+    #[test]
+    fn update_is_bit_identical_for_every_instruction_set_and_thread_count() {
+        let mut rng = Rng::new(9);
+        let n = 3 * CHUNK + 5;
+        let g0 = gaussians(n, &mut rng);
+        let steps: Vec<ParamGrads> = (0..2).map(|_| grads(n, &mut rng, 27)).collect();
+        let lr = LearningRates::default();
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    let mut g = g0.clone();
+                    let mut adam = Adam::new(n, 16);
+                    for s in &steps {
+                        adam.step(&mut g, s, &lr, 1e-3);
+                    }
+                    bits(&g, &adam)
+                })
+        };
+        let results = crate::loss::test_simd::each_level(|| [run(1), run(2), run(3)]);
+        let first = &results[0].1[0];
+        for (level, rs) in &results {
+            for (k, r) in rs.iter().enumerate() {
+                assert!(r == first, "level {level}, run {k} differs");
+            }
+        }
     }
 }

@@ -191,20 +191,30 @@ impl Densifier {
     /// (× width/2, × height/2), `visible` marks Gaussians with radius > 0. Non-finite
     /// gradients are ignored.
     pub fn accumulate(&mut self, means2d: &[[f32; 2]], visible: &[bool]) {
+        self.accumulate_scaled(means2d, visible, 1.0);
+    }
+
+    /// [`Densifier::accumulate`] of the statistic multiplied by `factor` (per component,
+    /// before the norm: gsplat's `× n_cameras` for a batch of views).
+    pub fn accumulate_scaled(&mut self, means2d: &[[f32; 2]], visible: &[bool], factor: f32) {
         assert_eq!(
             means2d.len(),
             self.grad2d.len(),
             "densify statistics size differs"
         );
         assert_eq!(visible.len(), self.grad2d.len());
-        for i in 0..visible.len() {
-            if visible[i] {
-                let [x, y] = means2d[i];
+        for ((&[x, y], &v), (s, c)) in means2d
+            .iter()
+            .zip(visible)
+            .zip(self.grad2d.iter_mut().zip(self.count.iter_mut()))
+        {
+            if v {
+                let (x, y) = (x * factor, y * factor);
                 let n = (x * x + y * y).sqrt();
                 if n.is_finite() {
-                    self.grad2d[i] += n;
+                    *s += n;
                 }
-                self.count[i] += 1;
+                *c += 1;
             }
         }
     }

@@ -138,7 +138,8 @@ fn point(step: u64, e: &Evaluation, g: &Gaussians, seconds: f64, loss: f64) -> C
 
 impl Node for OptimizeSplats {
     const KIND: &'static str = "OptimizeSplats";
-    // 2: FMA rasteriser kernels and Frusta random initialisation change the outputs.
+    // 2: FMA rasteriser kernels, the fused loss and Frusta random initialisation change the
+    // outputs.
     const VERSION: u32 = 2;
     type Args = TrainArgs;
 

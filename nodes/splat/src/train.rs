@@ -10,7 +10,8 @@
 //!    resolution; synthetic views with a skip mask use [`crate::render_masked`];
 //! 3. asks each [`Supervision`] source for its loss and `dL/d(rgb)` scaled by the source's
 //!    weight (÷ batch size for the synthetic batch), back-propagates, and sums the gradients
-//!    in a fixed order;
+//!    in a fixed order (the first render's gradient buffers become the sum; later renders add
+//!    only their visible Gaussians and the SH coefficients of the active degree);
 //! 4. takes one Adam step (only Gaussians visible in some render of the step move; the means
 //!    rate follows [`LearningRates::means_at`]);
 //! 5. feeds the densification statistic of the *real* renders (and of the synthetic ones when
@@ -603,39 +604,86 @@ pub fn scene_scale(cameras: &[&Camera]) -> f64 {
     }
 }
 
-/// Adds one render's gradients into the step's sum (element-wise, so the order of renders is
-/// the only order that matters, and it is fixed).
-fn add_grads(acc: &mut ParamGrads, g: &Gradients) {
-    fn add<const K: usize>(a: &mut [[f32; K]], b: &[[f32; K]]) {
-        a.par_iter_mut()
-            .zip(b.par_iter())
-            .with_min_len(4096)
-            .for_each(|(x, y)| {
-                for k in 0..K {
-                    x[k] += y[k];
+/// Gaussians per parallel chunk of the gradient sum.
+const ADD_CHUNK: usize = 1024;
+
+/// Adds one render's gradients into the step's sum: only the Gaussians visible in that
+/// render (the others have zero gradients) and only the first `sh_active` SH values of each
+/// (the rest are zero above the active degree). Element-wise, so the order of renders is the
+/// only order that matters, and it is fixed.
+fn add_grads(acc: &mut ParamGrads, g: &Gradients, sh_active: usize) {
+    let n = acc.len();
+    let k3 = acc.sh.len().checked_div(n).unwrap_or(0);
+    let sh_cols = sh_active.min(k3);
+    let with_sh = g.sh.len() == acc.sh.len();
+    let c = ADD_CHUNK;
+    acc.means
+        .par_chunks_mut(c)
+        .zip(acc.log_scales.par_chunks_mut(c))
+        .zip(acc.quats.par_chunks_mut(c))
+        .zip(acc.opacity_logits.par_chunks_mut(c))
+        .zip(acc.sh.par_chunks_mut(c * k3.max(1)))
+        .zip(acc.visible.par_chunks_mut(c))
+        .enumerate()
+        .for_each(|(ci, (((((me, ls), qu), op), sh), vi))| {
+            let first = ci * c;
+            for j in 0..me.len() {
+                let i = first + j;
+                if !g.visible[i] {
+                    continue;
                 }
+                vi[j] = true;
+                for (d, s) in me[j].iter_mut().zip(&g.means[i]) {
+                    *d += s;
+                }
+                for (d, s) in ls[j].iter_mut().zip(&g.log_scales[i]) {
+                    *d += s;
+                }
+                for (d, s) in qu[j].iter_mut().zip(&g.quats[i]) {
+                    *d += s;
+                }
+                op[j] += g.opacity_logits[i];
+                if with_sh {
+                    let dst = &mut sh[j * k3..j * k3 + sh_cols];
+                    let src = &g.sh[i * k3..i * k3 + sh_cols];
+                    for (d, s) in dst.iter_mut().zip(src) {
+                        *d += s;
+                    }
+                }
+            }
+        });
+}
+
+/// Folds one render's gradients into the step's sum: the first render's buffers become the
+/// sum (no copy, no zeroing), later ones are added with [`add_grads`]. A gradient of the
+/// wrong size (e.g. from an empty set) contributes nothing.
+fn merge_grads(acc: &mut Option<ParamGrads>, gr: Gradients, n: usize, k3: usize, sh_active: usize) {
+    let sized = gr.means.len() == n
+        && gr.log_scales.len() == n
+        && gr.quats.len() == n
+        && gr.opacity_logits.len() == n
+        && gr.visible.len() == n;
+    if !sized {
+        return;
+    }
+    match acc {
+        Some(a) => add_grads(a, &gr, sh_active),
+        None => {
+            let sh = if gr.sh.len() == n * k3 {
+                gr.sh
+            } else {
+                vec![0.0; n * k3]
+            };
+            *acc = Some(ParamGrads {
+                means: gr.means,
+                log_scales: gr.log_scales,
+                quats: gr.quats,
+                opacity_logits: gr.opacity_logits,
+                sh,
+                visible: gr.visible,
+                sh_active,
             });
-    }
-    if g.means.len() != acc.len() {
-        return; // an empty gradient (e.g. an empty set) contributes nothing
-    }
-    add(&mut acc.means, &g.means);
-    add(&mut acc.log_scales, &g.log_scales);
-    add(&mut acc.quats, &g.quats);
-    acc.opacity_logits
-        .par_iter_mut()
-        .zip(g.opacity_logits.par_iter())
-        .with_min_len(4096)
-        .for_each(|(x, y)| *x += y);
-    if g.sh.len() == acc.sh.len() {
-        acc.sh
-            .par_iter_mut()
-            .zip(g.sh.par_iter())
-            .with_min_len(4096)
-            .for_each(|(x, y)| *x += y);
-    }
-    for (v, &w) in acc.visible.iter_mut().zip(&g.visible) {
-        *v |= w;
+        }
     }
 }
 
@@ -727,7 +775,7 @@ impl<'a> Trainer<'a> {
         Some(i)
     }
 
-    /// Renders view `i` of `src`, adds `scale · dL/drgb`, back-propagates into `acc`. Returns
+    /// Renders view `i` of `src`, adds `scale · dL/drgb`, back-propagates. Returns
     /// (unweighted-by-scale loss, the render's gradients, pairs).
     fn render_and_backward(
         &mut self,
@@ -735,7 +783,6 @@ impl<'a> Trainer<'a> {
         i: usize,
         scale: f64,
         settings: &RenderSettings,
-        acc: &mut ParamGrads,
     ) -> (f64, Gradients, u64) {
         let cam = src.camera(i);
         let out: RenderOutput = crate::render_masked(&self.g, cam, settings, src.mask(i));
@@ -743,7 +790,6 @@ impl<'a> Trainer<'a> {
         self.d_rgb.resize(out.rgb.len(), 0.0);
         let l = src.loss(i, &out.rgb, scale as f32, &mut self.d_rgb);
         let gr = crate::backward(&self.g, cam, settings, &out, &self.d_rgb, None, None);
-        add_grads(acc, &gr);
         (l, gr, out.stats.pairs)
     }
 
@@ -764,7 +810,9 @@ impl<'a> Trainer<'a> {
         }
         let settings = self.args.render_settings(step);
         let n = self.g.len();
-        let mut acc = ParamGrads::zeros(n, self.g.coeffs());
+        let k3 = self.g.coeffs() * 3;
+        let sh_active = 3 * crate::gaussians::sh_coeffs(settings.sh_degree.min(self.g.sh_degree));
+        let mut acc: Option<ParamGrads> = None;
         let mut rep = StepReport {
             step,
             ..Default::default()
@@ -773,14 +821,14 @@ impl<'a> Trainer<'a> {
         if plan.real_weight > 0.0 {
             if let Some(i) = self.next_real() {
                 let src = self.real;
-                let (l, gr, pairs) =
-                    self.render_and_backward(src, i, plan.real_weight, &settings, &mut acc);
+                let (l, gr, pairs) = self.render_and_backward(src, i, plan.real_weight, &settings);
                 rep.real_loss = Some(l);
                 rep.loss += plan.real_weight * l;
                 rep.pairs += pairs;
-                if densify_on && gr.means2d_abs.len() == n {
+                if densify_on && gr.means2d_abs.len() == n && gr.visible.len() == n {
                     self.densifier.accumulate(&gr.means2d_abs, &gr.visible);
                 }
+                merge_grads(&mut acc, gr, n, k3, sh_active);
             }
         }
         if plan.synthetic_weight > 0.0 && plan.synthetic_batch > 0 {
@@ -799,21 +847,21 @@ impl<'a> Trainer<'a> {
                     let scale = plan.synthetic_weight / b as f64;
                     let mut sum = 0.0;
                     for &i in &ids {
-                        let (l, gr, pairs) =
-                            self.render_and_backward(src, i, scale, &settings, &mut acc);
+                        let (l, gr, pairs) = self.render_and_backward(src, i, scale, &settings);
                         sum += l;
                         rep.pairs += pairs;
                         if densify_on
                             && self.args.synthetic.densify_from_synthetic
                             && gr.means2d_abs.len() == n
+                            && gr.visible.len() == n
                         {
-                            let m: Vec<[f32; 2]> = gr
-                                .means2d_abs
-                                .iter()
-                                .map(|v| [v[0] * b as f32, v[1] * b as f32])
-                                .collect();
-                            self.densifier.accumulate(&m, &gr.visible);
+                            self.densifier.accumulate_scaled(
+                                &gr.means2d_abs,
+                                &gr.visible,
+                                b as f32,
+                            );
                         }
+                        merge_grads(&mut acc, gr, n, k3, sh_active);
                     }
                     rep.synthetic_loss = Some(sum / b as f64);
                     rep.loss += plan.synthetic_weight * sum / b as f64;
@@ -824,6 +872,10 @@ impl<'a> Trainer<'a> {
             .args
             .learning_rates
             .means_at(step, self.args.steps, self.scene_scale);
+        let acc = acc.unwrap_or_else(|| ParamGrads {
+            sh_active,
+            ..ParamGrads::zeros(n, self.g.coeffs())
+        });
         self.adam
             .step(&mut self.g, &acc, &self.args.learning_rates, lr);
         if self.args.densify.enabled {
