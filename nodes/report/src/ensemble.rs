@@ -134,22 +134,7 @@ fn read_member_view(dir: &Path, set: &RenderSet, name: &str) -> Result<ImageF32,
     let view = set.views.iter().find(|v| v.name == name).ok_or_else(|| {
         ReportError::invalid(&json, format!("has no render of the test view {name:?}"))
     })?;
-    let path = dir.join(&view.file);
-    let exr = image::read_exr(&path)?;
-    let mut planes = Vec::with_capacity(3);
-    for ch in ["R", "G", "B"] {
-        planes.push(exr.channel(ch).ok_or_else(|| {
-            ReportError::invalid(&path, format!("no channel {ch} (has {:?})", exr.names()))
-        })?);
-    }
-    let n = exr.width as usize * exr.height as usize;
-    let mut data = Vec::with_capacity(3 * n);
-    for p in 0..n {
-        for plane in &planes {
-            data.push(plane[p]);
-        }
-    }
-    Ok(ImageF32::from_vec(exr.width, exr.height, 3, data))
+    Ok(image::read_rgb(&dir.join(&view.file))?)
 }
 
 /// Measures every member and their per-pixel median on the views of the scene folder `test`,
