@@ -30,6 +30,7 @@
 // small fixed-size numeric code.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
+use crate::adam::ParamGrads;
 use crate::constants::{ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS};
 use crate::forward::{
     detect_isa, gauss_of_sigma, row_mask_portable, smooth_cut, Isa, RowGeom, Splat2D, TileCoords,
@@ -520,6 +521,17 @@ fn backward_tile_dispatch<const SMOOTH: bool>(
     }
 }
 
+/// Where [`gaussian_gradients`] puts each visible Gaussian's gradients.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    /// Store them (the buffers hold zeros on entry).
+    Store,
+    /// Add them to the values already there (a step's running sum).
+    Add,
+}
+
+/// Gradients of a loss given the upstream image gradients, in fresh buffers (see
+/// [`crate::backward`]).
 pub(crate) fn backward_impl(
     g: &Gaussians,
     cam: &Camera,
@@ -529,10 +541,7 @@ pub(crate) fn backward_impl(
     d_alpha: Option<&[f32]>,
     d_depth: Option<&[f32]>,
 ) -> Gradients {
-    let st = &out.state;
-    let s = &st.settings;
     let n = g.len();
-    let kcoef = g.coeffs() * 3;
     let mut grads = Gradients {
         means: vec![[0.0; 3]; n],
         log_scales: vec![[0.0; 3]; n],
@@ -542,10 +551,76 @@ pub(crate) fn backward_impl(
         means2d_abs: vec![[0.0; 2]; n],
         visible: vec![false; n],
     };
+    let Some(pairs) = pair_gradients(cam, out, d_rgb, d_alpha, d_depth) else {
+        return grads;
+    };
+    let sinks = GradSinks {
+        means: &mut grads.means,
+        log_scales: &mut grads.log_scales,
+        quats: &mut grads.quats,
+        opacity_logits: &mut grads.opacity_logits,
+        sh: &mut grads.sh,
+        means2d_abs: Some(&mut grads.means2d_abs),
+        visible: &mut grads.visible,
+    };
+    gaussian_gradients(g, cam, out, &pairs, sinks, Mode::Store);
+    grads
+}
+
+/// Adds the gradients of a loss given dL/d(rgb) to `acc` (a training step's running sum):
+/// for every Gaussian this render composites, each value is added as `acc += gradient` with
+/// the gradient rounded to f32 exactly as [`backward_impl`] stores it, and `visible` is set.
+/// The result is therefore bit-identical to adding [`backward_impl`]'s output, without
+/// allocating or reading N-sized buffers per render. The SH values above the render's degree
+/// are left untouched. Buffers of the wrong size leave `acc` unchanged.
+pub(crate) fn backward_add_impl(
+    g: &Gaussians,
+    cam: &Camera,
+    out: &RenderOutput,
+    d_rgb: &[f32],
+    acc: &mut ParamGrads,
+) {
+    let n = g.len();
+    let sized = acc.means.len() == n
+        && acc.log_scales.len() == n
+        && acc.quats.len() == n
+        && acc.opacity_logits.len() == n
+        && acc.visible.len() == n
+        && acc.sh.len() == g.sh.len();
+    if !sized {
+        return;
+    }
+    let Some(pairs) = pair_gradients(cam, out, d_rgb, None, None) else {
+        return;
+    };
+    let sinks = GradSinks {
+        means: &mut acc.means,
+        log_scales: &mut acc.log_scales,
+        quats: &mut acc.quats,
+        opacity_logits: &mut acc.opacity_logits,
+        sh: &mut acc.sh,
+        means2d_abs: None,
+        visible: &mut acc.visible,
+    };
+    gaussian_gradients(g, cam, out, &pairs, sinks, Mode::Add);
+}
+
+/// Step 1 of the backward pass: the screen-space gradient of every (tile, Gaussian) pair,
+/// Gaussian-major (`bins.pair_slot`). `None` when nothing was composited or the camera does
+/// not match the render.
+fn pair_gradients(
+    cam: &Camera,
+    out: &RenderOutput,
+    d_rgb: &[f32],
+    d_alpha: Option<&[f32]>,
+    d_depth: Option<&[f32]>,
+) -> Option<Vec<PairGrad>> {
+    let st = &out.state;
+    let s = &st.settings;
     let (width, height) = (out.width, out.height);
     let npix = width as usize * height as usize;
     if st.splats.is_empty() || cam.width != width || cam.height != height {
-        return grads;
+        return None;
     }
     let d_rgb = (d_rgb.len() == npix * 3).then_some(d_rgb);
     let d_alpha = d_alpha.filter(|v| v.len() == npix);
@@ -556,7 +631,7 @@ pub(crate) fn backward_impl(
     let isa = detect_isa();
     let bg = s.background;
 
-    // 1. per-tile pair gradients, written Gaussian-major (`bins.pair_slot`): each Gaussian's
+    // Per-tile pair gradients, written Gaussian-major (`bins.pair_slot`): each Gaussian's
     // pairs are contiguous, in row-major tile order. Every slot is written exactly once.
     let total = bins.ranks.len();
     let mut pair_grads: Vec<PairGrad> = Vec::with_capacity(total);
@@ -633,84 +708,188 @@ pub(crate) fn backward_impl(
     // SAFETY: every one of the `total` slots was written above (each tile emits every list
     // entry), and `PairGrad` is plain data.
     unsafe { pair_grads.set_len(total) };
+    Some(pair_grads)
+}
 
-    // 2. per-Gaussian sums in a fixed order, then projection + SH backward.
+/// The per-Gaussian destination slices of [`gaussian_gradients`].
+struct GradSinks<'a> {
+    means: &'a mut [[f32; 3]],
+    log_scales: &'a mut [[f32; 3]],
+    quats: &'a mut [[f32; 4]],
+    opacity_logits: &'a mut [f32],
+    sh: &'a mut [f32],
+    /// The densification statistic (stored in either mode), when wanted.
+    means2d_abs: Option<&'a mut [[f32; 2]]>,
+    visible: &'a mut [bool],
+}
+
+/// One [`PROJECT_CHUNK`] of [`GradSinks`].
+struct SinkChunk<'a> {
+    first: usize,
+    means: &'a mut [[f32; 3]],
+    log_scales: &'a mut [[f32; 3]],
+    quats: &'a mut [[f32; 4]],
+    opacity_logits: &'a mut [f32],
+    sh: &'a mut [f32],
+    means2d_abs: Option<&'a mut [[f32; 2]]>,
+    visible: &'a mut [bool],
+}
+
+/// Step 2 of the backward pass: per Gaussian (in parallel chunks), its pair slots summed in
+/// f64 in a fixed order, then the projection and SH backward; results stored or added
+/// (`mode`) into `sinks`.
+fn gaussian_gradients(
+    g: &Gaussians,
+    cam: &Camera,
+    out: &RenderOutput,
+    pair_grads: &[PairGrad],
+    sinks: GradSinks,
+    mode: Mode,
+) {
+    let st = &out.state;
+    let s = &st.settings;
+    let bins = &st.bins;
+    let kcoef = g.coeffs() * 3;
     let cm = CameraModel::new(cam);
     let degree = st.sh_degree;
-    let (hw, hh) = (width as f64 * 0.5, height as f64 * 0.5);
-    grads
+    let active = sh::basis_len(degree) * 3;
+    let (hw, hh) = (out.width as f64 * 0.5, out.height as f64 * 0.5);
+    let c = PROJECT_CHUNK;
+    let mut m2d = sinks.means2d_abs.map(|v| v.chunks_mut(c));
+    let chunks: Vec<SinkChunk> = sinks
         .means
-        .par_chunks_mut(PROJECT_CHUNK)
-        .zip(grads.log_scales.par_chunks_mut(PROJECT_CHUNK))
-        .zip(grads.quats.par_chunks_mut(PROJECT_CHUNK))
-        .zip(grads.opacity_logits.par_chunks_mut(PROJECT_CHUNK))
-        .zip(grads.sh.par_chunks_mut(PROJECT_CHUNK * kcoef.max(1)))
-        .zip(grads.means2d_abs.par_chunks_mut(PROJECT_CHUNK))
-        .zip(grads.visible.par_chunks_mut(PROJECT_CHUNK))
+        .chunks_mut(c)
+        .zip(sinks.log_scales.chunks_mut(c))
+        .zip(sinks.quats.chunks_mut(c))
+        .zip(sinks.opacity_logits.chunks_mut(c))
+        .zip(sinks.sh.chunks_mut(c * kcoef.max(1)))
+        .zip(sinks.visible.chunks_mut(c))
         .enumerate()
-        .for_each(|(ci, ((((((gm, gl), gq), go), gsh), g2), gv))| {
-            for j in 0..gm.len() {
-                let i = ci * PROJECT_CHUNK + j;
-                let (lo, hi) = (bins.gauss_start[i], bins.gauss_start[i + 1]);
-                if lo == hi {
-                    continue;
-                }
-                let mut rg = [0.0f64; 10];
-                for pg in &pair_grads[lo..hi] {
-                    for q in 0..10 {
-                        rg[q] += pg[q] as f64;
-                    }
-                }
-                gv[j] = true;
-                g2[j] = [(rg[0] * hw) as f32, (rg[1] * hh) as f32];
-                if rg.iter().all(|v| *v == 0.0) {
-                    // Visible but never composited (occluded or behind saturated pixels):
-                    // every parameter gradient is exactly zero.
-                    continue;
-                }
-                let pg = ProjectedGrad {
-                    mean2d: [rg[0], rg[1]],
-                    conic: [rg[2], rg[3], rg[4]],
-                    opacity: rg[5],
-                    depth: rg[9],
-                };
-                let p = project_vjp(
-                    &cm,
-                    g.means[i],
-                    g.log_scales[i],
-                    g.quats[i],
-                    g.opacity_logits[i],
-                    s.antialiased,
-                    s.near as f64,
-                    &pg,
-                );
-                let mut gmean = p.mean;
-                // SH: colour depends on the view direction normalize(mean − centre).
-                let m = g.means[i];
-                let v = [
-                    m[0] as f64 - cm.center[0],
-                    m[1] as f64 - cm.center[1],
-                    m[2] as f64 - cm.center[2],
-                ];
-                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                if len > 0.0 {
-                    let dir = [v[0] / len, v[1] / len, v[2] / len];
-                    let coefs = &g.sh[i * kcoef..(i + 1) * kcoef];
-                    let dst = &mut gsh[j * kcoef..(j + 1) * kcoef];
-                    let gd =
-                        sh::eval_color_vjp_into(degree, coefs, dir, [rg[6], rg[7], rg[8]], dst);
-                    let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
-                    for a in 0..3 {
-                        gmean[a] += (gd[a] - dir[a] * dd) / len;
-                    }
-                }
-                gm[j] = gmean.map(|x| x as f32);
-                gl[j] = p.log_scale.map(|x| x as f32);
-                gq[j] = p.quat.map(|x| x as f32);
-                go[j] = p.logit as f32;
+        .map(
+            |(ci, (((((means, log_scales), quats), opacity_logits), sh), visible))| SinkChunk {
+                first: ci * c,
+                means,
+                log_scales,
+                quats,
+                opacity_logits,
+                sh,
+                means2d_abs: m2d.as_mut().and_then(|it| it.next()),
+                visible,
+            },
+        )
+        .collect();
+    chunks.into_par_iter().for_each(|ch| {
+        let SinkChunk {
+            first,
+            means: gm,
+            log_scales: gl,
+            quats: gq,
+            opacity_logits: go,
+            sh: gsh,
+            mut means2d_abs,
+            visible: gv,
+        } = ch;
+        let mut sh_grad = vec![0.0f32; kcoef];
+        for j in 0..gm.len() {
+            let i = first + j;
+            let (lo, hi) = (bins.gauss_start[i], bins.gauss_start[i + 1]);
+            if lo == hi {
+                continue;
             }
-        });
-    grads
+            let mut rg = [0.0f64; 10];
+            for pg in &pair_grads[lo..hi] {
+                for q in 0..10 {
+                    rg[q] += pg[q] as f64;
+                }
+            }
+            gv[j] = true;
+            if let Some(g2) = means2d_abs.as_deref_mut() {
+                g2[j] = [(rg[0] * hw) as f32, (rg[1] * hh) as f32];
+            }
+            if rg.iter().all(|v| *v == 0.0) {
+                // Visible but never composited (occluded or behind saturated pixels):
+                // every parameter gradient is exactly zero.
+                continue;
+            }
+            let pg = ProjectedGrad {
+                mean2d: [rg[0], rg[1]],
+                conic: [rg[2], rg[3], rg[4]],
+                opacity: rg[5],
+                depth: rg[9],
+            };
+            let p = project_vjp(
+                &cm,
+                g.means[i],
+                g.log_scales[i],
+                g.quats[i],
+                g.opacity_logits[i],
+                s.antialiased,
+                s.near as f64,
+                &pg,
+            );
+            let mut gmean = p.mean;
+            // SH: colour depends on the view direction normalize(mean − centre).
+            let m = g.means[i];
+            let v = [
+                m[0] as f64 - cm.center[0],
+                m[1] as f64 - cm.center[1],
+                m[2] as f64 - cm.center[2],
+            ];
+            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let mut with_sh = false;
+            if len > 0.0 {
+                let dir = [v[0] / len, v[1] / len, v[2] / len];
+                let coefs = &g.sh[i * kcoef..(i + 1) * kcoef];
+                let gd = sh::eval_color_vjp_into(
+                    degree,
+                    coefs,
+                    dir,
+                    [rg[6], rg[7], rg[8]],
+                    &mut sh_grad[..kcoef],
+                );
+                with_sh = true;
+                let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
+                for a in 0..3 {
+                    gmean[a] += (gd[a] - dir[a] * dd) / len;
+                }
+            }
+            let dst_sh = &mut gsh[j * kcoef..j * kcoef + active];
+            let vals = (
+                gmean.map(|x| x as f32),
+                p.log_scale.map(|x| x as f32),
+                p.quat.map(|x| x as f32),
+                p.logit as f32,
+            );
+            match mode {
+                Mode::Store => {
+                    gm[j] = vals.0;
+                    gl[j] = vals.1;
+                    gq[j] = vals.2;
+                    go[j] = vals.3;
+                    if with_sh {
+                        dst_sh.copy_from_slice(&sh_grad[..active]);
+                    }
+                }
+                Mode::Add => {
+                    for (d, s) in gm[j].iter_mut().zip(vals.0) {
+                        *d += s;
+                    }
+                    for (d, s) in gl[j].iter_mut().zip(vals.1) {
+                        *d += s;
+                    }
+                    for (d, s) in gq[j].iter_mut().zip(vals.2) {
+                        *d += s;
+                    }
+                    go[j] += vals.3;
+                    if with_sh {
+                        for (d, s) in dst_sh.iter_mut().zip(&sh_grad[..active]) {
+                            *d += s;
+                        }
+                    }
+                }
+            }
+        }
+    });
 }
 
 /// Raw pointer to the Gaussian-major pair buffer, written by the tiles in parallel.

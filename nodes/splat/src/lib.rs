@@ -23,5 +23,6 @@ pub use gaussians::Gaussians;
 pub use node::{register, OptimizeSplats};
 pub use ply::{read_ply, write_ply};
 pub use render::{
-    backward, render, render_masked, Gradients, RenderOutput, RenderSettings, RenderStats,
+    backward, backward_add, render, render_masked, Gradients, RenderOutput, RenderSettings,
+    RenderStats,
 };

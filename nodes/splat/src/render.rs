@@ -149,3 +149,20 @@ pub fn backward(
 ) -> Gradients {
     crate::backward::backward_impl(g, cam, s, out, d_rgb, d_alpha, d_depth)
 }
+
+/// Adds the gradients of a loss given dL/d(rgb) to a running sum `acc` (e.g. the gradients
+/// of a training step's earlier renders), without allocating per-render buffers. The result
+/// is bit-identical to adding [`backward`]'s output value by value for the Gaussians this
+/// render composites; their `acc.visible` is set. The SH values above the render's degree and
+/// every Gaussian the render does not composite are left untouched. Nothing is added when
+/// `acc`'s sizes do not match `g`. The densification statistic is not produced (use
+/// [`backward`] for renders that feed it).
+pub fn backward_add(
+    g: &Gaussians,
+    cam: &Camera,
+    out: &RenderOutput,
+    d_rgb: &[f32],
+    acc: &mut crate::adam::ParamGrads,
+) {
+    crate::backward::backward_add_impl(g, cam, out, d_rgb, acc)
+}

@@ -793,6 +793,26 @@ impl<'a> Trainer<'a> {
         (l, gr, out.stats.pairs)
     }
 
+    /// Renders view `i` of `src`, adds `scale · dL/drgb`, back-propagates into `acc`.
+    /// Returns (unweighted-by-scale loss, pairs).
+    fn render_and_add(
+        g: &Gaussians,
+        src: &dyn Supervision,
+        i: usize,
+        scale: f64,
+        settings: &RenderSettings,
+        d_rgb: &mut Vec<f32>,
+        acc: &mut ParamGrads,
+    ) -> (f64, u64) {
+        let cam = src.camera(i);
+        let out: RenderOutput = crate::render_masked(g, cam, settings, src.mask(i));
+        d_rgb.clear();
+        d_rgb.resize(out.rgb.len(), 0.0);
+        let l = src.loss(i, &out.rgb, scale as f32, d_rgb);
+        crate::backward_add(g, cam, &out, d_rgb, acc);
+        (l, out.stats.pairs)
+    }
+
     /// One optimisation step.
     pub fn step(&mut self) -> StepReport {
         let step = self.step;
@@ -846,22 +866,40 @@ impl<'a> Trainer<'a> {
                     ids.truncate(b);
                     let scale = plan.synthetic_weight / b as f64;
                     let mut sum = 0.0;
+                    let want_stat = densify_on && self.args.synthetic.densify_from_synthetic;
                     for &i in &ids {
-                        let (l, gr, pairs) = self.render_and_backward(src, i, scale, &settings);
-                        sum += l;
-                        rep.pairs += pairs;
-                        if densify_on
-                            && self.args.synthetic.densify_from_synthetic
-                            && gr.means2d_abs.len() == n
-                            && gr.visible.len() == n
-                        {
-                            self.densifier.accumulate_scaled(
-                                &gr.means2d_abs,
-                                &gr.visible,
-                                b as f32,
+                        if want_stat {
+                            let (l, gr, pairs) = self.render_and_backward(src, i, scale, &settings);
+                            sum += l;
+                            rep.pairs += pairs;
+                            if gr.means2d_abs.len() == n && gr.visible.len() == n {
+                                self.densifier.accumulate_scaled(
+                                    &gr.means2d_abs,
+                                    &gr.visible,
+                                    b as f32,
+                                );
+                            }
+                            merge_grads(&mut acc, gr, n, k3, sh_active);
+                        } else {
+                            // No statistic wanted: add straight into the step's sum (the
+                            // same values as merging a fresh buffer, without N-sized
+                            // buffers per view).
+                            let a = acc.get_or_insert_with(|| ParamGrads {
+                                sh_active,
+                                ..ParamGrads::zeros(n, self.g.coeffs())
+                            });
+                            let (l, pairs) = Self::render_and_add(
+                                &self.g,
+                                src,
+                                i,
+                                scale,
+                                &settings,
+                                &mut self.d_rgb,
+                                a,
                             );
+                            sum += l;
+                            rep.pairs += pairs;
                         }
-                        merge_grads(&mut acc, gr, n, k3, sh_active);
                     }
                     rep.synthetic_loss = Some(sum / b as f64);
                     rep.loss += plan.synthetic_weight * sum / b as f64;
