@@ -197,6 +197,9 @@ pub fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())
 }
 
+/// ln(f64::MAX): the largest argument whose `exp` is finite.
+const LN_F64_MAX: f64 = 709.782712893384;
+
 #[inline(always)]
 fn intermediates(
     cam: &CameraModel,
@@ -224,17 +227,20 @@ fn intermediates(
     if !(n2 >= MIN_QUAT_NORM2) || !n2.is_finite() {
         return Err(Outcome::Invalid);
     }
-    let s = [
-        (log_scale[0] as f64).exp(),
-        (log_scale[1] as f64).exp(),
-        (log_scale[2] as f64).exp(),
-    ];
-    if !s.iter().all(|v| v.is_finite()) {
+    // exp(x) is finite exactly when x ≤ ln(f64::MAX) (no f32 lies between that bound and
+    // its f64 rounding), so the scales are checked before, and computed after, the near-plane
+    // test: Gaussians behind the camera cost no exponentials.
+    if !log_scale.iter().all(|&l| l as f64 <= LN_F64_MAX) {
         return Err(Outcome::Invalid);
     }
     if !(pc[2] >= near) {
         return Err(Outcome::Culled);
     }
+    let s = [
+        (log_scale[0] as f64).exp(),
+        (log_scale[1] as f64).exp(),
+        (log_scale[2] as f64).exp(),
+    ];
     let qnorm = n2.sqrt();
     let inv = 1.0 / qnorm;
     let qn = [q[0] * inv, q[1] * inv, q[2] * inv, q[3] * inv];
@@ -521,5 +527,44 @@ pub fn project_vjp(
         log_scale: g_ls,
         quat: g_quat,
         logit: g_obase * o * (1.0 - o),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_scale_bound_is_exactly_where_exp_overflows() {
+        assert!(LN_F64_MAX.exp().is_finite());
+        // The f32 values on either side of the bound.
+        let below = 709.782_65_f32;
+        let above = f32::from_bits(below.to_bits() + 1);
+        assert!((below as f64) <= LN_F64_MAX && (above as f64) > LN_F64_MAX);
+        assert!((below as f64).exp().is_finite());
+        assert!((above as f64).exp().is_infinite());
+        // Behind the camera the one is culled and the other invalid, as when the
+        // exponentials were taken before the near-plane test; in front both overflow the
+        // covariance (invalid).
+        let cam = augsplat_core::Camera {
+            width: 32,
+            height: 24,
+            fx: 30.0,
+            fy: 30.0,
+            cx: 16.0,
+            cy: 12.0,
+            world_to_camera: augsplat_core::linalg::mat4_from_rt(
+                &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                [0.0, 0.0, 0.0],
+            ),
+        };
+        let cm = CameraModel::new(&cam);
+        let q = [1.0, 0.0, 0.0, 0.0];
+        let go =
+            |z: f32, ls: f32| project(&cm, [0.0, 0.0, z], [ls, -3.0, -3.0], q, 2.0, false, 0.01);
+        assert!(matches!(go(2.0, below), Outcome::Invalid));
+        assert!(matches!(go(2.0, above), Outcome::Invalid));
+        assert!(matches!(go(-2.0, below), Outcome::Culled));
+        assert!(matches!(go(-2.0, above), Outcome::Invalid));
     }
 }
