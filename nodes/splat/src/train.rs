@@ -944,7 +944,8 @@ pub struct Evaluation {
     pub mse: f64,
     /// Mean per-view LPIPS when a model was given.
     pub lpips: Option<f64>,
-    /// Average error from the means, when LPIPS is available.
+    /// Mean per-view average error `(MSE·√(1−SSIM)·LPIPS)^⅓`, when LPIPS is available (the
+    /// convention of the `Evaluate` node, so curve and evaluation agree).
     pub avg_error: Option<f64>,
 }
 
@@ -960,7 +961,7 @@ pub struct EvalError {
 }
 
 /// Renders every view (colour clamped to [0, 1], as gsplat's evaluation) and averages PSNR,
-/// SSIM, MSE (and LPIPS) over views with `augsplat-metrics`. A view rendered exactly counts
+/// SSIM, MSE (and LPIPS and the average error) over views with `augsplat-metrics`. A view rendered exactly counts
 /// as 100 dB (instead of +∞) so the mean stays finite.
 pub fn evaluate(
     g: &Gaussians,
@@ -973,7 +974,7 @@ pub fn evaluate(
     if views.is_empty() {
         return Ok(e);
     }
-    let mut lp = 0.0;
+    let (mut lp, mut avg) = (0.0, 0.0);
     for v in views {
         let out = crate::render(g, &v.camera, settings);
         let (w, h) = (v.camera.width, v.camera.height);
@@ -984,11 +985,14 @@ pub fn evaluate(
             source,
         };
         let mse = augsplat_metrics::mse(&pred, &gt).map_err(err)?;
+        let ssim = augsplat_metrics::ssim(&pred, &gt).map_err(err)?;
         e.mse += mse;
         e.psnr += augsplat_metrics::psnr_from_mse(mse).min(100.0);
-        e.ssim += augsplat_metrics::ssim(&pred, &gt).map_err(err)?;
+        e.ssim += ssim;
         if let Some(m) = lpips {
-            lp += m.distance(&pred, &gt).map_err(err)?;
+            let l = m.distance(&pred, &gt).map_err(err)?;
+            lp += l;
+            avg += augsplat_metrics::average_error(mse, ssim, l);
         }
     }
     let n = views.len() as f64;
@@ -996,9 +1000,8 @@ pub fn evaluate(
     e.psnr /= n;
     e.ssim /= n;
     if lpips.is_some() {
-        let l = lp / n;
-        e.lpips = Some(l);
-        e.avg_error = Some(augsplat_metrics::average_error(e.mse, e.ssim, l));
+        e.lpips = Some(lp / n);
+        e.avg_error = Some(avg / n);
     }
     Ok(e)
 }

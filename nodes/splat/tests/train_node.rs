@@ -213,3 +213,65 @@ fn node_selects_by_average_error_when_lpips_weights_are_given() {
         assert!(best.steps_run < 40);
     }
 }
+
+/// The curve's average error is the mean of the per-view average errors (the `Evaluate`
+/// node's convention), not the average error of the mean MSE, SSIM and LPIPS.
+#[test]
+fn curve_average_error_is_the_mean_of_per_view_average_errors() {
+    use augsplat_core::ImageF32;
+    use augsplat_splat::init::{from_points, InitArgs};
+    use augsplat_splat::train::{evaluate, RealView};
+    use augsplat_splat::RenderSettings;
+    let lp = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/lpips");
+    let Ok(model) = augsplat_metrics::lpips::Lpips::load(&lp.join("lpips_alex_v0.1.safetensors"))
+    else {
+        eprintln!("skipping: no LPIPS weights under {}", lp.display());
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, test) = train_util::make_scene(tmp.path(), 48, 40, 9, 300);
+    let scene = Scene::load(&train).unwrap();
+    let g = from_points(
+        &scene.load_points(&train).unwrap(),
+        0,
+        &InitArgs::default(),
+        1.0,
+        3,
+    );
+    let test_scene = Scene::load(&test).unwrap();
+    let views: Vec<RealView> = test_scene
+        .views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| RealView {
+            name: v.name.clone(),
+            camera: v.camera.clone(),
+            image: test_scene.load_image(&test, i).unwrap().data,
+        })
+        .collect();
+    assert!(views.len() >= 2);
+    let s = RenderSettings::default();
+    let e = evaluate(&g, &views, &s, Some(&model)).unwrap();
+    let mut per_view = Vec::new();
+    for v in &views {
+        let (w, h) = (v.camera.width, v.camera.height);
+        let out = augsplat_splat::render(&g, &v.camera, &s);
+        let pred = ImageF32::from_vec(w, h, 3, out.rgb.iter().map(|x| x.clamp(0.0, 1.0)).collect());
+        let gt = ImageF32::from_vec(w, h, 3, v.image.clone());
+        let mse = augsplat_metrics::mse(&pred, &gt).unwrap();
+        let ssim = augsplat_metrics::ssim(&pred, &gt).unwrap();
+        let l = model.distance(&pred, &gt).unwrap();
+        per_view.push((mse, ssim, l, augsplat_metrics::average_error(mse, ssim, l)));
+    }
+    let n = per_view.len() as f64;
+    let want = per_view.iter().map(|p| p.3).sum::<f64>() / n;
+    let got = e.avg_error.unwrap();
+    assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+    // The other convention differs here, so the test tells them apart.
+    let of_means = augsplat_metrics::average_error(
+        per_view.iter().map(|p| p.0).sum::<f64>() / n,
+        per_view.iter().map(|p| p.1).sum::<f64>() / n,
+        per_view.iter().map(|p| p.2).sum::<f64>() / n,
+    );
+    assert!((got - of_means).abs() > 1e-9, "{got} vs {of_means}");
+}
