@@ -72,6 +72,9 @@ pub struct CompResult {
     pub key: Option<Hash>,
     /// Seconds it ran (0 when cached).
     pub seconds: f64,
+    /// Seconds the computation took when it ran: this run's for `Ran`, the cache entry's
+    /// record for `Cached` (so a resumed run still shows what each stage costs).
+    pub computed_seconds: f64,
     /// Output name -> manifest hash.
     pub outputs: BTreeMap<String, Hash>,
     /// Whether it waited for another process computing the same key.
@@ -149,13 +152,15 @@ impl RunReport {
         }
         serde_json::json!({ "nodes": nodes })
     }
-    /// A text table: node, kind, cached/ran, seconds.
+    /// A text table: node, kind, cached/ran, seconds this run, seconds when computed (the
+    /// cache record's for cached nodes), and the totals.
     pub fn table(&self, plan: &Plan) -> String {
         let mut rows = vec![(
             "node".to_string(),
             "kind".to_string(),
             "status".to_string(),
             "seconds".to_string(),
+            "computed s".to_string(),
         )];
         for inst in &plan.instances {
             let Some(r) = &self.results[inst.comp] else {
@@ -166,19 +171,24 @@ impl RunReport {
             } else {
                 r.status.as_str().to_string()
             };
+            let computed = match r.status {
+                Status::Ran | Status::Cached => format!("{:.2}", r.computed_seconds),
+                _ => "—".to_string(),
+            };
             rows.push((
                 inst.name.clone(),
                 plan.comps[inst.comp].node.kind().to_string(),
                 status,
                 format!("{:.2}", r.seconds),
+                computed,
             ));
         }
         let w0 = rows.iter().map(|r| r.0.chars().count()).max().unwrap_or(0);
         let w1 = rows.iter().map(|r| r.1.len()).max().unwrap_or(0);
         let w2 = rows.iter().map(|r| r.2.len()).max().unwrap_or(0);
         let mut s = String::new();
-        for (a, b, c, d) in rows {
-            s.push_str(&format!("{a:w0$}  {b:w1$}  {c:w2$}  {d:>8}\n"));
+        for (a, b, c, d, e) in rows {
+            s.push_str(&format!("{a:w0$}  {b:w1$}  {c:w2$}  {d:>8}  {e:>10}\n"));
         }
         let (mut ran, mut cached, mut failed) = (0, 0, 0);
         for r in self.results.iter().flatten() {
@@ -188,8 +198,17 @@ impl RunReport {
                 _ => failed += 1,
             }
         }
+        // Computations shared by several instances count once.
+        let computed: f64 = self
+            .results
+            .iter()
+            .flatten()
+            .filter(|r| matches!(r.status, Status::Ran | Status::Cached))
+            .map(|r| r.computed_seconds)
+            .sum();
         s.push_str(&format!(
-            "{ran} ran, {cached} cached, {failed} failed or skipped, {:.2} s\n",
+            "{ran} ran, {cached} cached, {failed} failed or skipped, {:.2} s \
+             (sum of the needed nodes' compute times: {computed:.2} s)\n",
             self.seconds
         ));
         s
@@ -361,6 +380,7 @@ pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunRepor
                             status: Status::Cached,
                             key: Some(key),
                             seconds: 0.0,
+                            computed_seconds: entry.seconds,
                             outputs,
                             waited: false,
                         },
@@ -452,6 +472,7 @@ pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunRepor
                 status: Status::Skipped,
                 key: None,
                 seconds: 0.0,
+                computed_seconds: 0.0,
                 outputs: BTreeMap::new(),
                 waited: false,
             });
@@ -516,6 +537,7 @@ fn run_one(
         status: Status::Failed(m),
         key: Some(key),
         seconds: secs,
+        computed_seconds: secs,
         outputs: BTreeMap::new(),
         waited: false,
     };
@@ -531,6 +553,7 @@ fn run_one(
                     status: Status::Cached,
                     key: Some(key),
                     seconds: 0.0,
+                    computed_seconds: entry.seconds,
                     outputs,
                     waited: claim.waited,
                 },
@@ -685,6 +708,7 @@ fn run_in_scratch(
         status: Status::Ran,
         key: Some(key),
         seconds: secs,
+        computed_seconds: secs,
         outputs: manifests,
         waited: false,
     })

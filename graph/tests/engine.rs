@@ -116,9 +116,27 @@ fn first_run_runs_all_second_none_and_arg_change_reruns_descendants() {
     assert_eq!(take(), ["app", "len", "other", "src"]);
     assert_eq!(env.read(&plan, &report, "app", "out"), "abab|0.5!");
     assert_eq!(env.read(&plan, &report, "len", "out"), "9");
+    let first: Vec<f64> = report.results.iter().flatten().map(|r| r.seconds).collect();
     let (plan, report) = env.run(&f, &[]);
     assert!(take().is_empty(), "second run must run nothing");
     assert!(statuses(&plan, &report).iter().all(|(_, s)| s == "cached"));
+    // A cached node takes no time in this run and reports, for the table, its compute time
+    // recorded by the run that computed it.
+    let second: Vec<(f64, f64)> = report
+        .results
+        .iter()
+        .flatten()
+        .map(|r| (r.seconds, r.computed_seconds))
+        .collect();
+    assert_eq!(first.len(), second.len());
+    for (a, (b, b_computed)) in first.iter().zip(&second) {
+        assert!(*a > 0.0);
+        assert_eq!(*b, 0.0);
+        assert_eq!(b_computed, a);
+    }
+    let table = report.table(&plan);
+    assert!(table.contains("computed s"), "{table}");
+    assert!(table.contains("compute times"), "{table}");
     // Change `app`'s suffix: app and len rerun, src and other stay cached.
     let f2 = env.write("p.ron", &CHAIN.replace(r#"suffix: "!""#, r#"suffix: "%""#));
     let (plan, report) = env.run(&f2, &[]);
