@@ -274,3 +274,58 @@ fn gamma_sweep_trains_the_ensemble_once() {
     let again = run("sweep_gamma.ron", &cache, &["params.members=2"]);
     assert!(ran(&again).is_empty());
 }
+
+/// `augsplat plan FILE --cache CACHE` (no --set): its stdout.
+fn plan(file: &str, cache: &Path) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_augsplat"))
+        .arg("plan")
+        .arg(pipeline(file))
+        .arg("--cache")
+        .arg(cache)
+        .output()
+        .expect("runs the augsplat binary");
+    assert!(
+        out.status.success(),
+        "augsplat plan {file} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The real-data pipelines and their sweeps load and plan (keys from the real files in
+/// ../shared/data), and each bonsai sweep point shares everything upstream of its parameter
+/// with bonsai.ron: the scene, the 5 fields and their renders, the baseline.
+#[test]
+fn real_data_pipelines_plan_and_their_sweeps_share_the_ensemble() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    if !data.join("bonsai/colmap30").is_dir() || !data.join("fern").is_dir() {
+        eprintln!("skipping: no real data under {}", data.display());
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let unique = |text: &str| -> usize {
+        let line = text
+            .lines()
+            .find(|l| l.contains("unique computations"))
+            .unwrap_or_else(|| panic!("no totals line in:\n{text}"));
+        let inner = line.split('(').nth(1).unwrap();
+        inner.split_whitespace().next().unwrap().parse().unwrap()
+    };
+    let bonsai = unique(&plan("bonsai.ron", &cache));
+    assert_eq!(unique(&plan("fern.ron", &cache)), bonsai);
+    // Per point, only the point's own nodes are new: γ → aggregate, staged, dual, their two
+    // evaluations, report; D → dual, eval_dual, report; warm-up → staged, eval_staged, report.
+    // The point equal to the default shares every node with bonsai.ron.
+    for (file, points, per_point) in [
+        ("bonsai_sweep_gamma.ron", 5, 6),
+        ("bonsai_sweep_decay.ron", 3, 3),
+        ("bonsai_sweep_warmup.ron", 3, 3),
+    ] {
+        assert_eq!(
+            unique(&plan(file, &cache)),
+            bonsai + (points - 1) * per_point,
+            "{file}"
+        );
+    }
+}
