@@ -6,6 +6,9 @@
 //! With `--kernels`, the loss (L2 + 0.2·SSIM) and the Adam step are also timed in isolation
 //! (`--steps` repetitions each on a fixed render and fixed gradients; min and median
 //! reported, which is robust to a loaded machine).
+//! With `--accumulate K`, the gradient sum of K renders of the view (a Staged/Dual synthetic
+//! batch) is also timed both ways: `backward` into fresh buffers then added to the sum, vs
+//! `backward_add` straight into the sum (min and median of `--steps` repetitions).
 //! Gaussians are random in a box in front of the camera (isotropic-ish, scale ~ 1–3 px),
 //! the target image a smooth gradient.
 
@@ -13,7 +16,7 @@ use augsplat_core::{Camera, Rng};
 use augsplat_splat::adam::{Adam, LearningRates, ParamGrads};
 use augsplat_splat::densify::Densifier;
 use augsplat_splat::loss::{self, PixelLoss};
-use augsplat_splat::{backward, render, Gaussians, RenderSettings};
+use augsplat_splat::{backward, backward_add, render, Gaussians, RenderSettings};
 use std::time::Instant;
 
 fn scene(n: usize, w: u32, h: u32, seed: u64) -> (Gaussians, Camera, Vec<f32>) {
@@ -74,6 +77,7 @@ fn main() {
     let mut ns: Vec<usize> = Vec::new();
     let (mut w, mut h, mut steps, mut threads) = (256u32, 256u32, 10usize, 0usize);
     let mut kernels = false;
+    let mut accumulate = 0usize;
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
         match a.as_str() {
@@ -86,6 +90,7 @@ fn main() {
             "--steps" => steps = it.next().unwrap().parse().unwrap(),
             "--threads" => threads = it.next().unwrap().parse().unwrap(),
             "--kernels" => kernels = true,
+            "--accumulate" => accumulate = it.next().unwrap().parse().unwrap(),
             n => ns.push(n.parse().expect("a Gaussian count")),
         }
     }
@@ -154,6 +159,9 @@ fn main() {
             if kernels {
                 kernel_times(&g, &cam, &target, &s, &lr, steps);
             }
+            if accumulate > 0 {
+                accumulate_times(&g, &cam, &target, &s, accumulate, steps);
+            }
         }
     });
 }
@@ -208,5 +216,75 @@ fn kernel_times(
         "    kernels: loss min {lmin:.3} ms, median {lmed:.3} | adam min {amin:.3} ms, median {amed:.3} ({visible} of {} visible, {:.2} M parameters updated)",
         g.len(),
         visible as f64 * (10 + g.coeffs() * 3) as f64 / 1e6
+    );
+}
+
+/// Times the gradient sum of `k` renders of `cam` (render + loss + backward each): fresh
+/// buffers added to the sum vs `backward_add`.
+fn accumulate_times(
+    g: &Gaussians,
+    cam: &Camera,
+    target: &[f32],
+    s: &RenderSettings,
+    k: usize,
+    reps: usize,
+) {
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let n = g.len();
+    let mut d_rgb = vec![0f32; target.len()];
+    let mut one = |acc: &mut ParamGrads, fresh: bool| {
+        let out = render(g, cam, s);
+        d_rgb.iter_mut().for_each(|v| *v = 0.0);
+        loss::photometric(&out.rgb, target, w, h, PixelLoss::L2, 0.0, 1.0, &mut d_rgb);
+        if fresh {
+            let gr = backward(g, cam, s, &out, &d_rgb, None, None);
+            let k3 = g.coeffs() * 3;
+            for i in 0..n {
+                if gr.visible[i] {
+                    acc.visible[i] = true;
+                    for a in 0..3 {
+                        acc.means[i][a] += gr.means[i][a];
+                        acc.log_scales[i][a] += gr.log_scales[i][a];
+                    }
+                    for a in 0..4 {
+                        acc.quats[i][a] += gr.quats[i][a];
+                    }
+                    acc.opacity_logits[i] += gr.opacity_logits[i];
+                    for c in 0..k3 {
+                        acc.sh[i * k3 + c] += gr.sh[i * k3 + c];
+                    }
+                }
+            }
+        } else {
+            backward_add(g, cam, &out, &d_rgb, acc);
+        }
+    };
+    // Interleaved (rep r times both ways), so a busy machine biases neither.
+    let mut samples = [Vec::new(), Vec::new()];
+    for _ in 0..reps.max(1) {
+        for (v, fresh) in samples.iter_mut().zip([true, false]) {
+            let t = Instant::now();
+            let mut acc = ParamGrads::zeros(n, g.coeffs());
+            for _ in 0..k {
+                one(&mut acc, fresh);
+            }
+            v.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let times: Vec<(f64, f64)> = samples
+        .iter_mut()
+        .map(|v| {
+            v.sort_by(|a, b| a.total_cmp(b));
+            (v[0], v[v.len() / 2])
+        })
+        .collect();
+    println!(
+        "    sum of {k} renders: fresh buffers + add min {:.2} ms, median {:.2} | backward_add min {:.2} ms, median {:.2} (per render {:.2} vs {:.2} ms)",
+        times[0].0,
+        times[0].1,
+        times[1].0,
+        times[1].1,
+        times[0].0 / k as f64,
+        times[1].0 / k as f64
     );
 }
