@@ -315,12 +315,14 @@ fn real_data_pipelines_plan_and_their_sweeps_share_the_ensemble() {
     let bonsai = unique(&plan("bonsai.ron", &cache));
     assert_eq!(unique(&plan("fern.ron", &cache)), bonsai);
     // Per point, only the point's own nodes are new: γ → aggregate, staged, dual, their two
-    // evaluations, report; D → dual, eval_dual, report; warm-up → staged, eval_staged, report.
-    // The point equal to the default shares every node with bonsai.ron.
+    // evaluations, report; D → dual, eval_dual, report; warm-up → staged, eval_staged, report;
+    // seed → the three optimisations, their evaluations, report. The point equal to the
+    // default shares every node with bonsai.ron.
     for (file, points, per_point) in [
         ("bonsai_sweep_gamma.ron", 5, 6),
         ("bonsai_sweep_decay.ron", 3, 3),
         ("bonsai_sweep_warmup.ron", 3, 3),
+        ("bonsai_sweep_seed.ron", 3, 7),
     ] {
         assert_eq!(
             unique(&plan(file, &cache)),
