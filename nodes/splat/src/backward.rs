@@ -570,8 +570,9 @@ pub(crate) fn backward_impl(
 /// Adds the gradients of a loss given dL/d(rgb) to `acc` (a training step's running sum):
 /// for every Gaussian this render composites, each value is added as `acc += gradient` with
 /// the gradient rounded to f32 exactly as [`backward_impl`] stores it, and `visible` is set.
-/// The result is therefore bit-identical to adding [`backward_impl`]'s output, without
-/// allocating or reading N-sized buffers per render. The SH values above the render's degree
+/// The result therefore equals adding [`backward_impl`]'s output value by value (bit for bit,
+/// except that a Gaussian whose gradient is all zero is skipped, which may leave a −0 where
+/// adding +0 would give +0), without allocating or reading N-sized buffers per render. The SH values above the render's degree
 /// are left untouched. Buffers of the wrong size leave `acc` unchanged.
 pub(crate) fn backward_add_impl(
     g: &Gaussians,

@@ -152,8 +152,8 @@ pub fn backward(
 
 /// Adds the gradients of a loss given dL/d(rgb) to a running sum `acc` (e.g. the gradients
 /// of a training step's earlier renders), without allocating per-render buffers. The result
-/// is bit-identical to adding [`backward`]'s output value by value for the Gaussians this
-/// render composites; their `acc.visible` is set. The SH values above the render's degree and
+/// equals adding [`backward`]'s output value by value for the Gaussians this render composites
+/// (bit for bit, up to the sign of zero sums); their `acc.visible` is set. The SH values above the render's degree and
 /// every Gaussian the render does not composite are left untouched. Nothing is added when
 /// `acc`'s sizes do not match `g`. The densification statistic is not produced (use
 /// [`backward`] for renders that feed it).

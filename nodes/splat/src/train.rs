@@ -10,8 +10,10 @@
 //!    resolution; synthetic views with a skip mask use [`crate::render_masked`];
 //! 3. asks each [`Supervision`] source for its loss and `dL/d(rgb)` scaled by the source's
 //!    weight (÷ batch size for the synthetic batch), back-propagates, and sums the gradients
-//!    in a fixed order (the first render's gradient buffers become the sum; later renders add
-//!    only their visible Gaussians and the SH coefficients of the active degree);
+//!    in a fixed order (the real render's gradient buffers become the sum; later renders add
+//!    only their visible Gaussians and the SH coefficients of the active degree — synthetic
+//!    views straight into the sum with [`crate::backward_add`] unless their densification
+//!    statistic is wanted);
 //! 4. takes one Adam step (only Gaussians visible in some render of the step move; the means
 //!    rate follows [`LearningRates::means_at`]);
 //! 5. feeds the densification statistic of the *real* renders (and of the synthetic ones when
@@ -961,8 +963,8 @@ pub struct EvalError {
 }
 
 /// Renders every view (colour clamped to [0, 1], as gsplat's evaluation) and averages PSNR,
-/// SSIM, MSE (and LPIPS and the average error) over views with `augsplat-metrics`. A view rendered exactly counts
-/// as 100 dB (instead of +∞) so the mean stays finite.
+/// SSIM, MSE (and LPIPS and the average error) over views with `augsplat-metrics`. A view
+/// rendered exactly counts as 100 dB (instead of +∞) so the mean stays finite.
 pub fn evaluate(
     g: &Gaussians,
     views: &[RealView],
