@@ -380,3 +380,63 @@ fn plan_why_expand_gc_commands() {
     let t = text(&env.run(&["gc", "--dry-run"]));
     assert!(t.contains("would remove: 0 actions"), "{t}");
 }
+
+/// `run` lists the results (the sinks, or the targets) and `--out DIR` copies them into
+/// DIR/<instance>/<output>/ as writable files, replacing earlier copies, cached or not.
+#[test]
+fn run_lists_its_results_and_out_copies_them() {
+    let env = Env::new();
+    let f = chain(&env, "true");
+    let out = env.run(&["run", f.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out));
+    let t = String::from_utf8_lossy(&out.stdout).to_string();
+    // Only the sink `c` is a result; its folder is in the store.
+    let line = t
+        .lines()
+        .find(|l| l.trim_start().starts_with("c.out"))
+        .unwrap_or_else(|| panic!("no result line in:\n{t}"));
+    let path = PathBuf::from(line.split_whitespace().nth(1).unwrap());
+    assert!(path.starts_with(env.path("cache/outputs")), "{line}");
+    assert_eq!(
+        std::fs::read_to_string(path.join("x")).unwrap(),
+        "data\nmore\n"
+    );
+    assert!(
+        !t.lines().any(|l| l.trim_start().starts_with("slow.out")),
+        "{t}"
+    );
+    // Cached now; --out copies the same bytes, writable, and a second copy replaces the first.
+    let dir = env.path("results");
+    std::fs::create_dir_all(dir.join("c/out")).unwrap();
+    std::fs::write(dir.join("c/out/stale"), "old").unwrap();
+    for _ in 0..2 {
+        let out = env.run(&["run", f.to_str().unwrap(), "--out", dir.to_str().unwrap()]);
+        assert!(out.status.success(), "{}", text(&out));
+        let x = dir.join("c/out/x");
+        assert_eq!(std::fs::read_to_string(&x).unwrap(), "data\nmore\n");
+        assert!(!std::fs::metadata(&x).unwrap().permissions().readonly());
+        assert!(!dir.join("c/out/stale").exists());
+        assert!(String::from_utf8_lossy(&out.stdout)
+            .contains(&format!("{}", x.parent().unwrap().display())));
+    }
+    // With a target, that node's outputs are the results.
+    let out = env.run(&[
+        "run",
+        f.to_str().unwrap(),
+        "--target",
+        "slow",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert_eq!(
+        std::fs::read_to_string(dir.join("slow/out/x")).unwrap(),
+        "data\nmore\n"
+    );
+    // Writing the copy is safe: the store's file is untouched.
+    std::fs::write(dir.join("slow/out/x"), "edited").unwrap();
+    assert_eq!(
+        std::fs::read_to_string(path.join("x")).unwrap(),
+        "data\nmore\n"
+    );
+}

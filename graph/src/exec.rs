@@ -122,6 +122,58 @@ impl RunReport {
         let r = self.results[inst.comp].as_ref()?;
         r.outputs.get(output).map(|m| store.output_dir(m))
     }
+    /// The results a run was for: the outputs of the instances matching `targets`, or, without
+    /// targets, of the instances nothing else in the run consumes (the pipeline's sinks, e.g.
+    /// each sweep point's report). One entry per (instance, output) that ran or was cached:
+    /// (instance name, output name, its folder in the store), in pipeline order.
+    pub fn final_outputs(
+        &self,
+        plan: &Plan,
+        store: &Store,
+        targets: &[String],
+    ) -> Vec<(String, String, PathBuf)> {
+        let n = plan.comps.len();
+        let wanted: Vec<bool> = if targets.is_empty() {
+            let mut consumed = vec![false; n];
+            for (c, comp) in plan.comps.iter().enumerate() {
+                if self.results.get(c).is_none_or(|r| r.is_none()) {
+                    continue;
+                }
+                for slot in &comp.inputs {
+                    for (src, _) in &slot.sources {
+                        if let Source::Node { comp: up, .. } = src {
+                            consumed[*up] = true;
+                        }
+                    }
+                }
+            }
+            (0..n).map(|c| !consumed[c]).collect()
+        } else {
+            let mut w = vec![false; n];
+            for t in targets {
+                for i in plan.match_target(t) {
+                    w[plan.instances[i].comp] = true;
+                }
+            }
+            w
+        };
+        let mut out = Vec::new();
+        for inst in &plan.instances {
+            if !wanted[inst.comp] {
+                continue;
+            }
+            let Some(r) = self.results.get(inst.comp).and_then(|r| r.as_ref()) else {
+                continue;
+            };
+            if !matches!(r.status, Status::Ran | Status::Cached) {
+                continue;
+            }
+            for (name, m) in &r.outputs {
+                out.push((inst.name.clone(), name.clone(), store.output_dir(m)));
+            }
+        }
+        out
+    }
     /// `{"nodes":[{"name","kind","key","status","seconds"}..]}`: one entry per needed instance;
     /// `status` is `ran`, `cached` or `failed` (a node not run because an input failed is
     /// `failed` too); failed entries add `"error"` with the reason.

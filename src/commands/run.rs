@@ -25,6 +25,11 @@ pub struct Args {
     /// Pin this run's results under NAME (kept by `gc` until `cache/pins/NAME.json` is deleted).
     #[arg(long, value_name = "NAME")]
     pub pin: Option<String>,
+    /// Copy the run's results into DIR/<instance>/<output>/ (writable copies, replacing
+    /// earlier ones): the outputs of the `--target` nodes, or without targets of the nodes
+    /// nothing else consumes (e.g. the report of each sweep point).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
     /// No progress bars and no final table.
     #[arg(long, short = 'q')]
     pub quiet: bool,
@@ -58,8 +63,26 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
             .collect();
         engine.store().pin(name, &keys).map_err(|e| e.to_string())?;
     }
+    let results = report.final_outputs(&plan, engine.store(), &args.targets);
     if !args.quiet {
         print!("{}", report.table(&plan));
+    }
+    if let Some(dir) = &args.out {
+        for (inst, output, from) in &results {
+            let to = dir.join(inst).join(output);
+            copy_output(from, &to)
+                .map_err(|e| format!("copying {} to {}: {e}", from.display(), to.display()))?;
+        }
+    }
+    if !args.quiet && !results.is_empty() {
+        println!("results:");
+        for (inst, output, from) in &results {
+            let shown = match &args.out {
+                Some(dir) => dir.join(inst).join(output),
+                None => from.clone(),
+            };
+            println!("  {inst}.{output}  {}", shown.display());
+        }
     }
     let failures = report.failures(&plan);
     if failures.is_empty() {
@@ -106,4 +129,35 @@ impl PipelineArgs {
 pub fn open_engine(registry: &Registry, cache: Option<PathBuf>) -> Result<Engine, String> {
     let cache = cache.unwrap_or_else(default_cache_dir);
     Engine::new(registry.clone(), cache).map_err(|e| e.to_string())
+}
+
+/// Copies the output folder `from` (read-only files in the store) to `to` as ordinary
+/// writable files, replacing whatever `to` held.
+fn copy_output(from: &std::path::Path, to: &std::path::Path) -> std::io::Result<()> {
+    if to.exists() {
+        std::fs::remove_dir_all(to)?;
+    }
+    std::fs::create_dir_all(to)?;
+    for entry in std::fs::read_dir(from)? {
+        let entry = entry?;
+        let (src, dst) = (entry.path(), to.join(entry.file_name()));
+        if entry.file_type()?.is_dir() {
+            copy_output(&src, &dst)?;
+        } else {
+            std::fs::copy(&src, &dst)?;
+            #[cfg(unix)]
+            {
+                use std::os::unix::fs::PermissionsExt;
+                std::fs::set_permissions(&dst, std::fs::Permissions::from_mode(0o644))?;
+            }
+            #[cfg(not(unix))]
+            {
+                let mut perm = std::fs::metadata(&dst)?.permissions();
+                #[allow(clippy::permissions_set_readonly_false)]
+                perm.set_readonly(false);
+                std::fs::set_permissions(&dst, perm)?;
+            }
+        }
+    }
+    Ok(())
 }
