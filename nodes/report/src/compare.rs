@@ -154,28 +154,49 @@ pub fn compare(
     })
 }
 
-/// Labels for display: the method label, plus the folder name where labels repeat.
+/// Labels for display: the method label, plus, where labels repeat (or are empty), the
+/// shortest trailing part of the folder path that tells the repeats apart — the folder name,
+/// or e.g. `eval_dual@gamma=0.5/eval` for the `run --out` layout `<instance>/<output>`.
 pub fn display_labels(runs: &[EvalDir]) -> Vec<String> {
     runs.iter()
         .map(|r| {
             let label = &r.metrics.label;
-            let repeats = runs.iter().filter(|o| &o.metrics.label == label).count() > 1;
-            if repeats || label.is_empty() {
-                let dir = r
-                    .dir
-                    .file_name()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_else(|| r.dir.display().to_string());
-                if label.is_empty() {
-                    dir
-                } else {
-                    format!("{label} [{dir}]")
-                }
+            let same: Vec<&EvalDir> = runs.iter().filter(|o| &o.metrics.label == label).collect();
+            if same.len() == 1 && !label.is_empty() {
+                return label.clone();
+            }
+            let dir = distinguishing_suffix(&r.dir, &same);
+            if label.is_empty() {
+                dir
             } else {
-                label.clone()
+                format!("{label} [{dir}]")
             }
         })
         .collect()
+}
+
+/// The last `k` components of `path`, for the smallest `k` that no other folder of `group`
+/// shares (the whole path when none does).
+fn distinguishing_suffix(path: &std::path::Path, group: &[&EvalDir]) -> String {
+    let parts = |p: &std::path::Path| -> Vec<String> {
+        p.components()
+            .map(|c| c.as_os_str().to_string_lossy().into_owned())
+            .collect()
+    };
+    let mine = parts(path);
+    let others: Vec<Vec<String>> = group
+        .iter()
+        .filter(|o| o.dir != path)
+        .map(|o| parts(&o.dir))
+        .collect();
+    let tail = |v: &[String], k: usize| v[v.len().saturating_sub(k)..].join("/");
+    for k in 1..=mine.len() {
+        let t = tail(&mine, k);
+        if others.iter().all(|o| tail(o, k) != t) {
+            return t;
+        }
+    }
+    path.display().to_string()
 }
 
 fn signed(key: MetricKey, d: f64) -> String {
@@ -341,6 +362,29 @@ mod tests {
             },
             curve: None,
         }
+    }
+
+    #[test]
+    fn repeated_labels_show_the_shortest_distinguishing_path() {
+        let runs = vec![
+            run("3DGS", "out/eval_baseline/eval", 17.0, None),
+            run("Dual", "out/eval_dual@gamma=0.5/eval", 18.0, None),
+            run("Dual", "out/eval_dual@gamma=1.0/eval", 18.1, None),
+            run("Staged", "x/a", 18.2, None),
+            run("Staged", "y/b", 18.3, None),
+            run("", "z/anon", 18.4, None),
+        ];
+        assert_eq!(
+            display_labels(&runs),
+            [
+                "3DGS",
+                "Dual [eval_dual@gamma=0.5/eval]",
+                "Dual [eval_dual@gamma=1.0/eval]",
+                "Staged [a]",
+                "Staged [b]",
+                "anon",
+            ]
+        );
     }
 
     #[test]
