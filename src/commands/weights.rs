@@ -60,14 +60,25 @@ pub fn run(args: Args) -> CmdResult {
             Ok(())
         }
         Action::Status => {
+            let mut found = None;
             for backbone in [Backbone::Alex, Backbone::Vgg] {
                 match lpips::find_weights(None, backbone) {
-                    Some(p) => println!("LPIPS-{backbone}: {}", p.display()),
+                    Some(p) => {
+                        println!("LPIPS-{backbone}: {}", p.display());
+                        found = found.or(p.parent().map(std::path::Path::to_path_buf));
+                    }
                     None => println!(
                         "LPIPS-{backbone}: not found; {}",
                         super::metrics::weights_hint()
                     ),
                 }
+            }
+            if let Some(dir) = found {
+                println!(
+                    "pipelines read weights only from a node's `lpips` input: connect this \
+                     folder, e.g. inputs: {{ \"lpips\": Path(\"{}\") }}",
+                    dir.display()
+                );
             }
             Ok(())
         }

@@ -77,7 +77,9 @@ pub struct EvaluateEnsembleNode;
 
 impl Node for EvaluateEnsembleNode {
     const KIND: &'static str = "EvaluateEnsemble";
-    const VERSION: u32 = 1;
+    // 2: LPIPS weights only from the `lpips` input (no environment or default-folder
+    // fallback).
+    const VERSION: u32 = 2;
     type Args = EvaluateEnsembleArgs;
 
     fn inputs(_: &EvaluateEnsembleArgs) -> Vec<InputDecl> {

