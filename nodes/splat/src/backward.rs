@@ -724,16 +724,10 @@ struct GradSinks<'a> {
     visible: &'a mut [bool],
 }
 
-/// One [`PROJECT_CHUNK`] of [`GradSinks`].
+/// One [`PROJECT_CHUNK`] of [`GradSinks`], starting at Gaussian `first`.
 struct SinkChunk<'a> {
     first: usize,
-    means: &'a mut [[f32; 3]],
-    log_scales: &'a mut [[f32; 3]],
-    quats: &'a mut [[f32; 4]],
-    opacity_logits: &'a mut [f32],
-    sh: &'a mut [f32],
-    means2d_abs: Option<&'a mut [[f32; 2]]>,
-    visible: &'a mut [bool],
+    sinks: GradSinks<'a>,
 }
 
 /// Step 2 of the backward pass: per Gaussian (in parallel chunks), its pair slots summed in
@@ -769,26 +763,31 @@ fn gaussian_gradients(
         .map(
             |(ci, (((((means, log_scales), quats), opacity_logits), sh), visible))| SinkChunk {
                 first: ci * c,
-                means,
-                log_scales,
-                quats,
-                opacity_logits,
-                sh,
-                means2d_abs: m2d.as_mut().and_then(|it| it.next()),
-                visible,
+                sinks: GradSinks {
+                    means,
+                    log_scales,
+                    quats,
+                    opacity_logits,
+                    sh,
+                    means2d_abs: m2d.as_mut().and_then(|it| it.next()),
+                    visible,
+                },
             },
         )
         .collect();
     chunks.into_par_iter().for_each(|ch| {
         let SinkChunk {
             first,
-            means: gm,
-            log_scales: gl,
-            quats: gq,
-            opacity_logits: go,
-            sh: gsh,
-            mut means2d_abs,
-            visible: gv,
+            sinks:
+                GradSinks {
+                    means: gm,
+                    log_scales: gl,
+                    quats: gq,
+                    opacity_logits: go,
+                    sh: gsh,
+                    mut means2d_abs,
+                    visible: gv,
+                },
         } = ch;
         let mut sh_grad = vec![0.0f32; kcoef];
         for j in 0..gm.len() {
