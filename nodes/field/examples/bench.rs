@@ -1,7 +1,8 @@
 //! Throughput benchmarks of the field (run with `cargo run --release -p augsplat-field
-//! --example bench -- [threads] [what]`):
+//! --example bench -- [threads] [what] [steps] [chunk rays]`):
 //! - `step`: forward+backward samples per second and time per step (16 levels × 2 features,
-//!   2^17 table, 64-wide MLPs) for 1024- and 4096-ray steps on a random scene;
+//!   2^17 table, 64-wide MLPs) for 1024- and 4096-ray steps on a random scene: median, best
+//!   and mean of `steps` timed steps (default 10), chunks of `chunk rays` (default 64);
 //! - `kernels`: per-kernel timings on one chunk (best of 30);
 //! - `mlp`: GFLOP/s of the dense-layer kernels (forward, weight gradient, input gradient) on
 //!   chunk-sized batches, best of 300, next to a register-only FMA peak probe.
@@ -47,6 +48,18 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let threads: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(2);
     let what = args.get(2).cloned().unwrap_or_else(|| "step".into());
+    // `step` options: timed steps per ray count (default 10) and rays per chunk (default 64,
+    // TrainField's default).
+    let steps: usize = args
+        .get(3)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(10)
+        .max(1);
+    let chunk: u32 = args
+        .get(4)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(64)
+        .max(1);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -89,7 +102,7 @@ fn main() {
                     seed: 1,
                     steps: 100,
                     rays_per_step: rays,
-                    chunk_rays: 64,
+                    chunk_rays: chunk,
                     learning_rate: 1e-2,
                     lr_final_factor: 0.1,
                     depth_loss_weight: 0.0,
@@ -109,24 +122,35 @@ fn main() {
                 let mut adam = Adam::new(field.n_params);
                 let mut grad = Vec::new();
                 train::train_step(&field, &mut state, &mut adam, &views, &opts, 0, &mut grad).unwrap();
-                let n = 5;
+                // Per-step wall times: the machine is shared, so the median (and the best)
+                // step says more than the mean.
+                let n = steps;
                 let t0 = Instant::now();
                 let c0 = cpu_seconds();
                 let mut samples = 0;
                 let mut color = 0;
-                for s in 1..=n {
+                let mut rates = Vec::with_capacity(n);
+                for s in 1..=n as u32 {
+                    let ts = Instant::now();
                     let st = train::train_step(&field, &mut state, &mut adam, &views, &opts, s, &mut grad).unwrap();
+                    rates.push(st.samples as f64 / ts.elapsed().as_secs_f64());
                     samples += st.samples;
                     color += st.color_samples;
                 }
                 let dt = t0.elapsed().as_secs_f64();
                 let cpu = cpu_seconds() - c0;
+                rates.sort_by(f64::total_cmp);
+                let median = rates[n / 2];
+                let best = rates[n - 1];
                 println!(
-                    "{rays} rays/step: {:.3} s/step wall, {:.0} samples/step ({:.0} with colour), {:.0} samples/s forward+backward (wall); \
+                    "{rays} rays/step, chunks of {chunk} rays: {:.3} s/step wall, {:.0} samples/step ({:.0} with colour); \
+                     forward+backward samples/s over {n} steps: median {:.0}, best {:.0}, mean {:.0}; \
                      CPU {:.3} s/step, i.e. {:.0} samples/s if the {threads} threads had their cores to themselves",
                     dt / n as f64,
                     samples as f64 / n as f64,
                     color as f64 / n as f64,
+                    median,
+                    best,
                     samples as f64 / dt,
                     cpu / n as f64,
                     samples as f64 / (cpu / threads as f64)

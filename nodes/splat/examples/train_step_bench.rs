@@ -3,6 +3,8 @@
 //!
 //! `cargo run --release -p augsplat-splat --example train_step_bench -- [N ...] [--size WxH] [--steps S] [--threads T] [--kernels]`
 //! Defaults: N = 20000 100000 500000, 256×256, 10 timed steps after 2 warm-up steps, all threads.
+//! The whole step's median and best time are printed first (the machine is shared: the
+//! median resists other load), then the mean time of each part.
 //! With `--kernels`, the loss (L2 + 0.2·SSIM) and the Adam step are also timed in isolation
 //! (`--steps` repetitions each on a fixed render and fixed gradients; min and median
 //! reported, which is robust to a loaded machine).
@@ -112,6 +114,7 @@ fn main() {
             let mut d_rgb = vec![0f32; target.len()];
             let mut t = [0f64; 6];
             let mut pairs = 0u64;
+            let mut step_ms: Vec<f64> = Vec::with_capacity(steps);
             for step in 0..steps + 2 {
                 let t0 = Instant::now();
                 let out = render(&g, &cam, &s);
@@ -136,6 +139,7 @@ fn main() {
                 dens.accumulate(&gr.means2d_abs, &gr.visible);
                 let t6 = Instant::now();
                 if step >= 2 {
+                    step_ms.push((t6 - t0).as_secs_f64() * 1e3);
                     for (k, (a, b)) in [(t0, t1), (t1, t2), (t2, t3), (t3, t4), (t4, t5), (t5, t6)].iter().enumerate() {
                         t[k] += (*b - *a).as_secs_f64();
                     }
@@ -144,8 +148,11 @@ fn main() {
             }
             let ms = |v: f64| v / steps as f64 * 1e3;
             let total: f64 = t.iter().sum();
+            step_ms.sort_by(f64::total_cmp);
             println!(
-                "N={n:>7}: step {:7.2} ms | forward {:6.2} | loss(L2+SSIM) {:5.2} | backward {:7.2} | grad move {:4.2} | adam {:5.2} | densify stat {:4.2} ms | {:.1} M pairs/step, {:.2} ns/pair (fwd+bwd)",
+                "N={n:>7}: step median {:.2} ms, best {:.2} ms; means: step {:7.2} ms | forward {:6.2} | loss(L2+SSIM) {:5.2} | backward {:7.2} | grad move {:4.2} | adam {:5.2} | densify stat {:4.2} ms | {:.1} M pairs/step, {:.2} ns/pair (fwd+bwd)",
+                step_ms[step_ms.len() / 2],
+                step_ms[0],
                 ms(total),
                 ms(t[0]),
                 ms(t[1]),

@@ -852,7 +852,11 @@ fn project_chunk(
     for j in 0..sp_out.len() {
         let i = job.first + j;
         let coefs = &g.sh[i * k..(i + 1) * k];
-        if !coefs[..nb * 3].iter().all(|v| v.is_finite()) {
+        // A branch-free fold (vectorised) rather than a short-circuiting `all`.
+        let finite = coefs[..nb * 3]
+            .iter()
+            .fold(true, |ok, v| ok & v.is_finite());
+        if !finite {
             st_out[j] = INVALID;
             continue;
         }
