@@ -37,7 +37,8 @@ use crate::forward::{
     PREFETCH_AHEAD, PROJECT_CHUNK,
 };
 use crate::gaussians::Gaussians;
-use crate::project::{project_vjp, CameraModel, ProjectedGrad};
+use crate::lanes::{Lanes, LANES, P8};
+use crate::project::{project_vjp_lanes, CameraModel, GaussLanes, ParamGrad, ProjectedGradLanes};
 use crate::render::{Cutoff, Gradients, RenderOutput, RenderSettings};
 use crate::sh;
 use augsplat_core::Camera;
@@ -749,6 +750,8 @@ fn gaussian_gradients(
     let degree = st.sh_degree;
     let active = sh::basis_len(degree) * 3;
     let (hw, hh) = (out.width as f64 * 0.5, out.height as f64 * 0.5);
+    // AVX-512 lanes need AVX2 and FMA too (the wrapper enables them).
+    let wide = crate::lanes::wide_available() && matches!(detect_isa(), Isa::Avx512);
     let c = PROJECT_CHUNK;
     let mut m2d = sinks.means2d_abs.map(|v| v.chunks_mut(c));
     let chunks: Vec<SinkChunk> = sinks
@@ -790,6 +793,8 @@ fn gaussian_gradients(
                 },
         } = ch;
         let mut sh_grad = vec![0.0f32; kcoef];
+        // The chunk's Gaussians with a non-zero screen-space gradient, with their sums.
+        let mut todo: Vec<(usize, [f64; 10])> = Vec::new();
         for j in 0..gm.len() {
             let i = first + j;
             let (lo, hi) = (bins.gauss_start[i], bins.gauss_start[i + 1]);
@@ -811,85 +816,143 @@ fn gaussian_gradients(
                 // every parameter gradient is exactly zero.
                 continue;
             }
-            let pg = ProjectedGrad {
-                mean2d: [rg[0], rg[1]],
-                conic: [rg[2], rg[3], rg[4]],
-                opacity: rg[5],
-                depth: rg[9],
-            };
-            let p = project_vjp(
-                &cm,
-                g.means[i],
-                g.log_scales[i],
-                g.quats[i],
-                g.opacity_logits[i],
-                s.antialiased,
-                s.near as f64,
-                &pg,
-            );
-            let mut gmean = p.mean;
-            // SH: colour depends on the view direction normalize(mean − centre).
-            let m = g.means[i];
-            let v = [
-                m[0] as f64 - cm.center[0],
-                m[1] as f64 - cm.center[1],
-                m[2] as f64 - cm.center[2],
-            ];
-            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            let mut with_sh = false;
-            if len > 0.0 {
-                let dir = [v[0] / len, v[1] / len, v[2] / len];
-                let coefs = &g.sh[i * kcoef..(i + 1) * kcoef];
-                let gd = sh::eval_color_vjp_into(
-                    degree,
-                    coefs,
-                    dir,
-                    [rg[6], rg[7], rg[8]],
-                    &mut sh_grad[..kcoef],
-                );
-                with_sh = true;
-                let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
-                for a in 0..3 {
-                    gmean[a] += (gd[a] - dir[a] * dd) / len;
+            todo.push((j, rg));
+        }
+        for batch in todo.chunks(LANES) {
+            // A short last batch repeats its last Gaussian in the spare lanes.
+            let pick = |l: usize| &batch[l.min(batch.len() - 1)];
+            let mut idx = [0usize; LANES];
+            let mut screen = [[0.0f64; LANES]; 10];
+            for l in 0..LANES {
+                let (j, rg) = pick(l);
+                idx[l] = first + j;
+                for q in 0..10 {
+                    screen[q][l] = rg[q];
                 }
             }
-            let dst_sh = &mut gsh[j * kcoef..j * kcoef + active];
-            let vals = (
-                gmean.map(|x| x as f32),
-                p.log_scale.map(|x| x as f32),
-                p.quat.map(|x| x as f32),
-                p.logit as f32,
-            );
-            match mode {
-                Mode::Store => {
-                    gm[j] = vals.0;
-                    gl[j] = vals.1;
-                    gq[j] = vals.2;
-                    go[j] = vals.3;
-                    if with_sh {
-                        dst_sh.copy_from_slice(&sh_grad[..active]);
+            let geometry = vjp_lanes(wide, &cm, g, &idx, s.antialiased, s.near as f64, &screen);
+            for (&(j, rg), p) in batch.iter().zip(geometry) {
+                let i = first + j;
+                let mut gmean = p.mean;
+                // SH: colour depends on the view direction normalize(mean − centre).
+                let m = g.means[i];
+                let v = [
+                    m[0] as f64 - cm.center[0],
+                    m[1] as f64 - cm.center[1],
+                    m[2] as f64 - cm.center[2],
+                ];
+                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                let mut with_sh = false;
+                if len > 0.0 {
+                    let dir = [v[0] / len, v[1] / len, v[2] / len];
+                    let coefs = &g.sh[i * kcoef..(i + 1) * kcoef];
+                    let gd = sh::eval_color_vjp_into(
+                        degree,
+                        coefs,
+                        dir,
+                        [rg[6], rg[7], rg[8]],
+                        &mut sh_grad[..kcoef],
+                    );
+                    with_sh = true;
+                    let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
+                    for a in 0..3 {
+                        gmean[a] += (gd[a] - dir[a] * dd) / len;
                     }
                 }
-                Mode::Add => {
-                    for (d, s) in gm[j].iter_mut().zip(vals.0) {
-                        *d += s;
+                let dst_sh = &mut gsh[j * kcoef..j * kcoef + active];
+                let vals = (
+                    gmean.map(|x| x as f32),
+                    p.log_scale.map(|x| x as f32),
+                    p.quat.map(|x| x as f32),
+                    p.logit as f32,
+                );
+                match mode {
+                    Mode::Store => {
+                        gm[j] = vals.0;
+                        gl[j] = vals.1;
+                        gq[j] = vals.2;
+                        go[j] = vals.3;
+                        if with_sh {
+                            dst_sh.copy_from_slice(&sh_grad[..active]);
+                        }
                     }
-                    for (d, s) in gl[j].iter_mut().zip(vals.1) {
-                        *d += s;
-                    }
-                    for (d, s) in gq[j].iter_mut().zip(vals.2) {
-                        *d += s;
-                    }
-                    go[j] += vals.3;
-                    if with_sh {
-                        for (d, s) in dst_sh.iter_mut().zip(&sh_grad[..active]) {
+                    Mode::Add => {
+                        for (d, s) in gm[j].iter_mut().zip(vals.0) {
                             *d += s;
+                        }
+                        for (d, s) in gl[j].iter_mut().zip(vals.1) {
+                            *d += s;
+                        }
+                        for (d, s) in gq[j].iter_mut().zip(vals.2) {
+                            *d += s;
+                        }
+                        go[j] += vals.3;
+                        if with_sh {
+                            for (d, s) in dst_sh.iter_mut().zip(&sh_grad[..active]) {
+                                *d += s;
+                            }
                         }
                     }
                 }
             }
         }
     });
+}
+
+/// The projection backward of Gaussians `idx` from their screen-space gradient sums
+/// (`screen[q][lane]` in [`PairGrad`] order), in AVX-512 lanes when `wide`, else in portable
+/// lanes: the same IEEE operations either way.
+fn vjp_lanes(
+    wide: bool,
+    cm: &CameraModel,
+    g: &Gaussians,
+    idx: &[usize; LANES],
+    antialiased: bool,
+    near: f64,
+    screen: &[[f64; LANES]; 10],
+) -> [ParamGrad; LANES] {
+    #[inline(always)]
+    fn run<L: Lanes>(
+        cm: &CameraModel,
+        g: &Gaussians,
+        idx: &[usize; LANES],
+        antialiased: bool,
+        near: f64,
+        screen: &[[f64; LANES]; 10],
+    ) -> [ParamGrad; LANES] {
+        let gl = GaussLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
+        let pg = ProjectedGradLanes {
+            mean2d: [L::from_array(screen[0]), L::from_array(screen[1])],
+            conic: [
+                L::from_array(screen[2]),
+                L::from_array(screen[3]),
+                L::from_array(screen[4]),
+            ],
+            opacity: L::from_array(screen[5]),
+            depth: L::from_array(screen[9]),
+        };
+        project_vjp_lanes(cm, &gl, antialiased, near, &pg).unpack()
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f,avx512dq,avx2,fma")]
+        fn avx512(
+            cm: &CameraModel,
+            g: &Gaussians,
+            idx: &[usize; LANES],
+            aa: bool,
+            near: f64,
+            screen: &[[f64; LANES]; 10],
+        ) -> [ParamGrad; LANES] {
+            run::<crate::lanes::avx512::Z8>(cm, g, idx, aa, near, screen)
+        }
+        if wide {
+            // SAFETY: `wide` is only set when AVX-512F/DQ, AVX2 and FMA were detected.
+            return unsafe { avx512(cm, g, idx, antialiased, near, screen) };
+        }
+    }
+    let _ = wide;
+    run::<P8>(cm, g, idx, antialiased, near, screen)
 }
 
 /// Raw pointer to the Gaussian-major pair buffer, written by the tiles in parallel.

@@ -29,7 +29,8 @@ use crate::constants::{
     ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS, TRANSMITTANCE_THRESHOLD,
 };
 use crate::gaussians::Gaussians;
-use crate::project::{project, CameraModel, Outcome};
+use crate::lanes::{Lanes, LANES, P8};
+use crate::project::{project_lanes, CameraModel, GaussLanes, Outcome};
 use crate::render::{Cutoff, RenderOutput, RenderSettings, RenderStats};
 use crate::sh;
 use crate::tiles::{bin_indexed, depth_order, Bins, TileGrid};
@@ -780,7 +781,11 @@ fn raster_tile_dispatch<const SMOOTH: bool>(
 
 /// Builds the compositing record of a projected Gaussian, or `None` when it cannot be
 /// represented in f32 (it is then culled).
-fn make_splat(p: &crate::project::Projected, rgb: [f64; 3]) -> Option<Splat2D> {
+fn make_splat(
+    p: &crate::project::Projected,
+    rgb: [f64; 3],
+    log_alpha_ratio: f64,
+) -> Option<Splat2D> {
     let [a, b, c] = p.conic;
     // Σ2d = conic⁻¹; Σ_yy = a / det(conic), Σ_xy = −b / det(conic).
     let det = a * c - b * b;
@@ -788,7 +793,8 @@ fn make_splat(p: &crate::project::Projected, rgb: [f64; 3]) -> Option<Splat2D> {
     let row_q = 0.5 / syy;
     let row_w = 2.0 / a;
     let row_shift = b / a;
-    let sigma_max = (p.opacity / ALPHA_THRESHOLD as f64).ln().max(0.0) * (1.0 + 1e-3) + 1e-3;
+    // log_alpha_ratio = ln(opacity / ALPHA_THRESHOLD), from the projection.
+    let sigma_max = log_alpha_ratio.max(0.0) * (1.0 + 1e-3) + 1e-3;
     let lim = f32::MAX as f64;
     let sp = Splat2D {
         x: p.mean2d[0] as f32,
@@ -830,9 +836,9 @@ struct ProjectJob<'a> {
     first: usize,
 }
 
-/// Projects one chunk of Gaussians (see [`project_all`]).
+/// Projects one chunk of Gaussians (see [`project_all`]), eight at a time in lanes `L`.
 #[inline(always)]
-fn project_chunk(
+fn project_chunk<L: Lanes>(
     job: &ProjectJob,
     sp_out: &mut [MaybeUninit<Splat2D>],
     rect_out: &mut [MaybeUninit<[u32; 4]>],
@@ -849,62 +855,78 @@ fn project_chunk(
     let k = g.coeffs() * 3;
     let nb = sh::basis_len(degree);
     let mut basis = [0.0f64; 16];
-    for j in 0..sp_out.len() {
-        let i = job.first + j;
-        let coefs = &g.sh[i * k..(i + 1) * k];
-        // A branch-free fold (vectorised) rather than a short-circuiting `all`.
-        let finite = coefs[..nb * 3]
-            .iter()
-            .fold(true, |ok, v| ok & v.is_finite());
-        if !finite {
-            st_out[j] = INVALID;
-            continue;
+    let len = sp_out.len();
+    for j0 in (0..len).step_by(LANES) {
+        // A short last block repeats its last Gaussian in the spare lanes.
+        let mut idx = [0usize; LANES];
+        for (l, v) in idx.iter_mut().enumerate() {
+            *v = job.first + (j0 + l).min(len - 1);
         }
-        st_out[j] = match project(
-            cm,
-            g.means[i],
-            g.log_scales[i],
-            g.quats[i],
-            g.opacity_logits[i],
-            s.antialiased,
-            s.near as f64,
-        ) {
-            Outcome::Invalid => INVALID,
-            Outcome::Culled => CULLED,
-            Outcome::Visible(p) => {
-                let rect = grid.rect(p.mean2d, p.radius);
-                if rect[0] >= rect[1] || rect[2] >= rect[3] {
-                    CULLED
-                } else {
-                    let m = g.means[i];
-                    let v = [
-                        m[0] as f64 - cm.center[0],
-                        m[1] as f64 - cm.center[1],
-                        m[2] as f64 - cm.center[2],
-                    ];
-                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                    let dir = if len > 0.0 {
-                        [v[0] / len, v[1] / len, v[2] / len]
+        let gl =
+            GaussLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, &idx);
+        let lanes = project_lanes(cm, &gl, s.antialiased, s.near as f64).unpack();
+        for (l, lane) in lanes.iter().enumerate().take(len - j0) {
+            let j = j0 + l;
+            let i = job.first + j;
+            let coefs = &g.sh[i * k..(i + 1) * k];
+            // A branch-free fold (vectorised) rather than a short-circuiting `all`.
+            let finite = coefs[..nb * 3]
+                .iter()
+                .fold(true, |ok, v| ok & v.is_finite());
+            if !finite {
+                st_out[j] = INVALID;
+                continue;
+            }
+            st_out[j] = match lane.outcome {
+                Outcome::Invalid => INVALID,
+                Outcome::Culled => CULLED,
+                Outcome::Visible(p) => {
+                    let rect = grid.rect(p.mean2d, p.radius);
+                    if rect[0] >= rect[1] || rect[2] >= rect[3] {
+                        CULLED
                     } else {
-                        [0.0, 0.0, 1.0]
-                    };
-                    let col = sh::eval_color(degree, coefs, dir, &mut basis);
-                    match make_splat(&p, col) {
-                        Some(sp) => {
-                            sp_out[j].write(sp);
-                            rect_out[j].write(rect);
-                            VISIBLE
+                        let m = g.means[i];
+                        let v = [
+                            m[0] as f64 - cm.center[0],
+                            m[1] as f64 - cm.center[1],
+                            m[2] as f64 - cm.center[2],
+                        ];
+                        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                        let dir = if len > 0.0 {
+                            [v[0] / len, v[1] / len, v[2] / len]
+                        } else {
+                            [0.0, 0.0, 1.0]
+                        };
+                        let col = sh::eval_color(degree, coefs, dir, &mut basis);
+                        match make_splat(&p, col, lane.log_alpha_ratio) {
+                            Some(sp) => {
+                                sp_out[j].write(sp);
+                                rect_out[j].write(rect);
+                                VISIBLE
+                            }
+                            None => CULLED,
                         }
-                        None => CULLED,
                     }
                 }
-            }
-        };
+            };
+        }
     }
 }
 
-/// [`project_chunk`] compiled for AVX2 + FMA: the same IEEE operations (Rust never fuses
-/// multiply-adds on its own), with rounding instructions inline instead of libm calls.
+/// [`project_chunk`] with AVX-512 lanes: the same IEEE operations as the portable lanes.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx2,fma")]
+fn project_chunk_avx512(
+    job: &ProjectJob,
+    sp_out: &mut [MaybeUninit<Splat2D>],
+    rect_out: &mut [MaybeUninit<[u32; 4]>],
+    st_out: &mut [u8],
+) {
+    project_chunk::<crate::lanes::avx512::Z8>(job, sp_out, rect_out, st_out)
+}
+
+/// [`project_chunk`] with portable lanes compiled for AVX2 + FMA (Rust never fuses
+/// multiply-adds on its own, so the operations are those of the plain build).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn project_chunk_avx2(
@@ -913,7 +935,7 @@ fn project_chunk_avx2(
     rect_out: &mut [MaybeUninit<[u32; 4]>],
     st_out: &mut [u8],
 ) {
-    project_chunk(job, sp_out, rect_out, st_out)
+    project_chunk::<P8>(job, sp_out, rect_out, st_out)
 }
 
 /// Projection status of one Gaussian.
@@ -947,6 +969,7 @@ fn project_all(
         };
     }
     let isa = detect_isa();
+    let wide_lanes = crate::lanes::wide_available();
     splats
         .par_chunks_mut(PROJECT_CHUNK)
         .zip(rects.par_chunks_mut(PROJECT_CHUNK))
@@ -963,11 +986,16 @@ fn project_all(
             };
             match isa {
                 #[cfg(target_arch = "x86_64")]
+                Isa::Avx512 if wide_lanes => {
+                    // SAFETY: AVX-512F/DQ, AVX2 and FMA were detected.
+                    unsafe { project_chunk_avx512(&job, sp_out, rect_out, st_out) }
+                }
+                #[cfg(target_arch = "x86_64")]
                 Isa::Avx2 | Isa::Avx512 => {
                     // SAFETY: both variants imply AVX2 + FMA support.
                     unsafe { project_chunk_avx2(&job, sp_out, rect_out, st_out) }
                 }
-                Isa::Portable => project_chunk(&job, sp_out, rect_out, st_out),
+                _ => project_chunk::<P8>(&job, sp_out, rect_out, st_out),
             }
         });
     ProjectedAll {
@@ -1203,7 +1231,8 @@ pub(crate) mod tests {
                     rng.uniform(0.0, 1.0),
                     rng.uniform(0.0, 1.0),
                 ];
-                make_splat(&p, rgb).unwrap()
+                let lr = crate::project::log_alpha_ratio(p.opacity);
+                make_splat(&p, rgb, lr).unwrap()
             })
             .collect()
     }

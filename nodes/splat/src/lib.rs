@@ -8,6 +8,7 @@ pub mod error;
 pub mod forward;
 pub mod gaussians;
 pub mod init;
+mod lanes;
 pub mod loss;
 pub mod node;
 pub mod ply;

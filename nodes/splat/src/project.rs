@@ -24,6 +24,7 @@ use crate::constants::{
     ALPHA_THRESHOLD, EPS2D, JACOBIAN_CLAMP_MARGIN, MAX_EXTEND, MIN_COMPENSATION_RATIO,
     MIN_QUAT_NORM2,
 };
+use crate::lanes::{self, c, Lanes, Mask, LANES, P8};
 use augsplat_core::Camera;
 
 type M3 = [[f64; 3]; 3];
@@ -142,161 +143,224 @@ pub struct ParamGrad {
     pub logit: f64,
 }
 
-struct Inter {
-    s: [f64; 3],
-    qn: [f64; 4],
-    qnorm: f64,
-    /// A = W·R (camera-frame axes of the Gaussian).
-    a: M3,
-    /// M' = A·diag(s): camera-frame covariance Σ_c = M' M'ᵀ.
-    mp: M3,
-    pc: [f64; 3],
-    /// Jacobian entries J00, J02, J11, J12 (J01 = J10 = 0).
-    jac: [f64; 4],
-    clamp: [Option<f64>; 2],
-    /// T = J M' (2×3): Σ2d_raw = T Tᵀ.
-    tm: [[f64; 3]; 2],
-    x_raw: [f64; 3],
-    det_blur: f64,
-    conic: [f64; 3],
-    ratio: f64,
-    opacity_base: f64,
-}
-
-#[inline(always)]
-fn finite(v: &[f32]) -> bool {
-    v.iter().all(|x| x.is_finite())
-}
+/// ln(f64::MAX): the largest argument whose `exp` is finite.
+const LN_F64_MAX: f64 = 709.782712893384;
 
 /// Rotation matrix of a unit quaternion (w, x, y, z).
 #[inline]
 pub fn quat_rot(q: [f64; 4]) -> M3 {
-    let [w, x, y, z] = q;
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
+    let l = quat_rot_lanes(q.map(P8::splat));
+    l.map(|row| row.map(|v| v.0[0]))
 }
 
-/// Logistic sigmoid.
+/// Logistic sigmoid (as the projection computes it).
 #[inline]
 pub fn sigmoid(x: f64) -> f64 {
-    1.0 / (1.0 + (-x).exp())
+    lanes::sigmoid(P8::splat(x)).0[0]
 }
 
-/// ln(f64::MAX): the largest argument whose `exp` is finite.
-const LN_F64_MAX: f64 = 709.782712893384;
+/// Per-lane projection status: the first check that fails decides (in the order of the
+/// module documentation).
+#[derive(Clone, Copy, Default)]
+pub(crate) struct Status {
+    /// Lanes already decided.
+    decided: Mask,
+    /// Lanes found invalid.
+    pub invalid: Mask,
+    /// Lanes culled.
+    pub culled: Mask,
+}
+
+impl Status {
+    #[inline(always)]
+    fn invalid_where(&mut self, m: Mask) {
+        let new = m & !self.decided;
+        self.invalid |= new;
+        self.decided |= new;
+    }
+    #[inline(always)]
+    fn culled_where(&mut self, m: Mask) {
+        let new = m & !self.decided;
+        self.culled |= new;
+        self.decided |= new;
+    }
+    /// Lanes that passed every check so far.
+    #[inline(always)]
+    pub fn visible(&self) -> Mask {
+        !self.decided
+    }
+}
+
+/// The raw parameters of eight Gaussians, one per lane.
+#[derive(Clone, Copy)]
+pub(crate) struct GaussLanes<L> {
+    pub mean: [L; 3],
+    pub log_scale: [L; 3],
+    pub quat: [L; 4],
+    pub logit: L,
+}
+
+impl<L: Lanes> GaussLanes<L> {
+    /// Gaussians `idx[l]` of the parameter arrays.
+    #[inline(always)]
+    pub fn gather(
+        means: &[[f32; 3]],
+        log_scales: &[[f32; 3]],
+        quats: &[[f32; 4]],
+        logits: &[f32],
+        idx: &[usize; LANES],
+    ) -> Self {
+        let mut m = [[0.0; LANES]; 3];
+        let mut ls = [[0.0; LANES]; 3];
+        let mut q = [[0.0; LANES]; 4];
+        let mut o = [0.0; LANES];
+        for l in 0..LANES {
+            let i = idx[l];
+            for k in 0..3 {
+                m[k][l] = means[i][k] as f64;
+                ls[k][l] = log_scales[i][k] as f64;
+            }
+            for k in 0..4 {
+                q[k][l] = quats[i][k] as f64;
+            }
+            o[l] = logits[i] as f64;
+        }
+        GaussLanes {
+            mean: [
+                L::from_array(m[0]),
+                L::from_array(m[1]),
+                L::from_array(m[2]),
+            ],
+            log_scale: [
+                L::from_array(ls[0]),
+                L::from_array(ls[1]),
+                L::from_array(ls[2]),
+            ],
+            quat: [
+                L::from_array(q[0]),
+                L::from_array(q[1]),
+                L::from_array(q[2]),
+                L::from_array(q[3]),
+            ],
+            logit: L::from_array(o),
+        }
+    }
+}
+
+impl GaussLanes<P8> {
+    /// One Gaussian in every lane.
+    fn one(mean: [f32; 3], log_scale: [f32; 3], quat: [f32; 4], logit: f32) -> Self {
+        GaussLanes::gather(&[mean], &[log_scale], &[quat], &[logit], &[0; LANES])
+    }
+}
+
+type M3L<L> = [[L; 3]; 3];
+
+struct Inter<L> {
+    status: Status,
+    s: [L; 3],
+    qn: [L; 4],
+    qnorm: L,
+    /// A = W·R (camera-frame axes of the Gaussian).
+    a: M3L<L>,
+    /// M' = A·diag(s): camera-frame covariance Σ_c = M' M'ᵀ.
+    mp: M3L<L>,
+    pc: [L; 3],
+    /// Jacobian entries J00, J02, J11, J12 (J01 = J10 = 0).
+    jac: [L; 4],
+    /// Lanes whose t_x/z (t_y/z) is clamped, and the clamp values.
+    clamped: [Mask; 2],
+    limit: [L; 2],
+    /// T = J M' (2×3): Σ2d_raw = T Tᵀ.
+    tm: [[L; 3]; 2],
+    x_raw: [L; 3],
+    det_blur: L,
+    conic: [L; 3],
+    ratio: L,
+    opacity_base: L,
+}
 
 #[inline(always)]
-fn intermediates(
-    cam: &CameraModel,
-    mean: [f32; 3],
-    log_scale: [f32; 3],
-    quat: [f32; 4],
-    logit: f32,
-    near: f64,
-) -> Result<Inter, Outcome> {
-    if !(finite(&mean) && finite(&log_scale) && finite(&quat) && logit.is_finite()) {
-        return Err(Outcome::Invalid);
-    }
-    let mu = [mean[0] as f64, mean[1] as f64, mean[2] as f64];
-    let mut pc = cam.t;
+fn all_finite<L: Lanes>(v: &[L]) -> Mask {
+    v.iter().fold(lanes::ALL, |m, x| m & x.is_finite())
+}
+
+/// The shared forward intermediates of eight Gaussians (every lane is computed; the status
+/// says which are meaningful).
+#[inline(always)]
+fn intermediates<L: Lanes>(cam: &CameraModel, gl: &GaussLanes<L>, near: f64) -> Inter<L> {
+    let mut status = Status::default();
+    let finite = all_finite(&gl.mean)
+        & all_finite(&gl.log_scale)
+        & all_finite(&gl.quat)
+        & gl.logit.is_finite();
+    status.invalid_where(!finite);
+    let mu = gl.mean;
+    let mut pc = [c::<L>(0.0); 3];
     for i in 0..3 {
-        pc[i] += cam.r[i][0] * mu[0] + cam.r[i][1] * mu[1] + cam.r[i][2] * mu[2];
+        pc[i] = (mu[0] * cam.r[i][0] + mu[1] * cam.r[i][1] + mu[2] * cam.r[i][2]) + cam.t[i];
     }
-    let q = [
-        quat[0] as f64,
-        quat[1] as f64,
-        quat[2] as f64,
-        quat[3] as f64,
-    ];
+    let q = gl.quat;
     let n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
-    if !(n2 >= MIN_QUAT_NORM2) || !n2.is_finite() {
-        return Err(Outcome::Invalid);
-    }
+    status.invalid_where(!(n2.ge(c(MIN_QUAT_NORM2)) & n2.is_finite()));
     // exp(x) is finite exactly when x ≤ ln(f64::MAX) (no f32 lies between that bound and
-    // its f64 rounding), so the scales are checked before, and computed after, the near-plane
-    // test: Gaussians behind the camera cost no exponentials.
-    if !log_scale.iter().all(|&l| l as f64 <= LN_F64_MAX) {
-        return Err(Outcome::Invalid);
-    }
-    if !(pc[2] >= near) {
-        return Err(Outcome::Culled);
-    }
-    let s = [
-        (log_scale[0] as f64).exp(),
-        (log_scale[1] as f64).exp(),
-        (log_scale[2] as f64).exp(),
-    ];
+    // its f64 rounding).
+    let lim = c::<L>(LN_F64_MAX);
+    let ls = gl.log_scale;
+    status.invalid_where(!(ls[0].le(lim) & ls[1].le(lim) & ls[2].le(lim)));
+    status.culled_where(!pc[2].ge(c(near)));
+    let s = [lanes::exp(ls[0]), lanes::exp(ls[1]), lanes::exp(ls[2])];
     let qnorm = n2.sqrt();
-    let inv = 1.0 / qnorm;
+    let inv = c::<L>(1.0) / qnorm;
     let qn = [q[0] * inv, q[1] * inv, q[2] * inv, q[3] * inv];
-    let rot = quat_rot(qn);
+    let rot = quat_rot_lanes(qn);
     let w = &cam.r;
-    let mut a = [[0.0; 3]; 3];
-    let mut mp = [[0.0; 3]; 3];
+    let mut a = [[c::<L>(0.0); 3]; 3];
+    let mut mp = [[c::<L>(0.0); 3]; 3];
     for i in 0..3 {
         for j in 0..3 {
-            a[i][j] = w[i][0] * rot[0][j] + w[i][1] * rot[1][j] + w[i][2] * rot[2][j];
+            a[i][j] = rot[0][j] * w[i][0] + rot[1][j] * w[i][1] + rot[2][j] * w[i][2];
             mp[i][j] = a[i][j] * s[j];
         }
     }
     let (x, y, z) = (pc[0], pc[1], pc[2]);
     let (u, v) = (x / z, y / z);
-    let clamp_x = if u > cam.lim_x_pos {
-        Some(cam.lim_x_pos)
-    } else if u < -cam.lim_x_neg {
-        Some(-cam.lim_x_neg)
-    } else {
-        None
+    // A NaN ratio is in neither clamp (as the comparisons say).
+    let clamp = |t: L, pos: f64, neg: f64| {
+        let hi = t.gt(c(pos));
+        let lo = t.lt(c(-neg));
+        let limit = L::select(hi, c(pos), c(-neg));
+        (hi | lo, limit, L::select(hi | lo, limit, t))
     };
-    let clamp_y = if v > cam.lim_y_pos {
-        Some(cam.lim_y_pos)
-    } else if v < -cam.lim_y_neg {
-        Some(-cam.lim_y_neg)
-    } else {
-        None
-    };
-    let txz = clamp_x.unwrap_or(u);
-    let tyz = clamp_y.unwrap_or(v);
-    let jac = [cam.fx / z, -cam.fx * txz / z, cam.fy / z, -cam.fy * tyz / z];
-    let mut tm = [[0.0; 3]; 2];
+    let (clamped_x, limit_x, txz) = clamp(u, cam.lim_x_pos, cam.lim_x_neg);
+    let (clamped_y, limit_y, tyz) = clamp(v, cam.lim_y_pos, cam.lim_y_neg);
+    let jac = [
+        c::<L>(cam.fx) / z,
+        txz * -cam.fx / z,
+        c::<L>(cam.fy) / z,
+        tyz * -cam.fy / z,
+    ];
+    let mut tm = [[c::<L>(0.0); 3]; 2];
     for k in 0..3 {
         tm[0][k] = jac[0] * mp[0][k] + jac[1] * mp[2][k];
         tm[1][k] = jac[2] * mp[1][k] + jac[3] * mp[2][k];
     }
-    let dot = |p: &[f64; 3], q: &[f64; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+    let dot = |p: &[L; 3], q: &[L; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
     let x_raw = [
         dot(&tm[0], &tm[0]),
         dot(&tm[0], &tm[1]),
         dot(&tm[1], &tm[1]),
     ];
-    if !x_raw.iter().all(|v| v.is_finite()) {
-        return Err(Outcome::Invalid);
-    }
+    status.invalid_where(!all_finite(&x_raw));
     let det_raw = x_raw[0] * x_raw[2] - x_raw[1] * x_raw[1];
     let (p, q2, r) = (x_raw[0] + EPS2D, x_raw[1], x_raw[2] + EPS2D);
     let det_blur = p * r - q2 * q2;
-    if !(det_blur > 0.0) {
-        return Err(Outcome::Culled);
-    }
-    let inv_det = 1.0 / det_blur;
+    status.culled_where(!det_blur.gt(c(0.0)));
+    let inv_det = c::<L>(1.0) / det_blur;
     let conic = [r * inv_det, -q2 * inv_det, p * inv_det];
     let ratio = det_raw * inv_det;
-    Ok(Inter {
+    Inter {
+        status,
         s,
         qn,
         qnorm,
@@ -304,18 +368,147 @@ fn intermediates(
         mp,
         pc,
         jac,
-        clamp: [clamp_x, clamp_y],
+        clamped: [clamped_x, clamped_y],
+        limit: [limit_x, limit_y],
         tm,
         x_raw,
         det_blur,
         conic,
         ratio,
-        opacity_base: sigmoid(logit as f64),
-    })
+        opacity_base: lanes::sigmoid(gl.logit),
+    }
 }
 
-fn compensation(ratio: f64) -> f64 {
-    ratio.max(MIN_COMPENSATION_RATIO).sqrt()
+/// [`quat_rot`] lane-wise.
+#[inline(always)]
+fn quat_rot_lanes<L: Lanes>(q: [L; 4]) -> M3L<L> {
+    let [w, x, y, z] = q;
+    let one = c::<L>(1.0);
+    [
+        [
+            one - (y * y + z * z) * 2.0,
+            (x * y - w * z) * 2.0,
+            (x * z + w * y) * 2.0,
+        ],
+        [
+            (x * y + w * z) * 2.0,
+            one - (x * x + z * z) * 2.0,
+            (y * z - w * x) * 2.0,
+        ],
+        [
+            (x * z - w * y) * 2.0,
+            (y * z + w * x) * 2.0,
+            one - (x * x + y * y) * 2.0,
+        ],
+    ]
+}
+
+#[inline(always)]
+fn compensation<L: Lanes>(ratio: L) -> L {
+    ratio.max(c(MIN_COMPENSATION_RATIO)).sqrt()
+}
+
+/// The projections of eight Gaussians: a lane's values are meaningful where
+/// `status.visible()` has its bit.
+#[derive(Clone, Copy)]
+pub(crate) struct ProjectedLanes<L> {
+    pub status: Status,
+    pub mean2d: [L; 2],
+    pub conic: [L; 3],
+    pub opacity: L,
+    pub depth: L,
+    /// Bounding-box half extents (integral values).
+    pub radius: [L; 2],
+    /// ln(opacity / ALPHA_THRESHOLD), which also bounds the splat's support.
+    pub log_alpha_ratio: L,
+}
+
+/// One lane of [`ProjectedLanes`], unpacked.
+pub(crate) struct ProjectedLane {
+    pub outcome: Outcome,
+    pub log_alpha_ratio: f64,
+}
+
+impl<L: Lanes> ProjectedLanes<L> {
+    /// The lanes unpacked.
+    #[inline(always)]
+    pub fn unpack(&self) -> [ProjectedLane; LANES] {
+        let m = [self.mean2d[0].to_array(), self.mean2d[1].to_array()];
+        let k = [
+            self.conic[0].to_array(),
+            self.conic[1].to_array(),
+            self.conic[2].to_array(),
+        ];
+        let o = self.opacity.to_array();
+        let d = self.depth.to_array();
+        let r = [self.radius[0].to_array(), self.radius[1].to_array()];
+        let lr = self.log_alpha_ratio.to_array();
+        let vis = self.status.visible();
+        std::array::from_fn(|l| ProjectedLane {
+            outcome: if (vis >> l) & 1 == 1 {
+                Outcome::Visible(Projected {
+                    mean2d: [m[0][l], m[1][l]],
+                    conic: [k[0][l], k[1][l], k[2][l]],
+                    opacity: o[l],
+                    depth: d[l],
+                    radius: [r[0][l] as i32, r[1][l] as i32],
+                })
+            } else if (self.status.invalid >> l) & 1 == 1 {
+                Outcome::Invalid
+            } else {
+                Outcome::Culled
+            },
+            log_alpha_ratio: lr[l],
+        })
+    }
+}
+
+/// Projects eight Gaussians (see [`project`]).
+#[inline(always)]
+pub(crate) fn project_lanes<L: Lanes>(
+    cam: &CameraModel,
+    gl: &GaussLanes<L>,
+    antialiased: bool,
+    near: f64,
+) -> ProjectedLanes<L> {
+    let it = intermediates(cam, gl, near);
+    let mut status = it.status;
+    let mut opacity = it.opacity_base;
+    if antialiased {
+        opacity = opacity * compensation(it.ratio);
+    }
+    let thr = ALPHA_THRESHOLD as f64;
+    status.culled_where(!opacity.ge(c(thr)));
+    let log_alpha_ratio = lanes::ln(opacity / thr);
+    // NaN (culled lanes) is first, so it gives MAX_EXTEND.
+    let extend = (log_alpha_ratio * 2.0).sqrt().min(c(MAX_EXTEND));
+    let rx = (extend * (it.x_raw[0] + EPS2D).sqrt()).ceil();
+    let ry = (extend * (it.x_raw[2] + EPS2D).sqrt()).ceil();
+    let zero = c::<L>(0.0);
+    status.culled_where(rx.le(zero) & ry.le(zero));
+    let (x, y, z) = (it.pc[0], it.pc[1], it.pc[2]);
+    let mean2d = [x * cam.fx / z + cam.cx, y * cam.fy / z + cam.cy];
+    status.invalid_where(!(mean2d[0].is_finite() & mean2d[1].is_finite()));
+    let outside = (mean2d[0] + rx).le(zero)
+        | (mean2d[0] - rx).ge(c(cam.width as f64))
+        | (mean2d[1] + ry).le(zero)
+        | (mean2d[1] - ry).ge(c(cam.height as f64));
+    status.culled_where(outside);
+    ProjectedLanes {
+        status,
+        mean2d,
+        conic: it.conic,
+        opacity,
+        depth: z,
+        radius: [rx, ry],
+        log_alpha_ratio,
+    }
+}
+
+/// ln(opacity / ALPHA_THRESHOLD), computed as [`project_lanes`] computes it.
+#[cfg(test)]
+pub(crate) fn log_alpha_ratio(opacity: f64) -> f64 {
+    lanes::ln(P8::splat(opacity / ALPHA_THRESHOLD as f64)).0[0]
 }
 
 /// Projects one Gaussian.
@@ -329,46 +522,212 @@ pub fn project(
     antialiased: bool,
     near: f64,
 ) -> Outcome {
-    let it = match intermediates(cam, mean, log_scale, quat, logit, near) {
-        Ok(it) => it,
-        Err(o) => return o,
-    };
-    let mut opacity = it.opacity_base;
+    let gl = GaussLanes::one(mean, log_scale, quat, logit);
+    let [first, ..] = project_lanes(cam, &gl, antialiased, near).unpack();
+    first.outcome
+}
+
+/// Gradients with respect to the projection outputs of eight Gaussians.
+#[derive(Clone, Copy)]
+pub(crate) struct ProjectedGradLanes<L> {
+    pub mean2d: [L; 2],
+    pub conic: [L; 3],
+    pub opacity: L,
+    pub depth: L,
+}
+
+/// Gradients with respect to the raw parameters of eight Gaussians.
+#[derive(Clone, Copy)]
+pub(crate) struct ParamGradLanes<L> {
+    pub mean: [L; 3],
+    pub log_scale: [L; 3],
+    pub quat: [L; 4],
+    pub logit: L,
+}
+
+impl<L: Lanes> ParamGradLanes<L> {
+    /// The lanes unpacked.
+    #[inline(always)]
+    pub fn unpack(&self) -> [ParamGrad; LANES] {
+        let m = self.mean.map(|v| v.to_array());
+        let s = self.log_scale.map(|v| v.to_array());
+        let q = self.quat.map(|v| v.to_array());
+        let o = self.logit.to_array();
+        std::array::from_fn(|l| ParamGrad {
+            mean: [m[0][l], m[1][l], m[2][l]],
+            log_scale: [s[0][l], s[1][l], s[2][l]],
+            quat: [q[0][l], q[1][l], q[2][l], q[3][l]],
+            logit: o[l],
+        })
+    }
+}
+
+/// Backward of [`project_lanes`]; lanes whose forward intermediates are invalid or culled
+/// get zeros (the callers only ask for visible Gaussians).
+#[inline(always)]
+pub(crate) fn project_vjp_lanes<L: Lanes>(
+    cam: &CameraModel,
+    gl: &GaussLanes<L>,
+    antialiased: bool,
+    near: f64,
+    g: &ProjectedGradLanes<L>,
+) -> ParamGradLanes<L> {
+    let it = intermediates(cam, gl, near);
+    let [a, b, cc] = it.conic;
+    let k = [[a, b], [b, cc]];
+    // Full-matrix gradient of the conic (b sits in both off-diagonal entries).
+    let gk = [
+        [g.conic[0], g.conic[1] * 0.5],
+        [g.conic[1] * 0.5, g.conic[2]],
+    ];
+    // G_X = −K G_K K.
+    let mut kg = [[c::<L>(0.0); 2]; 2];
+    for i in 0..2 {
+        for j in 0..2 {
+            kg[i][j] = k[i][0] * gk[0][j] + k[i][1] * gk[1][j];
+        }
+    }
+    let mut gx = [[c::<L>(0.0); 2]; 2];
+    for i in 0..2 {
+        for j in 0..2 {
+            gx[i][j] = -(kg[i][0] * k[0][j] + kg[i][1] * k[1][j]);
+        }
+    }
+    let mut g_obase = g.opacity;
     if antialiased {
-        opacity *= compensation(it.ratio);
+        let comp = compensation(it.ratio);
+        g_obase = g.opacity * comp;
+        let g_comp = g.opacity * it.opacity_base;
+        let g_ratio = g_comp / (comp * 2.0);
+        let xr = it.x_raw;
+        // d(det_raw/det_blur)/dX = adj(X)ᵀ/det_blur − ratio·K where the ratio is not
+        // clamped.
+        let live = it.ratio.gt(c(MIN_COMPENSATION_RATIO));
+        let adj = [[xr[2], -xr[1]], [-xr[1], xr[0]]];
+        for i in 0..2 {
+            for j in 0..2 {
+                let with = gx[i][j] + g_ratio * (adj[i][j] / it.det_blur - it.ratio * k[i][j]);
+                gx[i][j] = L::select(live, with, gx[i][j]);
+            }
+        }
     }
-    if !(opacity >= ALPHA_THRESHOLD as f64) {
-        return Outcome::Culled;
+    // Σ2d_raw = T Tᵀ, T = J M' ⇒ G_T = 2 G T (G symmetric); G_J = G_T M'ᵀ; G_M' = Jᵀ G_T.
+    let tm = &it.tm;
+    let mut gt = [[c::<L>(0.0); 3]; 2];
+    for k in 0..3 {
+        gt[0][k] = (gx[0][0] * tm[0][k] + gx[0][1] * tm[1][k]) * 2.0;
+        gt[1][k] = (gx[1][0] * tm[0][k] + gx[1][1] * tm[1][k]) * 2.0;
     }
-    let extend = MAX_EXTEND.min((2.0 * (opacity / ALPHA_THRESHOLD as f64).ln()).sqrt());
-    let rx = (extend * (it.x_raw[0] + EPS2D).sqrt()).ceil();
-    let ry = (extend * (it.x_raw[2] + EPS2D).sqrt()).ceil();
-    if rx <= 0.0 && ry <= 0.0 {
-        return Outcome::Culled;
+    let mp = &it.mp;
+    let dot = |p: &[L; 3], q: &[L; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+    let g_j00 = dot(&gt[0], &mp[0]);
+    let g_j02 = dot(&gt[0], &mp[2]);
+    let g_j11 = dot(&gt[1], &mp[1]);
+    let g_j12 = dot(&gt[1], &mp[2]);
+    let [j00, j02, j11, j12] = it.jac;
+    let mut g_mp = [[c::<L>(0.0); 3]; 3];
+    for k in 0..3 {
+        g_mp[0][k] = j00 * gt[0][k];
+        g_mp[1][k] = j11 * gt[1][k];
+        g_mp[2][k] = j02 * gt[0][k] + j12 * gt[1][k];
     }
     let (x, y, z) = (it.pc[0], it.pc[1], it.pc[2]);
-    let mean2d = [cam.fx * x / z + cam.cx, cam.fy * y / z + cam.cy];
-    if !(mean2d[0].is_finite() && mean2d[1].is_finite()) {
-        return Outcome::Invalid;
+    let (fx, fy) = (cam.fx, cam.fy);
+    let (z2, z3) = (z * z, z * z * z);
+    // mean2d
+    let mut g_pc = [
+        g.mean2d[0] * fx / z,
+        g.mean2d[1] * fy / z,
+        -((g.mean2d[0] * fx * x + g.mean2d[1] * fy * y) / z2),
+    ];
+    // J00 = fx/z, J11 = fy/z
+    g_pc[2] = g_pc[2] - (g_j00 * fx / z2 + g_j11 * fy / z2);
+    // J02 = −fx·t_x/z² with t_x = x, or −fx·L/z when clamped (so the x path is cut).
+    let free_x = g_pc[0] - g_j02 * fx / z2;
+    let free_z = g_pc[2] + g_j02 * 2.0 * fx * x / z3;
+    let clamped_z = g_pc[2] + g_j02 * fx * it.limit[0] / z2;
+    g_pc[0] = L::select(it.clamped[0], g_pc[0], free_x);
+    g_pc[2] = L::select(it.clamped[0], clamped_z, free_z);
+    let free_y = g_pc[1] - g_j12 * fy / z2;
+    let free_z = g_pc[2] + g_j12 * 2.0 * fy * y / z3;
+    let clamped_z = g_pc[2] + g_j12 * fy * it.limit[1] / z2;
+    g_pc[1] = L::select(it.clamped[1], g_pc[1], free_y);
+    g_pc[2] = L::select(it.clamped[1], clamped_z, free_z);
+    g_pc[2] = g_pc[2] + g.depth;
+    let w = &cam.r;
+    let mut g_mean = [c::<L>(0.0); 3];
+    for i in 0..3 {
+        g_mean[i] = g_pc[0] * w[0][i] + g_pc[1] * w[1][i] + g_pc[2] * w[2][i];
     }
-    if mean2d[0] + rx <= 0.0
-        || mean2d[0] - rx >= cam.width as f64
-        || mean2d[1] + ry <= 0.0
-        || mean2d[1] - ry >= cam.height as f64
-    {
-        return Outcome::Culled;
+    // M' = A diag(s): G_A = G_M' diag(s), G_s = colsum(A ∘ G_M'); A = W R ⇒ G_R = Wᵀ G_A.
+    let mut g_a = [[c::<L>(0.0); 3]; 3];
+    let mut g_ls = [c::<L>(0.0); 3];
+    for r in 0..3 {
+        for col in 0..3 {
+            g_a[r][col] = g_mp[r][col] * it.s[col];
+            g_ls[col] = g_ls[col] + g_mp[r][col] * it.a[r][col];
+        }
     }
-    Outcome::Visible(Projected {
-        mean2d,
-        conic: it.conic,
-        opacity,
-        depth: z,
-        radius: [rx as i32, ry as i32],
-    })
+    for jj in 0..3 {
+        g_ls[jj] = g_ls[jj] * it.s[jj];
+    }
+    let mut gr = [[c::<L>(0.0); 3]; 3];
+    for r in 0..3 {
+        for col in 0..3 {
+            gr[r][col] = g_a[0][col] * w[0][r] + g_a[1][col] * w[1][r] + g_a[2][col] * w[2][r];
+        }
+    }
+    let [qw, qx, qy, qz] = it.qn;
+    let gqn = [
+        (-qz * gr[0][1] + qy * gr[0][2] + qz * gr[1][0] - qx * gr[1][2] - qy * gr[2][0]
+            + qx * gr[2][1])
+            * 2.0,
+        (qy * gr[0][1] + qz * gr[0][2] + qy * gr[1][0] - qx * gr[1][1] * 2.0 - qw * gr[1][2]
+            + qz * gr[2][0]
+            + qw * gr[2][1]
+            - qx * gr[2][2] * 2.0)
+            * 2.0,
+        (-(qy * gr[0][0] * 2.0) + qx * gr[0][1] + qw * gr[0][2] + qx * gr[1][0] + qz * gr[1][2]
+            - qw * gr[2][0]
+            + qz * gr[2][1]
+            - qy * gr[2][2] * 2.0)
+            * 2.0,
+        (-(qz * gr[0][0] * 2.0) - qw * gr[0][1] + qx * gr[0][2] + qw * gr[1][0]
+            - qz * gr[1][1] * 2.0
+            + qy * gr[1][2]
+            + qx * gr[2][0]
+            + qy * gr[2][1])
+            * 2.0,
+    ];
+    let dotq = gqn[0] * qw + gqn[1] * qx + gqn[2] * qy + gqn[3] * qz;
+    let g_quat = [
+        (gqn[0] - qw * dotq) / it.qnorm,
+        (gqn[1] - qx * dotq) / it.qnorm,
+        (gqn[2] - qy * dotq) / it.qnorm,
+        (gqn[3] - qz * dotq) / it.qnorm,
+    ];
+    let o = it.opacity_base;
+    let logit = g_obase * o * (c::<L>(1.0) - o);
+    // Lanes whose intermediates failed give zeros.
+    let ok = it.status.visible();
+    let zero = c::<L>(0.0);
+    let keep = |v: L| L::select(ok, v, zero);
+    ParamGradLanes {
+        mean: [keep(g_mean[0]), keep(g_mean[1]), keep(g_mean[2])],
+        log_scale: [keep(g_ls[0]), keep(g_ls[1]), keep(g_ls[2])],
+        quat: [
+            keep(g_quat[0]),
+            keep(g_quat[1]),
+            keep(g_quat[2]),
+            keep(g_quat[3]),
+        ],
+        logit: keep(logit),
+    }
 }
 
 /// Backward of [`project`] for a visible Gaussian: dL/d(raw parameters) from dL/d(outputs).
-/// Returns zeros for a Gaussian that is not visible.
+/// Returns zeros for a Gaussian whose projection fails before its conic (invalid, behind
+/// the near plane, degenerate).
 #[allow(clippy::too_many_arguments)]
 #[inline]
 pub fn project_vjp(
@@ -381,153 +740,15 @@ pub fn project_vjp(
     near: f64,
     g: &ProjectedGrad,
 ) -> ParamGrad {
-    let it = match intermediates(cam, mean, log_scale, quat, logit, near) {
-        Ok(it) => it,
-        Err(_) => return ParamGrad::default(),
+    let gl = GaussLanes::one(mean, log_scale, quat, logit);
+    let g = ProjectedGradLanes {
+        mean2d: g.mean2d.map(P8::splat),
+        conic: g.conic.map(P8::splat),
+        opacity: P8::splat(g.opacity),
+        depth: P8::splat(g.depth),
     };
-    let [a, b, c] = it.conic;
-    let k = [[a, b], [b, c]];
-    // Full-matrix gradient of the conic (b sits in both off-diagonal entries).
-    let gk = [
-        [g.conic[0], 0.5 * g.conic[1]],
-        [0.5 * g.conic[1], g.conic[2]],
-    ];
-    // G_X = −K G_K K.
-    let mut kg = [[0.0; 2]; 2];
-    for i in 0..2 {
-        for j in 0..2 {
-            kg[i][j] = k[i][0] * gk[0][j] + k[i][1] * gk[1][j];
-        }
-    }
-    let mut gx = [[0.0; 2]; 2];
-    for i in 0..2 {
-        for j in 0..2 {
-            gx[i][j] = -(kg[i][0] * k[0][j] + kg[i][1] * k[1][j]);
-        }
-    }
-    let mut g_obase = g.opacity;
-    if antialiased {
-        let comp = compensation(it.ratio);
-        g_obase = g.opacity * comp;
-        if it.ratio > MIN_COMPENSATION_RATIO {
-            let g_comp = g.opacity * it.opacity_base;
-            let g_ratio = g_comp / (2.0 * comp);
-            let xr = it.x_raw;
-            // d(det_raw/det_blur)/dX = adj(X)ᵀ/det_blur − ratio·K.
-            let adj = [[xr[2], -xr[1]], [-xr[1], xr[0]]];
-            for i in 0..2 {
-                for j in 0..2 {
-                    gx[i][j] += g_ratio * (adj[i][j] / it.det_blur - it.ratio * k[i][j]);
-                }
-            }
-        }
-    }
-    // Σ2d_raw = T Tᵀ, T = J M' ⇒ G_T = 2 G T (G symmetric); G_J = G_T M'ᵀ; G_M' = Jᵀ G_T.
-    let tm = &it.tm;
-    let mut gt = [[0.0; 3]; 2];
-    for k in 0..3 {
-        gt[0][k] = 2.0 * (gx[0][0] * tm[0][k] + gx[0][1] * tm[1][k]);
-        gt[1][k] = 2.0 * (gx[1][0] * tm[0][k] + gx[1][1] * tm[1][k]);
-    }
-    let mp = &it.mp;
-    let dot = |p: &[f64; 3], q: &[f64; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
-    let g_j00 = dot(&gt[0], &mp[0]);
-    let g_j02 = dot(&gt[0], &mp[2]);
-    let g_j11 = dot(&gt[1], &mp[1]);
-    let g_j12 = dot(&gt[1], &mp[2]);
-    let [j00, j02, j11, j12] = it.jac;
-    let mut g_mp = [[0.0; 3]; 3];
-    for k in 0..3 {
-        g_mp[0][k] = j00 * gt[0][k];
-        g_mp[1][k] = j11 * gt[1][k];
-        g_mp[2][k] = j02 * gt[0][k] + j12 * gt[1][k];
-    }
-    let (x, y, z) = (it.pc[0], it.pc[1], it.pc[2]);
-    let (fx, fy) = (cam.fx, cam.fy);
-    let (z2, z3) = (z * z, z * z * z);
-    let mut g_pc = [0.0; 3];
-    // mean2d
-    g_pc[0] += g.mean2d[0] * fx / z;
-    g_pc[1] += g.mean2d[1] * fy / z;
-    g_pc[2] -= (g.mean2d[0] * fx * x + g.mean2d[1] * fy * y) / z2;
-    // J00 = fx/z, J11 = fy/z
-    g_pc[2] -= g_j00 * fx / z2 + g_j11 * fy / z2;
-    // J02 = −fx·tx/z²
-    match it.clamp[0] {
-        None => {
-            g_pc[0] -= g_j02 * fx / z2;
-            g_pc[2] += g_j02 * 2.0 * fx * x / z3;
-        }
-        Some(l) => g_pc[2] += g_j02 * fx * l / z2,
-    }
-    match it.clamp[1] {
-        None => {
-            g_pc[1] -= g_j12 * fy / z2;
-            g_pc[2] += g_j12 * 2.0 * fy * y / z3;
-        }
-        Some(l) => g_pc[2] += g_j12 * fy * l / z2,
-    }
-    g_pc[2] += g.depth;
-    let w = &cam.r;
-    let mut g_mean = [0.0; 3];
-    for i in 0..3 {
-        g_mean[i] = w[0][i] * g_pc[0] + w[1][i] * g_pc[1] + w[2][i] * g_pc[2];
-    }
-    // M' = A diag(s): G_A = G_M' diag(s), G_s = colsum(A ∘ G_M'); A = W R ⇒ G_R = Wᵀ G_A.
-    let mut g_a = [[0.0; 3]; 3];
-    let mut g_ls = [0.0; 3];
-    for r in 0..3 {
-        for col in 0..3 {
-            g_a[r][col] = g_mp[r][col] * it.s[col];
-            g_ls[col] += g_mp[r][col] * it.a[r][col];
-        }
-    }
-    for jj in 0..3 {
-        g_ls[jj] *= it.s[jj];
-    }
-    let mut g_rot = [[0.0; 3]; 3];
-    for r in 0..3 {
-        for col in 0..3 {
-            g_rot[r][col] = w[0][r] * g_a[0][col] + w[1][r] * g_a[1][col] + w[2][r] * g_a[2][col];
-        }
-    }
-    let [qw, qx, qy, qz] = it.qn;
-    let gr = g_rot;
-    let gqn = [
-        2.0 * (-qz * gr[0][1] + qy * gr[0][2] + qz * gr[1][0] - qx * gr[1][2] - qy * gr[2][0]
-            + qx * gr[2][1]),
-        2.0 * (qy * gr[0][1] + qz * gr[0][2] + qy * gr[1][0] - 2.0 * qx * gr[1][1] - qw * gr[1][2]
-            + qz * gr[2][0]
-            + qw * gr[2][1]
-            - 2.0 * qx * gr[2][2]),
-        2.0 * (-2.0 * qy * gr[0][0]
-            + qx * gr[0][1]
-            + qw * gr[0][2]
-            + qx * gr[1][0]
-            + qz * gr[1][2]
-            - qw * gr[2][0]
-            + qz * gr[2][1]
-            - 2.0 * qy * gr[2][2]),
-        2.0 * (-2.0 * qz * gr[0][0] - qw * gr[0][1] + qx * gr[0][2] + qw * gr[1][0]
-            - 2.0 * qz * gr[1][1]
-            + qy * gr[1][2]
-            + qx * gr[2][0]
-            + qy * gr[2][1]),
-    ];
-    let dotq = gqn[0] * qw + gqn[1] * qx + gqn[2] * qy + gqn[3] * qz;
-    let g_quat = [
-        (gqn[0] - qw * dotq) / it.qnorm,
-        (gqn[1] - qx * dotq) / it.qnorm,
-        (gqn[2] - qy * dotq) / it.qnorm,
-        (gqn[3] - qz * dotq) / it.qnorm,
-    ];
-    let o = it.opacity_base;
-    ParamGrad {
-        mean: g_mean,
-        log_scale: g_ls,
-        quat: g_quat,
-        logit: g_obase * o * (1.0 - o),
-    }
+    let [first, ..] = project_vjp_lanes(cam, &gl, antialiased, near, &g).unpack();
+    first
 }
 
 #[cfg(test)]
@@ -566,5 +787,242 @@ mod tests {
         assert!(matches!(go(2.0, above), Outcome::Invalid));
         assert!(matches!(go(-2.0, below), Outcome::Culled));
         assert!(matches!(go(-2.0, above), Outcome::Invalid));
+    }
+
+    /// Random Gaussians including every awkward case the projection must survive.
+    fn awkward_gaussians(rng: &mut augsplat_core::Rng, n: usize) -> crate::Gaussians {
+        let mut g = crate::Gaussians::empty(0);
+        for i in 0..n {
+            let mut mean = [
+                rng.uniform(-3.0, 3.0) as f32,
+                rng.uniform(-2.0, 2.0) as f32,
+                rng.uniform(-1.0, 6.0) as f32,
+            ];
+            let s = rng.uniform(-6.0, 0.5) as f32;
+            let mut ls = [s, s + rng.uniform(-1.0, 1.0) as f32, s - 0.5];
+            let mut q = [
+                rng.uniform(-1.0, 1.0) as f32,
+                rng.uniform(-1.0, 1.0) as f32,
+                rng.uniform(-1.0, 1.0) as f32,
+                rng.uniform(-1.0, 1.0) as f32,
+            ];
+            let mut logit = rng.uniform(-8.0, 8.0) as f32;
+            match i % 13 {
+                0 => mean[0] = f32::NAN,
+                1 => ls[1] = f32::INFINITY,
+                2 => ls[0] = 700.0,
+                3 => ls = [-100.0, -100.0, -100.0],
+                4 => q = [0.0; 4],
+                5 => mean[2] = 0.0,
+                6 => logit = -30.0,
+                7 => mean = [40.0, 0.0, 1.0],
+                8 => logit = f32::NEG_INFINITY,
+                _ => {}
+            }
+            g.means.push(mean);
+            g.log_scales.push(ls);
+            g.quats.push(q);
+            g.opacity_logits.push(logit);
+        }
+        g
+    }
+
+    fn camera() -> CameraModel {
+        let r = [[0.96, 0.0, -0.28], [0.0, 1.0, 0.0], [0.28, 0.0, 0.96]];
+        CameraModel::new(&augsplat_core::Camera {
+            width: 61,
+            height: 37,
+            fx: 40.0,
+            fy: 42.0,
+            cx: 27.0,
+            cy: 20.5,
+            world_to_camera: augsplat_core::linalg::mat4_from_rt(&r, [0.2, -0.1, 1.0]),
+        })
+    }
+
+    fn same(a: f64, b: f64) -> bool {
+        a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
+    }
+
+    #[test]
+    fn a_lane_of_a_batch_is_the_single_gaussian_projection_and_its_backward() {
+        let mut rng = augsplat_core::Rng::new(11);
+        let g = awkward_gaussians(&mut rng, 64);
+        let cam = camera();
+        for aa in [false, true] {
+            for b in 0..8 {
+                let idx: [usize; LANES] = std::array::from_fn(|l| 8 * b + l);
+                let gl = GaussLanes::<P8>::gather(
+                    &g.means,
+                    &g.log_scales,
+                    &g.quats,
+                    &g.opacity_logits,
+                    &idx,
+                );
+                let batch = project_lanes(&cam, &gl, aa, 0.01).unpack();
+                let grad = ProjectedGradLanes {
+                    mean2d: [P8::splat(0.3), P8::splat(-0.2)],
+                    conic: [P8::splat(0.7), P8::splat(-0.4), P8::splat(0.1)],
+                    opacity: P8::splat(0.9),
+                    depth: P8::splat(0.05),
+                };
+                let back = project_vjp_lanes(&cam, &gl, aa, 0.01, &grad).unpack();
+                for l in 0..LANES {
+                    let i = idx[l];
+                    let one = project(
+                        &cam,
+                        g.means[i],
+                        g.log_scales[i],
+                        g.quats[i],
+                        g.opacity_logits[i],
+                        aa,
+                        0.01,
+                    );
+                    assert_eq!(
+                        format!("{:?}", one),
+                        format!("{:?}", batch[l].outcome),
+                        "Gaussian {i}"
+                    );
+                    let pg = ProjectedGrad {
+                        mean2d: [0.3, -0.2],
+                        conic: [0.7, -0.4, 0.1],
+                        opacity: 0.9,
+                        depth: 0.05,
+                    };
+                    let one = project_vjp(
+                        &cam,
+                        g.means[i],
+                        g.log_scales[i],
+                        g.quats[i],
+                        g.opacity_logits[i],
+                        aa,
+                        0.01,
+                        &pg,
+                    );
+                    assert_eq!(
+                        format!("{:?}", one),
+                        format!("{:?}", back[l]),
+                        "Gaussian {i}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx512_lanes_project_and_differentiate_bit_for_bit_like_portable_lanes() {
+        use crate::lanes::avx512::{available, Z8};
+        if !available() {
+            return;
+        }
+        #[target_feature(enable = "avx512f,avx512dq")]
+        fn wide(
+            cam: &CameraModel,
+            g: &crate::Gaussians,
+            idx: &[usize; LANES],
+            aa: bool,
+            grad: [[f64; LANES]; 7],
+        ) -> ([ProjectedLane; LANES], [ParamGrad; LANES], Status) {
+            let gl =
+                GaussLanes::<Z8>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
+            let p = project_lanes(cam, &gl, aa, 0.01);
+            let pg = ProjectedGradLanes {
+                mean2d: [Z8::from_array(grad[0]), Z8::from_array(grad[1])],
+                conic: [
+                    Z8::from_array(grad[2]),
+                    Z8::from_array(grad[3]),
+                    Z8::from_array(grad[4]),
+                ],
+                opacity: Z8::from_array(grad[5]),
+                depth: Z8::from_array(grad[6]),
+            };
+            (
+                p.unpack(),
+                project_vjp_lanes(cam, &gl, aa, 0.01, &pg).unpack(),
+                p.status,
+            )
+        }
+        let mut rng = augsplat_core::Rng::new(12);
+        let g = awkward_gaussians(&mut rng, 800);
+        let cam = camera();
+        let mut seen = [0usize; 3];
+        for aa in [false, true] {
+            for b in 0..100 {
+                let idx: [usize; LANES] = std::array::from_fn(|l| 8 * b + l);
+                let grad: [[f64; LANES]; 7] =
+                    std::array::from_fn(|_| std::array::from_fn(|_| rng.uniform(-1.0, 1.0)));
+                // SAFETY: AVX-512F/DQ were detected above.
+                let (wp, wg, ws) = unsafe { wide(&cam, &g, &idx, aa, grad) };
+                let gl = GaussLanes::<P8>::gather(
+                    &g.means,
+                    &g.log_scales,
+                    &g.quats,
+                    &g.opacity_logits,
+                    &idx,
+                );
+                let p = project_lanes(&cam, &gl, aa, 0.01);
+                let pg = ProjectedGradLanes {
+                    mean2d: [P8(grad[0]), P8(grad[1])],
+                    conic: [P8(grad[2]), P8(grad[3]), P8(grad[4])],
+                    opacity: P8(grad[5]),
+                    depth: P8(grad[6]),
+                };
+                let (pp, pgr) = (
+                    p.unpack(),
+                    project_vjp_lanes(&cam, &gl, aa, 0.01, &pg).unpack(),
+                );
+                seen[0] += ws.visible().count_ones() as usize;
+                seen[1] += ws.culled.count_ones() as usize;
+                seen[2] += ws.invalid.count_ones() as usize;
+                assert_eq!(
+                    (ws.invalid, ws.culled, ws.visible()),
+                    (p.status.invalid, p.status.culled, p.status.visible())
+                );
+                for l in 0..LANES {
+                    match (&wp[l].outcome, &pp[l].outcome) {
+                        (Outcome::Visible(a), Outcome::Visible(b)) => {
+                            let (fa, fb) = (
+                                [
+                                    a.mean2d[0],
+                                    a.mean2d[1],
+                                    a.conic[0],
+                                    a.conic[1],
+                                    a.conic[2],
+                                    a.opacity,
+                                    a.depth,
+                                ],
+                                [
+                                    b.mean2d[0],
+                                    b.mean2d[1],
+                                    b.conic[0],
+                                    b.conic[1],
+                                    b.conic[2],
+                                    b.opacity,
+                                    b.depth,
+                                ],
+                            );
+                            assert!(
+                                fa.iter().zip(&fb).all(|(x, y)| same(*x, *y)),
+                                "{a:?} vs {b:?}"
+                            );
+                            assert_eq!(a.radius, b.radius);
+                            assert!(same(wp[l].log_alpha_ratio, pp[l].log_alpha_ratio));
+                        }
+                        (a, b) => assert_eq!(format!("{a:?}"), format!("{b:?}")),
+                    }
+                    let (a, b) = (wg[l], pgr[l]);
+                    let fa = [a.mean, a.log_scale, [a.logit; 3]].concat();
+                    let fb = [b.mean, b.log_scale, [b.logit; 3]].concat();
+                    assert!(
+                        fa.iter().zip(&fb).all(|(x, y)| same(*x, *y)),
+                        "{a:?} vs {b:?}"
+                    );
+                    assert!(a.quat.iter().zip(&b.quat).all(|(x, y)| same(*x, *y)));
+                }
+            }
+        }
+        // Every outcome occurs often.
+        assert!(seen.iter().all(|&k| k > 100), "{seen:?}");
     }
 }
