@@ -29,8 +29,8 @@ use crate::constants::{
     ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS, TRANSMITTANCE_THRESHOLD,
 };
 use crate::gaussians::Gaussians;
-use crate::lanes::{Lanes, LANES, P8};
-use crate::project::{project_lanes, CameraModel, GaussLanes, Outcome};
+use crate::lanes::{c, Lanes, Mask, LANES, P8};
+use crate::project::{project_lanes, CameraModel, GaussLanes, Projected};
 use crate::render::{Cutoff, RenderOutput, RenderSettings, RenderStats};
 use crate::sh;
 use crate::tiles::{bin_indexed, depth_order, Bins, TileGrid};
@@ -854,9 +854,13 @@ fn project_chunk<L: Lanes>(
     } = *job;
     let k = g.coeffs() * 3;
     let nb = sh::basis_len(degree);
-    let mut basis = [0.0f64; 16];
     let len = sp_out.len();
+    let (tiles_x, tiles_y) = (grid.tiles_x as f64, grid.tiles_y as f64);
+    let ts = TILE as f64;
+    let centre = cm.center.map(c::<L>);
     for j0 in (0..len).step_by(LANES) {
+        let n = (len - j0).min(LANES);
+        let live: Mask = if n == LANES { 0xff } else { (1u8 << n) - 1 };
         // A short last block repeats its last Gaussian in the spare lanes.
         let mut idx = [0usize; LANES];
         for (l, v) in idx.iter_mut().enumerate() {
@@ -864,51 +868,89 @@ fn project_chunk<L: Lanes>(
         }
         let gl =
             GaussLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, &idx);
-        let lanes = project_lanes(cm, &gl, s.antialiased, s.near as f64).unpack();
-        for (l, lane) in lanes.iter().enumerate().take(len - j0) {
-            let j = j0 + l;
-            let i = job.first + j;
-            let coefs = &g.sh[i * k..(i + 1) * k];
-            // A branch-free fold (vectorised) rather than a short-circuiting `all`.
-            let finite = coefs[..nb * 3]
+        let pl = project_lanes(cm, &gl, s.antialiased, s.near as f64);
+        // Tile rectangles (TileGrid::rect in lanes; the radius saturates like its i32).
+        let r_max = c::<L>(i32::MAX as f64);
+        let (tx, ty) = (pl.mean2d[0] / ts, pl.mean2d[1] / ts);
+        let (rx, ry) = (pl.radius[0].min(r_max) / ts, pl.radius[1].min(r_max) / ts);
+        let clamp = |v: L, hi: f64| v.max(c(0.0)).min(c(hi));
+        let rect = [
+            clamp((tx - rx).floor(), tiles_x),
+            clamp((tx + rx).ceil(), tiles_x),
+            clamp((ty - ry).floor(), tiles_y),
+            clamp((ty + ry).ceil(), tiles_y),
+        ];
+        let nonempty = rect[0].lt(rect[1]) & rect[2].lt(rect[3]);
+        // Non-finite active SH coefficients make a Gaussian invalid (checked first).
+        let mut sh_ok: Mask = 0;
+        for l in 0..n {
+            let i = idx[l];
+            let finite = g.sh[i * k..i * k + nb * 3]
                 .iter()
                 .fold(true, |ok, v| ok & v.is_finite());
-            if !finite {
-                st_out[j] = INVALID;
-                continue;
-            }
-            st_out[j] = match lane.outcome {
-                Outcome::Invalid => INVALID,
-                Outcome::Culled => CULLED,
-                Outcome::Visible(p) => {
-                    let rect = grid.rect(p.mean2d, p.radius);
-                    if rect[0] >= rect[1] || rect[2] >= rect[3] {
-                        CULLED
-                    } else {
-                        let m = g.means[i];
-                        let v = [
-                            m[0] as f64 - cm.center[0],
-                            m[1] as f64 - cm.center[1],
-                            m[2] as f64 - cm.center[2],
-                        ];
-                        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                        let dir = if len > 0.0 {
-                            [v[0] / len, v[1] / len, v[2] / len]
-                        } else {
-                            [0.0, 0.0, 1.0]
-                        };
-                        let col = sh::eval_color(degree, coefs, dir, &mut basis);
-                        match make_splat(&p, col, lane.log_alpha_ratio) {
-                            Some(sp) => {
-                                sp_out[j].write(sp);
-                                rect_out[j].write(rect);
-                                VISIBLE
-                            }
-                            None => CULLED,
-                        }
-                    }
-                }
+            sh_ok |= (finite as u8) << l;
+        }
+        let invalid = (!sh_ok | pl.status.invalid) & live;
+        let mut visible = sh_ok & pl.status.visible() & nonempty & live;
+        for l in 0..n {
+            st_out[j0 + l] = if (invalid >> l) & 1 == 1 {
+                INVALID
+            } else {
+                CULLED
             };
+        }
+        if visible == 0 {
+            continue;
+        }
+        // Colours of the eight lanes from the view directions normalize(mean − centre).
+        let v = [
+            gl.mean[0] - centre[0],
+            gl.mean[1] - centre[1],
+            gl.mean[2] - centre[2],
+        ];
+        let vlen = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let away = vlen.gt(c(0.0));
+        let dir = [
+            L::select(away, v[0] / vlen, c(0.0)),
+            L::select(away, v[1] / vlen, c(0.0)),
+            L::select(away, v[2] / vlen, c(1.0)),
+        ];
+        let coef = |q: usize| {
+            let mut a = [0.0; LANES];
+            for l in 0..LANES {
+                a[l] = g.sh[idx[l] * k + q] as f64;
+            }
+            L::from_array(a)
+        };
+        let col = sh::eval_color_lanes(degree, coef, dir).map(|v| v.to_array());
+        let m = [pl.mean2d[0].to_array(), pl.mean2d[1].to_array()];
+        let kc = pl.conic.map(|v| v.to_array());
+        let (op, dp) = (pl.opacity.to_array(), pl.depth.to_array());
+        let rad = [pl.radius[0].to_array(), pl.radius[1].to_array()];
+        let lr = pl.log_alpha_ratio.to_array();
+        let rect = rect.map(|v| v.to_array());
+        while visible != 0 {
+            let l = visible.trailing_zeros() as usize;
+            visible &= visible - 1;
+            let p = Projected {
+                mean2d: [m[0][l], m[1][l]],
+                conic: [kc[0][l], kc[1][l], kc[2][l]],
+                opacity: op[l],
+                depth: dp[l],
+                radius: [rad[0][l] as i32, rad[1][l] as i32],
+            };
+            let rgb = [col[0][l], col[1][l], col[2][l]];
+            if let Some(sp) = make_splat(&p, rgb, lr[l]) {
+                let j = j0 + l;
+                sp_out[j].write(sp);
+                rect_out[j].write([
+                    rect[0][l] as u32,
+                    rect[1][l] as u32,
+                    rect[2][l] as u32,
+                    rect[3][l] as u32,
+                ]);
+                st_out[j] = VISIBLE;
+            }
         }
     }
 }
@@ -1206,6 +1248,116 @@ pub(crate) fn render_impl(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx512_and_portable_projection_chunks_agree_bit_for_bit() {
+        if !(crate::lanes::wide_available() && matches!(detect_isa(), Isa::Avx512)) {
+            return;
+        }
+        let mut rng = augsplat_core::Rng::new(21);
+        let mut g = Gaussians::empty(3);
+        let n = 1000; // not a multiple of the lane count
+        for i in 0..n {
+            g.means.push([
+                rng.uniform(-3.0, 3.0) as f32,
+                rng.uniform(-2.0, 2.0) as f32,
+                rng.uniform(-1.0, 5.0) as f32,
+            ]);
+            let s = rng.uniform(-5.0, 0.0) as f32;
+            g.log_scales.push([s, s + 0.3, s - 0.4]);
+            g.quats
+                .push([1.0, rng.uniform(-1.0, 1.0) as f32, 0.2, -0.1]);
+            g.opacity_logits.push(rng.uniform(-7.0, 5.0) as f32);
+            for q in 0..48 {
+                let v = rng.uniform(-0.5, 0.5) as f32;
+                // A few Gaussians with a non-finite coefficient (active or not).
+                g.sh.push(if i % 97 == 0 && q == (i / 97) % 48 {
+                    f32::NAN
+                } else {
+                    v
+                });
+            }
+        }
+        let cam = augsplat_core::Camera {
+            width: 83,
+            height: 45,
+            fx: 60.0,
+            fy: 58.0,
+            cx: 40.0,
+            cy: 23.0,
+            world_to_camera: augsplat_core::linalg::mat4_from_rt(
+                &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                [0.1, 0.0, 1.5],
+            ),
+        };
+        let cm = CameraModel::new(&cam);
+        let grid = TileGrid::new(cam.width, cam.height);
+        for degree in [1, 3] {
+            for antialiased in [false, true] {
+                let s = RenderSettings {
+                    antialiased,
+                    ..RenderSettings::default()
+                };
+                let job = ProjectJob {
+                    g: &g,
+                    cm: &cm,
+                    s: &s,
+                    degree,
+                    grid: &grid,
+                    first: 0,
+                };
+                let run = |wide: bool| {
+                    let mut sp = uninit_vec::<Splat2D>(n);
+                    let mut rc = uninit_vec::<[u32; 4]>(n);
+                    let mut st = vec![9u8; n];
+                    if wide {
+                        // SAFETY: AVX-512 was detected above.
+                        unsafe { project_chunk_avx512(&job, &mut sp, &mut rc, &mut st) };
+                    } else {
+                        project_chunk::<P8>(&job, &mut sp, &mut rc, &mut st);
+                    }
+                    let out: Vec<Option<(Splat2D, [u32; 4])>> = (0..n)
+                        .map(|i| {
+                            // SAFETY: written where the status is VISIBLE.
+                            (st[i] == VISIBLE)
+                                .then(|| unsafe { (sp[i].assume_init(), rc[i].assume_init()) })
+                        })
+                        .collect();
+                    (st, out)
+                };
+                let (a, b) = (run(true), run(false));
+                assert_eq!(a.0, b.0);
+                let bits = |o: &Option<(Splat2D, [u32; 4])>| {
+                    o.map(|(p, r)| {
+                        let f = [
+                            p.x,
+                            p.y,
+                            p.a,
+                            p.b,
+                            p.c,
+                            p.opacity,
+                            p.rgb[0],
+                            p.rgb[1],
+                            p.rgb[2],
+                            p.depth,
+                            p.ymin,
+                            p.ymax,
+                            p.sigma_max,
+                            p.row_q,
+                            p.row_w,
+                            p.row_shift,
+                        ];
+                        (f.map(f32::to_bits), r)
+                    })
+                };
+                assert!(a.1.iter().zip(&b.1).all(|(x, y)| bits(x) == bits(y)));
+                for code in [VISIBLE, CULLED, INVALID] {
+                    assert!(a.0.contains(&code), "status {code} never occurs");
+                }
+            }
+        }
+    }
 
     /// Random projected Gaussians around one tile.
     pub(crate) fn random_tile_splats(seed: u64, n: usize) -> Vec<Splat2D> {

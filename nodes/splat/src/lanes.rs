@@ -45,6 +45,8 @@ pub(crate) trait Lanes:
     fn sqrt(self) -> Self;
     /// Rounding up.
     fn ceil(self) -> Self;
+    /// Rounding down.
+    fn floor(self) -> Self;
     /// Rounding toward zero.
     fn trunc(self) -> Self;
     /// `if self < o { self } else { o }` (so a NaN in either gives `o`).
@@ -171,6 +173,10 @@ impl Lanes for P8 {
     #[inline(always)]
     fn ceil(self) -> Self {
         self.map(f64::ceil)
+    }
+    #[inline(always)]
+    fn floor(self) -> Self {
+        self.map(f64::floor)
     }
     #[inline(always)]
     fn trunc(self) -> Self {
@@ -315,6 +321,13 @@ pub(crate) mod avx512 {
             // SAFETY: see the type's invariant.
             Z8(unsafe {
                 _mm512_roundscale_pd::<{ _MM_FROUND_TO_POS_INF | _MM_FROUND_NO_EXC }>(self.0)
+            })
+        }
+        #[inline(always)]
+        fn floor(self) -> Self {
+            // SAFETY: see the type's invariant.
+            Z8(unsafe {
+                _mm512_roundscale_pd::<{ _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC }>(self.0)
             })
         }
         #[inline(always)]
@@ -629,6 +642,7 @@ mod tests {
                 pa.max(pb).0,
                 pa.ceil().0,
                 pa.trunc().0,
+                pa.floor().0,
                 (pa / pb).0,
                 pa.sqrt().0,
             ];
@@ -676,7 +690,7 @@ mod tests {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx512dq")]
-    fn wide_results(a: [f64; LANES], b: [f64; LANES]) -> [[f64; LANES]; 9] {
+    fn wide_results(a: [f64; LANES], b: [f64; LANES]) -> [[f64; LANES]; 10] {
         use avx512::Z8;
         let (za, zb) = (Z8::from_array(a), Z8::from_array(b));
         [
@@ -687,6 +701,7 @@ mod tests {
             za.max(zb).to_array(),
             za.ceil().to_array(),
             za.trunc().to_array(),
+            za.floor().to_array(),
             (za / zb).to_array(),
             za.sqrt().to_array(),
         ]

@@ -426,7 +426,6 @@ pub(crate) struct ProjectedLanes<L> {
 /// One lane of [`ProjectedLanes`], unpacked.
 pub(crate) struct ProjectedLane {
     pub outcome: Outcome,
-    pub log_alpha_ratio: f64,
 }
 
 impl<L: Lanes> ProjectedLanes<L> {
@@ -442,7 +441,6 @@ impl<L: Lanes> ProjectedLanes<L> {
         let o = self.opacity.to_array();
         let d = self.depth.to_array();
         let r = [self.radius[0].to_array(), self.radius[1].to_array()];
-        let lr = self.log_alpha_ratio.to_array();
         let vis = self.status.visible();
         std::array::from_fn(|l| ProjectedLane {
             outcome: if (vis >> l) & 1 == 1 {
@@ -458,7 +456,6 @@ impl<L: Lanes> ProjectedLanes<L> {
             } else {
                 Outcome::Culled
             },
-            log_alpha_ratio: lr[l],
         })
     }
 }
@@ -923,7 +920,12 @@ mod tests {
             idx: &[usize; LANES],
             aa: bool,
             grad: [[f64; LANES]; 7],
-        ) -> ([ProjectedLane; LANES], [ParamGrad; LANES], Status) {
+        ) -> (
+            [ProjectedLane; LANES],
+            [ParamGrad; LANES],
+            Status,
+            [f64; LANES],
+        ) {
             let gl =
                 GaussLanes::<Z8>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
             let p = project_lanes(cam, &gl, aa, 0.01);
@@ -941,6 +943,7 @@ mod tests {
                 p.unpack(),
                 project_vjp_lanes(cam, &gl, aa, 0.01, &pg).unpack(),
                 p.status,
+                p.log_alpha_ratio.to_array(),
             )
         }
         let mut rng = augsplat_core::Rng::new(12);
@@ -953,7 +956,7 @@ mod tests {
                 let grad: [[f64; LANES]; 7] =
                     std::array::from_fn(|_| std::array::from_fn(|_| rng.uniform(-1.0, 1.0)));
                 // SAFETY: AVX-512F/DQ were detected above.
-                let (wp, wg, ws) = unsafe { wide(&cam, &g, &idx, aa, grad) };
+                let (wp, wg, ws, wlr) = unsafe { wide(&cam, &g, &idx, aa, grad) };
                 let gl = GaussLanes::<P8>::gather(
                     &g.means,
                     &g.log_scales,
@@ -1007,7 +1010,7 @@ mod tests {
                                 "{a:?} vs {b:?}"
                             );
                             assert_eq!(a.radius, b.radius);
-                            assert!(same(wp[l].log_alpha_ratio, pp[l].log_alpha_ratio));
+                            assert!(same(wlr[l], p.log_alpha_ratio.to_array()[l]));
                         }
                         (a, b) => assert_eq!(format!("{a:?}"), format!("{b:?}")),
                     }

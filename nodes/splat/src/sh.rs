@@ -9,6 +9,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
 use crate::constants::{C0, C1, C2, C3};
+use crate::lanes::{c, Lanes};
 
 /// Number of basis functions up to `degree` (at most 16).
 pub const fn basis_len(degree: u32) -> usize {
@@ -204,9 +205,102 @@ pub fn eval_color_vjp_into(
     basis_vjp(degree, dir, &gy)
 }
 
+/// [`basis`] of eight directions at once (the same operations per lane, so the same bits).
+#[inline(always)]
+pub(crate) fn basis_lanes<L: Lanes>(degree: u32, d: [L; 3]) -> [L; 16] {
+    let [x, y, z] = d;
+    let mut out = [c::<L>(0.0); 16];
+    out[0] = c(C0);
+    if degree < 1 {
+        return out;
+    }
+    out[1] = y * -C1;
+    out[2] = z * C1;
+    out[3] = x * -C1;
+    if degree < 2 {
+        return out;
+    }
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    out[4] = x * C2[0] * y;
+    out[5] = y * C2[1] * z;
+    out[6] = (zz * 2.0 - xx - yy) * C2[2];
+    out[7] = x * C2[3] * z;
+    out[8] = (xx - yy) * C2[4];
+    if degree < 3 {
+        return out;
+    }
+    out[9] = y * C3[0] * (xx * 3.0 - yy);
+    out[10] = x * C3[1] * y * z;
+    out[11] = y * C3[2] * (zz * 4.0 - xx - yy);
+    out[12] = z * C3[3] * (zz * 2.0 - xx * 3.0 - yy * 3.0);
+    out[13] = x * C3[4] * (zz * 4.0 - xx - yy);
+    out[14] = z * C3[5] * (xx - yy);
+    out[15] = x * C3[6] * (xx - yy * 3.0);
+    out
+}
+
+/// [`eval_color`] of eight Gaussians (coefficients `coefs(k)` = lane values of coefficient
+/// `k`, in the `sh` layout order), the same operations per lane.
+#[inline(always)]
+pub(crate) fn eval_color_lanes<L: Lanes>(
+    degree: u32,
+    coefs: impl Fn(usize) -> L,
+    dir: [L; 3],
+) -> [L; 3] {
+    let y = basis_lanes(degree, dir);
+    let n = basis_len(degree);
+    let mut col = [c::<L>(0.5); 3];
+    for k in 0..n {
+        for ch in 0..3 {
+            col[ch] = col[ch] + coefs(k * 3 + ch) * y[k];
+        }
+    }
+    let zero = c::<L>(0.0);
+    [col[0].max(zero), col[1].max(zero), col[2].max(zero)]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lane_basis_and_colour_equal_the_scalar_ones_bit_for_bit() {
+        use crate::lanes::P8;
+        let mut rng = augsplat_core::Rng::new(9);
+        for degree in 0..=3 {
+            let dirs: Vec<[f64; 3]> = (0..8)
+                .map(|_| {
+                    let v = [
+                        rng.uniform(-1.0, 1.0),
+                        rng.uniform(-1.0, 1.0),
+                        rng.uniform(-1.0, 1.0),
+                    ];
+                    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    [v[0] / n, v[1] / n, v[2] / n]
+                })
+                .collect();
+            let coefs: Vec<f32> = (0..8 * 48).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
+            let d = [0, 1, 2].map(|a| P8(std::array::from_fn(|l| dirs[l][a])));
+            let yl = basis_lanes(degree, d);
+            let cl = eval_color_lanes(
+                degree,
+                |q| P8(std::array::from_fn(|l| coefs[l * 48 + q] as f64)),
+                d,
+            );
+            for l in 0..8 {
+                let mut y = [0.0; 16];
+                basis(degree, dirs[l], &mut y);
+                for k in 0..basis_len(degree) {
+                    assert_eq!(y[k].to_bits(), yl[k].0[l].to_bits(), "degree {degree} Y{k}");
+                }
+                let col = eval_color(degree, &coefs[l * 48..(l + 1) * 48], dirs[l], &mut y);
+                for ch in 0..3 {
+                    // Equal values (a zero's sign may differ: `max` rules).
+                    assert_eq!(col[ch], cl[ch].0[l], "degree {degree}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn basis_vjp_matches_finite_differences() {
