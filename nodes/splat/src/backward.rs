@@ -37,8 +37,10 @@ use crate::forward::{
     PREFETCH_AHEAD, PROJECT_CHUNK,
 };
 use crate::gaussians::Gaussians;
-use crate::lanes::{Lanes, LANES, P8};
-use crate::project::{project_vjp_lanes, CameraModel, GaussLanes, ParamGrad, ProjectedGradLanes};
+use crate::lanes::{c, Lanes, Mask, LANES, P8};
+use crate::project::{
+    project_vjp_lanes, CameraModel, GaussLanes, ParamGrad, ParamGradLanes, ProjectedGradLanes,
+};
 use crate::render::{Cutoff, Gradients, RenderOutput, RenderSettings};
 use crate::sh;
 use augsplat_core::Camera;
@@ -792,7 +794,6 @@ fn gaussian_gradients(
                     visible: gv,
                 },
         } = ch;
-        let mut sh_grad = vec![0.0f32; kcoef];
         // The chunk's Gaussians with a non-zero screen-space gradient, with their sums.
         let mut todo: Vec<(usize, [f64; 10])> = Vec::new();
         for j in 0..gm.len() {
@@ -830,35 +831,22 @@ fn gaussian_gradients(
                     screen[q][l] = rg[q];
                 }
             }
-            let geometry = vjp_lanes(wide, &cm, g, &idx, s.antialiased, s.near as f64, &screen);
-            for (&(j, rg), p) in batch.iter().zip(geometry) {
-                let i = first + j;
-                let mut gmean = p.mean;
-                // SH: colour depends on the view direction normalize(mean − centre).
-                let m = g.means[i];
-                let v = [
-                    m[0] as f64 - cm.center[0],
-                    m[1] as f64 - cm.center[1],
-                    m[2] as f64 - cm.center[2],
-                ];
-                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                let mut with_sh = false;
-                if len > 0.0 {
-                    let dir = [v[0] / len, v[1] / len, v[2] / len];
-                    let coefs = &g.sh[i * kcoef..(i + 1) * kcoef];
-                    let gd = sh::eval_color_vjp_into(
-                        degree,
-                        coefs,
-                        dir,
-                        [rg[6], rg[7], rg[8]],
-                        &mut sh_grad[..kcoef],
-                    );
-                    with_sh = true;
-                    let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
-                    for a in 0..3 {
-                        gmean[a] += (gd[a] - dir[a] * dd) / len;
-                    }
-                }
+            let job = LaneJob {
+                cm: &cm,
+                g,
+                idx: &idx,
+                antialiased: s.antialiased,
+                near: s.near as f64,
+                degree,
+                kcoef,
+                screen: &screen,
+            };
+            let lg = vjp_lanes(wide, &job);
+            for (l, &(j, _)) in batch.iter().enumerate() {
+                let p = lg.params[l];
+                let gmean = p.mean;
+                let with_sh = (lg.with_sh >> l) & 1 == 1;
+                let sh_grad = &lg.sh[l];
                 let dst_sh = &mut gsh[j * kcoef..j * kcoef + active];
                 let vals = (
                     gmean.map(|x| x as f32),
@@ -899,27 +887,44 @@ fn gaussian_gradients(
     });
 }
 
-/// The projection backward of Gaussians `idx` from their screen-space gradient sums
-/// (`screen[q][lane]` in [`PairGrad`] order), in AVX-512 lanes when `wide`, else in portable
-/// lanes: the same IEEE operations either way.
-fn vjp_lanes(
-    wide: bool,
-    cm: &CameraModel,
-    g: &Gaussians,
-    idx: &[usize; LANES],
+/// One batch of [`vjp_lanes`]: Gaussians `idx` with their screen-space gradient sums
+/// (`screen[q][lane]` in [`PairGrad`] order).
+struct LaneJob<'a> {
+    cm: &'a CameraModel,
+    g: &'a Gaussians,
+    idx: &'a [usize; LANES],
     antialiased: bool,
     near: f64,
-    screen: &[[f64; LANES]; 10],
-) -> [ParamGrad; LANES] {
+    degree: u32,
+    kcoef: usize,
+    screen: &'a [[f64; LANES]; 10],
+}
+
+/// The per-Gaussian gradients of one [`LaneJob`].
+struct LaneGrads {
+    /// Geometry and opacity gradients (the mean's includes the SH view-direction path).
+    params: [ParamGrad; LANES],
+    /// dL/d(active SH coefficients), per lane.
+    sh: [[f32; 48]; LANES],
+    /// Lanes whose Gaussian is not at the camera centre (their SH gradients are valid).
+    with_sh: Mask,
+}
+
+/// The projection and colour backward of one batch, in AVX-512 lanes when `wide`, else in
+/// portable lanes: the same IEEE operations either way (and as the scalar `sh` functions).
+fn vjp_lanes(wide: bool, job: &LaneJob) -> LaneGrads {
     #[inline(always)]
-    fn run<L: Lanes>(
-        cm: &CameraModel,
-        g: &Gaussians,
-        idx: &[usize; LANES],
-        antialiased: bool,
-        near: f64,
-        screen: &[[f64; LANES]; 10],
-    ) -> [ParamGrad; LANES] {
+    fn run<L: Lanes>(job: &LaneJob) -> LaneGrads {
+        let LaneJob {
+            cm,
+            g,
+            idx,
+            antialiased,
+            near,
+            degree,
+            kcoef,
+            screen,
+        } = *job;
         let gl = GaussLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
         let pg = ProjectedGradLanes {
             mean2d: [L::from_array(screen[0]), L::from_array(screen[1])],
@@ -931,28 +936,67 @@ fn vjp_lanes(
             opacity: L::from_array(screen[5]),
             depth: L::from_array(screen[9]),
         };
-        project_vjp_lanes(cm, &gl, antialiased, near, &pg).unpack()
+        let geo = project_vjp_lanes(cm, &gl, antialiased, near, &pg);
+        // SH: the colour depends on the view direction normalize(mean − centre).
+        let v = [
+            gl.mean[0] - cm.center[0],
+            gl.mean[1] - cm.center[1],
+            gl.mean[2] - cm.center[2],
+        ];
+        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let with_sh = len.gt(c(0.0));
+        let dir = [v[0] / len, v[1] / len, v[2] / len];
+        let na = sh::basis_len(degree) * 3;
+        let mut rows = [[0.0f32; 48]; LANES];
+        for l in 0..LANES {
+            let i = idx[l];
+            rows[l][..na].copy_from_slice(&g.sh[i * kcoef..i * kcoef + na]);
+        }
+        let coef = |q: usize| {
+            let mut a = [0.0; LANES];
+            for l in 0..LANES {
+                a[l] = rows[l][q] as f64;
+            }
+            L::from_array(a)
+        };
+        let g_color = [
+            L::from_array(screen[6]),
+            L::from_array(screen[7]),
+            L::from_array(screen[8]),
+        ];
+        let mut sh_grads = [[0.0f32; 48]; LANES];
+        let gd = sh::eval_color_vjp_lanes(degree, coef, dir, g_color, |q, val| {
+            let a = val.to_array();
+            for l in 0..LANES {
+                sh_grads[l][q] = a[l] as f32;
+            }
+        });
+        let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
+        let mut mean = geo.mean;
+        for a in 0..3 {
+            let with = mean[a] + (gd[a] - dir[a] * dd) / len;
+            mean[a] = L::select(with_sh, with, mean[a]);
+        }
+        let geo = ParamGradLanes { mean, ..geo };
+        LaneGrads {
+            params: geo.unpack(),
+            sh: sh_grads,
+            with_sh,
+        }
     }
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx512f,avx512dq,avx2,fma")]
-        fn avx512(
-            cm: &CameraModel,
-            g: &Gaussians,
-            idx: &[usize; LANES],
-            aa: bool,
-            near: f64,
-            screen: &[[f64; LANES]; 10],
-        ) -> [ParamGrad; LANES] {
-            run::<crate::lanes::avx512::Z8>(cm, g, idx, aa, near, screen)
+        fn avx512(job: &LaneJob) -> LaneGrads {
+            run::<crate::lanes::avx512::Z8>(job)
         }
         if wide {
             // SAFETY: `wide` is only set when AVX-512F/DQ, AVX2 and FMA were detected.
-            return unsafe { avx512(cm, g, idx, antialiased, near, screen) };
+            return unsafe { avx512(job) };
         }
     }
     let _ = wide;
-    run::<P8>(cm, g, idx, antialiased, near, screen)
+    run::<P8>(job)
 }
 
 /// Raw pointer to the Gaussian-major pair buffer, written by the tiles in parallel.

@@ -881,13 +881,16 @@ fn project_chunk<L: Lanes>(
             clamp((ty + ry).ceil(), tiles_y),
         ];
         let nonempty = rect[0].lt(rect[1]) & rect[2].lt(rect[3]);
-        // Non-finite active SH coefficients make a Gaussian invalid (checked first).
+        // The lanes' active SH coefficients, each Gaussian's read once and contiguously.
+        // Non-finite ones make a Gaussian invalid (checked first).
+        let na = nb * 3;
+        let mut rows = [[0.0f32; 48]; LANES];
         let mut sh_ok: Mask = 0;
         for l in 0..n {
             let i = idx[l];
-            let finite = g.sh[i * k..i * k + nb * 3]
-                .iter()
-                .fold(true, |ok, v| ok & v.is_finite());
+            let row = &mut rows[l][..na];
+            row.copy_from_slice(&g.sh[i * k..i * k + na]);
+            let finite = row.iter().fold(true, |ok, v| ok & v.is_finite());
             sh_ok |= (finite as u8) << l;
         }
         let invalid = (!sh_ok | pl.status.invalid) & live;
@@ -918,7 +921,7 @@ fn project_chunk<L: Lanes>(
         let coef = |q: usize| {
             let mut a = [0.0; LANES];
             for l in 0..LANES {
-                a[l] = g.sh[idx[l] * k + q] as f64;
+                a[l] = rows[l][q] as f64;
             }
             L::from_array(a)
         };

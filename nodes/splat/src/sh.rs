@@ -259,9 +259,154 @@ pub(crate) fn eval_color_lanes<L: Lanes>(
     [col[0].max(zero), col[1].max(zero), col[2].max(zero)]
 }
 
+/// [`basis_vjp`] of eight directions at once (the same operations per lane).
+#[inline(always)]
+pub(crate) fn basis_vjp_lanes<L: Lanes>(degree: u32, d: [L; 3], g: &[L; 16]) -> [L; 3] {
+    let [x, y, z] = d;
+    let mut gd = [c::<L>(0.0); 3];
+    if degree < 1 {
+        return gd;
+    }
+    gd[1] = gd[1] - g[1] * C1;
+    gd[2] = gd[2] + g[2] * C1;
+    gd[0] = gd[0] - g[3] * C1;
+    if degree < 2 {
+        return gd;
+    }
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    gd[0] = gd[0] + y * C2[0] * g[4];
+    gd[1] = gd[1] + x * C2[0] * g[4];
+    gd[1] = gd[1] + z * C2[1] * g[5];
+    gd[2] = gd[2] + y * C2[1] * g[5];
+    gd[0] = gd[0] - x * (2.0 * C2[2]) * g[6];
+    gd[1] = gd[1] - y * (2.0 * C2[2]) * g[6];
+    gd[2] = gd[2] + z * (4.0 * C2[2]) * g[6];
+    gd[0] = gd[0] + z * C2[3] * g[7];
+    gd[2] = gd[2] + x * C2[3] * g[7];
+    gd[0] = gd[0] + x * (2.0 * C2[4]) * g[8];
+    gd[1] = gd[1] - y * (2.0 * C2[4]) * g[8];
+    if degree < 3 {
+        return gd;
+    }
+    gd[0] = gd[0] + x * (6.0 * C3[0]) * y * g[9];
+    gd[1] = gd[1] + (xx - yy) * (3.0 * C3[0]) * g[9];
+    gd[0] = gd[0] + y * C3[1] * z * g[10];
+    gd[1] = gd[1] + x * C3[1] * z * g[10];
+    gd[2] = gd[2] + x * C3[1] * y * g[10];
+    gd[0] = gd[0] - x * (2.0 * C3[2]) * y * g[11];
+    gd[1] = gd[1] + (zz * 4.0 - xx - yy * 3.0) * C3[2] * g[11];
+    gd[2] = gd[2] + y * (8.0 * C3[2]) * z * g[11];
+    gd[0] = gd[0] - x * (6.0 * C3[3]) * z * g[12];
+    gd[1] = gd[1] - y * (6.0 * C3[3]) * z * g[12];
+    gd[2] = gd[2] + (zz * 6.0 - xx * 3.0 - yy * 3.0) * C3[3] * g[12];
+    gd[0] = gd[0] + (zz * 4.0 - xx * 3.0 - yy) * C3[4] * g[13];
+    gd[1] = gd[1] - x * (2.0 * C3[4]) * y * g[13];
+    gd[2] = gd[2] + x * (8.0 * C3[4]) * z * g[13];
+    gd[0] = gd[0] + x * (2.0 * C3[5]) * z * g[14];
+    gd[1] = gd[1] - y * (2.0 * C3[5]) * z * g[14];
+    gd[2] = gd[2] + (xx - yy) * C3[5] * g[14];
+    gd[0] = gd[0] + (xx - yy) * (3.0 * C3[6]) * g[15];
+    gd[1] = gd[1] - x * (6.0 * C3[6]) * y * g[15];
+    gd
+}
+
+/// [`eval_color_vjp_into`] of eight Gaussians: coefficient lanes `coefs(q)` (the `sh` layout
+/// order), colour gradients `g_color`; `out(q, lanes)` receives the coefficient gradients
+/// `q < basis_len·3` (rounded to f32 per lane by the caller); returns dL/d(direction).
+#[inline(always)]
+pub(crate) fn eval_color_vjp_lanes<L: Lanes>(
+    degree: u32,
+    coefs: impl Fn(usize) -> L,
+    dir: [L; 3],
+    g_color: [L; 3],
+    mut out: impl FnMut(usize, L),
+) -> [L; 3] {
+    let n = basis_len(degree);
+    let y = basis_lanes(degree, dir);
+    let mut raw = [c::<L>(0.5); 3];
+    for k in 0..n {
+        for ch in 0..3 {
+            raw[ch] = raw[ch] + coefs(k * 3 + ch) * y[k];
+        }
+    }
+    let zero = c::<L>(0.0);
+    let gc = [
+        L::select(raw[0].gt(zero), g_color[0], zero),
+        L::select(raw[1].gt(zero), g_color[1], zero),
+        L::select(raw[2].gt(zero), g_color[2], zero),
+    ];
+    let mut gy = [zero; 16];
+    for k in 0..n {
+        for ch in 0..3 {
+            out(k * 3 + ch, gc[ch] * y[k]);
+        }
+        gy[k] = gc[0] * coefs(k * 3) + gc[1] * coefs(k * 3 + 1) + gc[2] * coefs(k * 3 + 2);
+    }
+    basis_vjp_lanes(degree, dir, &gy)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lane_colour_backward_equals_the_scalar_one_bit_for_bit() {
+        use crate::lanes::P8;
+        let mut rng = augsplat_core::Rng::new(10);
+        for degree in 0..=3 {
+            let dirs: Vec<[f64; 3]> = (0..8)
+                .map(|_| {
+                    let v = [
+                        rng.uniform(-1.0, 1.0),
+                        rng.uniform(-1.0, 1.0),
+                        rng.uniform(-1.0, 1.0),
+                    ];
+                    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    [v[0] / n, v[1] / n, v[2] / n]
+                })
+                .collect();
+            // Some colours clamp at 0 (their gradient is cut).
+            let coefs: Vec<f32> = (0..8 * 48).map(|_| rng.uniform(-1.5, 1.0) as f32).collect();
+            let gcol: Vec<[f64; 3]> = (0..8)
+                .map(|_| {
+                    [
+                        rng.uniform(-1.0, 1.0),
+                        rng.uniform(-1.0, 1.0),
+                        rng.uniform(-1.0, 1.0),
+                    ]
+                })
+                .collect();
+            let d = [0, 1, 2].map(|a| P8(std::array::from_fn(|l| dirs[l][a])));
+            let g = [0, 1, 2].map(|a| P8(std::array::from_fn(|l| gcol[l][a])));
+            let mut outl = [[0.0f32; 48]; 8];
+            let gdl = eval_color_vjp_lanes(
+                degree,
+                |q| P8(std::array::from_fn(|l| coefs[l * 48 + q] as f64)),
+                d,
+                g,
+                |q, v| {
+                    for l in 0..8 {
+                        outl[l][q] = v.0[l] as f32;
+                    }
+                },
+            );
+            for l in 0..8 {
+                let mut out = [0.0f32; 48];
+                let gd = eval_color_vjp_into(
+                    degree,
+                    &coefs[l * 48..(l + 1) * 48],
+                    dirs[l],
+                    gcol[l],
+                    &mut out,
+                );
+                let nb = basis_len(degree) * 3;
+                assert_eq!(out[..nb], outl[l][..nb], "degree {degree}");
+                for a in 0..3 {
+                    assert_eq!(gd[a].to_bits(), gdl[a].0[l].to_bits(), "degree {degree}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn lane_basis_and_colour_equal_the_scalar_ones_bit_for_bit() {
