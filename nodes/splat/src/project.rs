@@ -1,5 +1,7 @@
 //! Per-Gaussian projection (gsplat "classic" EWA splatting, DESIGN.md §4) and its analytic
-//! vector–Jacobian product, both in f64 (the per-Gaussian cost is small next to compositing).
+//! vector–Jacobian product, both in f64 and on eight Gaussians at once (the `lanes` module:
+//! one AVX-512 register per quantity, or portable lanes with the same bits). Branches are
+//! lane masks; the single-Gaussian [`project`] and [`project_vjp`] run the same code.
 //!
 //! Forward: scale = exp(log_scale), R = R(q/|q|), Σ = R S Sᵀ Rᵀ; p_c = W μ + t; Σ_c = W Σ Wᵀ;
 //! J = [[fx/z, 0, −fx·t_x/z²], [0, fy/z, −fy·t_y/z²]] with t_x/z clamped to
