@@ -1040,7 +1040,10 @@ fn project_all(
                     // SAFETY: both variants imply AVX2 + FMA support.
                     unsafe { project_chunk_avx2(&job, sp_out, rect_out, st_out) }
                 }
-                _ => project_chunk::<P8>(&job, sp_out, rect_out, st_out),
+                _ => {
+                    let _ = wide_lanes; // only x86-64 has the AVX-512 lanes
+                    project_chunk::<P8>(&job, sp_out, rect_out, st_out)
+                }
             }
         });
     ProjectedAll {

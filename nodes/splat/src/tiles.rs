@@ -99,11 +99,13 @@ pub fn bin(grid: &TileGrid, rects: &[[u32; 4]]) -> Bins {
     bin_indexed(grid, rects, &ids, rects.len())
 }
 
-/// Ranks per block of the parallel binning passes: about 8192, at most 64 blocks. Derived
-/// from the number of ranks only, never from the thread count (and the result does not
+/// Ranks per block of the parallel binning passes: about 8192, at most 64 blocks, and at
+/// most 4M per-block tile counters in all (8 bytes each) for very large images. Derived from
+/// the rank and tile counts only, never from the thread count (and the result does not
 /// depend on it anyway: every list position is fixed by rank order).
-fn rank_block(ranks: usize) -> usize {
-    let blocks = (ranks / 8192).clamp(1, 64);
+fn rank_block(ranks: usize, tiles: usize) -> usize {
+    let cap = (4 << 20) / tiles.max(1);
+    let blocks = (ranks / 8192).min(64).min(cap).max(1);
     ranks.div_ceil(blocks).max(1)
 }
 
@@ -138,7 +140,7 @@ pub fn bin_indexed(grid: &TileGrid, rects: &[[u32; 4]], rank_id: &[u32], n: usiz
     let ntiles = grid.len();
     let tx = grid.tiles_x as usize;
     let area = |r: &[u32; 4]| (r[1] - r[0]) as usize * (r[3] - r[2]) as usize;
-    let block = rank_block(rects.len());
+    let block = rank_block(rects.len(), ntiles);
     // Per block, per tile: the block's pair count, then its first list position.
     let mut cursors: Vec<Vec<usize>> = rects
         .par_chunks(block)
@@ -364,7 +366,11 @@ mod tests {
             ids.swap(i, rng.below(i as u64 + 1) as usize);
         }
         let rank_id = &ids[..26_000];
-        assert!(rank_block(rank_id.len()) < rank_id.len());
+        assert!(rank_block(rank_id.len(), grid.len()) < rank_id.len());
+        // A huge image gets fewer blocks (bounded counter memory).
+        assert_eq!(rank_block(1 << 20, 1 << 20), 1 << 18);
+        assert_eq!(rank_block(1 << 20, 8 << 20), 1 << 20);
+        assert_eq!(rank_block(1 << 20, 1 << 17), (1 << 20) / 32);
         let rects: Vec<[u32; 4]> = (0..rank_id.len())
             .map(|_| {
                 let x0 = rng.below(grid.tiles_x as u64) as u32;
