@@ -38,9 +38,7 @@ use crate::forward::{
 };
 use crate::gaussians::Gaussians;
 use crate::lanes::{c, Lanes, Mask, LANES, P8};
-use crate::project::{
-    project_vjp_lanes, CameraModel, GaussLanes, ParamGrad, ParamGradLanes, ProjectedGradLanes,
-};
+use crate::project::{project_vjp_lanes, CameraModel, ParamGrad, ParamLanes, ProjectedGradLanes};
 use crate::render::{Cutoff, Gradients, RenderOutput, RenderSettings};
 use crate::sh;
 use augsplat_core::Camera;
@@ -925,17 +923,10 @@ fn vjp_lanes(wide: bool, job: &LaneJob) -> LaneGrads {
             kcoef,
             screen,
         } = *job;
-        let gl = GaussLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
-        let pg = ProjectedGradLanes {
-            mean2d: [L::from_array(screen[0]), L::from_array(screen[1])],
-            conic: [
-                L::from_array(screen[2]),
-                L::from_array(screen[3]),
-                L::from_array(screen[4]),
-            ],
-            opacity: L::from_array(screen[5]),
-            depth: L::from_array(screen[9]),
-        };
+        let gl = ParamLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
+        let pg = ProjectedGradLanes::<L>::from_rows([
+            screen[0], screen[1], screen[2], screen[3], screen[4], screen[5], screen[9],
+        ]);
         let geo = project_vjp_lanes(cm, &gl, antialiased, near, &pg);
         // SH: the colour depends on the view direction normalize(mean − centre).
         let v = [
@@ -977,7 +968,7 @@ fn vjp_lanes(wide: bool, job: &LaneJob) -> LaneGrads {
             let with = mean[a] + (gd[a] - dir[a] * dd) / len;
             mean[a] = L::select(with_sh, with, mean[a]);
         }
-        let geo = ParamGradLanes { mean, ..geo };
+        let geo = ParamLanes { mean, ..geo };
         LaneGrads {
             params: geo.unpack(),
             sh: sh_grads,

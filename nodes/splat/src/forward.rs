@@ -30,7 +30,7 @@ use crate::constants::{
 };
 use crate::gaussians::Gaussians;
 use crate::lanes::{c, Lanes, Mask, LANES, P8};
-use crate::project::{project_lanes, CameraModel, GaussLanes, Projected};
+use crate::project::{project_lanes, CameraModel, ParamLanes, Projected};
 use crate::render::{Cutoff, RenderOutput, RenderSettings, RenderStats};
 use crate::sh;
 use crate::tiles::{bin_indexed, depth_order, Bins, TileGrid};
@@ -867,7 +867,7 @@ fn project_chunk<L: Lanes>(
             *v = job.first + (j0 + l).min(len - 1);
         }
         let gl =
-            GaussLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, &idx);
+            ParamLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, &idx);
         let pl = project_lanes(cm, &gl, s.antialiased, s.near as f64);
         // Tile rectangles (TileGrid::rect in lanes; the radius saturates like its i32).
         let r_max = c::<L>(i32::MAX as f64);

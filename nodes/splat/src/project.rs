@@ -193,16 +193,16 @@ impl Status {
     }
 }
 
-/// The raw parameters of eight Gaussians, one per lane.
+/// Eight Gaussians' raw parameters (or gradients with respect to them), one per lane.
 #[derive(Clone, Copy)]
-pub(crate) struct GaussLanes<L> {
+pub(crate) struct ParamLanes<L> {
     pub mean: [L; 3],
     pub log_scale: [L; 3],
     pub quat: [L; 4],
     pub logit: L,
 }
 
-impl<L: Lanes> GaussLanes<L> {
+impl<L: Lanes> ParamLanes<L> {
     /// Gaussians `idx[l]` of the parameter arrays.
     #[inline(always)]
     pub fn gather(
@@ -227,7 +227,7 @@ impl<L: Lanes> GaussLanes<L> {
             }
             o[l] = logits[i] as f64;
         }
-        GaussLanes {
+        ParamLanes {
             mean: [
                 L::from_array(m[0]),
                 L::from_array(m[1]),
@@ -249,10 +249,10 @@ impl<L: Lanes> GaussLanes<L> {
     }
 }
 
-impl GaussLanes<P8> {
+impl ParamLanes<P8> {
     /// One Gaussian in every lane.
     fn one(mean: [f32; 3], log_scale: [f32; 3], quat: [f32; 4], logit: f32) -> Self {
-        GaussLanes::gather(&[mean], &[log_scale], &[quat], &[logit], &[0; LANES])
+        ParamLanes::gather(&[mean], &[log_scale], &[quat], &[logit], &[0; LANES])
     }
 }
 
@@ -290,7 +290,7 @@ fn all_finite<L: Lanes>(v: &[L]) -> Mask {
 /// The shared forward intermediates of eight Gaussians (every lane is computed; the status
 /// says which are meaningful).
 #[inline(always)]
-fn intermediates<L: Lanes>(cam: &CameraModel, gl: &GaussLanes<L>, near: f64) -> Inter<L> {
+fn intermediates<L: Lanes>(cam: &CameraModel, gl: &ParamLanes<L>, near: f64) -> Inter<L> {
     let mut status = Status::default();
     let finite = all_finite(&gl.mean)
         & all_finite(&gl.log_scale)
@@ -425,15 +425,10 @@ pub(crate) struct ProjectedLanes<L> {
     pub log_alpha_ratio: L,
 }
 
-/// One lane of [`ProjectedLanes`], unpacked.
-pub(crate) struct ProjectedLane {
-    pub outcome: Outcome,
-}
-
 impl<L: Lanes> ProjectedLanes<L> {
-    /// The lanes unpacked.
+    /// The lanes' outcomes.
     #[inline(always)]
-    pub fn unpack(&self) -> [ProjectedLane; LANES] {
+    pub fn unpack(&self) -> [Outcome; LANES] {
         let m = [self.mean2d[0].to_array(), self.mean2d[1].to_array()];
         let k = [
             self.conic[0].to_array(),
@@ -444,8 +439,8 @@ impl<L: Lanes> ProjectedLanes<L> {
         let d = self.depth.to_array();
         let r = [self.radius[0].to_array(), self.radius[1].to_array()];
         let vis = self.status.visible();
-        std::array::from_fn(|l| ProjectedLane {
-            outcome: if (vis >> l) & 1 == 1 {
+        std::array::from_fn(|l| {
+            if (vis >> l) & 1 == 1 {
                 Outcome::Visible(Projected {
                     mean2d: [m[0][l], m[1][l]],
                     conic: [k[0][l], k[1][l], k[2][l]],
@@ -457,7 +452,7 @@ impl<L: Lanes> ProjectedLanes<L> {
                 Outcome::Invalid
             } else {
                 Outcome::Culled
-            },
+            }
         })
     }
 }
@@ -466,7 +461,7 @@ impl<L: Lanes> ProjectedLanes<L> {
 #[inline(always)]
 pub(crate) fn project_lanes<L: Lanes>(
     cam: &CameraModel,
-    gl: &GaussLanes<L>,
+    gl: &ParamLanes<L>,
     antialiased: bool,
     near: f64,
 ) -> ProjectedLanes<L> {
@@ -521,9 +516,9 @@ pub fn project(
     antialiased: bool,
     near: f64,
 ) -> Outcome {
-    let gl = GaussLanes::one(mean, log_scale, quat, logit);
+    let gl = ParamLanes::one(mean, log_scale, quat, logit);
     let [first, ..] = project_lanes(cam, &gl, antialiased, near).unpack();
-    first.outcome
+    first
 }
 
 /// Gradients with respect to the projection outputs of eight Gaussians.
@@ -535,17 +530,25 @@ pub(crate) struct ProjectedGradLanes<L> {
     pub depth: L,
 }
 
-/// Gradients with respect to the raw parameters of eight Gaussians.
-#[derive(Clone, Copy)]
-pub(crate) struct ParamGradLanes<L> {
-    pub mean: [L; 3],
-    pub log_scale: [L; 3],
-    pub quat: [L; 4],
-    pub logit: L,
+impl<L: Lanes> ProjectedGradLanes<L> {
+    /// From per-lane rows in the order mean2d x, y, conic a, b, c, opacity, depth.
+    #[inline(always)]
+    pub fn from_rows(r: [[f64; LANES]; 7]) -> Self {
+        ProjectedGradLanes {
+            mean2d: [L::from_array(r[0]), L::from_array(r[1])],
+            conic: [
+                L::from_array(r[2]),
+                L::from_array(r[3]),
+                L::from_array(r[4]),
+            ],
+            opacity: L::from_array(r[5]),
+            depth: L::from_array(r[6]),
+        }
+    }
 }
 
-impl<L: Lanes> ParamGradLanes<L> {
-    /// The lanes unpacked.
+impl<L: Lanes> ParamLanes<L> {
+    /// The lanes unpacked (as gradients).
     #[inline(always)]
     pub fn unpack(&self) -> [ParamGrad; LANES] {
         let m = self.mean.map(|v| v.to_array());
@@ -566,11 +569,11 @@ impl<L: Lanes> ParamGradLanes<L> {
 #[inline(always)]
 pub(crate) fn project_vjp_lanes<L: Lanes>(
     cam: &CameraModel,
-    gl: &GaussLanes<L>,
+    gl: &ParamLanes<L>,
     antialiased: bool,
     near: f64,
     g: &ProjectedGradLanes<L>,
-) -> ParamGradLanes<L> {
+) -> ParamLanes<L> {
     let it = intermediates(cam, gl, near);
     let [a, b, cc] = it.conic;
     let k = [[a, b], [b, cc]];
@@ -711,7 +714,7 @@ pub(crate) fn project_vjp_lanes<L: Lanes>(
     let ok = it.status.visible();
     let zero = c::<L>(0.0);
     let keep = |v: L| L::select(ok, v, zero);
-    ParamGradLanes {
+    ParamLanes {
         mean: [keep(g_mean[0]), keep(g_mean[1]), keep(g_mean[2])],
         log_scale: [keep(g_ls[0]), keep(g_ls[1]), keep(g_ls[2])],
         quat: [
@@ -739,13 +742,17 @@ pub fn project_vjp(
     near: f64,
     g: &ProjectedGrad,
 ) -> ParamGrad {
-    let gl = GaussLanes::one(mean, log_scale, quat, logit);
-    let g = ProjectedGradLanes {
-        mean2d: g.mean2d.map(P8::splat),
-        conic: g.conic.map(P8::splat),
-        opacity: P8::splat(g.opacity),
-        depth: P8::splat(g.depth),
-    };
+    let gl = ParamLanes::one(mean, log_scale, quat, logit);
+    let row = |v: f64| [v; LANES];
+    let g = ProjectedGradLanes::<P8>::from_rows([
+        row(g.mean2d[0]),
+        row(g.mean2d[1]),
+        row(g.conic[0]),
+        row(g.conic[1]),
+        row(g.conic[2]),
+        row(g.opacity),
+        row(g.depth),
+    ]);
     let [first, ..] = project_vjp_lanes(cam, &gl, antialiased, near, &g).unpack();
     first
 }
@@ -851,7 +858,7 @@ mod tests {
         for aa in [false, true] {
             for b in 0..8 {
                 let idx: [usize; LANES] = std::array::from_fn(|l| 8 * b + l);
-                let gl = GaussLanes::<P8>::gather(
+                let gl = ParamLanes::<P8>::gather(
                     &g.means,
                     &g.log_scales,
                     &g.quats,
@@ -879,7 +886,7 @@ mod tests {
                     );
                     assert_eq!(
                         format!("{:?}", one),
-                        format!("{:?}", batch[l].outcome),
+                        format!("{:?}", batch[l]),
                         "Gaussian {i}"
                     );
                     let pg = ProjectedGrad {
@@ -922,25 +929,11 @@ mod tests {
             idx: &[usize; LANES],
             aa: bool,
             grad: [[f64; LANES]; 7],
-        ) -> (
-            [ProjectedLane; LANES],
-            [ParamGrad; LANES],
-            Status,
-            [f64; LANES],
-        ) {
+        ) -> ([Outcome; LANES], [ParamGrad; LANES], Status, [f64; LANES]) {
             let gl =
-                GaussLanes::<Z8>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
+                ParamLanes::<Z8>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
             let p = project_lanes(cam, &gl, aa, 0.01);
-            let pg = ProjectedGradLanes {
-                mean2d: [Z8::from_array(grad[0]), Z8::from_array(grad[1])],
-                conic: [
-                    Z8::from_array(grad[2]),
-                    Z8::from_array(grad[3]),
-                    Z8::from_array(grad[4]),
-                ],
-                opacity: Z8::from_array(grad[5]),
-                depth: Z8::from_array(grad[6]),
-            };
+            let pg = ProjectedGradLanes::<Z8>::from_rows(grad);
             (
                 p.unpack(),
                 project_vjp_lanes(cam, &gl, aa, 0.01, &pg).unpack(),
@@ -959,7 +952,7 @@ mod tests {
                     std::array::from_fn(|_| std::array::from_fn(|_| rng.uniform(-1.0, 1.0)));
                 // SAFETY: AVX-512F/DQ were detected above.
                 let (wp, wg, ws, wlr) = unsafe { wide(&cam, &g, &idx, aa, grad) };
-                let gl = GaussLanes::<P8>::gather(
+                let gl = ParamLanes::<P8>::gather(
                     &g.means,
                     &g.log_scales,
                     &g.quats,
@@ -967,12 +960,7 @@ mod tests {
                     &idx,
                 );
                 let p = project_lanes(&cam, &gl, aa, 0.01);
-                let pg = ProjectedGradLanes {
-                    mean2d: [P8(grad[0]), P8(grad[1])],
-                    conic: [P8(grad[2]), P8(grad[3]), P8(grad[4])],
-                    opacity: P8(grad[5]),
-                    depth: P8(grad[6]),
-                };
+                let pg = ProjectedGradLanes::<P8>::from_rows(grad);
                 let (pp, pgr) = (
                     p.unpack(),
                     project_vjp_lanes(&cam, &gl, aa, 0.01, &pg).unpack(),
@@ -985,7 +973,7 @@ mod tests {
                     (p.status.invalid, p.status.culled, p.status.visible())
                 );
                 for l in 0..LANES {
-                    match (&wp[l].outcome, &pp[l].outcome) {
+                    match (&wp[l], &pp[l]) {
                         (Outcome::Visible(a), Outcome::Visible(b)) => {
                             let (fa, fb) = (
                                 [

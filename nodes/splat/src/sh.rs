@@ -348,36 +348,31 @@ pub(crate) fn eval_color_vjp_lanes<L: Lanes>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use augsplat_core::linalg::normalize;
+
+    fn random3(rng: &mut augsplat_core::Rng) -> [f64; 3] {
+        [
+            rng.uniform(-1.0, 1.0),
+            rng.uniform(-1.0, 1.0),
+            rng.uniform(-1.0, 1.0),
+        ]
+    }
+
+    /// Eight 3-vectors as three lane vectors.
+    fn lanes3(v: &[[f64; 3]]) -> [crate::lanes::P8; 3] {
+        [0, 1, 2].map(|a| crate::lanes::P8(std::array::from_fn(|l| v[l][a])))
+    }
 
     #[test]
     fn lane_colour_backward_equals_the_scalar_one_bit_for_bit() {
         use crate::lanes::P8;
         let mut rng = augsplat_core::Rng::new(10);
         for degree in 0..=3 {
-            let dirs: Vec<[f64; 3]> = (0..8)
-                .map(|_| {
-                    let v = [
-                        rng.uniform(-1.0, 1.0),
-                        rng.uniform(-1.0, 1.0),
-                        rng.uniform(-1.0, 1.0),
-                    ];
-                    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                    [v[0] / n, v[1] / n, v[2] / n]
-                })
-                .collect();
+            let dirs: Vec<[f64; 3]> = (0..8).map(|_| normalize(random3(&mut rng))).collect();
             // Some colours clamp at 0 (their gradient is cut).
             let coefs: Vec<f32> = (0..8 * 48).map(|_| rng.uniform(-1.5, 1.0) as f32).collect();
-            let gcol: Vec<[f64; 3]> = (0..8)
-                .map(|_| {
-                    [
-                        rng.uniform(-1.0, 1.0),
-                        rng.uniform(-1.0, 1.0),
-                        rng.uniform(-1.0, 1.0),
-                    ]
-                })
-                .collect();
-            let d = [0, 1, 2].map(|a| P8(std::array::from_fn(|l| dirs[l][a])));
-            let g = [0, 1, 2].map(|a| P8(std::array::from_fn(|l| gcol[l][a])));
+            let gcol: Vec<[f64; 3]> = (0..8).map(|_| random3(&mut rng)).collect();
+            let (d, g) = (lanes3(&dirs), lanes3(&gcol));
             let mut outl = [[0.0f32; 48]; 8];
             let gdl = eval_color_vjp_lanes(
                 degree,
@@ -413,19 +408,9 @@ mod tests {
         use crate::lanes::P8;
         let mut rng = augsplat_core::Rng::new(9);
         for degree in 0..=3 {
-            let dirs: Vec<[f64; 3]> = (0..8)
-                .map(|_| {
-                    let v = [
-                        rng.uniform(-1.0, 1.0),
-                        rng.uniform(-1.0, 1.0),
-                        rng.uniform(-1.0, 1.0),
-                    ];
-                    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                    [v[0] / n, v[1] / n, v[2] / n]
-                })
-                .collect();
+            let dirs: Vec<[f64; 3]> = (0..8).map(|_| normalize(random3(&mut rng))).collect();
             let coefs: Vec<f32> = (0..8 * 48).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
-            let d = [0, 1, 2].map(|a| P8(std::array::from_fn(|l| dirs[l][a])));
+            let d = lanes3(&dirs);
             let yl = basis_lanes(degree, d);
             let cl = eval_color_lanes(
                 degree,
