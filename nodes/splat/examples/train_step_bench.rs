@@ -9,8 +9,9 @@
 //! (`--steps` repetitions each on a fixed render and fixed gradients; min and median
 //! reported, which is robust to a loaded machine).
 //! With `--accumulate K`, the gradient sum of K renders of the view (a Staged/Dual synthetic
-//! batch) is also timed both ways: `backward` into fresh buffers then added to the sum, vs
-//! `backward_add` straight into the sum (min and median of `--steps` repetitions).
+//! batch) is also timed both ways: `backward` into fresh buffers then added to the sum with
+//! `train::add_grads` (the trainer's former path), vs `backward_add` straight into the sum
+//! (min and median of `--steps` repetitions).
 //! Gaussians are random in a box in front of the camera (isotropic-ish, scale ~ 1–3 px),
 //! the target image a smooth gradient.
 
@@ -18,6 +19,7 @@ use augsplat_core::{Camera, Rng};
 use augsplat_splat::adam::{Adam, LearningRates, ParamGrads};
 use augsplat_splat::densify::Densifier;
 use augsplat_splat::loss::{self, PixelLoss};
+use augsplat_splat::train::add_grads;
 use augsplat_splat::{backward, backward_add, render, Gaussians, RenderSettings};
 use std::time::Instant;
 
@@ -245,23 +247,7 @@ fn accumulate_times(
         loss::photometric(&out.rgb, target, w, h, PixelLoss::L2, 0.0, 1.0, &mut d_rgb);
         if fresh {
             let gr = backward(g, cam, s, &out, &d_rgb, None, None);
-            let k3 = g.coeffs() * 3;
-            for i in 0..n {
-                if gr.visible[i] {
-                    acc.visible[i] = true;
-                    for a in 0..3 {
-                        acc.means[i][a] += gr.means[i][a];
-                        acc.log_scales[i][a] += gr.log_scales[i][a];
-                    }
-                    for a in 0..4 {
-                        acc.quats[i][a] += gr.quats[i][a];
-                    }
-                    acc.opacity_logits[i] += gr.opacity_logits[i];
-                    for c in 0..k3 {
-                        acc.sh[i * k3 + c] += gr.sh[i * k3 + c];
-                    }
-                }
-            }
+            add_grads(acc, &gr, usize::MAX);
         } else {
             backward_add(g, cam, &out, &d_rgb, acc);
         }

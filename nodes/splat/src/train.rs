@@ -612,8 +612,9 @@ const ADD_CHUNK: usize = 1024;
 /// Adds one render's gradients into the step's sum: only the Gaussians visible in that
 /// render (the others have zero gradients) and only the first `sh_active` SH values of each
 /// (the rest are zero above the active degree). Element-wise, so the order of renders is the
-/// only order that matters, and it is fixed.
-fn add_grads(acc: &mut ParamGrads, g: &Gradients, sh_active: usize) {
+/// only order that matters, and it is fixed. (What [`crate::backward_add`] does without the
+/// render's own buffers.)
+pub fn add_grads(acc: &mut ParamGrads, g: &Gradients, sh_active: usize) {
     let n = acc.len();
     let k3 = acc.sh.len().checked_div(n).unwrap_or(0);
     let sh_cols = sh_active.min(k3);

@@ -6,6 +6,7 @@ mod raster_common;
 
 use augsplat_core::linalg;
 use augsplat_splat::adam::ParamGrads;
+use augsplat_splat::train::add_grads;
 use augsplat_splat::{backward, backward_add, render, Gaussians, RenderSettings};
 use raster_common::*;
 
@@ -34,24 +35,8 @@ fn by_fresh_buffers(g: &Gaussians, s: &RenderSettings, start: &ParamGrads) -> Pa
     for (k, cam) in cameras().iter().enumerate() {
         let out = render(g, cam, s);
         let gr = backward(g, cam, s, &out, &upstream(out.rgb.len(), k), None, None);
-        let k3 = g.coeffs() * 3;
-        for i in 0..g.len() {
-            if !gr.visible[i] {
-                continue;
-            }
-            acc.visible[i] = true;
-            for a in 0..3 {
-                acc.means[i][a] += gr.means[i][a];
-                acc.log_scales[i][a] += gr.log_scales[i][a];
-            }
-            for a in 0..4 {
-                acc.quats[i][a] += gr.quats[i][a];
-            }
-            acc.opacity_logits[i] += gr.opacity_logits[i];
-            for c in 0..acc.sh_active.min(k3) {
-                acc.sh[i * k3 + c] += gr.sh[i * k3 + c];
-            }
-        }
+        let sh_active = acc.sh_active;
+        add_grads(&mut acc, &gr, sh_active);
     }
     acc
 }
