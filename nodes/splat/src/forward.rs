@@ -855,8 +855,6 @@ fn project_chunk<L: Lanes>(
     let k = g.coeffs() * 3;
     let nb = sh::basis_len(degree);
     let len = sp_out.len();
-    let (tiles_x, tiles_y) = (grid.tiles_x as f64, grid.tiles_y as f64);
-    let ts = TILE as f64;
     let centre = cm.center.map(c::<L>);
     for j0 in (0..len).step_by(LANES) {
         let n = (len - j0).min(LANES);
@@ -869,17 +867,12 @@ fn project_chunk<L: Lanes>(
         let gl =
             ParamLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, &idx);
         let pl = project_lanes(cm, &gl, s.antialiased, s.near as f64);
-        // Tile rectangles (TileGrid::rect in lanes; the radius saturates like its i32).
+        // Tile rectangles (the radius saturates as `Projected`'s i32 does).
         let r_max = c::<L>(i32::MAX as f64);
-        let (tx, ty) = (pl.mean2d[0] / ts, pl.mean2d[1] / ts);
-        let (rx, ry) = (pl.radius[0].min(r_max) / ts, pl.radius[1].min(r_max) / ts);
-        let clamp = |v: L, hi: f64| v.max(c(0.0)).min(c(hi));
-        let rect = [
-            clamp((tx - rx).floor(), tiles_x),
-            clamp((tx + rx).ceil(), tiles_x),
-            clamp((ty - ry).floor(), tiles_y),
-            clamp((ty + ry).ceil(), tiles_y),
-        ];
+        let rect = grid.rect_lanes(
+            pl.mean2d,
+            [pl.radius[0].min(r_max), pl.radius[1].min(r_max)],
+        );
         let nonempty = rect[0].lt(rect[1]) & rect[2].lt(rect[3]);
         // The lanes' active SH coefficients, each Gaussian's read once and contiguously.
         // Non-finite ones make a Gaussian invalid (checked first).

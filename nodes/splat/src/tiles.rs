@@ -11,6 +11,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
 use crate::constants::TILE;
+use crate::lanes::{c, Lanes, P8};
 use rayon::prelude::*;
 
 /// The tile grid of an image.
@@ -41,16 +42,23 @@ impl TileGrid {
     /// Tiles `[x0, x1) × [y0, y1)` touched by the box `mean2d ± radius` (gsplat's rule:
     /// floor/ceil of the box edges in tile units, clamped to the grid).
     pub fn rect(&self, mean2d: [f64; 2], radius: [i32; 2]) -> [u32; 4] {
+        let r = self.rect_lanes(mean2d.map(P8::splat), radius.map(|v| P8::splat(v as f64)));
+        r.map(|v| v.0[0] as u32)
+    }
+
+    /// [`TileGrid::rect`] of eight boxes (integral radii), as integral f64 lanes; a NaN edge
+    /// clamps to 0.
+    #[inline(always)]
+    pub(crate) fn rect_lanes<L: Lanes>(&self, mean2d: [L; 2], radius: [L; 2]) -> [L; 4] {
         let ts = TILE as f64;
-        let clampx = |v: f64| v.clamp(0.0, self.tiles_x as f64) as u32;
-        let clampy = |v: f64| v.clamp(0.0, self.tiles_y as f64) as u32;
+        let clamp = |v: L, hi: u32| v.max(c(0.0)).min(c(hi as f64));
         let (tx, ty) = (mean2d[0] / ts, mean2d[1] / ts);
-        let (rx, ry) = (radius[0] as f64 / ts, radius[1] as f64 / ts);
+        let (rx, ry) = (radius[0] / ts, radius[1] / ts);
         [
-            clampx((tx - rx).floor()),
-            clampx((tx + rx).ceil()),
-            clampy((ty - ry).floor()),
-            clampy((ty + ry).ceil()),
+            clamp((tx - rx).floor(), self.tiles_x),
+            clamp((tx + rx).ceil(), self.tiles_x),
+            clamp((ty - ry).floor(), self.tiles_y),
+            clamp((ty + ry).ceil(), self.tiles_y),
         ]
     }
 }
