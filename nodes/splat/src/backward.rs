@@ -938,18 +938,8 @@ fn vjp_lanes(wide: bool, job: &LaneJob) -> LaneGrads {
         let with_sh = len.gt(c(0.0));
         let dir = [v[0] / len, v[1] / len, v[2] / len];
         let na = sh::basis_len(degree) * 3;
-        let mut rows = [[0.0f32; 48]; LANES];
-        for l in 0..LANES {
-            let i = idx[l];
-            rows[l][..na].copy_from_slice(&g.sh[i * kcoef..i * kcoef + na]);
-        }
-        let coef = |q: usize| {
-            let mut a = [0.0; LANES];
-            for l in 0..LANES {
-                a[l] = rows[l][q] as f64;
-            }
-            L::from_array(a)
-        };
+        let rows = sh::coef_rows(&g.sh, idx, kcoef, na);
+        let coef = |q: usize| sh::coef_lane::<L>(&rows, q);
         let g_color = [
             L::from_array(screen[6]),
             L::from_array(screen[7]),

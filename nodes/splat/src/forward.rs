@@ -877,13 +877,10 @@ fn project_chunk<L: Lanes>(
         // The lanes' active SH coefficients, each Gaussian's read once and contiguously.
         // Non-finite ones make a Gaussian invalid (checked first).
         let na = nb * 3;
-        let mut rows = [[0.0f32; 48]; LANES];
+        let rows = sh::coef_rows(&g.sh, &idx, k, na);
         let mut sh_ok: Mask = 0;
-        for l in 0..n {
-            let i = idx[l];
-            let row = &mut rows[l][..na];
-            row.copy_from_slice(&g.sh[i * k..i * k + na]);
-            let finite = row.iter().fold(true, |ok, v| ok & v.is_finite());
+        for (l, row) in rows.iter().enumerate().take(n) {
+            let finite = row[..na].iter().fold(true, |ok, v| ok & v.is_finite());
             sh_ok |= (finite as u8) << l;
         }
         let invalid = (!sh_ok | pl.status.invalid) & live;
@@ -911,13 +908,7 @@ fn project_chunk<L: Lanes>(
             L::select(away, v[1] / vlen, c(0.0)),
             L::select(away, v[2] / vlen, c(1.0)),
         ];
-        let coef = |q: usize| {
-            let mut a = [0.0; LANES];
-            for l in 0..LANES {
-                a[l] = rows[l][q] as f64;
-            }
-            L::from_array(a)
-        };
+        let coef = |q: usize| sh::coef_lane::<L>(&rows, q);
         let col = sh::eval_color_lanes(degree, coef, dir).map(|v| v.to_array());
         let m = [pl.mean2d[0].to_array(), pl.mean2d[1].to_array()];
         let kc = pl.conic.map(|v| v.to_array());

@@ -9,7 +9,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
 use crate::constants::{C0, C1, C2, C3};
-use crate::lanes::{c, Lanes};
+use crate::lanes::{c, Lanes, LANES};
 
 /// Number of basis functions up to `degree` (at most 16).
 pub const fn basis_len(degree: u32) -> usize {
@@ -203,6 +203,36 @@ pub fn eval_color_vjp_into(
         gy[k] = gc[0] * c[k * 3] as f64 + gc[1] * c[k * 3 + 1] as f64 + gc[2] * c[k * 3 + 2] as f64;
     }
     basis_vjp(degree, dir, &gy)
+}
+
+/// The first `n` (≤ 48) SH values of Gaussians `idx` (rows of `k` values in `sh`), one row
+/// per lane, zero-padded; a full row is a fixed-size copy (no libc call per row).
+#[inline(always)]
+pub(crate) fn coef_rows(
+    sh: &[f32],
+    idx: &[usize; LANES],
+    k: usize,
+    n: usize,
+) -> [[f32; 48]; LANES] {
+    let mut rows = [[0.0f32; 48]; LANES];
+    for (row, &i) in rows.iter_mut().zip(idx) {
+        let src = &sh[i * k..i * k + n];
+        match <&[f32; 48]>::try_from(src) {
+            Ok(full) => *row = *full,
+            Err(_) => row[..n].copy_from_slice(src),
+        }
+    }
+    rows
+}
+
+/// Coefficient `q` of every lane's row (see [`coef_rows`]).
+#[inline(always)]
+pub(crate) fn coef_lane<L: Lanes>(rows: &[[f32; 48]; LANES], q: usize) -> L {
+    let mut a = [0.0; LANES];
+    for (v, row) in a.iter_mut().zip(rows) {
+        *v = row[q] as f64;
+    }
+    L::from_array(a)
 }
 
 /// [`basis`] of eight directions at once (the same operations per lane, so the same bits).
