@@ -4,13 +4,14 @@
 //! [`camera::Camera`] (OpenCV axes, world-to-camera), [`image::ImageF32`] and its file
 //! formats (PNG/JPEG in, PNG/EXR/NPY out), the on-disk [`scene::Scene`] artifact that the
 //! import node writes and every later stage reads, small fixed-size linear algebra in
-//! [`linalg`], and the deterministic [`rng::Rng`].
+//! [`linalg`], the deterministic [`rng::Rng`], and [`cputime`] for benchmarks on shared machines.
 
 // Index loops read best in small fixed-size numeric code.
 #![allow(clippy::needless_range_loop)]
 
 pub mod artifacts;
 pub mod camera;
+pub mod cputime;
 pub mod error;
 pub mod image;
 pub mod linalg;

@@ -34,14 +34,10 @@ fn camera(k: usize) -> Camera {
     }
 }
 
-/// CPU seconds (user + system) used by this process so far, from /proc/self/stat (Linux);
-/// the machine is shared, so wall time alone overstates the cost.
+/// CPU seconds (user + system, stolen time excluded) used by this process so far (0 where
+/// `/proc` is unavailable); the machine is shared, so wall time alone overstates the cost.
 fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let after = stat.rsplit(')').next().unwrap_or("");
-    let f: Vec<&str> = after.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (ticks(11) + ticks(12)) / 100.0
+    augsplat_core::cputime::process_cpu_seconds().unwrap_or(0.0)
 }
 
 fn main() {
@@ -127,6 +123,7 @@ fn main() {
                 let n = steps;
                 let t0 = Instant::now();
                 let c0 = cpu_seconds();
+                let usage = augsplat_core::cputime::Usage::start();
                 let mut samples = 0;
                 let mut color = 0;
                 let mut rates = Vec::with_capacity(n);
@@ -139,13 +136,15 @@ fn main() {
                 }
                 let dt = t0.elapsed().as_secs_f64();
                 let cpu = cpu_seconds() - c0;
+                let steal = usage.stop().steal_share.unwrap_or(0.0);
                 rates.sort_by(f64::total_cmp);
                 let median = rates[n / 2];
                 let best = rates[n - 1];
                 println!(
                     "{rays} rays/step, chunks of {chunk} rays: {:.3} s/step wall, {:.0} samples/step ({:.0} with colour); \
                      forward+backward samples/s over {n} steps: median {:.0}, best {:.0}, mean {:.0}; \
-                     CPU {:.3} s/step, i.e. {:.0} samples/s if the {threads} threads had their cores to themselves",
+                     CPU {:.3} s/step, i.e. {:.0} samples/s if the {threads} threads had their cores to themselves \
+                     (host steal {:.0} % of the machine's CPU time meanwhile)",
                     dt / n as f64,
                     samples as f64 / n as f64,
                     color as f64 / n as f64,
@@ -153,7 +152,8 @@ fn main() {
                     best,
                     samples as f64 / dt,
                     cpu / n as f64,
-                    samples as f64 / (cpu / threads as f64)
+                    samples as f64 / (cpu / threads as f64),
+                    100.0 * steal
                 );
             }
         }

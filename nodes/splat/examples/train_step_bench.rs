@@ -4,7 +4,8 @@
 //! `cargo run --release -p augsplat-splat --example train_step_bench -- [N ...] [--size WxH] [--steps S] [--threads T] [--kernels]`
 //! Defaults: N = 20000 100000 500000, 256×256, 10 timed steps after 2 warm-up steps, all threads.
 //! The whole step's median and best time are printed first (the machine is shared: the
-//! median resists other load), then the mean time of each part.
+//! median resists other load), then the mean time of each part, then the CPU time per step
+//! (stolen time excluded) and the share of the host's CPU time stolen meanwhile.
 //! With `--kernels`, the loss (L2 + 0.2·SSIM) and the Adam step are also timed in isolation
 //! (`--steps` repetitions each on a fixed render and fixed gradients; min and median
 //! reported, which is robust to a loaded machine).
@@ -15,6 +16,7 @@
 //! Gaussians are random in a box in front of the camera (isotropic-ish, scale ~ 1–3 px),
 //! the target image a smooth gradient.
 
+use augsplat_core::cputime::Usage;
 use augsplat_core::{Camera, Rng};
 use augsplat_splat::adam::{Adam, LearningRates, ParamGrads};
 use augsplat_splat::densify::Densifier;
@@ -117,7 +119,11 @@ fn main() {
             let mut t = [0f64; 6];
             let mut pairs = 0u64;
             let mut step_ms: Vec<f64> = Vec::with_capacity(steps);
+            let mut usage = None;
             for step in 0..steps + 2 {
+                if step == 2 {
+                    usage = Some(Usage::start());
+                }
                 let t0 = Instant::now();
                 let out = render(&g, &cam, &s);
                 let t1 = Instant::now();
@@ -148,6 +154,7 @@ fn main() {
                     pairs += out.stats.pairs;
                 }
             }
+            let used = usage.map(|u| u.stop());
             let ms = |v: f64| v / steps as f64 * 1e3;
             let total: f64 = t.iter().sum();
             step_ms.sort_by(f64::total_cmp);
@@ -165,6 +172,20 @@ fn main() {
                 pairs as f64 / steps as f64 / 1e6,
                 (t[0] + t[2]) / pairs.max(1) as f64 * 1e9
             );
+            if let Some(u) = used {
+                // The host may run other guests on our virtual CPUs: CPU time per step (stolen
+                // time excluded) says what the code costs; over `threads` it is the step time
+                // those threads would take with their cores to themselves, if fully parallel.
+                let threads = rayon::current_num_threads() as f64;
+                if let Some(cpu) = u.cpu_s {
+                    println!(
+                        "    CPU {:.2} ms/step over all threads, i.e. {:.2} ms/step on {threads} unshared cores if fully parallel; {}",
+                        cpu / steps as f64 * 1e3,
+                        cpu / steps as f64 / threads * 1e3,
+                        u.describe()
+                    );
+                }
+            }
             if kernels {
                 kernel_times(&g, &cam, &target, &s, &lr, steps);
             }
