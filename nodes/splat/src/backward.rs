@@ -31,6 +31,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
 use crate::adam::ParamGrads;
+use crate::buffers::filled_par;
 use crate::constants::{ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS};
 use crate::forward::{
     detect_isa, gauss_of_sigma, row_mask_portable, smooth_cut, Isa, RowGeom, Splat2D, TileCoords,
@@ -544,13 +545,13 @@ pub(crate) fn backward_impl(
 ) -> Gradients {
     let n = g.len();
     let mut grads = Gradients {
-        means: vec![[0.0; 3]; n],
-        log_scales: vec![[0.0; 3]; n],
-        quats: vec![[0.0; 4]; n],
-        opacity_logits: vec![0.0; n],
-        sh: vec![0.0; g.sh.len()],
-        means2d_abs: vec![[0.0; 2]; n],
-        visible: vec![false; n],
+        means: filled_par(n, [0.0; 3]),
+        log_scales: filled_par(n, [0.0; 3]),
+        quats: filled_par(n, [0.0; 4]),
+        opacity_logits: filled_par(n, 0.0),
+        sh: filled_par(g.sh.len(), 0.0),
+        means2d_abs: filled_par(n, [0.0; 2]),
+        visible: filled_par(n, false),
     };
     let Some(pairs) = pair_gradients(cam, out, d_rgb, d_alpha, d_depth) else {
         return grads;

@@ -25,6 +25,7 @@
 // small fixed-size numeric code.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
+use crate::buffers::{filled_par, uninit_vec};
 use crate::constants::{
     ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS, TRANSMITTANCE_THRESHOLD,
 };
@@ -1045,15 +1046,6 @@ struct ProjectedAll {
     status: Vec<u8>,
 }
 
-/// A vector of `n` uninitialised slots (no zero-filling of buffers that are written
-/// sparsely and read only where written).
-fn uninit_vec<T>(n: usize) -> Vec<MaybeUninit<T>> {
-    let mut v = Vec::with_capacity(n);
-    // SAFETY: `MaybeUninit<T>` needs no initialisation and the capacity is `n`.
-    unsafe { v.set_len(n) };
-    v
-}
-
 /// Raw pointers to the output images, written by the tiles in parallel.
 #[derive(Clone, Copy)]
 struct ImageOut {
@@ -1144,11 +1136,11 @@ pub(crate) fn render_impl(
 
     let max_alpha = effective_max_alpha(s);
     let isa = detect_isa();
-    let mut rgb = vec![0.0f32; npix * 3];
-    let mut alpha = vec![0.0f32; npix];
-    let mut depth_img = vec![0.0f32; npix];
-    let mut last = vec![0u32; grid.len() * TILE_PIXELS];
-    let mut final_t = vec![1.0f32; grid.len() * TILE_PIXELS];
+    let mut rgb = filled_par(npix * 3, 0.0f32);
+    let mut alpha = filled_par(npix, 0.0f32);
+    let mut depth_img = filled_par(npix, 0.0f32);
+    let mut last = filled_par(grid.len() * TILE_PIXELS, 0u32);
+    let mut final_t = filled_par(grid.len() * TILE_PIXELS, 1.0f32);
     let out = ImageOut {
         rgb: rgb.as_mut_ptr(),
         alpha: alpha.as_mut_ptr(),

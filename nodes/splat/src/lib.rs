@@ -2,6 +2,7 @@
 
 pub mod adam;
 pub mod backward;
+mod buffers;
 pub mod constants;
 pub mod densify;
 pub mod error;
