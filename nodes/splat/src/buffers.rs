@@ -41,7 +41,15 @@ mod tests {
 
     #[test]
     fn filled_par_equals_vec_macro_at_every_size_class() {
-        for n in [0, 1, 7, FILL_CHUNK, 2 * FILL_CHUNK - 1, 2 * FILL_CHUNK, 5 * FILL_CHUNK + 3] {
+        for n in [
+            0,
+            1,
+            7,
+            FILL_CHUNK,
+            2 * FILL_CHUNK - 1,
+            2 * FILL_CHUNK,
+            5 * FILL_CHUNK + 3,
+        ] {
             assert_eq!(filled_par(n, 1.5f32), vec![1.5f32; n], "n = {n}");
             assert_eq!(filled_par(n, [0u32, 7]), vec![[0u32, 7]; n], "n = {n}");
         }
