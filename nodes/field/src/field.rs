@@ -742,6 +742,9 @@ impl Field {
                 &d_out,
                 cg,
                 Some(&mut d_cin),
+                // Only the geometry features (and embeddings) need their gradient, not the
+                // SH rows of the view direction (leading rows: the embedding comes last).
+                if e == 0 { GEO_FEAT_DIM } else { usize::MAX },
                 &mut st.scratch,
                 &mut st.wt,
             );
@@ -784,6 +787,7 @@ impl Field {
             &d_out,
             dg,
             Some(&mut d_enc),
+            usize::MAX,
             &mut st.scratch,
             &mut st.wt,
         );

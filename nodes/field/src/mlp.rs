@@ -601,7 +601,9 @@ impl Mlp {
 
     /// Backward pass. `d_out` is the gradient of the network output (`out × ld`, zero in the
     /// padding columns). Gradients are *added* to `grad` (same layout as
-    /// `params`). When `d_x` is given it receives the input gradient (`inp × ld`). `scratch`
+    /// `params`). When `d_x` is given it receives the gradient of the leading `d_x_rows`
+    /// input rows (`min(d_x_rows, inp) × ld`; pass `usize::MAX` for all of them — each row is
+    /// computed on its own, so asking for fewer leaves the others' bits unchanged). `scratch`
     /// and `wt` are reusable scratch. The batch runs through all layers one block of
     /// [`COLUMN_BLOCK`] columns at a time; every gradient sum runs over the columns in order,
     /// so the blocking does not change the result.
@@ -615,10 +617,12 @@ impl Mlp {
         d_out: &[f32],
         grad: &mut [f32],
         d_x: Option<&mut Vec<f32>>,
+        d_x_rows: usize,
         scratch: &mut Vec<f32>,
         wt: &mut Vec<f32>,
     ) {
         let nl = self.layers.len();
+        let dx_rows = d_x_rows.min(self.layers.first().map_or(0, |s| s.inp));
         let pad = |n: usize| n.div_ceil(LANES) * LANES;
         // Scratch layout: two block buffers, padded weight-gradient accumulators and lane
         // sums of every layer, transposed-input block.
@@ -658,7 +662,7 @@ impl Mlp {
         }
         let mut d_x = d_x;
         if let Some(dx) = d_x.as_deref_mut() {
-            dx.resize(self.layers[0].inp * ld, 0.0);
+            dx.resize(dx_rows * ld, 0.0);
         }
         let mut c0 = 0;
         while c0 < ld {
@@ -716,7 +720,7 @@ impl Mlp {
                         &mut dx[c0..],
                         ld,
                         s.out,
-                        s.inp,
+                        dx_rows,
                         nb,
                         Store::Linear,
                     );
@@ -960,6 +964,7 @@ mod tests {
             &d_out,
             &mut grad,
             Some(&mut dx),
+            usize::MAX,
             &mut s1,
             &mut s2,
         );
@@ -1007,6 +1012,24 @@ mod tests {
         }
         assert_eq!(grad, want_grad);
         assert_eq!(dx, want_dx);
+        // Asking for the leading 15 input rows gives exactly those rows, and the same
+        // parameter gradients.
+        let mut grad15: Vec<f32> = (0..mlp.n_params()).map(|k| k as f32 * 1e-3).collect();
+        let mut dx15 = vec![f32::NAN; 3];
+        mlp.backward(
+            &params,
+            &x,
+            &acts,
+            ld,
+            &d_out,
+            &mut grad15,
+            Some(&mut dx15),
+            15,
+            &mut s1,
+            &mut s2,
+        );
+        assert_eq!(grad15, want_grad);
+        assert_eq!(dx15, want_dx[..15 * ld]);
     }
 
     #[cfg(target_arch = "x86_64")]

@@ -154,6 +154,7 @@ fn mlp_matches_reference_and_finite_differences() {
         &d_out,
         &mut grad,
         Some(&mut dx),
+        usize::MAX,
         &mut s1,
         &mut s2,
     );
