@@ -742,8 +742,9 @@ impl Field {
                 &d_out,
                 cg,
                 Some(&mut d_cin),
-                // Only the geometry features (and embeddings) need their gradient, not the
-                // SH rows of the view direction (leading rows: the embedding comes last).
+                // Without an appearance embedding only the leading geometry-feature rows
+                // need an input gradient, not the 16 SH rows of the view direction; an
+                // embedding's rows come last, so then every row is computed.
                 if e == 0 { GEO_FEAT_DIM } else { usize::MAX },
                 &mut st.scratch,
                 &mut st.wt,
