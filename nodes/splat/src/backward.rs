@@ -24,7 +24,8 @@
 //! and depth sums Σ g_c·α·T, Σ g_S·α·T; since dσ = ½dx²·da + dx·dy·db + ½dy²·dc + (a dx + b dy)
 //! d(mean_x) + (b dx + c dy) d(mean_y) and dα₁/dσ = −o·e^−σ, the screen-space gradient
 //! follows from these sums per pair. As in the forward pass, every kernel has a portable
-//! twin performing the same IEEE operations, and the results are bit-identical.
+//! twin and AVX-512 and AVX2 versions performing the same IEEE operations, and the results are
+//! bit-identical.
 
 // Negated comparisons are deliberate: they also reject NaN. Index loops read best in
 // small fixed-size numeric code.
@@ -377,6 +378,138 @@ mod avx512 {
     }
 }
 
+/// AVX2 kernels (8 lanes: a row's left and right halves are separate vectors).
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::*;
+    use crate::forward::avx2::{gauss_v, row_mask};
+    use std::arch::x86_64::*;
+
+    /// The first two levels of [`tree_sum16`] for ten accumulators: `lo[q] + hi[q]` gives
+    /// the (l, l+8) sums, then (l, l+4); the last two levels are scalar.
+    #[inline(always)]
+    unsafe fn reduce10(lo: &[__m256; 10], hi: &[__m256; 10]) -> [f32; 10] {
+        let mut out = [0.0f32; 10];
+        for q in 0..10 {
+            let s8 = _mm256_add_ps(lo[q], hi[q]);
+            let s4 = _mm_add_ps(_mm256_castps256_ps128(s8), _mm256_extractf128_ps::<1>(s8));
+            let mut v = [0.0f32; 4];
+            _mm_storeu_ps(v.as_mut_ptr(), s4);
+            out[q] = (v[0] + v[2]) + (v[1] + v[3]);
+        }
+        out
+    }
+
+    /// [`backward_gaussian_portable`] (hard cutoff) over the pixels `8·h .. 8·h + 8` of the
+    /// rows in `rows`, with the lane sums in registers across rows.
+    #[inline(always)]
+    unsafe fn backward_half(
+        h: usize,
+        sp: &Splat2D,
+        k: u32,
+        mut rows: u16,
+        tile: &mut BwdTile,
+        tc: &TileCoords,
+        max_alpha: f32,
+    ) -> [__m256; 10] {
+        let o = 8 * h;
+        let zero = _mm256_setzero_ps();
+        let mut acc = [zero; 10];
+        let px = _mm256_load_ps(tc.px.as_ptr().add(o));
+        let one = _mm256_set1_ps(1.0);
+        let maxa = _mm256_set1_ps(max_alpha);
+        let thr = _mm256_set1_ps(ALPHA_THRESHOLD);
+        // Unsigned `k < last` as a signed comparison of both with the sign bit flipped.
+        let flip = _mm256_set1_epi32(i32::MIN);
+        let kv = _mm256_xor_si256(_mm256_set1_epi32(k as i32), flip);
+        let dx = _mm256_sub_ps(_mm256_set1_ps(sp.x), px);
+        let ha = _mm256_set1_ps(0.5 * sp.a);
+        let o_v = _mm256_set1_ps(sp.opacity);
+        while rows != 0 {
+            let ly = rows.trailing_zeros() as usize;
+            rows &= rows - 1;
+            let g = RowGeom::new(sp, *tc.py.get_unchecked(ly));
+            let row = tile.rows.get_unchecked_mut(ly);
+            let last = _mm256_load_si256(row.last.as_ptr().add(o) as *const __m256i);
+            let u = _mm256_fmadd_ps(ha, dx, _mm256_set1_ps(g.bdy));
+            let sigma = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.hc));
+            let gauss = gauss_v(sigma);
+            let raw = _mm256_mul_ps(o_v, gauss);
+            let a1 = _mm256_min_ps(raw, maxa);
+            let ok = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_xor_si256(last, flip), kv));
+            let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero));
+            let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(a1, thr));
+            if _mm256_movemask_ps(ok) == 0 {
+                continue;
+            }
+            // Volatile loads: otherwise LLVM turns the blend-and-store of T and R below
+            // into masked stores, which are slow (microcoded) on some AVX2 CPUs.
+            let t = std::ptr::read_volatile(row.t.as_ptr().add(o) as *const __m256);
+            let r = std::ptr::read_volatile(row.r.as_ptr().add(o) as *const __m256);
+            let gr = _mm256_load_ps(row.gc[0].as_ptr().add(o));
+            let gg = _mm256_load_ps(row.gc[1].as_ptr().add(o));
+            let gb = _mm256_load_ps(row.gc[2].as_ptr().add(o));
+            let gs = _mm256_load_ps(row.gs.as_ptr().add(o));
+            let ra = _mm256_div_ps(one, _mm256_sub_ps(one, a1));
+            let ti = _mm256_mul_ps(t, ra);
+            let w = _mm256_and_ps(_mm256_mul_ps(a1, ti), ok);
+            let gcol = _mm256_mul_ps(gr, _mm256_set1_ps(sp.rgb[0]));
+            let gcol = _mm256_fmadd_ps(gg, _mm256_set1_ps(sp.rgb[1]), gcol);
+            let gcol = _mm256_fmadd_ps(gb, _mm256_set1_ps(sp.rgb[2]), gcol);
+            let gcol = _mm256_fmadd_ps(gs, _mm256_set1_ps(sp.depth), gcol);
+            let behind = _mm256_mul_ps(r, ra);
+            let dl = _mm256_fmsub_ps(gcol, ti, behind);
+            let qm = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(raw, maxa));
+            let q = _mm256_and_ps(_mm256_mul_ps(dl, gauss), qm);
+            let dy = _mm256_set1_ps(g.dy);
+            acc[0] = _mm256_add_ps(acc[0], q);
+            let v = _mm256_mul_ps(q, dx);
+            acc[1] = _mm256_add_ps(acc[1], v);
+            acc[2] = _mm256_fmadd_ps(q, dy, acc[2]);
+            acc[3] = _mm256_fmadd_ps(v, dx, acc[3]);
+            acc[4] = _mm256_fmadd_ps(v, dy, acc[4]);
+            acc[5] = _mm256_fmadd_ps(q, _mm256_set1_ps(g.dy * g.dy), acc[5]);
+            acc[6] = _mm256_fmadd_ps(gr, w, acc[6]);
+            acc[7] = _mm256_fmadd_ps(gg, w, acc[7]);
+            acc[8] = _mm256_fmadd_ps(gb, w, acc[8]);
+            acc[9] = _mm256_fmadd_ps(gs, w, acc[9]);
+            let r_new = _mm256_blendv_ps(r, _mm256_fmadd_ps(gcol, w, r), ok);
+            _mm256_store_ps(row.r.as_mut_ptr().add(o), r_new);
+            _mm256_store_ps(row.t.as_mut_ptr().add(o), _mm256_blendv_ps(t, ti, ok));
+        }
+        acc
+    }
+
+    /// Marker type of the AVX2 backward kernels. The two halves of the rows are walked one
+    /// after the other; each pixel's state and each lane's sums see the same operations in
+    /// the same order as in the whole-row kernels.
+    pub(super) struct Avx2;
+
+    impl BackwardKernel for Avx2 {
+        #[inline(always)]
+        unsafe fn prefetch(p: *const Splat2D) {
+            _mm_prefetch::<_MM_HINT_T0>(p as *const i8);
+        }
+        #[inline(always)]
+        unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
+            row_mask(sp, tc)
+        }
+        #[inline(always)]
+        unsafe fn backward_gaussian(
+            sp: &Splat2D,
+            k: u32,
+            rows: u16,
+            tile: &mut BwdTile,
+            tc: &TileCoords,
+            max_alpha: f32,
+        ) -> LaneSums {
+            let lo = backward_half(0, sp, k, rows, tile, tc, max_alpha);
+            let hi = backward_half(1, sp, k, rows, tile, tc, max_alpha);
+            reduce10(&lo, &hi)
+        }
+    }
+}
+
 /// The screen-space pair gradient from the lane sums (in f64, rounded once).
 #[inline(always)]
 fn finish(sp: &Splat2D, s: &LaneSums) -> PairGrad {
@@ -459,7 +592,7 @@ fn backward_tile_portable<const SMOOTH: bool>(
     unsafe { backward_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
 }
 
-/// The portable tile kernel compiled for AVX2 + FMA (auto-vectorised; same results).
+/// The AVX2 tile kernel (the smooth cutoff runs the portable twin inside it).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn backward_tile_avx2<const SMOOTH: bool>(
@@ -471,8 +604,8 @@ fn backward_tile_avx2<const SMOOTH: bool>(
     max_alpha: f32,
     out: &mut dyn FnMut(usize, PairGrad),
 ) {
-    // SAFETY: the portable kernel has no instruction-set requirement.
-    unsafe { backward_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
+    // SAFETY: this function is only compiled for, and called on, CPUs with AVX2 + FMA.
+    unsafe { backward_tile_impl::<avx2::Avx2, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
 }
 
 /// The AVX-512 tile kernel.

@@ -17,9 +17,11 @@
 //! held in registers. Rows whose pixels have all stopped are dropped, and the tile ends when
 //! no row is live.
 //!
-//! Every kernel exists twice: a portable scalar twin and an AVX-512 version written with
-//! intrinsics. Both perform the same IEEE operations in the same order (fused multiply-adds
-//! are `f32::mul_add` in the twin), so they give bit-identical results; the tests check it.
+//! Every kernel exists three times: a portable scalar twin, an AVX-512 version (a row is one
+//! vector) and an AVX2 version (a row is two vectors, composited one after the other), the
+//! last two written with intrinsics. All perform the same IEEE operations in the same order
+//! per pixel (fused multiply-adds are `f32::mul_add` in the twin), so they give
+//! bit-identical results; the tests check it.
 
 // Negated comparisons are deliberate: they also reject NaN. Index loops read best in
 // small fixed-size numeric code.
@@ -590,6 +592,197 @@ pub(crate) mod avx512 {
     }
 }
 
+/// AVX2 kernels (8 lanes: one tile row is two vectors, its left and right halves).
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2 {
+    use super::*;
+    use std::arch::x86_64::*;
+
+    /// [`exp_core`] lane-wise: exactly its operations (2ⁿ built in the exponent bits).
+    #[inline(always)]
+    pub(crate) unsafe fn exp_core_v(x: __m256) -> __m256 {
+        let round = _mm256_set1_ps(ROUND);
+        let shifted = _mm256_fmadd_ps(x, _mm256_set1_ps(LOG2E), round);
+        let n = _mm256_sub_ps(shifted, round);
+        let f = _mm256_fnmadd_ps(n, _mm256_set1_ps(LN2_HI), x);
+        let f = _mm256_fnmadd_ps(n, _mm256_set1_ps(LN2_LO), f);
+        let mut p = _mm256_set1_ps(EXP_POLY[0]);
+        for c in &EXP_POLY[1..] {
+            p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(*c));
+        }
+        let k = _mm256_sub_epi32(_mm256_castps_si256(shifted), _mm256_castps_si256(round));
+        let scale = _mm256_slli_epi32::<23>(_mm256_add_epi32(k, _mm256_set1_epi32(127)));
+        _mm256_mul_ps(p, _mm256_castsi256_ps(scale))
+    }
+
+    /// [`gauss_of_sigma`] lane-wise (`min`/`max` return their second operand for a NaN, as
+    /// the scalar `min(SIGMA_CLAMP)` / `max(0)` do).
+    #[inline(always)]
+    pub(crate) unsafe fn gauss_v(sigma: __m256) -> __m256 {
+        let zero = _mm256_setzero_ps();
+        let sc = _mm256_max_ps(_mm256_min_ps(sigma, _mm256_set1_ps(SIGMA_CLAMP)), zero);
+        exp_core_v(_mm256_sub_ps(zero, sc))
+    }
+
+    /// [`row_mask_portable`] for the eight rows whose centres are `py`.
+    #[inline(always)]
+    unsafe fn row_mask8(sp: &Splat2D, tc: &TileCoords, py: __m256) -> u32 {
+        let zero = _mm256_setzero_ps();
+        let dy = _mm256_sub_ps(_mm256_set1_ps(sp.y), py);
+        let dy2 = _mm256_mul_ps(dy, dy);
+        let rem = _mm256_fnmadd_ps(_mm256_set1_ps(sp.row_q), dy2, _mm256_set1_ps(sp.sigma_max));
+        let w2 = _mm256_mul_ps(_mm256_set1_ps(sp.row_w), rem);
+        let half = _mm256_add_ps(
+            _mm256_sqrt_ps(_mm256_max_ps(w2, zero)),
+            _mm256_set1_ps(CHORD_PAD),
+        );
+        let centre = _mm256_fmadd_ps(_mm256_set1_ps(sp.row_shift), dy, _mm256_set1_ps(sp.x));
+        let m = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(py, _mm256_set1_ps(sp.ymin)),
+            _mm256_cmp_ps::<_CMP_LE_OQ>(py, _mm256_set1_ps(sp.ymax)),
+        );
+        let m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_GE_OQ>(w2, zero));
+        let m = _mm256_and_ps(
+            m,
+            _mm256_cmp_ps::<_CMP_GE_OQ>(_mm256_add_ps(centre, half), _mm256_set1_ps(tc.left)),
+        );
+        let m = _mm256_and_ps(
+            m,
+            _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_sub_ps(centre, half), _mm256_set1_ps(tc.right)),
+        );
+        _mm256_movemask_ps(m) as u32
+    }
+
+    /// [`row_mask_portable`] with the 16 rows as two vectors of lanes.
+    #[inline(always)]
+    pub(crate) unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
+        let lo = row_mask8(sp, tc, _mm256_load_ps(tc.py.as_ptr()));
+        let hi = row_mask8(sp, tc, _mm256_load_ps(tc.py.as_ptr().add(8)));
+        (lo | (hi << 8)) as u16
+    }
+
+    /// Lane `l` all ones where bit `l` of `bits` is set.
+    #[inline(always)]
+    pub(crate) unsafe fn lane_mask(bits: u32) -> __m256 {
+        let sel = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        let v = _mm256_and_si256(_mm256_set1_epi32(bits as i32), sel);
+        _mm256_castsi256_ps(_mm256_cmpeq_epi32(v, sel))
+    }
+
+    /// [`composite_row_portable`] (hard cutoff) over the pixels `8·h .. 8·h + 8` of a row,
+    /// whose state stays in registers; returns the composited pairs.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    unsafe fn composite_half(
+        h: usize,
+        splats: &[Splat2D],
+        batch: &[u32],
+        k_base: u32,
+        mut bits: u64,
+        row: &mut RowState,
+        active: &mut u16,
+        tc: &TileCoords,
+        py: f32,
+        max_alpha: f32,
+    ) -> u32 {
+        let act_bits = ((*active >> (8 * h)) & 0xff) as u32;
+        if act_bits == 0 {
+            return 0;
+        }
+        let o = 8 * h;
+        let px = _mm256_load_ps(tc.px.as_ptr().add(o));
+        let zero = _mm256_setzero_ps();
+        let one = _mm256_set1_ps(1.0);
+        let maxa = _mm256_set1_ps(max_alpha);
+        let thr = _mm256_set1_ps(ALPHA_THRESHOLD);
+        let tthr = _mm256_set1_ps(TRANSMITTANCE_THRESHOLD);
+        let mut t = _mm256_load_ps(row.t.as_ptr().add(o));
+        let mut cr = _mm256_load_ps(row.c[0].as_ptr().add(o));
+        let mut cg = _mm256_load_ps(row.c[1].as_ptr().add(o));
+        let mut cb = _mm256_load_ps(row.c[2].as_ptr().add(o));
+        let mut d = _mm256_load_ps(row.d.as_ptr().add(o));
+        let mut last = _mm256_load_ps(row.last.as_ptr().add(o) as *const f32);
+        let mut act = lane_mask(act_bits);
+        let mut pairs = 0u32;
+        while bits != 0 {
+            let j = bits.trailing_zeros();
+            bits &= bits - 1;
+            let sp = splats.get_unchecked(*batch.get_unchecked(j as usize) as usize);
+            let g = RowGeom::new(sp, py);
+            let dx = _mm256_sub_ps(_mm256_set1_ps(sp.x), px);
+            let u = _mm256_fmadd_ps(_mm256_set1_ps(g.ha), dx, _mm256_set1_ps(g.bdy));
+            let sigma = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.hc));
+            let e = gauss_v(sigma);
+            let a1 = _mm256_min_ps(_mm256_mul_ps(_mm256_set1_ps(sp.opacity), e), maxa);
+            let ok = _mm256_and_ps(act, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero));
+            let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(a1, thr));
+            if _mm256_movemask_ps(ok) == 0 {
+                continue;
+            }
+            let next_t = _mm256_mul_ps(t, _mm256_sub_ps(one, a1));
+            let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tthr));
+            let comp = _mm256_andnot_ps(stop, ok);
+            act = _mm256_andnot_ps(stop, act);
+            let w = _mm256_mul_ps(a1, t);
+            cr = _mm256_blendv_ps(cr, _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[0]), cr), comp);
+            cg = _mm256_blendv_ps(cg, _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[1]), cg), comp);
+            cb = _mm256_blendv_ps(cb, _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[2]), cb), comp);
+            d = _mm256_blendv_ps(d, _mm256_fmadd_ps(w, _mm256_set1_ps(sp.depth), d), comp);
+            t = _mm256_blendv_ps(t, next_t, comp);
+            let kk = _mm256_castsi256_ps(_mm256_set1_epi32((k_base + j + 1) as i32));
+            last = _mm256_blendv_ps(last, kk, comp);
+            pairs += (_mm256_movemask_ps(comp) as u32).count_ones();
+            if _mm256_movemask_ps(act) == 0 {
+                break;
+            }
+        }
+        _mm256_store_ps(row.t.as_mut_ptr().add(o), t);
+        _mm256_store_ps(row.c[0].as_mut_ptr().add(o), cr);
+        _mm256_store_ps(row.c[1].as_mut_ptr().add(o), cg);
+        _mm256_store_ps(row.c[2].as_mut_ptr().add(o), cb);
+        _mm256_store_ps(row.d.as_mut_ptr().add(o), d);
+        _mm256_store_ps(row.last.as_mut_ptr().add(o) as *mut f32, last);
+        let kept = _mm256_movemask_ps(act) as u16;
+        *active = (*active & !(0xff << (8 * h))) | (kept << (8 * h));
+        pairs
+    }
+
+    /// Marker type of the AVX2 forward kernels. A row's two halves are composited one after
+    /// the other: pixels are independent, so the results are those of the whole-row kernels.
+    pub(crate) struct Avx2;
+
+    impl ForwardKernel for Avx2 {
+        #[inline(always)]
+        unsafe fn prefetch(p: *const Splat2D) {
+            _mm_prefetch::<_MM_HINT_T0>(p as *const i8);
+        }
+        #[inline(always)]
+        unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
+            row_mask(sp, tc)
+        }
+        #[inline(always)]
+        unsafe fn composite_row(
+            splats: &[Splat2D],
+            batch: &[u32],
+            k_base: u32,
+            bits: u64,
+            row: &mut RowState,
+            active: &mut u16,
+            tc: &TileCoords,
+            py: f32,
+            max_alpha: f32,
+        ) -> u32 {
+            let mut pairs = 0;
+            for h in 0..2 {
+                pairs += composite_half(
+                    h, splats, batch, k_base, bits, row, active, tc, py, max_alpha,
+                );
+            }
+            pairs
+        }
+    }
+}
+
 /// The compositing state of one tile.
 #[derive(Default)]
 pub(crate) struct TileState {
@@ -689,7 +882,7 @@ fn raster_tile_portable<const SMOOTH: bool>(
     }
 }
 
-/// The portable tile kernel compiled for AVX2 + FMA (auto-vectorised; same results).
+/// The AVX2 tile kernel (the smooth cutoff runs the portable twin inside it).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn raster_tile_avx2<const SMOOTH: bool>(
@@ -701,9 +894,9 @@ fn raster_tile_avx2<const SMOOTH: bool>(
     max_alpha: f32,
     st: &mut TileState,
 ) -> u64 {
-    // SAFETY: the portable kernel has no instruction-set requirement.
+    // SAFETY: this function is only compiled for, and called on, CPUs with AVX2 + FMA.
     unsafe {
-        raster_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st)
+        raster_tile_impl::<avx2::Avx2, SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st)
     }
 }
 
@@ -1509,6 +1702,50 @@ pub(crate) mod tests {
         }
         assert_eq!(exp_neg(0.0), 1.0);
         assert!(exp_neg(-1e30) >= 0.0 && exp_neg(-1e30) < 1e-37);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_gaussian_falloff_matches_the_scalar_one_bit_for_bit() {
+        if !(std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma"))
+        {
+            eprintln!("no AVX2 + FMA on this CPU: skipped");
+            return;
+        }
+        let mut sigmas: Vec<f32> = (0..4096).map(|i| i as f32 * 0.0093).collect();
+        sigmas.extend([
+            -1.0,
+            -0.0,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            SIGMA_CLAMP,
+            1e-30,
+        ]);
+        for chunk in sigmas.chunks(8) {
+            let mut v = [0.0f32; 8];
+            v[..chunk.len()].copy_from_slice(chunk);
+            let mut out = [0.0f32; 8];
+            // SAFETY: AVX2 + FMA availability was checked above.
+            unsafe {
+                use std::arch::x86_64::*;
+                #[target_feature(enable = "avx2,fma")]
+                unsafe fn go(v: &[f32; 8], out: &mut [f32; 8]) {
+                    let s = _mm256_loadu_ps(v.as_ptr());
+                    _mm256_storeu_ps(out.as_mut_ptr(), avx2::gauss_v(s));
+                }
+                go(&v, &mut out);
+            }
+            for l in 0..8 {
+                assert_eq!(
+                    out[l].to_bits(),
+                    gauss_of_sigma(v[l]).to_bits(),
+                    "sigma {}",
+                    v[l]
+                );
+            }
+        }
     }
 
     #[cfg(target_arch = "x86_64")]
