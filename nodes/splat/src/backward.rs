@@ -177,6 +177,16 @@ trait BackwardKernel {
     /// # Safety
     /// The CPU must support the kernel's instruction set.
     unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16;
+    /// Row masks of one Gaussian per half of the tile: bits 0–15 for its left eight pixel
+    /// columns, bits 16–31 for the right eight (the default, for kernels that take whole
+    /// rows, repeats the whole-row mask).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn half_row_masks(sp: &Splat2D, tc: &TileCoords) -> u32 {
+        let m = Self::row_mask(sp, tc) as u32;
+        m | (m << 16)
+    }
     /// Hard-cutoff backward of one Gaussian (see [`backward_gaussian_portable`]).
     ///
     /// # Safety
@@ -189,6 +199,23 @@ trait BackwardKernel {
         tc: &TileCoords,
         max_alpha: f32,
     ) -> LaneSums;
+    /// [`BackwardKernel::backward_gaussian`] over the left halves of the rows `left` and the
+    /// right halves of the rows `right` (the default takes whole rows: every pixel outside
+    /// the Gaussian's chord is skipped by the compositing rule anyway).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn backward_halves(
+        sp: &Splat2D,
+        k: u32,
+        left: u16,
+        right: u16,
+        tile: &mut BwdTile,
+        tc: &TileCoords,
+        max_alpha: f32,
+    ) -> LaneSums {
+        Self::backward_gaussian(sp, k, left | right, tile, tc, max_alpha)
+    }
 }
 
 /// The portable kernels.
@@ -382,7 +409,7 @@ mod avx512 {
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use super::*;
-    use crate::forward::avx2::{gauss_v, row_mask};
+    use crate::forward::avx2::{gauss_v, half_row_masks, row_mask};
     use std::arch::x86_64::*;
 
     /// The first two levels of [`tree_sum16`] for ten accumulators: `lo[q] + hi[q]` gives
@@ -495,6 +522,10 @@ mod avx2 {
             row_mask(sp, tc)
         }
         #[inline(always)]
+        unsafe fn half_row_masks(sp: &Splat2D, tc: &TileCoords) -> u32 {
+            half_row_masks(sp, tc)
+        }
+        #[inline(always)]
         unsafe fn backward_gaussian(
             sp: &Splat2D,
             k: u32,
@@ -503,8 +534,20 @@ mod avx2 {
             tc: &TileCoords,
             max_alpha: f32,
         ) -> LaneSums {
-            let lo = backward_half(0, sp, k, rows, tile, tc, max_alpha);
-            let hi = backward_half(1, sp, k, rows, tile, tc, max_alpha);
+            Self::backward_halves(sp, k, rows, rows, tile, tc, max_alpha)
+        }
+        #[inline(always)]
+        unsafe fn backward_halves(
+            sp: &Splat2D,
+            k: u32,
+            left: u16,
+            right: u16,
+            tile: &mut BwdTile,
+            tc: &TileCoords,
+            max_alpha: f32,
+        ) -> LaneSums {
+            let lo = backward_half(0, sp, k, left, tile, tc, max_alpha);
+            let hi = backward_half(1, sp, k, right, tile, tc, max_alpha);
             reduce10(&lo, &hi)
         }
     }
@@ -564,15 +607,16 @@ unsafe fn backward_tile_impl<K: BackwardKernel, const SMOOTH: bool>(
             live |= ((kk < m) as u16) << ly;
         }
         let sp = &splats[list[k] as usize];
-        let rows = K::row_mask(sp, &tc) & live;
-        if rows == 0 {
+        let halves = K::half_row_masks(sp, &tc);
+        let (left, right) = (halves as u16 & live, (halves >> 16) as u16 & live);
+        if left | right == 0 {
             emit(k, [0.0; 10]);
             continue;
         }
         let sums = if SMOOTH {
-            backward_gaussian_portable::<true>(sp, kk, rows, tile, &tc, max_alpha)
+            backward_gaussian_portable::<true>(sp, kk, left | right, tile, &tc, max_alpha)
         } else {
-            K::backward_gaussian(sp, kk, rows, tile, &tc, max_alpha)
+            K::backward_halves(sp, kk, left, right, tile, &tc, max_alpha)
         };
         emit(k, finish(sp, &sums));
     }

@@ -281,8 +281,8 @@ impl Default for RowState {
     }
 }
 
-/// Portable compositing of one row over the set bits of `bits` (entries of `batch`, front to
-/// back); returns the number of composited pairs.
+/// Portable compositing of the pixels `lanes` of one row over the set bits of `bits` (entries
+/// of `batch`, front to back); returns the number of composited pairs.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn composite_row_portable<const SMOOTH: bool>(
@@ -295,16 +295,18 @@ fn composite_row_portable<const SMOOTH: bool>(
     tc: &TileCoords,
     py: f32,
     max_alpha: f32,
+    lanes: std::ops::Range<usize>,
 ) -> u32 {
     let mut pairs = 0u32;
     let mut act = *active;
+    let lane_bits = lanes.clone().fold(0u16, |m, l| m | (1 << l));
     while bits != 0 {
         let j = bits.trailing_zeros();
         bits &= bits - 1;
         let sp = &splats[batch[j as usize] as usize];
         let g = RowGeom::new(sp, py);
         let kk = k_base + j + 1;
-        for l in 0..16 {
+        for l in lanes.clone() {
             let dx = sp.x - tc.px[l];
             let sigma = g.sigma(dx);
             let a1 = (sp.opacity * gauss_of_sigma(sigma)).min(max_alpha);
@@ -331,7 +333,7 @@ fn composite_row_portable<const SMOOTH: bool>(
             row.last[l] = kk;
             pairs += 1;
         }
-        if act == 0 {
+        if act & lane_bits == 0 {
             break;
         }
     }
@@ -359,6 +361,50 @@ pub(crate) trait ForwardKernel {
     /// # Safety
     /// The CPU must support the kernel's instruction set.
     unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16;
+    /// Whether the kernel composites the two 8-pixel halves of a row separately: the tile
+    /// loop then tests rows per half ([`ForwardKernel::half_row_masks`]) and skips the
+    /// halves a Gaussian cannot reach ([`ForwardKernel::composite_half`]).
+    const HALF_ROWS: bool = false;
+    /// Row masks of one Gaussian per half: bits 0–15 for the tile's left eight pixel
+    /// columns, bits 16–31 for the right eight (the default repeats the whole-row mask).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    unsafe fn half_row_masks(sp: &Splat2D, tc: &TileCoords) -> u32 {
+        let m = Self::row_mask(sp, tc) as u32;
+        m | (m << 16)
+    }
+    /// Hard-cutoff compositing of the pixels `8·h .. 8·h + 8` of one row (the default runs
+    /// the portable twin on them).
+    ///
+    /// # Safety
+    /// The CPU must support the kernel's instruction set.
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn composite_half(
+        h: usize,
+        splats: &[Splat2D],
+        batch: &[u32],
+        k_base: u32,
+        bits: u64,
+        row: &mut RowState,
+        active: &mut u16,
+        tc: &TileCoords,
+        py: f32,
+        max_alpha: f32,
+    ) -> u32 {
+        composite_row_portable::<false>(
+            splats,
+            batch,
+            k_base,
+            bits,
+            row,
+            active,
+            tc,
+            py,
+            max_alpha,
+            8 * h..8 * h + 8,
+        )
+    }
     /// Hard-cutoff compositing of one row (see [`composite_row_portable`]).
     ///
     /// # Safety
@@ -409,7 +455,18 @@ impl ForwardKernel for Portable {
         py: f32,
         max_alpha: f32,
     ) -> u32 {
-        composite_row_portable::<false>(splats, batch, k_base, bits, row, active, tc, py, max_alpha)
+        composite_row_portable::<false>(
+            splats,
+            batch,
+            k_base,
+            bits,
+            row,
+            active,
+            tc,
+            py,
+            max_alpha,
+            0..16,
+        )
     }
 }
 
@@ -624,9 +681,10 @@ pub(crate) mod avx2 {
         exp_core_v(_mm256_sub_ps(zero, sc))
     }
 
-    /// [`row_mask_portable`] for the eight rows whose centres are `py`.
+    /// [`row_mask_portable`] for the eight rows whose centres are `py`, with the chord tested
+    /// against the pixel centres `left ..= right`.
     #[inline(always)]
-    unsafe fn row_mask8(sp: &Splat2D, tc: &TileCoords, py: __m256) -> u32 {
+    unsafe fn row_mask8(sp: &Splat2D, py: __m256, left: f32, right: f32) -> u32 {
         let zero = _mm256_setzero_ps();
         let dy = _mm256_sub_ps(_mm256_set1_ps(sp.y), py);
         let dy2 = _mm256_mul_ps(dy, dy);
@@ -644,21 +702,34 @@ pub(crate) mod avx2 {
         let m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_GE_OQ>(w2, zero));
         let m = _mm256_and_ps(
             m,
-            _mm256_cmp_ps::<_CMP_GE_OQ>(_mm256_add_ps(centre, half), _mm256_set1_ps(tc.left)),
+            _mm256_cmp_ps::<_CMP_GE_OQ>(_mm256_add_ps(centre, half), _mm256_set1_ps(left)),
         );
         let m = _mm256_and_ps(
             m,
-            _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_sub_ps(centre, half), _mm256_set1_ps(tc.right)),
+            _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_sub_ps(centre, half), _mm256_set1_ps(right)),
         );
         _mm256_movemask_ps(m) as u32
+    }
+
+    /// The 16 row bits of `row_mask8` over both groups of eight rows.
+    #[inline(always)]
+    unsafe fn row_mask16(sp: &Splat2D, tc: &TileCoords, left: f32, right: f32) -> u32 {
+        let top = row_mask8(sp, _mm256_load_ps(tc.py.as_ptr()), left, right);
+        let bottom = row_mask8(sp, _mm256_load_ps(tc.py.as_ptr().add(8)), left, right);
+        top | (bottom << 8)
     }
 
     /// [`row_mask_portable`] with the 16 rows as two vectors of lanes.
     #[inline(always)]
     pub(crate) unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
-        let lo = row_mask8(sp, tc, _mm256_load_ps(tc.py.as_ptr()));
-        let hi = row_mask8(sp, tc, _mm256_load_ps(tc.py.as_ptr().add(8)));
-        (lo | (hi << 8)) as u16
+        row_mask16(sp, tc, tc.left, tc.right) as u16
+    }
+
+    /// [`ForwardKernel::half_row_masks`]: the row test against the left eight and the right
+    /// eight pixel centres.
+    #[inline(always)]
+    pub(crate) unsafe fn half_row_masks(sp: &Splat2D, tc: &TileCoords) -> u32 {
+        row_mask16(sp, tc, tc.left, tc.px[7]) | (row_mask16(sp, tc, tc.px[8], tc.right) << 16)
     }
 
     /// Lane `l` all ones where bit `l` of `bits` is set.
@@ -752,6 +823,7 @@ pub(crate) mod avx2 {
     pub(crate) struct Avx2;
 
     impl ForwardKernel for Avx2 {
+        const HALF_ROWS: bool = true;
         #[inline(always)]
         unsafe fn prefetch(p: *const Splat2D) {
             _mm_prefetch::<_MM_HINT_T0>(p as *const i8);
@@ -759,6 +831,27 @@ pub(crate) mod avx2 {
         #[inline(always)]
         unsafe fn row_mask(sp: &Splat2D, tc: &TileCoords) -> u16 {
             row_mask(sp, tc)
+        }
+        #[inline(always)]
+        unsafe fn half_row_masks(sp: &Splat2D, tc: &TileCoords) -> u32 {
+            half_row_masks(sp, tc)
+        }
+        #[inline(always)]
+        unsafe fn composite_half(
+            h: usize,
+            splats: &[Splat2D],
+            batch: &[u32],
+            k_base: u32,
+            bits: u64,
+            row: &mut RowState,
+            active: &mut u16,
+            tc: &TileCoords,
+            py: f32,
+            max_alpha: f32,
+        ) -> u32 {
+            composite_half(
+                h, splats, batch, k_base, bits, row, active, tc, py, max_alpha,
+            )
         }
         #[inline(always)]
         unsafe fn composite_row(
@@ -804,6 +897,17 @@ unsafe fn raster_tile_impl<K: ForwardKernel, const SMOOTH: bool>(
     max_alpha: f32,
     st: &mut TileState,
 ) -> u64 {
+    if K::HALF_ROWS {
+        return raster_tile_halves_impl::<K, SMOOTH>(
+            splats,
+            list,
+            x0,
+            y0,
+            active_init,
+            max_alpha,
+            st,
+        );
+    }
     let tc = TileCoords::new(x0, y0);
     let mut active = *active_init;
     let mut live = 0u16;
@@ -843,6 +947,7 @@ unsafe fn raster_tile_impl<K: ForwardKernel, const SMOOTH: bool>(
                     &tc,
                     tc.py[ly],
                     max_alpha,
+                    0..16,
                 )
             } else {
                 K::composite_row(
@@ -860,6 +965,93 @@ unsafe fn raster_tile_impl<K: ForwardKernel, const SMOOTH: bool>(
             pairs += p as u64;
             if active[ly] == 0 {
                 live &= !(1u16 << ly);
+            }
+        }
+    }
+    pairs
+}
+
+/// [`raster_tile_impl`] for kernels that composite half rows: a (Gaussian, half row) is
+/// visited only when the Gaussian's α ≥ 1/255 chord on that row reaches the half's pixel
+/// centres. The test is conservative, so every pixel sees the same Gaussians, in the same
+/// order, as with whole rows.
+///
+/// # Safety
+/// The CPU must support `K`'s instruction set.
+#[inline(always)]
+unsafe fn raster_tile_halves_impl<K: ForwardKernel, const SMOOTH: bool>(
+    splats: &[Splat2D],
+    list: &[u32],
+    x0: u32,
+    y0: u32,
+    active_init: &[u16; 16],
+    max_alpha: f32,
+    st: &mut TileState,
+) -> u64 {
+    let tc = TileCoords::new(x0, y0);
+    let mut active = *active_init;
+    // Bit 16·h + ly: half h of row ly still has pixels to composite.
+    let mut live = 0u32;
+    for (ly, a) in active.iter().enumerate() {
+        live |= (((*a & 0xff) != 0) as u32) << ly;
+        live |= (((*a >> 8) != 0) as u32) << (16 + ly);
+    }
+    let mut pairs = 0u64;
+    for (bi, batch) in list.chunks(BATCH).enumerate() {
+        if live == 0 {
+            break;
+        }
+        let mut masks = [[0u16; BATCH]; 2];
+        for (j, &rank) in batch.iter().enumerate() {
+            if let Some(&ahead) = batch.get(j + PREFETCH_AHEAD) {
+                K::prefetch(splats.as_ptr().wrapping_add(ahead as usize));
+            }
+            let m = K::half_row_masks(&splats[rank as usize], &tc) & live;
+            masks[0][j] = m as u16;
+            masks[1][j] = (m >> 16) as u16;
+        }
+        let rowbits = [K::transpose(&masks[0]), K::transpose(&masks[1])];
+        let k_base = (bi * BATCH) as u32;
+        let mut rows = live;
+        while rows != 0 {
+            let b = rows.trailing_zeros() as usize;
+            rows &= rows - 1;
+            let (h, ly) = (b / 16, b % 16);
+            let bits = rowbits[h][ly];
+            if bits == 0 {
+                continue;
+            }
+            let row = &mut st.rows[ly];
+            let p = if SMOOTH {
+                composite_row_portable::<true>(
+                    splats,
+                    batch,
+                    k_base,
+                    bits,
+                    row,
+                    &mut active[ly],
+                    &tc,
+                    tc.py[ly],
+                    max_alpha,
+                    8 * h..8 * h + 8,
+                )
+            } else {
+                K::composite_half(
+                    h,
+                    splats,
+                    batch,
+                    k_base,
+                    bits,
+                    row,
+                    &mut active[ly],
+                    &tc,
+                    tc.py[ly],
+                    max_alpha,
+                )
+            };
+            pairs += p as u64;
+            if (active[ly] >> (8 * h)) & 0xff == 0 {
+                live &= !(1u32 << b);
             }
         }
     }
