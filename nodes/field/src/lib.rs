@@ -17,6 +17,8 @@ pub mod contraction;
 pub mod error;
 pub mod field;
 #[cfg(target_arch = "x86_64")]
+mod gemm256;
+#[cfg(target_arch = "x86_64")]
 mod gemm512;
 pub mod hashgrid;
 pub mod io;

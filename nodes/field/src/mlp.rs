@@ -12,8 +12,11 @@
 //! is cut into column blocks: a layer output is `b + Σ_i w_i x_i` in `i` order; a weight
 //! gradient is the sequential sum over the batch columns in order; a bias gradient sums 16
 //! lane-strided partial sums (lane `l` takes columns `≡ l mod 16`, in order) and combines them
-//! pairwise. The AVX-512 and AVX2 paths use fused multiply-adds, the portable path does not,
-//! so results are bit-identical for any thread count on one machine. An f64 reference lives in
+//! pairwise. The register-blocked AVX-512 (`gemm512.rs`) and AVX2 + FMA (`gemm256.rs`)
+//! kernels use fused multiply-adds in exactly that order (the AVX2 ones are tested bit for bit
+//! against the portable kernels run with fused multiply-adds); the portable path on CPUs
+//! without them does not fuse. Results are therefore bit-identical for any thread count on one
+//! machine, and across AVX-512 and AVX2 machines. An f64 reference lives in
 //! [`crate::reference`].
 
 /// Batch padding granularity (one AVX-512 register of f32).
@@ -279,22 +282,6 @@ fn product(
     }
     #[cfg(target_arch = "x86_64")]
     {
-        #[target_feature(enable = "avx2,fma")]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn v256(
-            w: &[f32],
-            b: Option<&[f32]>,
-            x: &[f32],
-            ldx: usize,
-            y: &mut [f32],
-            ldy: usize,
-            inp: usize,
-            out: usize,
-            ncols: usize,
-            store: Store<'_>,
-        ) {
-            fwd_body::<4, true>(w, b, x, ldx, y, ldy, inp, out, ncols, store)
-        }
         if has_avx512() {
             // SAFETY: the CPU supports AVX-512F (checked); shapes checked above.
             return unsafe {
@@ -302,8 +289,10 @@ fn product(
             };
         }
         if has_avx2() {
-            // SAFETY: the CPU supports the enabled features (checked).
-            return unsafe { v256(w, b, x, ldx, y, ldy, inp, out, ncols, store) };
+            // SAFETY: the CPU supports AVX2 and FMA (checked); shapes checked above.
+            return unsafe {
+                crate::gemm256::forward(w, b, x, ldx, y, ldy, inp, out, ncols, store)
+            };
         }
     }
     fwd_body::<4, false>(w, b, x, ldx, y, ldy, inp, out, ncols, store)
@@ -332,22 +321,6 @@ fn weight_grad(
     );
     #[cfg(target_arch = "x86_64")]
     {
-        #[target_feature(enable = "avx2,fma")]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn v256(
-            dy: &[f32],
-            lddy: usize,
-            x: &[f32],
-            ldx: usize,
-            dwp: &mut [f32],
-            lane_sums: &mut [f32],
-            inp: usize,
-            out: usize,
-            ncols: usize,
-            xt: &mut Vec<f32>,
-        ) {
-            dw_body::<true>(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt)
-        }
         if has_avx512() {
             // SAFETY: the CPU supports AVX-512F (checked); shapes checked above.
             return unsafe {
@@ -357,8 +330,12 @@ fn weight_grad(
             };
         }
         if has_avx2() {
-            // SAFETY: the CPU supports the enabled features (checked).
-            return unsafe { v256(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt) };
+            // SAFETY: the CPU supports AVX2 and FMA (checked); shapes checked above.
+            return unsafe {
+                crate::gemm256::backward_weights(
+                    dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt,
+                )
+            };
         }
     }
     dw_body::<false>(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt)
@@ -1030,6 +1007,223 @@ mod tests {
         );
         assert_eq!(grad15, want_grad);
         assert_eq!(dx15, want_dx[..15 * ld]);
+    }
+
+    /// `f64` value of `b[o] + Σ_i w[o·inp + i] · x[i][c]` after `store`.
+    #[allow(clippy::too_many_arguments)]
+    fn fwd_ref(
+        w: &[f32],
+        b: Option<&[f32]>,
+        x: &[f32],
+        ldx: usize,
+        inp: usize,
+        o: usize,
+        c: usize,
+        store: Store<'_>,
+    ) -> f64 {
+        let r = b.map_or(0.0, |b| b[o] as f64)
+            + (0..inp)
+                .map(|i| w[o * inp + i] as f64 * x[i * ldx + c] as f64)
+                .sum::<f64>();
+        match store {
+            Store::Linear => r,
+            Store::Relu => r.max(0.0),
+            Store::MaskPositive(m, ldm) => {
+                if m[o * ldm + c] > 0.0 {
+                    r
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+
+    /// The AVX2 register-blocked kernels ([`crate::gemm256`]) give exactly the bits of the
+    /// portable kernels with fused multiply-adds (the contract every path keeps), for the real
+    /// layer shapes (forward and the transposed input-gradient products), tile remainders of
+    /// every size, column counts that are odd multiples of [`LANES`], separate row strides,
+    /// all store modes, with and without bias; and they agree with `f64` sums.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_kernels_match_portable_bitwise() {
+        if !has_avx2() {
+            eprintln!("skipping avx2_kernels_match_portable_bitwise: the CPU lacks AVX2/FMA");
+            return;
+        }
+        let mut rng = Rng::new(21);
+        let mut xt_a = Vec::new();
+        let mut xt_b = Vec::new();
+        // (inp, out, ncols, ld padding of x, of y): the field's layers 32→64, 64→16, 31→64,
+        // 64→64, 64→3 and their transposes, then odd shapes.
+        for &(inp, out, ncols, px, py) in &[
+            (32usize, 64usize, 512usize, 0usize, 16usize),
+            (64, 64, 512, 16, 0),
+            (64, 16, 208, 0, 32),
+            (31, 64, 144, 16, 16),
+            (64, 3, 176, 0, 0),
+            (64, 3, 48, 32, 16),
+            (64, 32, 80, 0, 16),
+            (16, 64, 112, 16, 0),
+            (3, 64, 16, 0, 16),
+            (15, 64, 336, 0, 0),
+            (1, 1, 16, 0, 0),
+            (2, 5, 32, 16, 0),
+            (7, 2, 48, 0, 16),
+            (17, 9, 80, 16, 16),
+            (40, 7, 1040, 0, 0),
+            (100, 70, 272, 0, 16),
+            (5, 13, 16, 16, 32),
+        ] {
+            let (ldx, ldy) = (ncols + px, ncols + py);
+            let w: Vec<f32> = (0..inp * out)
+                .map(|_| rng.uniform(-0.5, 0.5) as f32)
+                .collect();
+            let b: Vec<f32> = (0..out).map(|_| rng.uniform(-0.5, 0.5) as f32).collect();
+            let x = batch(&mut rng, inp, ldx, ldx);
+            let dy = batch(&mut rng, out, ldy, ldy);
+            let mask = batch(&mut rng, out, ldy, ldy);
+            for mode in 0..3 {
+                for bias in [Some(&b[..]), None] {
+                    let store = match mode {
+                        0 => Store::Linear,
+                        1 => Store::Relu,
+                        _ => Store::MaskPositive(&mask, ldy),
+                    };
+                    // Padding columns past `ncols` must stay untouched.
+                    let mut got = vec![f32::NAN; out * ldy];
+                    let mut want = got.clone();
+                    // SAFETY: AVX2 and FMA checked above; every row holds `ncols` columns.
+                    unsafe {
+                        crate::gemm256::forward(
+                            &w, bias, &x, ldx, &mut got, ldy, inp, out, ncols, store,
+                        )
+                    };
+                    fwd_body::<4, true>(&w, bias, &x, ldx, &mut want, ldy, inp, out, ncols, store);
+                    let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(
+                        bits(&got),
+                        bits(&want),
+                        "fwd {inp}->{out} x{ncols} mode {mode}"
+                    );
+                    for o in 0..out {
+                        for c in 0..ncols {
+                            let r = fwd_ref(&w, bias, &x, ldx, inp, o, c, store);
+                            let g = got[o * ldy + c] as f64;
+                            assert!(
+                                (g - r).abs() < 1e-5 * (1.0 + r.abs()),
+                                "fwd {inp}->{out} mode {mode} ({o},{c}): {g} vs {r}"
+                            );
+                        }
+                    }
+                }
+            }
+            // Weight gradient over the same shapes, accumulating onto non-zero values.
+            let inp_pad = inp.div_ceil(LANES) * LANES;
+            let dwp0: Vec<f32> = (0..out * inp_pad)
+                .map(|_| rng.uniform(-0.5, 0.5) as f32)
+                .collect();
+            let ls0: Vec<f32> = (0..out * LANES)
+                .map(|_| rng.uniform(-0.5, 0.5) as f32)
+                .collect();
+            let (mut dwp, mut ls) = (dwp0.clone(), ls0.clone());
+            let (mut want_dwp, mut want_ls) = (dwp0.clone(), ls0.clone());
+            // SAFETY: AVX2 and FMA checked above; buffers sized for the shapes.
+            unsafe {
+                crate::gemm256::backward_weights(
+                    &dy, ldy, &x, ldx, &mut dwp, &mut ls, inp, out, ncols, &mut xt_a,
+                )
+            };
+            dw_body::<true>(
+                &dy,
+                ldy,
+                &x,
+                ldx,
+                &mut want_dwp,
+                &mut want_ls,
+                inp,
+                out,
+                ncols,
+                &mut xt_b,
+            );
+            let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&dwp), bits(&want_dwp), "dW {inp}->{out} x{ncols}");
+            assert_eq!(bits(&ls), bits(&want_ls), "lane sums {inp}->{out} x{ncols}");
+            for o in 0..out {
+                for i in 0..inp {
+                    let r: f64 = dwp0[o * inp_pad + i] as f64
+                        + (0..ncols)
+                            .map(|c| dy[o * ldy + c] as f64 * x[i * ldx + c] as f64)
+                            .sum::<f64>();
+                    let g = dwp[o * inp_pad + i] as f64;
+                    assert!(
+                        (g - r).abs() < 1e-4 * (1.0 + r.abs()),
+                        "dW {inp}->{out} ({o},{i}): {g} vs {r}"
+                    );
+                }
+                let r: f64 = (0..LANES).map(|l| ls0[o * LANES + l] as f64).sum::<f64>()
+                    + (0..ncols).map(|c| dy[o * ldy + c] as f64).sum::<f64>();
+                let g = hsum(ls[o * LANES..(o + 1) * LANES].try_into().unwrap()) as f64;
+                assert!((g - r).abs() < 1e-4 * (1.0 + r.abs()), "db {o}: {g} vs {r}");
+            }
+        }
+    }
+
+    /// Non-finite values flow through the AVX2 forward kernel as through the portable one:
+    /// ReLU maps NaN to 0, the mask keeps or zeroes NaN and infinities alike.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_forward_handles_non_finite_like_portable() {
+        if !has_avx2() {
+            eprintln!("skipping avx2_forward_handles_non_finite_like_portable: no AVX2/FMA");
+            return;
+        }
+        let mut rng = Rng::new(22);
+        let (inp, out, ld) = (9usize, 7usize, 64usize);
+        let w: Vec<f32> = (0..inp * out)
+            .map(|_| rng.uniform(-0.5, 0.5) as f32)
+            .collect();
+        let mut x = batch(&mut rng, inp, ld, ld);
+        x[3 * ld + 5] = f32::NAN;
+        x[ld + 17] = f32::INFINITY;
+        x[40] = f32::NEG_INFINITY;
+        let mut mask = batch(&mut rng, out, ld, ld);
+        mask[2 * ld + 5] = f32::NAN;
+        for mode in 0..3 {
+            let store = match mode {
+                0 => Store::Linear,
+                1 => Store::Relu,
+                _ => Store::MaskPositive(&mask, ld),
+            };
+            let mut got = vec![0f32; out * ld];
+            let mut want = vec![0f32; out * ld];
+            // SAFETY: AVX2 and FMA checked above; every row holds `ld` columns.
+            unsafe { crate::gemm256::forward(&w, None, &x, ld, &mut got, ld, inp, out, ld, store) };
+            fwd_body::<4, true>(&w, None, &x, ld, &mut want, ld, inp, out, ld, store);
+            for (k, (g, e)) in got.iter().zip(&want).enumerate() {
+                assert!(
+                    g.to_bits() == e.to_bits() || (g.is_nan() && e.is_nan()),
+                    "mode {mode} at {k}: {g} vs {e}"
+                );
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn transpose8_is_a_transpose() {
+        if !has_avx2() {
+            eprintln!("skipping transpose8_is_a_transpose: the CPU lacks AVX2/FMA");
+            return;
+        }
+        let src: [f32; 64] = std::array::from_fn(|i| i as f32);
+        let mut dst = [0f32; 64];
+        // SAFETY: AVX2 checked above.
+        unsafe { crate::gemm256::transpose8_slice(&src, &mut dst) };
+        for r in 0..8 {
+            for c in 0..8 {
+                assert_eq!(dst[c * 8 + r], src[r * 8 + c], "({r},{c})");
+            }
+        }
     }
 
     #[cfg(target_arch = "x86_64")]

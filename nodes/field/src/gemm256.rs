@@ -1,0 +1,439 @@
+//! AVX2 + FMA register-blocked kernels for the dense layers of [`crate::mlp`] (x86-64 only),
+//! for CPUs without AVX-512 (e.g. AMD Zen 2/3). The structure follows [`crate::gemm512`] with
+//! 8-lane ymm registers and 16 of them instead of 32:
+//!
+//! - Forward / input gradient: a tile of up to 6 outputs × 16 batch columns (2 ymm each), or of
+//!   up to 3 outputs × 32 columns when the layer has at most 3 outputs, lives in 12 ymm
+//!   accumulators; every step of the reduction loads the tile's column vectors and broadcasts
+//!   one weight per output. Bias, ReLU or the ReLU mask of the layer below are applied in the
+//!   store. Each output sums `b + Σ_i w_i x_i` in `i` order with fused multiply-adds — the same
+//!   operations, hence the same bits, as the auto-vectorised path with fused multiply-adds and
+//!   as the AVX-512 kernels.
+//! - Weight gradient `dW = δ·Xᵀ`: the batch is cut into blocks of `kc` columns; each block of
+//!   `X` is transposed (8×8 in-register transposes) to sample-major rows, then a tile of up to
+//!   6 outputs × 16 inputs (or 3 outputs × 32 inputs) accumulates in registers, one sample
+//!   after the other. Every weight gradient is therefore the sequential fused sum over the
+//!   batch in column order, independent of block sizes. The bias lane sums keep the 16 lanes of
+//!   [`crate::mlp::LANES`] (two ymm halves), so they add exactly the same numbers.
+//!
+//! The callers check slice lengths; these functions are `unsafe` because they require AVX2
+//! and FMA and read through raw pointers within those checked bounds.
+
+use std::arch::x86_64::*;
+
+use crate::mlp::Store;
+
+/// Store modes of the forward tile (const generic so the store loop is fully unrolled).
+const LINEAR: u8 = 0;
+const RELU: u8 = 1;
+const MASK: u8 = 2;
+
+/// Floats per ymm register.
+const V: usize = 8;
+
+/// Row strides of the forward kernel's operands.
+#[derive(Clone, Copy)]
+struct Strides {
+    x: usize,
+    y: usize,
+    m: usize,
+}
+
+/// One forward tile: outputs `o0..o0 + OB` × columns `base..base + 8·T`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fwd_tile<const OB: usize, const T: usize, const MODE: u8>(
+    w: *const f32,
+    b: Option<*const f32>,
+    x: *const f32,
+    y: *mut f32,
+    mask: *const f32,
+    inp: usize,
+    o0: usize,
+    ld: Strides,
+    base: usize,
+    prefetch_next: bool,
+) {
+    // Bring the tile's output (and mask) lines in while the reduction runs.
+    for k in 0..OB {
+        for t in (0..T).step_by(2) {
+            let c = base + V * t;
+            _mm_prefetch::<_MM_HINT_T0>(y.add((o0 + k) * ld.y + c) as *const i8);
+            if MODE == MASK {
+                _mm_prefetch::<_MM_HINT_T0>(mask.add((o0 + k) * ld.m + c) as *const i8);
+            }
+        }
+    }
+    let mut acc = [[_mm256_setzero_ps(); T]; OB];
+    if let Some(b) = b {
+        for k in 0..OB {
+            let bv = _mm256_set1_ps(*b.add(o0 + k));
+            for t in 0..T {
+                acc[k][t] = bv;
+            }
+        }
+    }
+    let wp = w.add(o0 * inp);
+    let xp = x.add(base);
+    for i in 0..inp {
+        let mut xv = [_mm256_setzero_ps(); T];
+        for t in 0..T {
+            xv[t] = _mm256_loadu_ps(xp.add(i * ld.x + V * t));
+        }
+        if prefetch_next {
+            // The next column panel (the row stride defeats the hardware prefetcher).
+            for t in (0..T).step_by(2) {
+                _mm_prefetch::<_MM_HINT_T0>(xp.add(i * ld.x + V * (T + t)) as *const i8);
+            }
+        }
+        for k in 0..OB {
+            let wk = _mm256_broadcast_ss(&*wp.add(k * inp + i));
+            for t in 0..T {
+                acc[k][t] = _mm256_fmadd_ps(wk, xv[t], acc[k][t]);
+            }
+        }
+    }
+    let zero = _mm256_setzero_ps();
+    for k in 0..OB {
+        for t in 0..T {
+            let c = base + V * t;
+            let v = if MODE == RELU {
+                // max(acc, 0) returns the second operand (0) when acc is NaN.
+                _mm256_max_ps(acc[k][t], zero)
+            } else if MODE == MASK {
+                let mv = _mm256_loadu_ps(mask.add((o0 + k) * ld.m + c));
+                let keep = _mm256_cmp_ps::<_CMP_GT_OQ>(mv, zero);
+                _mm256_and_ps(keep, acc[k][t])
+            } else {
+                acc[k][t]
+            };
+            _mm256_storeu_ps(y.add((o0 + k) * ld.y + c), v);
+        }
+    }
+}
+
+/// All outputs of one column panel of `8·T` columns: tiles of `OB` outputs, then one tile of
+/// the remaining `< OB` outputs (`OB ≤ 6`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fwd_columns<const T: usize, const OB: usize, const MODE: u8>(
+    w: *const f32,
+    b: Option<*const f32>,
+    x: *const f32,
+    y: *mut f32,
+    mask: *const f32,
+    inp: usize,
+    out: usize,
+    ld: Strides,
+    ncols: usize,
+    base: usize,
+) {
+    // Prefetch the next panel during the first tile (if there is a next panel).
+    let pf = base + V * T < ncols;
+    let mut o0 = 0;
+    while o0 + OB <= out {
+        fwd_tile::<OB, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf && o0 == 0);
+        o0 += OB;
+    }
+    let pf = pf && o0 == 0;
+    match out - o0 {
+        0 => {}
+        1 => fwd_tile::<1, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
+        2 => fwd_tile::<2, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
+        3 => fwd_tile::<3, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
+        4 => fwd_tile::<4, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
+        _ => fwd_tile::<5, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
+    }
+}
+
+/// Every column panel: panels of `8·T` columns, then one of 16 or 8 columns for the rest.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fwd_all<const T: usize, const OB: usize, const MODE: u8>(
+    w: *const f32,
+    b: Option<*const f32>,
+    x: *const f32,
+    y: *mut f32,
+    mask: *const f32,
+    inp: usize,
+    out: usize,
+    ld: Strides,
+    ncols: usize,
+) {
+    let mut base = 0;
+    while base + V * T <= ncols {
+        fwd_columns::<T, OB, MODE>(w, b, x, y, mask, inp, out, ld, ncols, base);
+        base += V * T;
+    }
+    if base + 2 * V <= ncols {
+        fwd_columns::<2, 6, MODE>(w, b, x, y, mask, inp, out, ld, ncols, base);
+        base += 2 * V;
+    }
+    if base < ncols {
+        fwd_columns::<1, 6, MODE>(w, b, x, y, mask, inp, out, ld, ncols, base);
+    }
+}
+
+/// Picks the tile shape: 6 outputs × 2 vectors, or `out` (≤ 3) outputs × 4 vectors.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fwd_mode<const MODE: u8>(
+    w: *const f32,
+    b: Option<*const f32>,
+    x: *const f32,
+    y: *mut f32,
+    mask: *const f32,
+    inp: usize,
+    out: usize,
+    ld: Strides,
+    ncols: usize,
+) {
+    if out <= 3 {
+        fwd_all::<4, 3, MODE>(w, b, x, y, mask, inp, out, ld, ncols)
+    } else {
+        fwd_all::<2, 6, MODE>(w, b, x, y, mask, inp, out, ld, ncols)
+    }
+}
+
+/// `y[o][c] = store(b[o] + Σ_i w[o·inp + i] · x[i][c])` for columns `c < ncols` of
+/// channel-major operands (`x` rows `ldx` apart, `y` rows `ldy` apart, a mask's rows its own
+/// stride apart).
+///
+/// # Safety
+/// AVX2 and FMA must be available; `ncols` is a multiple of 8; `w.len() ≥ out·inp`,
+/// `b.len() ≥ out`, and every row `r` read or written lies inside its slice
+/// (`r·ld + ncols ≤ len`).
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn forward(
+    w: &[f32],
+    b: Option<&[f32]>,
+    x: &[f32],
+    ldx: usize,
+    y: &mut [f32],
+    ldy: usize,
+    inp: usize,
+    out: usize,
+    ncols: usize,
+    store: Store<'_>,
+) {
+    let (wp, bp, xp, yp) = (
+        w.as_ptr(),
+        b.map(|b| b.as_ptr()),
+        x.as_ptr(),
+        y.as_mut_ptr(),
+    );
+    let mut ld = Strides {
+        x: ldx,
+        y: ldy,
+        m: 0,
+    };
+    let null = std::ptr::null();
+    match store {
+        Store::Linear => fwd_mode::<LINEAR>(wp, bp, xp, yp, null, inp, out, ld, ncols),
+        Store::Relu => fwd_mode::<RELU>(wp, bp, xp, yp, null, inp, out, ld, ncols),
+        Store::MaskPositive(m, ldm) => {
+            ld.m = ldm;
+            fwd_mode::<MASK>(wp, bp, xp, yp, m.as_ptr(), inp, out, ld, ncols)
+        }
+    }
+}
+
+/// Transposes an 8×8 block: `rows[r][c]` → `out[c][r]`.
+#[inline(always)]
+unsafe fn transpose8(r: [__m256; 8]) -> [__m256; 8] {
+    // 32-bit interleave of row pairs: t[2p] holds, in 128-bit half h, columns 4h, 4h + 1 of
+    // rows 2p, 2p + 1; t[2p + 1] columns 4h + 2, 4h + 3.
+    let mut t = [_mm256_setzero_ps(); 8];
+    for p in 0..4 {
+        t[2 * p] = _mm256_unpacklo_ps(r[2 * p], r[2 * p + 1]);
+        t[2 * p + 1] = _mm256_unpackhi_ps(r[2 * p], r[2 * p + 1]);
+    }
+    // 64-bit selection of pair pairs: u[4g + c] holds, in half h, column 4h + c of rows
+    // 4g..4g + 3.
+    let mut u = [_mm256_setzero_ps(); 8];
+    for g in 0..2 {
+        let (a0, a1, b0, b1) = (t[4 * g], t[4 * g + 1], t[4 * g + 2], t[4 * g + 3]);
+        u[4 * g] = _mm256_shuffle_ps::<0x44>(a0, b0);
+        u[4 * g + 1] = _mm256_shuffle_ps::<0xEE>(a0, b0);
+        u[4 * g + 2] = _mm256_shuffle_ps::<0x44>(a1, b1);
+        u[4 * g + 3] = _mm256_shuffle_ps::<0xEE>(a1, b1);
+    }
+    // Column c: low halves of u[c], u[4 + c]; column 4 + c: their high halves.
+    let mut o = [_mm256_setzero_ps(); 8];
+    for c in 0..4 {
+        o[c] = _mm256_permute2f128_ps::<0x20>(u[c], u[4 + c]);
+        o[4 + c] = _mm256_permute2f128_ps::<0x31>(u[c], u[4 + c]);
+    }
+    o
+}
+
+/// Test hook: transposes an 8×8 row-major block.
+///
+/// # Safety
+/// AVX2 must be available.
+#[cfg(test)]
+#[target_feature(enable = "avx2,fma")]
+pub(crate) unsafe fn transpose8_slice(src: &[f32; 64], dst: &mut [f32; 64]) {
+    let mut r = [_mm256_setzero_ps(); 8];
+    for i in 0..8 {
+        r[i] = _mm256_loadu_ps(src.as_ptr().add(8 * i));
+    }
+    let o = transpose8(r);
+    for i in 0..8 {
+        _mm256_storeu_ps(dst.as_mut_ptr().add(8 * i), o[i]);
+    }
+}
+
+/// One weight-gradient tile: outputs `o0..o0 + OB` × inputs `i0..i0 + 8·IV`, over the
+/// samples `kb..kb + kc` (rows of the transposed block `xt`) in order.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn dw_tile<const OB: usize, const IV: usize>(
+    dy: *const f32,
+    xt: *const f32,
+    dwp: *mut f32,
+    inp_pad: usize,
+    o0: usize,
+    i0: usize,
+    lddy: usize,
+    kb: usize,
+    kc: usize,
+) {
+    let mut acc = [[_mm256_setzero_ps(); IV]; OB];
+    for k in 0..OB {
+        for v in 0..IV {
+            acc[k][v] = _mm256_loadu_ps(dwp.add((o0 + k) * inp_pad + i0 + V * v));
+        }
+    }
+    let dyp = dy.add(o0 * lddy + kb);
+    for n in 0..kc {
+        let xr = xt.add(n * inp_pad + i0);
+        let mut xv = [_mm256_setzero_ps(); IV];
+        for v in 0..IV {
+            xv[v] = _mm256_loadu_ps(xr.add(V * v));
+        }
+        for k in 0..OB {
+            let d = _mm256_broadcast_ss(&*dyp.add(k * lddy + n));
+            for v in 0..IV {
+                acc[k][v] = _mm256_fmadd_ps(d, xv[v], acc[k][v]);
+            }
+        }
+    }
+    for k in 0..OB {
+        for v in 0..IV {
+            _mm256_storeu_ps(dwp.add((o0 + k) * inp_pad + i0 + V * v), acc[k][v]);
+        }
+    }
+}
+
+/// All outputs of one strip of `8·IV` inputs: tiles of `OB` outputs, then one tile of the
+/// remaining `< OB` outputs (`OB ≤ 6`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn dw_rows<const OB: usize, const IV: usize>(
+    dy: *const f32,
+    xt: *const f32,
+    dwp: *mut f32,
+    inp_pad: usize,
+    out: usize,
+    i0: usize,
+    ld: usize,
+    kb: usize,
+    kc: usize,
+) {
+    let mut o0 = 0;
+    while o0 + OB <= out {
+        dw_tile::<OB, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc);
+        o0 += OB;
+    }
+    match out - o0 {
+        0 => {}
+        1 => dw_tile::<1, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
+        2 => dw_tile::<2, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
+        3 => dw_tile::<3, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
+        4 => dw_tile::<4, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
+        _ => dw_tile::<5, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
+    }
+}
+
+/// Weight-gradient accumulation over columns `c < ncols`: `dwp[o·inp_pad + i] +=
+/// Σ_c dy[o][c] · x[i][c]` as one sequential fused sum per entry (`inp_pad` = `inp` rounded up
+/// to 16; padding entries accumulate products with zero), and `lanes[o·16 + l] += Σ dy[o][c]`
+/// over the columns `c ≡ l (mod 16)`. `xt` is scratch.
+///
+/// # Safety
+/// AVX2 and FMA must be available; `ncols` is a multiple of 16; `dwp.len() ≥ out·inp_pad`,
+/// `lanes.len() ≥ 16·out`, and the rows of `dy` (stride `lddy`) and `x` (stride `ldx`) hold
+/// `ncols` columns inside their slices.
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn backward_weights(
+    dy: &[f32],
+    lddy: usize,
+    x: &[f32],
+    ldx: usize,
+    dwp: &mut [f32],
+    lanes: &mut [f32],
+    inp: usize,
+    out: usize,
+    ncols: usize,
+    xt: &mut Vec<f32>,
+) {
+    let inp_pad = inp.div_ceil(16) * 16;
+    // Keep the transposed block (kc × inp_pad floats) within ~16 KiB of L1.
+    let kc_max = (4096 / inp_pad).max(1).div_ceil(16) * 16;
+    if xt.len() < kc_max * inp_pad {
+        xt.resize(kc_max * inp_pad, 0.0);
+    }
+    let (dyp, xp, dwpp, xtp) = (dy.as_ptr(), x.as_ptr(), dwp.as_mut_ptr(), xt.as_mut_ptr());
+    let zero = _mm256_setzero_ps();
+    let mut kb = 0;
+    while kb < ncols {
+        let kc = kc_max.min(ncols - kb);
+        // Transpose x[.., kb..kb + kc] into xt (sample-major, zero-padded channels).
+        for i0 in (0..inp_pad).step_by(V) {
+            for n0 in (0..kc).step_by(V) {
+                let mut r = [zero; V];
+                for q in 0..V {
+                    if i0 + q < inp {
+                        r[q] = _mm256_loadu_ps(xp.add((i0 + q) * ldx + kb + n0));
+                    }
+                }
+                let o = transpose8(r);
+                for j in 0..V {
+                    _mm256_storeu_ps(xtp.add((n0 + j) * inp_pad + i0), o[j]);
+                }
+            }
+        }
+        if out <= 3 {
+            // Few outputs: wider input strips (32 inputs, then 16) for enough accumulators.
+            let mut i0 = 0;
+            while i0 + 4 * V <= inp_pad {
+                dw_rows::<3, 4>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
+                i0 += 4 * V;
+            }
+            if i0 < inp_pad {
+                dw_rows::<6, 2>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
+            }
+        } else {
+            for i0 in (0..inp_pad).step_by(2 * V) {
+                dw_rows::<6, 2>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
+            }
+        }
+        kb += kc;
+    }
+    // Bias lane sums: the 16 lanes as two ymm halves, one add per column as in the portable
+    // loop.
+    for o in 0..out {
+        let lp = lanes.as_mut_ptr().add(16 * o);
+        let mut lo = _mm256_loadu_ps(lp);
+        let mut hi = _mm256_loadu_ps(lp.add(V));
+        for base in (0..ncols).step_by(16) {
+            lo = _mm256_add_ps(lo, _mm256_loadu_ps(dyp.add(o * lddy + base)));
+            hi = _mm256_add_ps(hi, _mm256_loadu_ps(dyp.add(o * lddy + base + V)));
+        }
+        _mm256_storeu_ps(lp, lo);
+        _mm256_storeu_ps(lp.add(V), hi);
+    }
+}
