@@ -928,8 +928,7 @@ fn gaussian_gradients(
     let degree = st.sh_degree;
     let active = sh::basis_len(degree) * 3;
     let (hw, hh) = (out.width as f64 * 0.5, out.height as f64 * 0.5);
-    // AVX-512 lanes need AVX2 and FMA too (the wrapper enables them).
-    let wide = crate::lanes::wide_available() && matches!(detect_isa(), Isa::Avx512);
+    let isa = detect_isa();
     let c = PROJECT_CHUNK;
     let mut m2d = sinks.means2d_abs.map(|v| v.chunks_mut(c));
     let chunks: Vec<SinkChunk> = sinks
@@ -1017,7 +1016,7 @@ fn gaussian_gradients(
                 kcoef,
                 screen: &screen,
             };
-            let lg = vjp_lanes(wide, &job);
+            let lg = vjp_lanes(isa, &job);
             for (l, &(j, _)) in batch.iter().enumerate() {
                 let p = lg.params[l];
                 let gmean = p.mean;
@@ -1086,9 +1085,10 @@ struct LaneGrads {
     with_sh: Mask,
 }
 
-/// The projection and colour backward of one batch, in AVX-512 lanes when `wide`, else in
-/// portable lanes: the same IEEE operations either way (and as the scalar `sh` functions).
-fn vjp_lanes(wide: bool, job: &LaneJob) -> LaneGrads {
+/// The projection and colour backward of one batch, in the lanes of `isa` (AVX-512 lanes only
+/// where they are available): the same IEEE operations on every instruction set (and as the
+/// scalar `sh` functions).
+fn vjp_lanes(isa: Isa, job: &LaneJob) -> LaneGrads {
     #[inline(always)]
     fn run<L: Lanes>(job: &LaneJob) -> LaneGrads {
         let LaneJob {
@@ -1149,12 +1149,23 @@ fn vjp_lanes(wide: bool, job: &LaneJob) -> LaneGrads {
         fn avx512(job: &LaneJob) -> LaneGrads {
             run::<crate::lanes::avx512::Z8>(job)
         }
-        if wide {
-            // SAFETY: `wide` is only set when AVX-512F/DQ, AVX2 and FMA were detected.
-            return unsafe { avx512(job) };
+        #[target_feature(enable = "avx2,fma")]
+        fn avx2(job: &LaneJob) -> LaneGrads {
+            run::<crate::lanes::avx2::Y8>(job)
+        }
+        match isa {
+            Isa::Avx512 if crate::lanes::wide_available() => {
+                // SAFETY: AVX-512F/DQ (checked here), AVX2 and FMA (implied by
+                // `Isa::Avx512`) were detected.
+                return unsafe { avx512(job) };
+            }
+            Isa::Avx512 | Isa::Avx2 => {
+                // SAFETY: both variants imply AVX2 + FMA support.
+                return unsafe { avx2(job) };
+            }
+            Isa::Portable => {}
         }
     }
-    let _ = wide;
     run::<P8>(job)
 }
 

@@ -1340,8 +1340,7 @@ fn project_chunk_avx512(
     project_chunk::<crate::lanes::avx512::Z8>(job, sp_out, rect_out, st_out)
 }
 
-/// [`project_chunk`] with portable lanes compiled for AVX2 + FMA (Rust never fuses
-/// multiply-adds on its own, so the operations are those of the plain build).
+/// [`project_chunk`] with AVX2 lanes: the same IEEE operations as the portable lanes.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn project_chunk_avx2(
@@ -1350,7 +1349,7 @@ fn project_chunk_avx2(
     rect_out: &mut [MaybeUninit<[u32; 4]>],
     st_out: &mut [u8],
 ) {
-    project_chunk::<P8>(job, sp_out, rect_out, st_out)
+    project_chunk::<crate::lanes::avx2::Y8>(job, sp_out, rect_out, st_out)
 }
 
 /// Projection status of one Gaussian.
@@ -1618,8 +1617,16 @@ pub(crate) mod tests {
 
     #[cfg(target_arch = "x86_64")]
     #[test]
-    fn avx512_and_portable_projection_chunks_agree_bit_for_bit() {
-        if !(crate::lanes::wide_available() && matches!(detect_isa(), Isa::Avx512)) {
+    fn vector_and_portable_projection_chunks_agree_bit_for_bit() {
+        let mut isas = vec![];
+        if crate::lanes::wide_available() && matches!(detect_isa(), Isa::Avx512) {
+            isas.push(Isa::Avx512);
+        }
+        if crate::lanes::avx2::available() {
+            isas.push(Isa::Avx2);
+        }
+        if isas.is_empty() {
+            eprintln!("no vector lanes on this CPU: skipped");
             return;
         }
         let mut rng = augsplat_core::Rng::new(21);
@@ -1674,15 +1681,18 @@ pub(crate) mod tests {
                     grid: &grid,
                     first: 0,
                 };
-                let run = |wide: bool| {
+                let run = |isa: Isa| {
                     let mut sp = uninit_vec::<Splat2D>(n);
                     let mut rc = uninit_vec::<[u32; 4]>(n);
                     let mut st = vec![9u8; n];
-                    if wide {
+                    match isa {
                         // SAFETY: AVX-512 was detected above.
-                        unsafe { project_chunk_avx512(&job, &mut sp, &mut rc, &mut st) };
-                    } else {
-                        project_chunk::<P8>(&job, &mut sp, &mut rc, &mut st);
+                        Isa::Avx512 => unsafe {
+                            project_chunk_avx512(&job, &mut sp, &mut rc, &mut st)
+                        },
+                        // SAFETY: AVX2 + FMA were detected above.
+                        Isa::Avx2 => unsafe { project_chunk_avx2(&job, &mut sp, &mut rc, &mut st) },
+                        Isa::Portable => project_chunk::<P8>(&job, &mut sp, &mut rc, &mut st),
                     }
                     let out: Vec<Option<(Splat2D, [u32; 4])>> = (0..n)
                         .map(|i| {
@@ -1693,34 +1703,40 @@ pub(crate) mod tests {
                         .collect();
                     (st, out)
                 };
-                let (a, b) = (run(true), run(false));
-                assert_eq!(a.0, b.0);
-                let bits = |o: &Option<(Splat2D, [u32; 4])>| {
-                    o.map(|(p, r)| {
-                        let f = [
-                            p.x,
-                            p.y,
-                            p.a,
-                            p.b,
-                            p.c,
-                            p.opacity,
-                            p.rgb[0],
-                            p.rgb[1],
-                            p.rgb[2],
-                            p.depth,
-                            p.ymin,
-                            p.ymax,
-                            p.sigma_max,
-                            p.row_q,
-                            p.row_w,
-                            p.row_shift,
-                        ];
-                        (f.map(f32::to_bits), r)
-                    })
-                };
-                assert!(a.1.iter().zip(&b.1).all(|(x, y)| bits(x) == bits(y)));
+                let b = run(Isa::Portable);
+                for &isa in &isas {
+                    let a = run(isa);
+                    assert_eq!(a.0, b.0, "{isa:?}");
+                    let bits = |o: &Option<(Splat2D, [u32; 4])>| {
+                        o.map(|(p, r)| {
+                            let f = [
+                                p.x,
+                                p.y,
+                                p.a,
+                                p.b,
+                                p.c,
+                                p.opacity,
+                                p.rgb[0],
+                                p.rgb[1],
+                                p.rgb[2],
+                                p.depth,
+                                p.ymin,
+                                p.ymax,
+                                p.sigma_max,
+                                p.row_q,
+                                p.row_w,
+                                p.row_shift,
+                            ];
+                            (f.map(f32::to_bits), r)
+                        })
+                    };
+                    assert!(
+                        a.1.iter().zip(&b.1).all(|(x, y)| bits(x) == bits(y)),
+                        "{isa:?}"
+                    );
+                }
                 for code in [VISIBLE, CULLED, INVALID] {
-                    assert!(a.0.contains(&code), "status {code} never occurs");
+                    assert!(b.0.contains(&code), "status {code} never occurs");
                 }
             }
         }

@@ -413,6 +413,240 @@ pub(crate) mod avx512 {
     }
 }
 
+/// AVX2 lanes.
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2 {
+    use super::*;
+    use std::arch::x86_64::*;
+
+    /// Eight f64 lanes in two AVX registers (lanes 0–3, 4–7).
+    ///
+    /// Values of this type exist only inside code that runs after AVX2 and FMA were detected
+    /// (the `target_feature` wrappers of the projection): every method uses AVX2
+    /// instructions. No method fuses a multiply-add.
+    #[derive(Clone, Copy, Debug)]
+    pub(crate) struct Y8(__m256d, __m256d);
+
+    /// Whether the CPU runs [`Y8`] (the kernels choose by [`crate::forward::Isa`]; the tests
+    /// ask here).
+    #[cfg(test)]
+    pub(crate) fn available() -> bool {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+
+    // The halves are written out by these macros rather than passed to closures: a closure
+    // is a function of its own without the target features, so the intrinsics in it would
+    // not always be inlined.
+
+    /// `Y8(f(a.0), f(a.1))` for the expression `f` of `$x`.
+    macro_rules! map {
+        ($a:expr, |$x:ident| $f:expr) => {{
+            let a = $a;
+            // SAFETY: see the type's invariant.
+            unsafe {
+                let $x = a.0;
+                let lo = $f;
+                let $x = a.1;
+                Y8(lo, $f)
+            }
+        }};
+    }
+
+    /// `Y8(f(a.0, b.0), f(a.1, b.1))` for the expression `f` of `$x`, `$y`.
+    macro_rules! zip {
+        ($a:expr, $b:expr, |$x:ident, $y:ident| $f:expr) => {{
+            let (a, b) = ($a, $b);
+            // SAFETY: see the type's invariant.
+            unsafe {
+                let ($x, $y) = (a.0, b.0);
+                let lo = $f;
+                let ($x, $y) = (a.1, b.1);
+                Y8(lo, $f)
+            }
+        }};
+    }
+
+    /// The sign bits of the lanes of `zip!(...)` as a mask.
+    macro_rules! test {
+        ($a:expr, $b:expr, |$x:ident, $y:ident| $f:expr) => {{
+            let v = zip!($a, $b, |$x, $y| $f);
+            // SAFETY: see the type's invariant.
+            unsafe { (_mm256_movemask_pd(v.0) as u8) | ((_mm256_movemask_pd(v.1) as u8) << 4) }
+        }};
+    }
+
+    /// Lane `l` all ones where bit `l` of `m` is set (`m`: four bits).
+    #[inline(always)]
+    unsafe fn lane_select(m: u8) -> __m256d {
+        let sel = _mm256_setr_epi64x(1, 2, 4, 8);
+        let v = _mm256_and_si256(_mm256_set1_epi64x(m as i64), sel);
+        _mm256_castsi256_pd(_mm256_cmpeq_epi64(v, sel))
+    }
+
+    macro_rules! y8_op {
+        ($tr:ident, $f:ident, $intr:ident) => {
+            impl $tr for Y8 {
+                type Output = Self;
+                #[inline(always)]
+                fn $f(self, o: Self) -> Self {
+                    zip!(self, o, |a, b| $intr(a, b))
+                }
+            }
+            impl $tr<f64> for Y8 {
+                type Output = Self;
+                #[inline(always)]
+                fn $f(self, o: f64) -> Self {
+                    map!(self, |a| $intr(a, _mm256_set1_pd(o)))
+                }
+            }
+        };
+    }
+    y8_op!(Add, add, _mm256_add_pd);
+    y8_op!(Sub, sub, _mm256_sub_pd);
+    y8_op!(Mul, mul, _mm256_mul_pd);
+    y8_op!(Div, div, _mm256_div_pd);
+
+    impl Neg for Y8 {
+        type Output = Self;
+        #[inline(always)]
+        fn neg(self) -> Self {
+            // Flips the sign bit, as `-x` does.
+            map!(self, |a| _mm256_xor_pd(a, _mm256_set1_pd(-0.0)))
+        }
+    }
+
+    impl Lanes for Y8 {
+        #[inline(always)]
+        fn splat(v: f64) -> Self {
+            // SAFETY: see the type's invariant.
+            unsafe { Y8(_mm256_set1_pd(v), _mm256_set1_pd(v)) }
+        }
+        #[inline(always)]
+        fn from_array(v: [f64; LANES]) -> Self {
+            // SAFETY: see the type's invariant; reads 8 f64.
+            unsafe {
+                Y8(
+                    _mm256_loadu_pd(v.as_ptr()),
+                    _mm256_loadu_pd(v.as_ptr().add(4)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn to_array(self) -> [f64; LANES] {
+            let mut o = [0.0; LANES];
+            // SAFETY: see the type's invariant; writes 8 f64.
+            unsafe {
+                _mm256_storeu_pd(o.as_mut_ptr(), self.0);
+                _mm256_storeu_pd(o.as_mut_ptr().add(4), self.1);
+            }
+            o
+        }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            map!(self, |a| _mm256_sqrt_pd(a))
+        }
+        #[inline(always)]
+        fn ceil(self) -> Self {
+            map!(self, |a| {
+                _mm256_round_pd::<{ _MM_FROUND_TO_POS_INF | _MM_FROUND_NO_EXC }>(a)
+            })
+        }
+        #[inline(always)]
+        fn floor(self) -> Self {
+            map!(self, |a| {
+                _mm256_round_pd::<{ _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC }>(a)
+            })
+        }
+        #[inline(always)]
+        fn trunc(self) -> Self {
+            map!(self, |a| {
+                _mm256_round_pd::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(a)
+            })
+        }
+        #[inline(always)]
+        fn min(self, o: Self) -> Self {
+            // MINPD: `a < b ? a : b`.
+            zip!(self, o, |a, b| _mm256_min_pd(a, b))
+        }
+        #[inline(always)]
+        fn max(self, o: Self) -> Self {
+            // MAXPD: `a > b ? a : b`.
+            zip!(self, o, |a, b| _mm256_max_pd(a, b))
+        }
+        #[inline(always)]
+        fn lt(self, o: Self) -> Mask {
+            test!(self, o, |a, b| _mm256_cmp_pd::<_CMP_LT_OQ>(a, b))
+        }
+        #[inline(always)]
+        fn le(self, o: Self) -> Mask {
+            test!(self, o, |a, b| _mm256_cmp_pd::<_CMP_LE_OQ>(a, b))
+        }
+        #[inline(always)]
+        fn gt(self, o: Self) -> Mask {
+            test!(self, o, |a, b| _mm256_cmp_pd::<_CMP_GT_OQ>(a, b))
+        }
+        #[inline(always)]
+        fn ge(self, o: Self) -> Mask {
+            test!(self, o, |a, b| _mm256_cmp_pd::<_CMP_GE_OQ>(a, b))
+        }
+        #[inline(always)]
+        fn eq(self, o: Self) -> Mask {
+            test!(self, o, |a, b| _mm256_cmp_pd::<_CMP_EQ_OQ>(a, b))
+        }
+        #[inline(always)]
+        fn is_finite(self) -> Mask {
+            // |x| < ∞ (false for NaN).
+            test!(self, self, |a, _b| _mm256_cmp_pd::<_CMP_LT_OQ>(
+                _mm256_andnot_pd(_mm256_set1_pd(-0.0), a),
+                _mm256_set1_pd(f64::INFINITY)
+            ))
+        }
+        #[inline(always)]
+        fn select(m: Mask, a: Self, b: Self) -> Self {
+            // SAFETY: see the type's invariant.
+            unsafe {
+                Y8(
+                    _mm256_blendv_pd(b.0, a.0, lane_select(m & 0xf)),
+                    _mm256_blendv_pd(b.1, a.1, lane_select(m >> 4)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn pow2(self) -> Self {
+            // k + 1023 + 1.5·2⁵² is exact for integral k in [−1022, 1023] and holds k + 1023
+            // in its low mantissa bits; the shift keeps exactly those 11 bits as the biased
+            // exponent, as the portable lanes build it.
+            map!(self, |k| _mm256_castsi256_pd(_mm256_slli_epi64::<52>(
+                _mm256_castpd_si256(_mm256_add_pd(k, _mm256_set1_pd(1023.0 + ROUND_MAGIC)))
+            )))
+        }
+        #[inline(always)]
+        fn split_exponent(self) -> (Self, Self) {
+            // The biased exponent b ∈ [0, 2047] becomes a double exactly as the bits of
+            // 2⁵² + b minus 2⁵².
+            let two52 = 4_503_599_627_370_496.0;
+            let e = map!(self, |x| _mm256_sub_pd(
+                _mm256_sub_pd(
+                    _mm256_castsi256_pd(_mm256_or_si256(
+                        _mm256_and_si256(
+                            _mm256_srli_epi64::<52>(_mm256_castpd_si256(x)),
+                            _mm256_set1_epi64x(0x7ff)
+                        ),
+                        _mm256_castpd_si256(_mm256_set1_pd(two52))
+                    )),
+                    _mm256_set1_pd(two52)
+                ),
+                _mm256_set1_pd(1023.0)
+            ));
+            let m = map!(self, |x| _mm256_castsi256_pd(_mm256_or_si256(
+                _mm256_and_si256(_mm256_castpd_si256(x), _mm256_set1_epi64x(MANTISSA as i64)),
+                _mm256_set1_epi64x(ONE_BITS as i64)
+            )));
+            (e, m)
+        }
+    }
+}
+
 /// ln 2 split so that n·LN2_HI is exact for |n| < 2¹¹ (fdlibm's constants, by their bits).
 const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
 const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
@@ -628,7 +862,7 @@ mod tests {
     }
 
     #[test]
-    fn every_lane_is_computed_independently_and_avx512_matches_portable_bit_for_bit() {
+    fn every_lane_is_computed_independently_and_vector_lanes_match_portable_bit_for_bit() {
         let mut rng = augsplat_core::Rng::new(5);
         for _ in 0..2_000 {
             let a = awkward(&mut rng);
@@ -669,6 +903,29 @@ mod tests {
                 }
             }
             #[cfg(target_arch = "x86_64")]
+            if avx2::available() {
+                // SAFETY: AVX2 + FMA were detected.
+                let (results, masks) = unsafe { avx2_results(a, b) };
+                for (w, p) in results.iter().zip(&portable) {
+                    for l in 0..LANES {
+                        let same =
+                            w[l].to_bits() == p[l].to_bits() || (w[l].is_nan() && p[l].is_nan());
+                        assert!(same, "{:?} vs {:?} for {:?}, {:?}", w, p, a, b);
+                    }
+                }
+                assert_eq!(
+                    masks,
+                    [
+                        pa.lt(pb),
+                        pa.le(pb),
+                        pa.gt(pb),
+                        pa.ge(pb),
+                        pa.eq(pb),
+                        pa.is_finite()
+                    ]
+                );
+            }
+            #[cfg(target_arch = "x86_64")]
             if avx512::available() {
                 // SAFETY: AVX-512F/DQ were detected.
                 let wide = unsafe { wide_results(a, b) };
@@ -705,6 +962,56 @@ mod tests {
             (za / zb).to_array(),
             za.sqrt().to_array(),
         ]
+    }
+
+    /// The AVX2 lanes' results of the portable comparison list, their masks, and selects,
+    /// powers of two and exponent splits checked against the portable lanes.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn avx2_results(a: [f64; LANES], b: [f64; LANES]) -> ([[f64; LANES]; 10], [Mask; 6]) {
+        use avx2::Y8;
+        let (ya, yb) = (Y8::from_array(a), Y8::from_array(b));
+        let (pa, pb) = (P8(a), P8(b));
+        for m in [0u8, 0x5a, 0xa5, 0x0f, 0xf0, 0xff, 0x81] {
+            let (s, t) = (Y8::select(m, ya, yb).to_array(), P8::select(m, pa, pb).0);
+            assert!(s.iter().zip(&t).all(|(x, y)| x.to_bits() == y.to_bits()));
+        }
+        let ks: [f64; LANES] =
+            std::array::from_fn(|l| [-1022.0, 1016.0, 0.0, -1.0][l % 4] + l as f64);
+        assert_eq!(
+            Y8::from_array(ks).pow2().to_array().map(f64::to_bits),
+            P8(ks).pow2().0.map(f64::to_bits)
+        );
+        let (ye, ym) = ya.split_exponent();
+        let (pe, pm) = pa.split_exponent();
+        assert_eq!(ye.to_array().map(f64::to_bits), pe.0.map(f64::to_bits));
+        assert_eq!(ym.to_array().map(f64::to_bits), pm.0.map(f64::to_bits));
+        assert_eq!(
+            (-ya).to_array().map(f64::to_bits),
+            (-pa).0.map(f64::to_bits)
+        );
+        (
+            [
+                exp(ya).to_array(),
+                ln(ya).to_array(),
+                sigmoid(ya).to_array(),
+                ya.min(yb).to_array(),
+                ya.max(yb).to_array(),
+                ya.ceil().to_array(),
+                ya.trunc().to_array(),
+                ya.floor().to_array(),
+                (ya / yb).to_array(),
+                ya.sqrt().to_array(),
+            ],
+            [
+                ya.lt(yb),
+                ya.le(yb),
+                ya.gt(yb),
+                ya.ge(yb),
+                ya.eq(yb),
+                ya.is_finite(),
+            ],
+        )
     }
 
     #[cfg(target_arch = "x86_64")]

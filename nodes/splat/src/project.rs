@@ -917,29 +917,57 @@ mod tests {
 
     #[cfg(target_arch = "x86_64")]
     #[test]
-    fn avx512_lanes_project_and_differentiate_bit_for_bit_like_portable_lanes() {
-        use crate::lanes::avx512::{available, Z8};
-        if !available() {
-            return;
-        }
-        #[target_feature(enable = "avx512f,avx512dq")]
-        fn wide(
+    fn vector_lanes_project_and_differentiate_bit_for_bit_like_portable_lanes() {
+        type LaneOut = ([Outcome; LANES], [ParamGrad; LANES], Status, [f64; LANES]);
+        #[inline(always)]
+        fn run<L: Lanes>(
             cam: &CameraModel,
             g: &crate::Gaussians,
             idx: &[usize; LANES],
             aa: bool,
             grad: [[f64; LANES]; 7],
-        ) -> ([Outcome; LANES], [ParamGrad; LANES], Status, [f64; LANES]) {
+        ) -> LaneOut {
             let gl =
-                ParamLanes::<Z8>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
+                ParamLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
             let p = project_lanes(cam, &gl, aa, 0.01);
-            let pg = ProjectedGradLanes::<Z8>::from_rows(grad);
+            let pg = ProjectedGradLanes::<L>::from_rows(grad);
             (
                 p.unpack(),
                 project_vjp_lanes(cam, &gl, aa, 0.01, &pg).unpack(),
                 p.status,
                 p.log_alpha_ratio.to_array(),
             )
+        }
+        #[target_feature(enable = "avx512f,avx512dq")]
+        fn z8(
+            cam: &CameraModel,
+            g: &crate::Gaussians,
+            idx: &[usize; LANES],
+            aa: bool,
+            grad: [[f64; LANES]; 7],
+        ) -> LaneOut {
+            run::<crate::lanes::avx512::Z8>(cam, g, idx, aa, grad)
+        }
+        #[target_feature(enable = "avx2,fma")]
+        fn y8(
+            cam: &CameraModel,
+            g: &crate::Gaussians,
+            idx: &[usize; LANES],
+            aa: bool,
+            grad: [[f64; LANES]; 7],
+        ) -> LaneOut {
+            run::<crate::lanes::avx2::Y8>(cam, g, idx, aa, grad)
+        }
+        let mut variants = vec![];
+        if crate::lanes::avx512::available() {
+            variants.push("avx512");
+        }
+        if crate::lanes::avx2::available() {
+            variants.push("avx2");
+        }
+        if variants.is_empty() {
+            eprintln!("no vector lanes on this CPU: skipped");
+            return;
         }
         let mut rng = augsplat_core::Rng::new(12);
         let g = awkward_gaussians(&mut rng, 800);
@@ -950,68 +978,76 @@ mod tests {
                 let idx: [usize; LANES] = std::array::from_fn(|l| 8 * b + l);
                 let grad: [[f64; LANES]; 7] =
                     std::array::from_fn(|_| std::array::from_fn(|_| rng.uniform(-1.0, 1.0)));
-                // SAFETY: AVX-512F/DQ were detected above.
-                let (wp, wg, ws, wlr) = unsafe { wide(&cam, &g, &idx, aa, grad) };
-                let gl = ParamLanes::<P8>::gather(
-                    &g.means,
-                    &g.log_scales,
-                    &g.quats,
-                    &g.opacity_logits,
-                    &idx,
-                );
-                let p = project_lanes(&cam, &gl, aa, 0.01);
-                let pg = ProjectedGradLanes::<P8>::from_rows(grad);
-                let (pp, pgr) = (
-                    p.unpack(),
-                    project_vjp_lanes(&cam, &gl, aa, 0.01, &pg).unpack(),
-                );
-                seen[0] += ws.visible().count_ones() as usize;
-                seen[1] += ws.culled.count_ones() as usize;
-                seen[2] += ws.invalid.count_ones() as usize;
-                assert_eq!(
-                    (ws.invalid, ws.culled, ws.visible()),
-                    (p.status.invalid, p.status.culled, p.status.visible())
-                );
-                for l in 0..LANES {
-                    match (&wp[l], &pp[l]) {
-                        (Outcome::Visible(a), Outcome::Visible(b)) => {
-                            let (fa, fb) = (
-                                [
-                                    a.mean2d[0],
-                                    a.mean2d[1],
-                                    a.conic[0],
-                                    a.conic[1],
-                                    a.conic[2],
-                                    a.opacity,
-                                    a.depth,
-                                ],
-                                [
-                                    b.mean2d[0],
-                                    b.mean2d[1],
-                                    b.conic[0],
-                                    b.conic[1],
-                                    b.conic[2],
-                                    b.opacity,
-                                    b.depth,
-                                ],
-                            );
-                            assert!(
-                                fa.iter().zip(&fb).all(|(x, y)| same(*x, *y)),
-                                "{a:?} vs {b:?}"
-                            );
-                            assert_eq!(a.radius, b.radius);
-                            assert!(same(wlr[l], p.log_alpha_ratio.to_array()[l]));
+                for &variant in &variants {
+                    // SAFETY: each variant runs only where its instructions were detected.
+                    let (wp, wg, ws, wlr) = unsafe {
+                        if variant == "avx512" {
+                            z8(&cam, &g, &idx, aa, grad)
+                        } else {
+                            y8(&cam, &g, &idx, aa, grad)
                         }
-                        (a, b) => assert_eq!(format!("{a:?}"), format!("{b:?}")),
-                    }
-                    let (a, b) = (wg[l], pgr[l]);
-                    let fa = [a.mean, a.log_scale, [a.logit; 3]].concat();
-                    let fb = [b.mean, b.log_scale, [b.logit; 3]].concat();
-                    assert!(
-                        fa.iter().zip(&fb).all(|(x, y)| same(*x, *y)),
-                        "{a:?} vs {b:?}"
+                    };
+                    let gl = ParamLanes::<P8>::gather(
+                        &g.means,
+                        &g.log_scales,
+                        &g.quats,
+                        &g.opacity_logits,
+                        &idx,
                     );
-                    assert!(a.quat.iter().zip(&b.quat).all(|(x, y)| same(*x, *y)));
+                    let p = project_lanes(&cam, &gl, aa, 0.01);
+                    let pg = ProjectedGradLanes::<P8>::from_rows(grad);
+                    let (pp, pgr) = (
+                        p.unpack(),
+                        project_vjp_lanes(&cam, &gl, aa, 0.01, &pg).unpack(),
+                    );
+                    seen[0] += ws.visible().count_ones() as usize;
+                    seen[1] += ws.culled.count_ones() as usize;
+                    seen[2] += ws.invalid.count_ones() as usize;
+                    assert_eq!(
+                        (ws.invalid, ws.culled, ws.visible()),
+                        (p.status.invalid, p.status.culled, p.status.visible())
+                    );
+                    for l in 0..LANES {
+                        match (&wp[l], &pp[l]) {
+                            (Outcome::Visible(a), Outcome::Visible(b)) => {
+                                let (fa, fb) = (
+                                    [
+                                        a.mean2d[0],
+                                        a.mean2d[1],
+                                        a.conic[0],
+                                        a.conic[1],
+                                        a.conic[2],
+                                        a.opacity,
+                                        a.depth,
+                                    ],
+                                    [
+                                        b.mean2d[0],
+                                        b.mean2d[1],
+                                        b.conic[0],
+                                        b.conic[1],
+                                        b.conic[2],
+                                        b.opacity,
+                                        b.depth,
+                                    ],
+                                );
+                                assert!(
+                                    fa.iter().zip(&fb).all(|(x, y)| same(*x, *y)),
+                                    "{a:?} vs {b:?}"
+                                );
+                                assert_eq!(a.radius, b.radius);
+                                assert!(same(wlr[l], p.log_alpha_ratio.to_array()[l]));
+                            }
+                            (a, b) => assert_eq!(format!("{a:?}"), format!("{b:?}")),
+                        }
+                        let (a, b) = (wg[l], pgr[l]);
+                        let fa = [a.mean, a.log_scale, [a.logit; 3]].concat();
+                        let fb = [b.mean, b.log_scale, [b.logit; 3]].concat();
+                        assert!(
+                            fa.iter().zip(&fb).all(|(x, y)| same(*x, *y)),
+                            "{a:?} vs {b:?}"
+                        );
+                        assert!(a.quat.iter().zip(&b.quat).all(|(x, y)| same(*x, *y)));
+                    }
                 }
             }
         }
