@@ -1241,7 +1241,7 @@ fn project_chunk<L: Lanes>(
     let k = g.coeffs() * 3;
     let nb = sh::basis_len(degree);
     let len = sp_out.len();
-    let centre = cm.center.map(c::<L>);
+    let centre = crate::lanes::splats::<L, 3>(cm.center);
     for j0 in (0..len).step_by(LANES) {
         let n = (len - j0).min(LANES);
         let live: Mask = if n == LANES { 0xff } else { (1u8 << n) - 1 };
@@ -1295,13 +1295,13 @@ fn project_chunk<L: Lanes>(
             L::select(away, v[2] / vlen, c(1.0)),
         ];
         let coef = |q: usize| sh::coef_lane::<L>(&rows, q);
-        let col = sh::eval_color_lanes(degree, coef, dir).map(|v| v.to_array());
+        let col = crate::lanes::to_arrays(sh::eval_color_lanes(degree, coef, dir));
         let m = [pl.mean2d[0].to_array(), pl.mean2d[1].to_array()];
-        let kc = pl.conic.map(|v| v.to_array());
+        let kc = crate::lanes::to_arrays(pl.conic);
         let (op, dp) = (pl.opacity.to_array(), pl.depth.to_array());
         let rad = [pl.radius[0].to_array(), pl.radius[1].to_array()];
         let lr = pl.log_alpha_ratio.to_array();
-        let rect = rect.map(|v| v.to_array());
+        let rect = crate::lanes::to_arrays(rect);
         while visible != 0 {
             let l = visible.trailing_zeros() as usize;
             visible &= visible - 1;

@@ -91,6 +91,28 @@ pub(crate) fn c<L: Lanes>(v: f64) -> L {
     L::splat(v)
 }
 
+/// The lanes of each of `v`'s members. A loop rather than `array::map`: a closure is a
+/// function of its own, compiled without the caller's target features, so the vector
+/// instructions in it would not be inlined.
+#[inline(always)]
+pub(crate) fn to_arrays<L: Lanes, const N: usize>(v: [L; N]) -> [[f64; LANES]; N] {
+    let mut out = [[0.0; LANES]; N];
+    for (o, x) in out.iter_mut().zip(v) {
+        *o = x.to_array();
+    }
+    out
+}
+
+/// `[c(v[0]), c(v[1]), …]` (a loop, for the reason given at [`to_arrays`]).
+#[inline(always)]
+pub(crate) fn splats<L: Lanes, const N: usize>(v: [f64; N]) -> [L; N] {
+    let mut out = [L::splat(0.0); N];
+    for (o, x) in out.iter_mut().zip(v) {
+        *o = L::splat(x);
+    }
+    out
+}
+
 /// The portable lanes.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct P8(pub [f64; LANES]);

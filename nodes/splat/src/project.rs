@@ -284,7 +284,22 @@ struct Inter<L> {
 
 #[inline(always)]
 fn all_finite<L: Lanes>(v: &[L]) -> Mask {
-    v.iter().fold(lanes::ALL, |m, x| m & x.is_finite())
+    // A loop, not a fold with a closure (see `lanes::to_arrays`).
+    let mut m = lanes::ALL;
+    for x in v {
+        m &= x.is_finite();
+    }
+    m
+}
+
+/// The clamp of the projection Jacobian's x/z or y/z to `[−neg, pos]`: (clamped lanes, the
+/// limit hit, the clamped value). A NaN ratio is in neither clamp (as the comparisons say).
+#[inline(always)]
+fn clamp_ratio<L: Lanes>(t: L, pos: f64, neg: f64) -> (Mask, L, L) {
+    let hi = t.gt(c(pos));
+    let lo = t.lt(c(-neg));
+    let limit = L::select(hi, c(pos), c(-neg));
+    (hi | lo, limit, L::select(hi | lo, limit, t))
 }
 
 /// The shared forward intermediates of eight Gaussians (every lane is computed; the status
@@ -327,15 +342,8 @@ fn intermediates<L: Lanes>(cam: &CameraModel, gl: &ParamLanes<L>, near: f64) -> 
     }
     let (x, y, z) = (pc[0], pc[1], pc[2]);
     let (u, v) = (x / z, y / z);
-    // A NaN ratio is in neither clamp (as the comparisons say).
-    let clamp = |t: L, pos: f64, neg: f64| {
-        let hi = t.gt(c(pos));
-        let lo = t.lt(c(-neg));
-        let limit = L::select(hi, c(pos), c(-neg));
-        (hi | lo, limit, L::select(hi | lo, limit, t))
-    };
-    let (clamped_x, limit_x, txz) = clamp(u, cam.lim_x_pos, cam.lim_x_neg);
-    let (clamped_y, limit_y, tyz) = clamp(v, cam.lim_y_pos, cam.lim_y_neg);
+    let (clamped_x, limit_x, txz) = clamp_ratio(u, cam.lim_x_pos, cam.lim_x_neg);
+    let (clamped_y, limit_y, tyz) = clamp_ratio(v, cam.lim_y_pos, cam.lim_y_neg);
     let jac = [
         c::<L>(cam.fx) / z,
         txz * -cam.fx / z,
@@ -347,11 +355,10 @@ fn intermediates<L: Lanes>(cam: &CameraModel, gl: &ParamLanes<L>, near: f64) -> 
         tm[0][k] = jac[0] * mp[0][k] + jac[1] * mp[2][k];
         tm[1][k] = jac[2] * mp[1][k] + jac[3] * mp[2][k];
     }
-    let dot = |p: &[L; 3], q: &[L; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
     let x_raw = [
-        dot(&tm[0], &tm[0]),
-        dot(&tm[0], &tm[1]),
-        dot(&tm[1], &tm[1]),
+        dot3(&tm[0], &tm[0]),
+        dot3(&tm[0], &tm[1]),
+        dot3(&tm[1], &tm[1]),
     ];
     status.invalid_where(!all_finite(&x_raw));
     let det_raw = x_raw[0] * x_raw[2] - x_raw[1] * x_raw[1];
@@ -379,6 +386,12 @@ fn intermediates<L: Lanes>(cam: &CameraModel, gl: &ParamLanes<L>, near: f64) -> 
         ratio,
         opacity_base: lanes::sigmoid(gl.logit),
     }
+}
+
+/// `p · q` lane-wise, summed left to right.
+#[inline(always)]
+fn dot3<L: Lanes>(p: &[L; 3], q: &[L; 3]) -> L {
+    p[0] * q[0] + p[1] * q[1] + p[2] * q[2]
 }
 
 /// [`quat_rot`] lane-wise.
@@ -551,9 +564,9 @@ impl<L: Lanes> ParamLanes<L> {
     /// The lanes unpacked (as gradients).
     #[inline(always)]
     pub fn unpack(&self) -> [ParamGrad; LANES] {
-        let m = self.mean.map(|v| v.to_array());
-        let s = self.log_scale.map(|v| v.to_array());
-        let q = self.quat.map(|v| v.to_array());
+        let m = lanes::to_arrays(self.mean);
+        let s = lanes::to_arrays(self.log_scale);
+        let q = lanes::to_arrays(self.quat);
         let o = self.logit.to_array();
         std::array::from_fn(|l| ParamGrad {
             mean: [m[0][l], m[1][l], m[2][l]],
