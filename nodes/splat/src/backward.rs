@@ -412,19 +412,66 @@ mod avx2 {
     use crate::forward::avx2::{gauss_v, half_row_masks, row_mask};
     use std::arch::x86_64::*;
 
-    /// The first two levels of [`tree_sum16`] for ten accumulators: `lo[q] + hi[q]` gives
-    /// the (l, l+8) sums, then (l, l+4); the last two levels are scalar.
+    /// [`tree_sum16`] of ten accumulators held as left and right halves: `lo + hi` gives the
+    /// (l, l+8) sums; each later shuffle stage adds the same lane pairs as the scalar tree
+    /// ((l, l+4), (l, l+2), (l, l+1)) for several accumulators per instruction, so every sum
+    /// is bit-identical to it.
     #[inline(always)]
     unsafe fn reduce10(lo: &[__m256; 10], hi: &[__m256; 10]) -> [f32; 10] {
-        let mut out = [0.0f32; 10];
+        // Plain loops and macros, not closures: a closure would be compiled without the
+        // target features and call the intrinsics out of line.
+        let mut s8 = [_mm256_setzero_ps(); 10];
         for q in 0..10 {
-            let s8 = _mm256_add_ps(lo[q], hi[q]);
-            let s4 = _mm_add_ps(_mm256_castps256_ps128(s8), _mm256_extractf128_ps::<1>(s8));
-            let mut v = [0.0f32; 4];
-            _mm_storeu_ps(v.as_mut_ptr(), s4);
-            out[q] = (v[0] + v[2]) + (v[1] + v[3]);
+            s8[q] = _mm256_add_ps(lo[q], hi[q]);
         }
-        out
+        // (l, l+4): [s4 of A | s4 of B].
+        macro_rules! f {
+            ($a:expr, $b:expr) => {
+                _mm256_add_ps(
+                    _mm256_permute2f128_ps::<0x20>($a, $b),
+                    _mm256_permute2f128_ps::<0x31>($a, $b),
+                )
+            };
+        }
+        // (l, l+2) within each 128-bit lane: [s2 of A, s2 of C | s2 of B, s2 of D].
+        macro_rules! g {
+            ($x:expr, $y:expr) => {
+                _mm256_add_ps(
+                    _mm256_shuffle_ps::<0x44>($x, $y),
+                    _mm256_shuffle_ps::<0xEE>($x, $y),
+                )
+            };
+        }
+        // (l, l+1) within each 128-bit lane.
+        macro_rules! h {
+            ($x:expr, $y:expr) => {
+                _mm256_add_ps(
+                    _mm256_shuffle_ps::<0x88>($x, $y),
+                    _mm256_shuffle_ps::<0xDD>($x, $y),
+                )
+            };
+        }
+        let zero = _mm256_setzero_ps();
+        // e0 = [0 | 1], e1 = [2 | 3], e2 = [4 | 5], e3 = [6 | 7], e4 = [8 | 9].
+        let e = [
+            f!(s8[0], s8[1]),
+            f!(s8[2], s8[3]),
+            f!(s8[4], s8[5]),
+            f!(s8[6], s8[7]),
+            f!(s8[8], s8[9]),
+        ];
+        // [0, 2 | 1, 3], [4, 6 | 5, 7], [8, – | 9, –] (two values each).
+        let g0 = g!(e[0], e[1]);
+        let g1 = g!(e[2], e[3]);
+        let g2 = g!(e[4], zero);
+        // [0, 2, 4, 6 | 1, 3, 5, 7], [8, –, –, – | 9, –, –, –].
+        let r0 = h!(g0, g1);
+        let r1 = h!(g2, zero);
+        let mut a = [0.0f32; 8];
+        let mut b = [0.0f32; 8];
+        _mm256_storeu_ps(a.as_mut_ptr(), r0);
+        _mm256_storeu_ps(b.as_mut_ptr(), r1);
+        [a[0], a[4], a[1], a[5], a[2], a[6], a[3], a[7], b[0], b[4]]
     }
 
     /// [`backward_gaussian_portable`] (hard cutoff) over the pixels `8·h .. 8·h + 8` of the
