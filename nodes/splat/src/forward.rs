@@ -825,11 +825,14 @@ pub(crate) mod avx2 {
             let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tthr));
             let comp = _mm256_andnot_ps(stop, ok);
             act = _mm256_andnot_ps(stop, act);
-            let w = _mm256_mul_ps(a1, t);
-            cr = _mm256_blendv_ps(cr, _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[0]), cr), comp);
-            cg = _mm256_blendv_ps(cg, _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[1]), cg), comp);
-            cb = _mm256_blendv_ps(cb, _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[2]), cb), comp);
-            d = _mm256_blendv_ps(d, _mm256_fmadd_ps(w, _mm256_set1_ps(sp.depth), d), comp);
+            // w is zeroed outside `comp`: there the sums gain w·c = ±0, which leaves them
+            // unchanged (colour and depth are finite, and a sum that starts at +0 and gains
+            // only products ≥ 0 or ±0 is never −0).
+            let w = _mm256_and_ps(_mm256_mul_ps(a1, t), comp);
+            cr = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[0]), cr);
+            cg = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[1]), cg);
+            cb = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[2]), cb);
+            d = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.depth), d);
             t = _mm256_blendv_ps(t, next_t, comp);
             let kk = _mm256_castsi256_ps(_mm256_set1_epi32((k_base + j + 1) as i32));
             last = _mm256_blendv_ps(last, kk, comp);
