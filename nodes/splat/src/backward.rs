@@ -685,7 +685,7 @@ fn backward_tile_portable<const SMOOTH: bool>(
 
 /// The AVX2 tile kernel (the smooth cutoff runs the portable twin inside it).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 fn backward_tile_avx2<const SMOOTH: bool>(
     splats: &[Splat2D],
     list: &[u32],
@@ -738,7 +738,8 @@ fn backward_tile_dispatch<const SMOOTH: bool>(
         }
         #[cfg(target_arch = "x86_64")]
         Isa::Avx512 | Isa::Avx2 => {
-            // SAFETY: both variants imply AVX2 + FMA support.
+            // SAFETY: both variants imply AVX2, FMA, BMI1 and POPCNT support (every AVX-512
+            // CPU has the last two).
             unsafe { backward_tile_avx2::<SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
         }
         Isa::Portable => {

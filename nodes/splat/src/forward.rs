@@ -1114,7 +1114,7 @@ fn raster_tile_portable<const SMOOTH: bool>(
 
 /// The AVX2 tile kernel (the smooth cutoff runs the portable twin inside it).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 fn raster_tile_avx2<const SMOOTH: bool>(
     splats: &[Splat2D],
     list: &[u32],
@@ -1165,7 +1165,12 @@ pub(crate) fn detect_isa() -> Isa {
         if avx512::available() {
             return Isa::Avx512;
         }
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        // BMI1 and POPCNT come with every AVX2 CPU; the tile kernels use them for their bit
+        // sets (checked all the same).
+        if std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma")
+            && std::arch::is_x86_feature_detected!("bmi1")
+            && std::arch::is_x86_feature_detected!("popcnt")
         {
             return Isa::Avx2;
         }
@@ -1194,7 +1199,8 @@ fn raster_tile_dispatch<const SMOOTH: bool>(
         }
         #[cfg(target_arch = "x86_64")]
         Isa::Avx512 | Isa::Avx2 => {
-            // SAFETY: both variants imply AVX2 + FMA support.
+            // SAFETY: both variants imply AVX2, FMA, BMI1 and POPCNT support (every AVX-512
+            // CPU has the last two).
             unsafe { raster_tile_avx2::<SMOOTH>(splats, list, x0, y0, active_init, max_alpha, st) }
         }
         Isa::Portable => {
