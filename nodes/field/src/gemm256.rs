@@ -146,10 +146,128 @@ unsafe fn fwd_columns<const T: usize, const OB: usize, const MODE: u8>(
     }
 }
 
+/// One tile of up to 6 outputs over the 8-column window starting at column `col` (which may
+/// be negative or reach past the last column), on the lanes set in `lm` only: masked loads
+/// and stores, so the lanes outside the operands are never accessed (their addresses are
+/// formed with wrapping arithmetic and never dereferenced). The active lanes compute exactly
+/// what [`fwd_tile`] computes for their columns.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fwd_tile_part<const OB: usize, const MODE: u8>(
+    w: *const f32,
+    b: Option<*const f32>,
+    x: *const f32,
+    y: *mut f32,
+    mask: *const f32,
+    inp: usize,
+    o0: usize,
+    ld: Strides,
+    col: isize,
+    lm: __m256i,
+) {
+    let at =
+        |p: *const f32, row: usize, stride: usize| p.wrapping_offset((row * stride) as isize + col);
+    let mut acc = [_mm256_setzero_ps(); OB];
+    if let Some(b) = b {
+        for k in 0..OB {
+            acc[k] = _mm256_set1_ps(*b.add(o0 + k));
+        }
+    }
+    let wp = w.add(o0 * inp);
+    for i in 0..inp {
+        let xv = _mm256_maskload_ps(at(x, i, ld.x), lm);
+        for k in 0..OB {
+            let wk = _mm256_broadcast_ss(&*wp.add(k * inp + i));
+            acc[k] = _mm256_fmadd_ps(wk, xv, acc[k]);
+        }
+    }
+    let zero = _mm256_setzero_ps();
+    for k in 0..OB {
+        let v = if MODE == RELU {
+            _mm256_max_ps(acc[k], zero)
+        } else if MODE == MASK {
+            let mv = _mm256_maskload_ps(at(mask, o0 + k, ld.m), lm);
+            let keep = _mm256_cmp_ps::<_CMP_GT_OQ>(mv, zero);
+            _mm256_and_ps(keep, acc[k])
+        } else {
+            acc[k]
+        };
+        _mm256_maskstore_ps(at(y, o0 + k, ld.y) as *mut f32, lm, v);
+    }
+}
+
+/// All outputs of one masked 8-column window ([`fwd_tile_part`]): tiles of 6 outputs, then
+/// one of the rest.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fwd_part_columns<const MODE: u8>(
+    w: *const f32,
+    b: Option<*const f32>,
+    x: *const f32,
+    y: *mut f32,
+    mask: *const f32,
+    inp: usize,
+    out: usize,
+    ld: Strides,
+    col: isize,
+    lm: __m256i,
+) {
+    let mut o0 = 0;
+    while o0 + 6 <= out {
+        fwd_tile_part::<6, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm);
+        o0 += 6;
+    }
+    match out - o0 {
+        0 => {}
+        1 => fwd_tile_part::<1, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
+        2 => fwd_tile_part::<2, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
+        3 => fwd_tile_part::<3, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
+        4 => fwd_tile_part::<4, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
+        _ => fwd_tile_part::<5, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
+    }
+}
+
 /// Every column panel: panels of `8·T` columns, then one of 16 or 8 columns for the rest.
+///
+/// When the rows of `x` start 16 bytes past a 32-byte boundary (large `Vec`s from the C
+/// allocator start 16 bytes into a page), every other 8-column vector of a row would straddle
+/// two cache lines and a 16-column panel would occupy two lines per row. The columns are then
+/// walked on the 32-byte grid instead: a masked window for the first 4 columns, aligned
+/// panels, and a masked window for the last 4. Every output column is still computed by one
+/// tile with the same operations, so the bits do not depend on the walk.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 unsafe fn fwd_all<const T: usize, const OB: usize, const MODE: u8>(
+    w: *const f32,
+    b: Option<*const f32>,
+    x: *const f32,
+    y: *mut f32,
+    mask: *const f32,
+    inp: usize,
+    out: usize,
+    ld: Strides,
+    ncols: usize,
+) {
+    let shift = (x as usize) % 32 == 16 && ld.x.is_multiple_of(V) && ncols >= V;
+    if shift {
+        // Lanes 4..8 of the window at column -4, and lanes 0..4 of the one at `ncols - 4`.
+        let head = _mm256_setr_epi32(0, 0, 0, 0, -1, -1, -1, -1);
+        let tail = _mm256_setr_epi32(-1, -1, -1, -1, 0, 0, 0, 0);
+        fwd_part_columns::<MODE>(w, b, x, y, mask, inp, out, ld, -4, head);
+        // Columns 4..ncols - 4 (a multiple of 8) from aligned rows.
+        let h = V / 2;
+        let mask_h = if MODE == MASK { mask.add(h) } else { mask };
+        fwd_body::<T, OB, MODE>(w, b, x.add(h), y.add(h), mask_h, inp, out, ld, ncols - V);
+        fwd_part_columns::<MODE>(w, b, x, y, mask, inp, out, ld, (ncols - h) as isize, tail);
+    } else {
+        fwd_body::<T, OB, MODE>(w, b, x, y, mask, inp, out, ld, ncols);
+    }
+}
+
+/// The column walk of [`fwd_all`] over `ncols` (a multiple of 8) columns from `x`, `y`, `mask`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fwd_body<const T: usize, const OB: usize, const MODE: u8>(
     w: *const f32,
     b: Option<*const f32>,
     x: *const f32,
@@ -391,9 +509,21 @@ pub(crate) unsafe fn backward_weights(
     let mut kb = 0;
     while kb < ncols {
         let kc = kc_max.min(ncols - kb);
+        // The next block's columns of x (the layer input, usually written long before and
+        // out of L1/L2; its rows are far apart, too many streams for the hardware
+        // prefetcher): one line of every row per 16 columns, requested during this block's
+        // transpose so it arrives while this block's tiles run.
+        let next = kb + kc;
+        let next_kc = kc_max.min(ncols.saturating_sub(next));
         // Transpose x[.., kb..kb + kc] into xt (sample-major, zero-padded channels).
         for i0 in (0..inp_pad).step_by(V) {
             for n0 in (0..kc).step_by(V) {
+                if n0 % 16 == 0 && n0 < next_kc {
+                    for q in 0..V.min(inp.saturating_sub(i0)) {
+                        let p = xp.wrapping_add((i0 + q) * ldx + next + n0);
+                        _mm_prefetch::<_MM_HINT_T0>(p as *const i8);
+                    }
+                }
                 let mut r = [zero; V];
                 for q in 0..V {
                     if i0 + q < inp {

@@ -610,11 +610,18 @@ impl Mlp {
             .max()
             .unwrap_or(0);
         let blk = COLUMN_BLOCK.min(ld.max(LANES));
+        // Row stride of the block buffers: one padding vector past the block, so that rows
+        // are an odd number of cache lines apart (a 2 KiB stride would put a 16-column panel
+        // of every row into the same two L1 sets). Layout only: the sums are unchanged.
+        let ldb = blk + LANES;
         let acc_len: usize = self.layers.iter().map(|s| s.out * pad(s.inp)).sum();
         let lane_len: usize = self.layers.iter().map(|s| s.out * LANES).sum();
-        scratch.resize(2 * widest * blk + acc_len + lane_len, 0.0);
-        let (bufs, rest) = scratch.split_at_mut(2 * widest * blk);
-        let (buf_a, buf_b) = bufs.split_at_mut(widest * blk);
+        // `LANES` spare floats so that the block buffers can start on a 64-byte boundary
+        // (whole cache lines per 16-column panel; layout only).
+        scratch.resize(LANES + 2 * widest * ldb + acc_len + lane_len, 0.0);
+        let skip = (64 - scratch.as_ptr() as usize % 64) % 64 / std::mem::size_of::<f32>();
+        let (bufs, rest) = scratch[skip..].split_at_mut(2 * widest * ldb);
+        let (buf_a, buf_b) = bufs.split_at_mut(widest * ldb);
         let (accs, lane_sums) = rest.split_at_mut(acc_len);
         lane_sums.fill(0.0);
         // Transposed weights of every layer.
@@ -657,7 +664,7 @@ impl Mlp {
                 let (dy, lddy): (&[f32], usize) = if from_top {
                     (&d_out[c0..], ld)
                 } else {
-                    (&cur[..], blk)
+                    (&cur[..], ldb)
                 };
                 let input: &[f32] = if l == 0 { x } else { &acts[l - 1] };
                 weight_grad(
@@ -680,7 +687,7 @@ impl Mlp {
                         dy,
                         lddy,
                         next,
-                        blk,
+                        ldb,
                         s.out,
                         s.inp,
                         nb,
@@ -1204,6 +1211,83 @@ mod tests {
                     g.to_bits() == e.to_bits() || (g.is_nan() && e.is_nan()),
                     "mode {mode} at {k}: {g} vs {e}"
                 );
+            }
+        }
+    }
+
+    /// The AVX2 forward kernel's column walk on the 32-byte grid (masked first and last
+    /// windows when rows start 16 bytes past a 32-byte boundary) gives the bits of the
+    /// portable kernel for every start offset of the operands, short and long column counts,
+    /// every store mode, and non-finite inputs; the columns around the written range (before
+    /// the first and past the last) are never touched.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_forward_any_row_alignment_matches_portable() {
+        if !has_avx2() {
+            eprintln!("skipping avx2_forward_any_row_alignment_matches_portable: no AVX2/FMA");
+            return;
+        }
+        let mut rng = Rng::new(23);
+        let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+        for &(inp, out, ncols, pad) in &[
+            (64usize, 64usize, 528usize, 16usize),
+            (64, 16, 48, 0),
+            (31, 64, 16, 16),
+            (64, 3, 32, 0),
+            (3, 64, 16, 32),
+            (16, 7, 80, 16),
+            (64, 15, 144, 0),
+        ] {
+            let ld = ncols + pad;
+            let w: Vec<f32> = (0..inp * out)
+                .map(|_| rng.uniform(-0.5, 0.5) as f32)
+                .collect();
+            let b: Vec<f32> = (0..out).map(|_| rng.uniform(-0.5, 0.5) as f32).collect();
+            // Storage with 8 spare floats in front, so every offset mod 32 bytes occurs.
+            let mut xs = batch(&mut rng, inp, ld + 8, ld + 8)[..inp * ld + 8].to_vec();
+            xs[8 + 3] = f32::NAN;
+            xs[8 + ld + 1] = f32::INFINITY;
+            xs[8 + (inp - 1) * ld + ncols - 1] = f32::NEG_INFINITY;
+            let ms = batch(&mut rng, out, ld + 8, ld + 8)[..out * ld + 8].to_vec();
+            for xo in 0..8 {
+                for yo in [0usize, 4, 8 - xo.min(8)] {
+                    let x = &xs[xo..xo + inp * ld];
+                    let mo = (xo + yo) % 8;
+                    let m = &ms[mo..mo + out * ld];
+                    for mode in 0..3 {
+                        for bias in [Some(&b[..]), None] {
+                            let store = match mode {
+                                0 => Store::Linear,
+                                1 => Store::Relu,
+                                _ => Store::MaskPositive(m, ld),
+                            };
+                            // Sentinels around the output rows: the floats before, the row
+                            // padding and the floats after must keep their bits.
+                            let mut got = vec![f32::from_bits(0x7fc0_1234); out * ld + 16];
+                            let mut want = got.clone();
+                            let span = 8 + yo % 8;
+                            {
+                                let y = &mut got[span..span + out * ld];
+                                // SAFETY: AVX2 and FMA checked above; every row read or
+                                // written holds `ncols` columns inside its slice.
+                                unsafe {
+                                    crate::gemm256::forward(
+                                        &w, bias, x, ld, y, ld, inp, out, ncols, store,
+                                    )
+                                };
+                            }
+                            {
+                                let y = &mut want[span..span + out * ld];
+                                fwd_body::<4, true>(&w, bias, x, ld, y, ld, inp, out, ncols, store);
+                            }
+                            assert_eq!(
+                                bits(&got),
+                                bits(&want),
+                                "{inp}->{out} x{ncols} offsets x {xo} y {yo} mode {mode}"
+                            );
+                        }
+                    }
+                }
             }
         }
     }

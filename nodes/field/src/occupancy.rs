@@ -40,7 +40,11 @@ impl OccupancyGrid {
         let mut idx = [0usize; 3];
         for a in 0..3 {
             let u = (c[a] + CONTRACTED_RADIUS) / (2.0 * CONTRACTED_RADIUS) * r;
-            idx[a] = (u.floor().max(0.0) as usize).min(self.res as usize - 1);
+            // `u.max(0.0) as usize` equals `u.floor().max(0.0) as usize` for every `u`
+            // (truncation is floor on non-negative values; negatives and NaN give 0, large
+            // values saturate) without a libm `floorf` call (no SSE4.1 `roundss` in the
+            // baseline target).
+            idx[a] = (u.max(0.0) as usize).min(self.res as usize - 1);
         }
         let res = self.res as usize;
         idx[0] + idx[1] * res + idx[2] * res * res
@@ -75,5 +79,52 @@ impl OccupancyGrid {
     /// Fraction of occupied cells.
     pub fn occupied_fraction(&self) -> f64 {
         self.occupied.iter().map(|&o| o as u64).sum::<u64>() as f64 / self.len().max(1) as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// [`OccupancyGrid::cell`] (truncating cast) gives the cell of the former
+    /// `floor().max(0.0)` formula for ordinary, boundary and non-finite coordinates.
+    #[test]
+    fn cell_matches_floor_formula() {
+        let grid = OccupancyGrid::full(64);
+        let r = grid.res as f32;
+        let old = |c: [f32; 3]| {
+            let mut idx = [0usize; 3];
+            for a in 0..3 {
+                let u = (c[a] + CONTRACTED_RADIUS) / (2.0 * CONTRACTED_RADIUS) * r;
+                idx[a] = (u.floor().max(0.0) as usize).min(grid.res as usize - 1);
+            }
+            let res = grid.res as usize;
+            idx[0] + idx[1] * res + idx[2] * res * res
+        };
+        let mut vals: Vec<f32> = vec![
+            0.0,
+            -0.0,
+            CONTRACTED_RADIUS,
+            -CONTRACTED_RADIUS,
+            -CONTRACTED_RADIUS - 1e-7,
+            -CONTRACTED_RADIUS - 0.01,
+            CONTRACTED_RADIUS + 0.5,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MAX,
+            f32::MIN,
+            1e-30,
+            -1e-30,
+        ];
+        let mut rng = augsplat_core::Rng::new(3);
+        for _ in 0..3000 {
+            vals.push(rng.uniform(-2.5, 2.5) as f32);
+        }
+        for (k, &v) in vals.iter().enumerate() {
+            let w = vals[(k * 7 + 3) % vals.len()];
+            let c = [v, w, -v];
+            assert_eq!(grid.cell(c), old(c), "{c:?}");
+        }
     }
 }
