@@ -588,29 +588,39 @@ impl Field {
         for k in 0..cin {
             st.col_in[k * ldc + nc..(k + 1) * ldc].fill(0.0);
         }
-        let mut j = 0;
-        for (r, ray) in rays.iter().enumerate() {
-            let sh = sh_encode(ray.dir);
-            let emb: &[f32] = if e == 0 {
-                &[]
-            } else if ray.image == u32::MAX || ray.image >= self.config.n_images {
-                mean_emb
-            } else {
-                let o = self.embedding_offset + ray.image as usize * e;
-                &params[o..o + e]
-            };
-            for _ in 0..st.n_color[r] {
-                let i = st.alive[j] as usize;
-                for k in 0..GEO_FEAT_DIM {
-                    st.col_in[k * ldc + j] = dout[(1 + k) * ld + i];
+        // Row by row (each destination row is written sequentially; the same values as
+        // filling column by column): geometry features gathered from the density output,
+        // then each ray's view-direction encoding and embedding over its coloured samples.
+        {
+            let (geo, rest) = st.col_in.split_at_mut(GEO_FEAT_DIM * ldc);
+            for k in 0..GEO_FEAT_DIM {
+                let src = &dout[(1 + k) * ld..(2 + k) * ld];
+                let dst = &mut geo[k * ldc..k * ldc + nc];
+                for (d, &i) in dst.iter_mut().zip(&st.alive) {
+                    *d = src[i as usize];
                 }
+            }
+            let mut j = 0;
+            for (r, ray) in rays.iter().enumerate() {
+                let cnt = st.n_color[r];
+                let sh = sh_encode(ray.dir);
                 for k in 0..SH_COMPONENTS {
-                    st.col_in[(GEO_FEAT_DIM + k) * ldc + j] = sh[k];
+                    rest[k * ldc + j..k * ldc + j + cnt].fill(sh[k]);
                 }
-                for k in 0..e {
-                    st.col_in[(GEO_FEAT_DIM + SH_COMPONENTS + k) * ldc + j] = emb[k];
+                if e > 0 {
+                    let emb: &[f32] = if ray.image == u32::MAX || ray.image >= self.config.n_images
+                    {
+                        mean_emb
+                    } else {
+                        let o = self.embedding_offset + ray.image as usize * e;
+                        &params[o..o + e]
+                    };
+                    for k in 0..e {
+                        let row = (SH_COMPONENTS + k) * ldc;
+                        rest[row + j..row + j + cnt].fill(emb[k]);
+                    }
                 }
-                j += 1;
+                j += cnt;
             }
         }
         let cp = &params[self.color_offset..self.embedding_offset];
@@ -772,9 +782,12 @@ impl Field {
             // Truncated exp: the gradient is exp of the clamped argument everywhere.
             d_out[i] = st.d_sigma[i] * st.sigma[i];
         }
-        for (j, &i) in st.alive.iter().enumerate() {
-            for k in 0..GEO_FEAT_DIM {
-                d_out[(1 + k) * ld + i as usize] = d_cin[k * ldc + j];
+        // Row by row (sequential reads of each gradient row; the same stores as sample by
+        // sample).
+        for k in 0..GEO_FEAT_DIM {
+            let dst = &mut d_out[(1 + k) * ld..(2 + k) * ld];
+            for (&g, &i) in d_cin[k * ldc..k * ldc + nc].iter().zip(&st.alive) {
+                dst[i as usize] = g;
             }
         }
         let dp = &params[self.density_offset..self.color_offset];
