@@ -499,57 +499,88 @@ mod avx2 {
         let dx = _mm256_sub_ps(_mm256_set1_ps(sp.x), px);
         let ha = _mm256_set1_ps(0.5 * sp.a);
         let o_v = _mm256_set1_ps(sp.opacity);
+        let (cr, cg, cb, cz) = (
+            _mm256_set1_ps(sp.rgb[0]),
+            _mm256_set1_ps(sp.rgb[1]),
+            _mm256_set1_ps(sp.rgb[2]),
+            _mm256_set1_ps(sp.depth),
+        );
+        // One row: updates its T and R (where `ok`) and evaluates to the lane sums' terms,
+        // zero outside `ok`. Adding those zeros changes no sum: a sum that starts at +0 is
+        // never −0, and the upstream gradients are finite. Branch-free, so that two rows
+        // form one block the compiler can interleave.
+        macro_rules! row_terms {
+            ($ly:expr) => {{
+                let ly: usize = $ly;
+                let g = RowGeom::new(sp, *tc.py.get_unchecked(ly));
+                let row = tile.rows.as_mut_ptr().add(ly);
+                let last = _mm256_load_si256((*row).last.as_ptr().add(o) as *const __m256i);
+                let u = _mm256_fmadd_ps(ha, dx, _mm256_set1_ps(g.bdy));
+                let sigma = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.hc));
+                let gauss = gauss_v(sigma);
+                let raw = _mm256_mul_ps(o_v, gauss);
+                let a1 = _mm256_min_ps(raw, maxa);
+                let ok = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_xor_si256(last, flip), kv));
+                let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero));
+                let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(a1, thr));
+                // Volatile loads: otherwise LLVM turns the blend-and-store of T and R below
+                // into masked stores, which are slow (microcoded) on some AVX2 CPUs.
+                let t = std::ptr::read_volatile((*row).t.as_ptr().add(o) as *const __m256);
+                let r = std::ptr::read_volatile((*row).r.as_ptr().add(o) as *const __m256);
+                let gr = _mm256_load_ps((*row).gc[0].as_ptr().add(o));
+                let gg = _mm256_load_ps((*row).gc[1].as_ptr().add(o));
+                let gb = _mm256_load_ps((*row).gc[2].as_ptr().add(o));
+                let gs = _mm256_load_ps((*row).gs.as_ptr().add(o));
+                let ra = _mm256_div_ps(one, _mm256_sub_ps(one, a1));
+                let ti = _mm256_mul_ps(t, ra);
+                let w = _mm256_and_ps(_mm256_mul_ps(a1, ti), ok);
+                let gcol = _mm256_mul_ps(gr, cr);
+                let gcol = _mm256_fmadd_ps(gg, cg, gcol);
+                let gcol = _mm256_fmadd_ps(gb, cb, gcol);
+                let gcol = _mm256_fmadd_ps(gs, cz, gcol);
+                let behind = _mm256_mul_ps(r, ra);
+                let dl = _mm256_fmsub_ps(gcol, ti, behind);
+                let qm = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(raw, maxa));
+                let q = _mm256_and_ps(_mm256_mul_ps(dl, gauss), qm);
+                let r_new = _mm256_blendv_ps(r, _mm256_fmadd_ps(gcol, w, r), ok);
+                _mm256_store_ps((*row).r.as_mut_ptr().add(o), r_new);
+                _mm256_store_ps((*row).t.as_mut_ptr().add(o), _mm256_blendv_ps(t, ti, ok));
+                (q, g.dy, [gr, gg, gb, gs], w)
+            }};
+        }
+        // Adds one row's terms to the lane sums (rows in ascending order, as the twin).
+        macro_rules! accumulate {
+            ($terms:expr) => {{
+                let (q, gdy, gc, w) = $terms;
+                let dy = _mm256_set1_ps(gdy);
+                acc[0] = _mm256_add_ps(acc[0], q);
+                let v = _mm256_mul_ps(q, dx);
+                acc[1] = _mm256_add_ps(acc[1], v);
+                acc[2] = _mm256_fmadd_ps(q, dy, acc[2]);
+                acc[3] = _mm256_fmadd_ps(v, dx, acc[3]);
+                acc[4] = _mm256_fmadd_ps(v, dy, acc[4]);
+                acc[5] = _mm256_fmadd_ps(q, _mm256_set1_ps(gdy * gdy), acc[5]);
+                acc[6] = _mm256_fmadd_ps(gc[0], w, acc[6]);
+                acc[7] = _mm256_fmadd_ps(gc[1], w, acc[7]);
+                acc[8] = _mm256_fmadd_ps(gc[2], w, acc[8]);
+                acc[9] = _mm256_fmadd_ps(gc[3], w, acc[9]);
+            }};
+        }
+        // Two rows at a time: their (independent) exponentials and divisions overlap.
         while rows != 0 {
-            let ly = rows.trailing_zeros() as usize;
+            let first = rows.trailing_zeros() as usize;
             rows &= rows - 1;
-            let g = RowGeom::new(sp, *tc.py.get_unchecked(ly));
-            let row = tile.rows.get_unchecked_mut(ly);
-            let last = _mm256_load_si256(row.last.as_ptr().add(o) as *const __m256i);
-            let u = _mm256_fmadd_ps(ha, dx, _mm256_set1_ps(g.bdy));
-            let sigma = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.hc));
-            let gauss = gauss_v(sigma);
-            let raw = _mm256_mul_ps(o_v, gauss);
-            let a1 = _mm256_min_ps(raw, maxa);
-            let ok = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_xor_si256(last, flip), kv));
-            let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero));
-            let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(a1, thr));
-            if _mm256_movemask_ps(ok) == 0 {
-                continue;
+            if rows != 0 {
+                let second = rows.trailing_zeros() as usize;
+                rows &= rows - 1;
+                let a = row_terms!(first);
+                let b = row_terms!(second);
+                accumulate!(a);
+                accumulate!(b);
+            } else {
+                let a = row_terms!(first);
+                accumulate!(a);
             }
-            // Volatile loads: otherwise LLVM turns the blend-and-store of T and R below
-            // into masked stores, which are slow (microcoded) on some AVX2 CPUs.
-            let t = std::ptr::read_volatile(row.t.as_ptr().add(o) as *const __m256);
-            let r = std::ptr::read_volatile(row.r.as_ptr().add(o) as *const __m256);
-            let gr = _mm256_load_ps(row.gc[0].as_ptr().add(o));
-            let gg = _mm256_load_ps(row.gc[1].as_ptr().add(o));
-            let gb = _mm256_load_ps(row.gc[2].as_ptr().add(o));
-            let gs = _mm256_load_ps(row.gs.as_ptr().add(o));
-            let ra = _mm256_div_ps(one, _mm256_sub_ps(one, a1));
-            let ti = _mm256_mul_ps(t, ra);
-            let w = _mm256_and_ps(_mm256_mul_ps(a1, ti), ok);
-            let gcol = _mm256_mul_ps(gr, _mm256_set1_ps(sp.rgb[0]));
-            let gcol = _mm256_fmadd_ps(gg, _mm256_set1_ps(sp.rgb[1]), gcol);
-            let gcol = _mm256_fmadd_ps(gb, _mm256_set1_ps(sp.rgb[2]), gcol);
-            let gcol = _mm256_fmadd_ps(gs, _mm256_set1_ps(sp.depth), gcol);
-            let behind = _mm256_mul_ps(r, ra);
-            let dl = _mm256_fmsub_ps(gcol, ti, behind);
-            let qm = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(raw, maxa));
-            let q = _mm256_and_ps(_mm256_mul_ps(dl, gauss), qm);
-            let dy = _mm256_set1_ps(g.dy);
-            acc[0] = _mm256_add_ps(acc[0], q);
-            let v = _mm256_mul_ps(q, dx);
-            acc[1] = _mm256_add_ps(acc[1], v);
-            acc[2] = _mm256_fmadd_ps(q, dy, acc[2]);
-            acc[3] = _mm256_fmadd_ps(v, dx, acc[3]);
-            acc[4] = _mm256_fmadd_ps(v, dy, acc[4]);
-            acc[5] = _mm256_fmadd_ps(q, _mm256_set1_ps(g.dy * g.dy), acc[5]);
-            acc[6] = _mm256_fmadd_ps(gr, w, acc[6]);
-            acc[7] = _mm256_fmadd_ps(gg, w, acc[7]);
-            acc[8] = _mm256_fmadd_ps(gb, w, acc[8]);
-            acc[9] = _mm256_fmadd_ps(gs, w, acc[9]);
-            let r_new = _mm256_blendv_ps(r, _mm256_fmadd_ps(gcol, w, r), ok);
-            _mm256_store_ps(row.r.as_mut_ptr().add(o), r_new);
-            _mm256_store_ps(row.t.as_mut_ptr().add(o), _mm256_blendv_ps(t, ti, ok));
         }
         acc
     }

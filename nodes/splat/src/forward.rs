@@ -806,39 +806,66 @@ pub(crate) mod avx2 {
         let mut last = _mm256_load_ps(row.last.as_ptr().add(o) as *const f32);
         let mut act = lane_mask(act_bits);
         let mut pairs = 0u32;
-        while bits != 0 {
-            let j = bits.trailing_zeros();
+        // α of entry j and the lanes where it passes the cutoff (σ ≥ 0, α ≥ 1/255).
+        macro_rules! alpha {
+            ($j:expr) => {{
+                let sp = splats.get_unchecked(*batch.get_unchecked($j as usize) as usize);
+                let g = RowGeom::new(sp, py);
+                let dx = _mm256_sub_ps(_mm256_set1_ps(sp.x), px);
+                let u = _mm256_fmadd_ps(_mm256_set1_ps(g.ha), dx, _mm256_set1_ps(g.bdy));
+                let sigma = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.hc));
+                let e = gauss_v(sigma);
+                let a1 = _mm256_min_ps(_mm256_mul_ps(_mm256_set1_ps(sp.opacity), e), maxa);
+                let pass = _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero),
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(a1, thr),
+                );
+                (sp, a1, pass)
+            }};
+        }
+        // The next entry's α is computed before the current entry is composited: the two
+        // exponentials are independent, so the CPU overlaps them, while the compositing (the
+        // only dependent part) still runs in list order.
+        if bits != 0 {
+            let mut j = bits.trailing_zeros();
             bits &= bits - 1;
-            let sp = splats.get_unchecked(*batch.get_unchecked(j as usize) as usize);
-            let g = RowGeom::new(sp, py);
-            let dx = _mm256_sub_ps(_mm256_set1_ps(sp.x), px);
-            let u = _mm256_fmadd_ps(_mm256_set1_ps(g.ha), dx, _mm256_set1_ps(g.bdy));
-            let sigma = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.hc));
-            let e = gauss_v(sigma);
-            let a1 = _mm256_min_ps(_mm256_mul_ps(_mm256_set1_ps(sp.opacity), e), maxa);
-            let ok = _mm256_and_ps(act, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero));
-            let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(a1, thr));
-            if _mm256_movemask_ps(ok) == 0 {
-                continue;
-            }
-            let next_t = _mm256_mul_ps(t, _mm256_sub_ps(one, a1));
-            let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tthr));
-            let comp = _mm256_andnot_ps(stop, ok);
-            act = _mm256_andnot_ps(stop, act);
-            // w is zeroed outside `comp`: there the sums gain w·c = ±0, which leaves them
-            // unchanged (colour and depth are finite, and a sum that starts at +0 and gains
-            // only products ≥ 0 or ±0 is never −0).
-            let w = _mm256_and_ps(_mm256_mul_ps(a1, t), comp);
-            cr = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[0]), cr);
-            cg = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[1]), cg);
-            cb = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[2]), cb);
-            d = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.depth), d);
-            t = _mm256_blendv_ps(t, next_t, comp);
-            let kk = _mm256_castsi256_ps(_mm256_set1_epi32((k_base + j + 1) as i32));
-            last = _mm256_blendv_ps(last, kk, comp);
-            pairs += (_mm256_movemask_ps(comp) as u32).count_ones();
-            if _mm256_movemask_ps(act) == 0 {
-                break;
+            let (mut sp, mut a1, mut pass) = alpha!(j);
+            loop {
+                let next = if bits != 0 {
+                    let jn = bits.trailing_zeros();
+                    bits &= bits - 1;
+                    Some((jn, alpha!(jn)))
+                } else {
+                    None
+                };
+                let ok = _mm256_and_ps(act, pass);
+                if _mm256_movemask_ps(ok) != 0 {
+                    let next_t = _mm256_mul_ps(t, _mm256_sub_ps(one, a1));
+                    let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tthr));
+                    let comp = _mm256_andnot_ps(stop, ok);
+                    act = _mm256_andnot_ps(stop, act);
+                    // w is zeroed outside `comp`: there the sums gain w·c = ±0, which leaves
+                    // them unchanged (colour and depth are finite, and a sum that starts at +0
+                    // and gains only products ≥ 0 or ±0 is never −0).
+                    let w = _mm256_and_ps(_mm256_mul_ps(a1, t), comp);
+                    cr = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[0]), cr);
+                    cg = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[1]), cg);
+                    cb = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[2]), cb);
+                    d = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.depth), d);
+                    t = _mm256_blendv_ps(t, next_t, comp);
+                    let kk = _mm256_castsi256_ps(_mm256_set1_epi32((k_base + j + 1) as i32));
+                    last = _mm256_blendv_ps(last, kk, comp);
+                    pairs += (_mm256_movemask_ps(comp) as u32).count_ones();
+                    if _mm256_movemask_ps(act) == 0 {
+                        break;
+                    }
+                }
+                match next {
+                    Some((jn, (s, a, p))) => {
+                        (j, sp, a1, pass) = (jn, s, a, p);
+                    }
+                    None => break,
+                }
             }
         }
         _mm256_store_ps(row.t.as_mut_ptr().add(o), t);
