@@ -47,15 +47,22 @@ fn with_chunk_state<R>(render: bool, f: impl FnOnce(&mut ChunkState) -> R) -> R 
 }
 
 /// Float buffers handed from the chunk workers to the hash-table reduction and back, so each
-/// step reuses the previous step's allocations (contents are always overwritten).
+/// step reuses the previous step's allocations (contents are always overwritten): sample
+/// coordinates here, encoding gradients in [`ENC_POOL`] (one pool per kind, so a buffer comes
+/// back to a role of its own size instead of being regrown).
 static BUFFER_POOL: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+
+/// Encoding-gradient buffers: swapped with the chunk state's (no copy), see [`BUFFER_POOL`].
+static ENC_POOL: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
 
 /// Frees the pooled hand-off buffers (called when a training run ends; the pool refills on
 /// the next step that needs it).
 pub fn release_buffers() {
-    if let Ok(mut p) = BUFFER_POOL.lock() {
-        p.clear();
-        p.shrink_to_fit();
+    for pool in [&BUFFER_POOL, &ENC_POOL] {
+        if let Ok(mut p) = pool.lock() {
+            p.clear();
+            p.shrink_to_fit();
+        }
     }
 }
 
@@ -71,9 +78,22 @@ fn pooled_copy(src: &[f32]) -> Vec<f32> {
     v
 }
 
-/// Returns buffers to the pool (bounded, so a one-off large step does not pin memory).
-fn recycle(bufs: impl IntoIterator<Item = Vec<f32>>) {
-    if let Ok(mut p) = BUFFER_POOL.lock() {
+/// Hands over `buf` truncated to `len` floats, leaving a pooled buffer (arbitrary contents) in
+/// its place: for buffers the chunk state overwrites completely before reading them again.
+fn pooled_swap(buf: &mut Vec<f32>, len: usize) -> Vec<f32> {
+    let mut v = ENC_POOL
+        .lock()
+        .ok()
+        .and_then(|mut p| p.pop())
+        .unwrap_or_default();
+    std::mem::swap(&mut v, buf);
+    v.truncate(len);
+    v
+}
+
+/// Returns buffers to a pool (bounded, so a one-off large step does not pin memory).
+fn recycle(pool: &std::sync::Mutex<Vec<Vec<f32>>>, bufs: impl IntoIterator<Item = Vec<f32>>) {
+    if let Ok(mut p) = pool.lock() {
         for b in bufs {
             if p.len() < 1024 {
                 p.push(b);
@@ -470,7 +490,9 @@ pub fn train_step(
                 field.backward_chunk(params, &inputs, st, &mut g);
                 ChunkResult {
                     grad: g,
-                    d_enc: pooled_copy(&st.d_enc[..field.grid.output_dim() * st.ld]),
+                    // `backward_chunk` rewrites every entry of `st.d_enc` it reads later,
+                    // so the buffer is handed over instead of copied.
+                    d_enc: pooled_swap(&mut st.d_enc, field.grid.output_dim() * st.ld),
                     px: pooled_copy(&st.px),
                     py: pooled_copy(&st.py),
                     pz: pooled_copy(&st.pz),
@@ -516,11 +538,15 @@ pub fn train_step(
         stats.samples += r.n as u64;
         stats.color_samples += r.color_samples as u64;
     }
+    let mut enc_bufs = Vec::with_capacity(results.len());
     recycle(
-        results
-            .into_iter()
-            .flat_map(|r| [r.d_enc, r.px, r.py, r.pz]),
+        &BUFFER_POOL,
+        results.into_iter().flat_map(|r| {
+            enc_bufs.push(r.d_enc);
+            [r.px, r.py, r.pz]
+        }),
     );
+    recycle(&ENC_POOL, enc_bufs);
     stats.rgb_loss /= total as f64;
     stats.depth_loss /= total as f64;
     stats.distortion_loss /= total as f64;
