@@ -14,7 +14,14 @@
 //!   6 outputs × 16 inputs (or 3 outputs × 32 inputs) accumulates in registers, one sample
 //!   after the other. Every weight gradient is therefore the sequential fused sum over the
 //!   batch in column order, independent of block sizes. The bias lane sums keep the 16 lanes of
-//!   [`crate::mlp::LANES`] (two ymm halves), so they add exactly the same numbers.
+//!   [`crate::mlp::LANES`] (two ymm halves), so they add exactly the same numbers. The next
+//!   block of `X` is prefetched during each block's transpose (its rows are too far apart for
+//!   the hardware prefetcher).
+//! - Alignment: large `Vec`s from the C allocator start 16 bytes past a 64-byte boundary, so
+//!   every other 8-float vector of a row would straddle two cache lines. When `x`'s rows start
+//!   16 bytes past a 32-byte boundary, the forward kernel walks the columns on the 32-byte grid
+//!   (masked 4-column windows at both ends); the columns each tile computes change, the
+//!   operations per output do not.
 //!
 //! The callers check slice lengths; these functions are `unsafe` because they require AVX2
 //! and FMA and read through raw pointers within those checked bounds.
