@@ -25,7 +25,7 @@ pub struct Args {
     /// Pin this run's results under NAME (kept by `gc` until `cache/pins/NAME.json` is deleted).
     #[arg(long, value_name = "NAME")]
     pub pin: Option<String>,
-    /// Copy the run's results into DIR/<instance>/<output>/ (writable copies, replacing
+    /// Copy the run's results into `DIR/<instance>/<output>/` (writable copies, replacing
     /// earlier ones): the outputs of the `--target` nodes, or without targets of the nodes
     /// nothing else consumes (e.g. the report of each sweep point).
     #[arg(long, value_name = "DIR")]

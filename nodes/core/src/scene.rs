@@ -180,8 +180,8 @@ impl PointCloud {
         &self.track_views[self.track_offsets[i] as usize..self.track_offsets[i + 1] as usize]
     }
 
-    /// Writes the cloud as safetensors (tensors positions [N,3], colors [N,3], errors [N] f32;
-    /// track_offsets [N+1], track_views [T] u32).
+    /// Writes the cloud as safetensors (tensors `positions [N,3]`, `colors [N,3]`, `errors [N]`
+    /// f32; `track_offsets [N+1]`, `track_views [T]` u32).
     pub fn save(&self, path: &Path) -> Result<(), CoreError> {
         use safetensors::tensor::{Dtype, TensorView};
         let n = self.len();

@@ -5,7 +5,7 @@
 //! [`mlp`], [`sh`]), mip-NeRF 360 contraction ([`contraction`]) — sampled through an occupancy
 //! grid over contracted space ([`occupancy`]) and volume-rendered with analytic gradients
 //! ([`volume`]). Training ([`train`]) uses Adam over fixed ray chunks with a fixed-order
-//! gradient reduction, so results are bit-identical for any thread count. [`reference`] holds
+//! gradient reduction, so results are bit-identical for any thread count. [`mod@reference`] holds
 //! naive f64 versions of every kernel for tests. The node kinds are in [`nodes`].
 
 // Kernels index several parallel arrays (SoA rows, accumulators, weights) with one index;

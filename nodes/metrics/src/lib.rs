@@ -1,7 +1,7 @@
 //! augsplat-metrics: how every result is judged.
 //!
 //! - [`psnr`], [`mse`]: over all pixels and channels of images in [0, 1].
-//! - [`ssim`]: the torchmetrics convention (Gaussian 11×11, σ 1.5, K1 0.01, K2 0.03, data range 1,
+//! - [`fn@ssim`]: the torchmetrics convention (Gaussian 11×11, σ 1.5, K1 0.01, K2 0.03, data range 1,
 //!   reflect padding, mean over the full map) that gsplat and AugSplat report; [`ssim_valid`]
 //!   crops the map by 5 px per side (scikit-image's Gaussian SSIM).
 //! - [`lpips`]: LPIPS v0.1 with AlexNet or VGG16 backbones from safetensors weights.

@@ -4,7 +4,7 @@
 //! Per step ([`Densifier::accumulate`]) the per-view screen-space gradient statistic
 //! `‖dL/d(mean2d)‖` — in NDC-normalised units (× width/2, × height/2) — is summed for each
 //! visible Gaussian together with a visibility count. Every `every` steps in
-//! `(start, stop)` ([`Densifier::refine`]):
+//! `(start, stop)` ([`Densifier::step_post_update`]):
 //! 1. **grow**: Gaussians whose average statistic exceeds `grad_threshold` are *cloned*
 //!    (identical copy appended) when their largest scale ≤ `grow_scale3d · scene_scale`, and
 //!    *split* otherwise: replaced by two children at positions drawn from the Gaussian

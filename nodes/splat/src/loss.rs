@@ -16,9 +16,9 @@
 //! **How the fused kernel is laid out.** All three channels are filtered together on the
 //! interleaved rows (a horizontal tap is an offset of 3 floats), so nothing is de-interleaved.
 //! The image is cut into fixed bands of rows (the cut depends only on the image height); one
-//! task streams through its band: the horizontal pass of the five moment rows (μx, μy, E[x²],
-//! E[y²], E[xy]) goes into an 11-row ring, the vertical pass turns 11 ring rows into one SSIM
-//! row and its three per-pixel partials (dS/dμx, dS/dE[x²], dS/dE[xy]) in a second ring, and
+//! task streams through its band: the horizontal pass of the five moment rows (μx, μy, E\[x²\],
+//! E\[y²\], E\[xy\]) goes into an 11-row ring, the vertical pass turns 11 ring rows into one SSIM
+//! row and its three per-pixel partials (dS/dμx, dS/dE\[x²\], dS/dE\[xy\]) in a second ring, and
 //! as soon as an input row has all the partials it needs, the adjoint passes (vertical gather,
 //! horizontal gather) and the chain rule through the moments (`A + 2x·B + y·C`) add its
 //! gradient, together with the L2/L1 term, straight into the caller's buffer. A band
@@ -30,7 +30,7 @@
 //! it), and every sum has a fixed lane structure written in the code, so the result is
 //! bit-identical on every CPU and for any rayon thread count.
 //!
-//! [`reference`] holds plain f64 versions (direct per-window sums) for the tests.
+//! [`mod@reference`] holds plain f64 versions (direct per-window sums) for the tests.
 
 use rayon::prelude::*;
 

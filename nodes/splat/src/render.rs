@@ -2,7 +2,7 @@
 //!
 //! The pipeline (gsplat "classic" 3DGS, DESIGN.md §4): per-Gaussian projection
 //! ([`crate::project`]) → tile binning with one depth sort ([`crate::tiles`]) → per-tile
-//! front-to-back compositing ([`crate::forward`]); the backward pass ([`crate::backward`])
+//! front-to-back compositing (`crate::forward`); the backward pass (`crate::backward`)
 //! recomputes each tile back to front from the per-pixel last-contributor index and final
 //! transmittance kept in [`RenderOutput`].
 
