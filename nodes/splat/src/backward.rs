@@ -664,7 +664,7 @@ unsafe fn backward_tile_impl<K: BackwardKernel, const SMOOTH: bool>(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    emit: &mut dyn FnMut(usize, PairGrad),
+    emit: &mut impl FnMut(usize, PairGrad),
 ) {
     let max_last = (tile.row_last.iter().copied().max().unwrap_or(0) as usize).min(list.len());
     for k in max_last..list.len() {
@@ -708,7 +708,7 @@ fn backward_tile_portable<const SMOOTH: bool>(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut dyn FnMut(usize, PairGrad),
+    out: &mut impl FnMut(usize, PairGrad),
 ) {
     // SAFETY: the portable kernel has no instruction-set requirement.
     unsafe { backward_tile_impl::<Portable, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
@@ -724,7 +724,7 @@ fn backward_tile_avx2<const SMOOTH: bool>(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut dyn FnMut(usize, PairGrad),
+    out: &mut impl FnMut(usize, PairGrad),
 ) {
     // SAFETY: this function is only compiled for, and called on, CPUs with AVX2 + FMA.
     unsafe { backward_tile_impl::<avx2::Avx2, SMOOTH>(splats, list, x0, y0, tile, max_alpha, out) }
@@ -740,7 +740,7 @@ fn backward_tile_avx512(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut dyn FnMut(usize, PairGrad),
+    out: &mut impl FnMut(usize, PairGrad),
 ) {
     // SAFETY: this function is only compiled for, and called on, CPUs with AVX-512F/DQ + FMA.
     unsafe {
@@ -759,7 +759,7 @@ fn backward_tile_dispatch<const SMOOTH: bool>(
     y0: u32,
     tile: &mut BwdTile,
     max_alpha: f32,
-    out: &mut dyn FnMut(usize, PairGrad),
+    out: &mut impl FnMut(usize, PairGrad),
 ) {
     match isa {
         #[cfg(target_arch = "x86_64")]
