@@ -98,8 +98,9 @@ impl Node for EvaluateNode {
     const KIND: &'static str = "Evaluate";
     // 2: the FMA rasteriser kernels change renders in the last bits. 3: LPIPS weights only
     // from the `lpips` input (no environment or default-folder fallback). 4: the projection's
-    // own exp/ln (eight Gaussians per vector) change renders in the last bits.
-    const VERSION: u32 = 4;
+    // own exp/ln (eight Gaussians per vector) change renders in the last bits. 5: the
+    // kernels' base-2 exponential changes renders in the last bits.
+    const VERSION: u32 = 5;
     type Args = EvaluateArgs;
 
     fn inputs(_args: &EvaluateArgs) -> Vec<InputDecl> {

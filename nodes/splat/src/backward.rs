@@ -317,7 +317,7 @@ mod avx512 {
         let thr = _mm512_set1_ps(ALPHA_THRESHOLD);
         let kv = _mm512_set1_epi32(k as i32);
         let xs = _mm512_set1_ps(sp.x);
-        let ha = _mm512_set1_ps(0.5 * sp.a);
+        let ha = _mm512_set1_ps(RowGeom::half_a(sp));
         let o = _mm512_set1_ps(sp.opacity);
         let (cr, cg, cb, cz) = (
             _mm512_set1_ps(sp.rgb[0]),
@@ -497,7 +497,7 @@ mod avx2 {
         let flip = _mm256_set1_epi32(i32::MIN);
         let kv = _mm256_xor_si256(_mm256_set1_epi32(k as i32), flip);
         let dx = _mm256_sub_ps(_mm256_set1_ps(sp.x), px);
-        let ha = _mm256_set1_ps(0.5 * sp.a);
+        let ha = _mm256_set1_ps(RowGeom::half_a(sp));
         let o_v = _mm256_set1_ps(sp.opacity);
         let (cr, cg, cb, cz) = (
             _mm256_set1_ps(sp.rgb[0]),

@@ -50,9 +50,10 @@ pub(crate) const BATCH: usize = 64;
 /// How many list entries ahead the tile loops prefetch projected records.
 pub(crate) const PREFETCH_AHEAD: usize = 8;
 
-/// σ is clamped to this before the exponential: beyond it α < 1/255 for any opacity ≤ 1,
-/// so the clamp never changes a composited value, and e^−σ stays a normal float.
-pub(crate) const SIGMA_CLAMP: f32 = 30.0;
+/// σ in bits (σ·log₂e) is clamped to this before the exponential: beyond it α < 2^−44 <
+/// 1/255 for any opacity ≤ 1, so the clamp never changes a composited value, and 2^−σ stays
+/// a normal float.
+pub(crate) const SIGMA_CLAMP: f32 = 44.0;
 
 /// Padding (pixels) added to the half-chord of the row test, so that rounding never drops
 /// a pixel the compositing rule would keep.
@@ -113,40 +114,40 @@ pub(crate) struct RasterState {
     pub sh_degree: u32,
 }
 
-/// e^x for x ≤ 0 (inputs below −87 are clamped), branch-free and free of float→int
-/// conversions so it vectorises; relative error below 3e-7.
-#[inline(always)]
-pub fn exp_neg(x: f32) -> f32 {
-    exp_core(x.clamp(-87.0, 0.0))
-}
-
-const LOG2E: f32 = std::f32::consts::LOG2_E;
-const LN2_HI: f32 = 0.693_145_75;
-const LN2_LO: f32 = 1.428_606_8e-6;
+/// log₂e: the kernels evaluate σ in bits (σ·log₂e) so that e^−σ = 2^−(σ·log₂e).
+pub(crate) const LOG2E: f32 = std::f32::consts::LOG2_E;
+/// ½·log₂e, the factor of the conic's diagonal terms in σ·log₂e.
+const HALF_LOG2E: f32 = 0.5 * std::f32::consts::LOG2_E;
 /// 1.5·2²³: adding it rounds to an integer held in the low mantissa bits.
 const ROUND: f32 = 12_582_912.0;
-/// Taylor coefficients of e^f, highest degree first (|f| ≤ ln2/2: truncation below 1e-8).
-const EXP_POLY: [f32; 8] = [
-    1.0 / 5040.0,
-    1.0 / 720.0,
-    1.0 / 120.0,
-    1.0 / 24.0,
-    1.0 / 6.0,
-    0.5,
-    1.0,
-    1.0,
+/// Minimax polynomial of 2^f on |f| ≤ ½ (relative error), highest degree first. Evaluated
+/// by Horner's rule in f32 with fused multiply-adds its relative error stays below 2.2e-7.
+const EXP2_POLY: [f32; 6] = [
+    1.327_647_1e-3,
+    9.675_541e-3,
+    5.550_713e-2,
+    2.402_212e-1,
+    6.931_469_4e-1,
+    1.000_000_1,
 ];
 
-/// e^x for x in [−87, 0] (unchecked): x = n·ln2 + f, e^x = 2ⁿ·p(f). Fused multiply-adds
-/// throughout; the AVX-512 kernel performs exactly these operations.
+/// 2^x for x ≤ 0 (inputs below −126 are clamped), branch-free and free of float→int
+/// conversions so it vectorises; relative error below 2.2e-7.
 #[inline(always)]
-pub(crate) fn exp_core(x: f32) -> f32 {
-    let shifted = x.mul_add(LOG2E, ROUND);
+pub fn exp2_neg(x: f32) -> f32 {
+    exp2_core(x.clamp(-126.0, 0.0))
+}
+
+/// 2^x for x in [−126, 0] (unchecked): x = n + f with n the nearest integer, 2^x = 2ⁿ·p(f).
+/// The subtraction x − n is exact, so the only rounding is in the polynomial; the AVX-512 and
+/// AVX2 kernels perform exactly these operations.
+#[inline(always)]
+pub(crate) fn exp2_core(x: f32) -> f32 {
+    let shifted = x + ROUND;
     let n = shifted - ROUND;
-    let f = (-n).mul_add(LN2_HI, x);
-    let f = (-n).mul_add(LN2_LO, f);
-    let mut p = EXP_POLY[0];
-    for c in &EXP_POLY[1..] {
+    let f = x - n;
+    let mut p = EXP2_POLY[0];
+    for c in &EXP2_POLY[1..] {
         p = p.mul_add(f, *c);
     }
     let k = shifted.to_bits().wrapping_sub(ROUND.to_bits());
@@ -154,13 +155,14 @@ pub(crate) fn exp_core(x: f32) -> f32 {
     p * scale
 }
 
-/// e^−σ as the kernels evaluate it: σ clamped to [0, SIGMA_CLAMP] first.
+/// e^−σ as the kernels evaluate it, from σ in bits (`sigma2` = σ·log₂e, as [`RowGeom`]
+/// gives it): clamped to [0, SIGMA_CLAMP] first, then 2^−sigma2.
 #[inline(always)]
-pub(crate) fn gauss_of_sigma(sigma: f32) -> f32 {
+pub(crate) fn gauss_of_sigma(sigma2: f32) -> f32 {
     // Not `clamp`: a NaN σ must become SIGMA_CLAMP here, as `_mm512_min_ps` makes it.
     #[allow(clippy::manual_clamp)]
-    let sc = sigma.min(SIGMA_CLAMP).max(0.0);
-    exp_core(0.0 - sc)
+    let sc = sigma2.min(SIGMA_CLAMP).max(0.0);
+    exp2_core(0.0 - sc)
 }
 
 /// The smooth cutoff factor s(α) (C¹ smoothstep from 1/255 to 2/255) and its derivative.
@@ -183,8 +185,9 @@ pub(crate) fn effective_max_alpha(s: &RenderSettings) -> f32 {
     }
 }
 
-/// Per-row scalars of one Gaussian: σ on the row at offset dy = y − pixel y is
-/// `(ha·dx + bdy)·dx + hc` with dx = x − pixel x (two fused multiply-adds per pixel).
+/// Per-row scalars of one Gaussian: σ in bits (σ·log₂e, the argument of the kernels'
+/// base-2 exponential) on the row at offset dy = y − pixel y is `(ha·dx + bdy)·dx + hc` with
+/// dx = x − pixel x (two fused multiply-adds per pixel).
 #[derive(Clone, Copy)]
 pub(crate) struct RowGeom {
     pub dy: f32,
@@ -194,14 +197,20 @@ pub(crate) struct RowGeom {
 }
 
 impl RowGeom {
+    /// The row-independent `ha` of `sp` (½·a·log₂e).
+    #[inline(always)]
+    pub(crate) fn half_a(sp: &Splat2D) -> f32 {
+        HALF_LOG2E * sp.a
+    }
+
     #[inline(always)]
     pub(crate) fn new(sp: &Splat2D, py: f32) -> Self {
         let dy = sp.y - py;
         RowGeom {
             dy,
-            ha: 0.5 * sp.a,
-            bdy: sp.b * dy,
-            hc: 0.5 * sp.c * dy * dy,
+            ha: Self::half_a(sp),
+            bdy: LOG2E * sp.b * dy,
+            hc: HALF_LOG2E * sp.c * dy * dy,
         }
     }
     #[inline(always)]
@@ -484,15 +493,14 @@ pub(crate) mod avx512 {
             && std::arch::is_x86_feature_detected!("fma")
     }
 
-    /// e^x for x in [−30, 0] lane-wise: exactly the operations of [`exp_core`].
+    /// 2^x for x in [−SIGMA_CLAMP, 0] lane-wise: exactly the operations of [`exp2_core`].
     #[inline(always)]
-    pub(crate) unsafe fn exp_core_v(x: __m512) -> __m512 {
-        let shifted = _mm512_fmadd_ps(x, _mm512_set1_ps(LOG2E), _mm512_set1_ps(ROUND));
+    pub(crate) unsafe fn exp2_core_v(x: __m512) -> __m512 {
+        let shifted = _mm512_add_ps(x, _mm512_set1_ps(ROUND));
         let n = _mm512_sub_ps(shifted, _mm512_set1_ps(ROUND));
-        let f = _mm512_fnmadd_ps(n, _mm512_set1_ps(LN2_HI), x);
-        let f = _mm512_fnmadd_ps(n, _mm512_set1_ps(LN2_LO), f);
-        let mut p = _mm512_set1_ps(EXP_POLY[0]);
-        for c in &EXP_POLY[1..] {
+        let f = _mm512_sub_ps(x, n);
+        let mut p = _mm512_set1_ps(EXP2_POLY[0]);
+        for c in &EXP2_POLY[1..] {
             p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(*c));
         }
         // p·2ⁿ with n integral and the result normal: exact, like the multiplication by the
@@ -505,7 +513,7 @@ pub(crate) mod avx512 {
     pub(crate) unsafe fn gauss_v(sigma: __m512) -> __m512 {
         let zero = _mm512_setzero_ps();
         let sc = _mm512_max_ps(_mm512_min_ps(sigma, _mm512_set1_ps(SIGMA_CLAMP)), zero);
-        exp_core_v(_mm512_sub_ps(zero, sc))
+        exp2_core_v(_mm512_sub_ps(zero, sc))
     }
 
     /// [`row_mask_portable`] with the 16 rows as lanes.
@@ -655,16 +663,15 @@ pub(crate) mod avx2 {
     use super::*;
     use std::arch::x86_64::*;
 
-    /// [`exp_core`] lane-wise: exactly its operations (2ⁿ built in the exponent bits).
+    /// [`exp2_core`] lane-wise: exactly its operations (2ⁿ built in the exponent bits).
     #[inline(always)]
-    pub(crate) unsafe fn exp_core_v(x: __m256) -> __m256 {
+    pub(crate) unsafe fn exp2_core_v(x: __m256) -> __m256 {
         let round = _mm256_set1_ps(ROUND);
-        let shifted = _mm256_fmadd_ps(x, _mm256_set1_ps(LOG2E), round);
+        let shifted = _mm256_add_ps(x, round);
         let n = _mm256_sub_ps(shifted, round);
-        let f = _mm256_fnmadd_ps(n, _mm256_set1_ps(LN2_HI), x);
-        let f = _mm256_fnmadd_ps(n, _mm256_set1_ps(LN2_LO), f);
-        let mut p = _mm256_set1_ps(EXP_POLY[0]);
-        for c in &EXP_POLY[1..] {
+        let f = _mm256_sub_ps(x, n);
+        let mut p = _mm256_set1_ps(EXP2_POLY[0]);
+        for c in &EXP2_POLY[1..] {
             p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(*c));
         }
         let k = _mm256_sub_epi32(_mm256_castps_si256(shifted), _mm256_castps_si256(round));
@@ -678,7 +685,7 @@ pub(crate) mod avx2 {
     pub(crate) unsafe fn gauss_v(sigma: __m256) -> __m256 {
         let zero = _mm256_setzero_ps();
         let sc = _mm256_max_ps(_mm256_min_ps(sigma, _mm256_set1_ps(SIGMA_CLAMP)), zero);
-        exp_core_v(_mm256_sub_ps(zero, sc))
+        exp2_core_v(_mm256_sub_ps(zero, sc))
     }
 
     /// [`row_mask_portable`] for the eight rows whose centres are `py`, with the chord tested
@@ -1984,16 +1991,49 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn exp_neg_is_accurate() {
-        let mut x = 0.0f32;
-        while x > -80.0 {
-            let e = exp_neg(x) as f64;
-            let r = (x as f64).exp();
-            assert!(((e - r) / r).abs() < 3e-7, "x {x}: {e} vs {r}");
-            x -= 0.0137;
+    fn base_two_exponential_is_accurate() {
+        // Coarse steps over the whole range, fine ones over one period of the polynomial.
+        let coarse = (0..9190).map(|i| -(i as f32) * 0.0137);
+        let fine = (0..=20_000).map(|i| -(i as f32) / 20_000.0);
+        let mut worst = 0.0f64;
+        for x in coarse.chain(fine) {
+            let e = exp2_neg(x) as f64;
+            let r = (x as f64).exp2();
+            worst = worst.max(((e - r) / r).abs());
         }
-        assert_eq!(exp_neg(0.0), 1.0);
-        assert!(exp_neg(-1e30) >= 0.0 && exp_neg(-1e30) < 1e-37);
+        assert!(worst < 2.2e-7, "worst relative error {worst}");
+        assert!((exp2_neg(0.0) - 1.0).abs() <= 2.0 * f32::EPSILON);
+        assert!(exp2_neg(-1e30) >= 0.0 && exp2_neg(-1e30) < 1e-37);
+        assert!(exp2_neg(f32::NEG_INFINITY) < 1e-37);
+    }
+
+    #[test]
+    fn row_geometry_in_bits_gives_the_gaussian_falloff() {
+        // e^−σ from the kernels' base-2 form, against f64 on a rotated anisotropic conic.
+        let sp = Splat2D {
+            x: 10.3,
+            y: -4.7,
+            a: 0.37,
+            b: -0.11,
+            c: 0.21,
+            ..Splat2D::default()
+        };
+        for py in [-9.5f32, -4.5, 0.5, 3.5] {
+            let g = RowGeom::new(&sp, py);
+            for px in [2.5f32, 8.5, 10.5, 17.5] {
+                let dx = sp.x - px;
+                let dy = (sp.y - py) as f64;
+                let sigma = 0.5 * sp.a as f64 * (dx as f64).powi(2)
+                    + sp.b as f64 * dx as f64 * dy
+                    + 0.5 * sp.c as f64 * dy * dy;
+                let want = (-sigma).exp();
+                let got = gauss_of_sigma(g.sigma(dx)) as f64;
+                assert!(
+                    (got - want).abs() <= 1e-6 * want + 1e-12,
+                    "({px}, {py}): {got} vs {want}"
+                );
+            }
+        }
     }
 
     #[cfg(target_arch = "x86_64")]

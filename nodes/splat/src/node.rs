@@ -141,8 +141,9 @@ impl Node for OptimizeSplats {
     // 2: FMA rasteriser kernels, the fused loss and Frusta random initialisation change the
     // outputs. 3: the curve's average error is the mean of per-view average errors (as
     // `Evaluate`), which can change the best checkpoint. 4: the projection's own exp/ln
-    // (eight Gaussians per vector) change renders in the last bits.
-    const VERSION: u32 = 4;
+    // (eight Gaussians per vector) change renders in the last bits. 5: the kernels' base-2
+    // exponential (σ in bits, a degree-5 polynomial) changes renders in the last bits.
+    const VERSION: u32 = 5;
     type Args = TrainArgs;
 
     fn inputs(_args: &TrainArgs) -> Vec<InputDecl> {
