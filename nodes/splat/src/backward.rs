@@ -17,13 +17,15 @@
 //! with B the sums over Gaussians behind i (B_c includes T_N·background), g_S = g_D/A and
 //! g_A' = g_A − g_D·D/A from the alpha-normalised depth D = S/A. Per pixel the kernel keeps
 //! G_i = Σ_c g_c c_i + g_S z_i and one running sum R = Σ_behind G_j α_j T_j + T_N (g·bg − g_A'),
-//! so that dL/dα_i = G_i T_i − R/(1 − α_i).
+//! so that dL/dα_i = G_i T_i − R/(1 − α_i) = (G_i T_{i+1} − R)/(1 − α_i).
 //!
 //! Per (tile, Gaussian) the pixel lanes accumulate, with Q = dL/dα₁ · e^−σ (zero where the
 //! alpha clamp is active): P = ΣQ, S_x = ΣQ·dx, S_y = ΣQ·dy, S_xx, S_xy, S_yy, and the colour
 //! and depth sums Σ g_c·α·T, Σ g_S·α·T; since dσ = ½dx²·da + dx·dy·db + ½dy²·dc + (a dx + b dy)
 //! d(mean_x) + (b dx + c dy) d(mean_y) and dα₁/dσ = −o·e^−σ, the screen-space gradient
-//! follows from these sums per pair. As in the forward pass, every kernel has a portable
+//! follows from these sums per pair. dx is constant along a pixel lane (a tile column), so a
+//! lane accumulates only ΣQ, ΣQ·dy and ΣQ·dy² over the rows and forms its S_x, S_xx and S_xy
+//! by multiplying by its dx once. As in the forward pass, every kernel has a portable
 //! twin and AVX-512 and AVX2 versions performing the same IEEE operations, and the results are
 //! bit-identical.
 
@@ -135,19 +137,16 @@ fn backward_gaussian_portable<const SMOOTH: bool>(
             gcol = row.gc[1][l].mul_add(sp.rgb[1], gcol);
             gcol = row.gc[2][l].mul_add(sp.rgb[2], gcol);
             gcol = row.gs[l].mul_add(sp.depth, gcol);
-            let behind = row.r[l] * ra;
-            let mut dl = gcol.mul_add(ti, -behind);
+            // G·T_i − R/(1 − α) = (G·T_{i+1} − R)/(1 − α): the fused multiply-add does not
+            // wait for the division.
+            let mut dl = gcol.mul_add(row.t[l], -row.r[l]) * ra;
             if SMOOTH {
                 dl *= da_da1;
             }
             if raw < max_alpha {
                 let q = dl * gauss;
                 lanes[0][l] += q;
-                let v = q * dx;
-                lanes[1][l] += v;
                 lanes[2][l] = q.mul_add(g.dy, lanes[2][l]);
-                lanes[3][l] = v.mul_add(dx, lanes[3][l]);
-                lanes[4][l] = v.mul_add(g.dy, lanes[4][l]);
                 lanes[5][l] = q.mul_add(dy2, lanes[5][l]);
             }
             for ch in 0..3 {
@@ -157,6 +156,13 @@ fn backward_gaussian_portable<const SMOOTH: bool>(
             row.r[l] = gcol.mul_add(w, row.r[l]);
             row.t[l] = ti;
         }
+    }
+    // dx is constant along a lane, so the sums weighted by dx are formed once per lane.
+    for l in 0..16 {
+        let dx = sp.x - tc.px[l];
+        lanes[1][l] = lanes[0][l] * dx;
+        lanes[3][l] = lanes[1][l] * dx;
+        lanes[4][l] = lanes[2][l] * dx;
     }
     let mut out = [0.0f32; 10];
     for q in 0..10 {
@@ -357,17 +363,12 @@ mod avx512 {
             let gcol = _mm512_fmadd_ps(gg, cg, gcol);
             let gcol = _mm512_fmadd_ps(gb, cb, gcol);
             let gcol = _mm512_fmadd_ps(gs, cz, gcol);
-            let behind = _mm512_mul_ps(r, ra);
-            let dl = _mm512_fmsub_ps(gcol, ti, behind);
+            let dl = _mm512_mul_ps(_mm512_fmsub_ps(gcol, t, r), ra);
             let qm = _mm512_mask_cmp_ps_mask::<_CMP_LT_OQ>(ok, raw, maxa);
             let q = _mm512_maskz_mul_ps(qm, dl, gauss);
             let dy = _mm512_set1_ps(g.dy);
             acc[0] = _mm512_add_ps(acc[0], q);
-            let v = _mm512_mul_ps(q, dx);
-            acc[1] = _mm512_add_ps(acc[1], v);
             acc[2] = _mm512_fmadd_ps(q, dy, acc[2]);
-            acc[3] = _mm512_fmadd_ps(v, dx, acc[3]);
-            acc[4] = _mm512_fmadd_ps(v, dy, acc[4]);
             acc[5] = _mm512_fmadd_ps(q, _mm512_set1_ps(g.dy * g.dy), acc[5]);
             acc[6] = _mm512_fmadd_ps(gr, w, acc[6]);
             acc[7] = _mm512_fmadd_ps(gg, w, acc[7]);
@@ -376,6 +377,11 @@ mod avx512 {
             _mm512_store_ps(row.r.as_mut_ptr(), _mm512_mask3_fmadd_ps(gcol, w, r, ok));
             _mm512_store_ps(row.t.as_mut_ptr(), _mm512_mask_mov_ps(t, ok, ti));
         }
+        // The dx-weighted sums, once per lane (as the portable twin).
+        let dx = _mm512_sub_ps(xs, px);
+        acc[1] = _mm512_mul_ps(acc[0], dx);
+        acc[3] = _mm512_mul_ps(acc[1], dx);
+        acc[4] = _mm512_mul_ps(acc[2], dx);
         reduce10(&acc)
     }
 
@@ -538,8 +544,7 @@ mod avx2 {
                 let gcol = _mm256_fmadd_ps(gg, cg, gcol);
                 let gcol = _mm256_fmadd_ps(gb, cb, gcol);
                 let gcol = _mm256_fmadd_ps(gs, cz, gcol);
-                let behind = _mm256_mul_ps(r, ra);
-                let dl = _mm256_fmsub_ps(gcol, ti, behind);
+                let dl = _mm256_mul_ps(_mm256_fmsub_ps(gcol, t, r), ra);
                 let qm = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(raw, maxa));
                 let q = _mm256_and_ps(_mm256_mul_ps(dl, gauss), qm);
                 let r_new = _mm256_blendv_ps(r, _mm256_fmadd_ps(gcol, w, r), ok);
@@ -552,13 +557,8 @@ mod avx2 {
         macro_rules! accumulate {
             ($terms:expr) => {{
                 let (q, gdy, gc, w) = $terms;
-                let dy = _mm256_set1_ps(gdy);
                 acc[0] = _mm256_add_ps(acc[0], q);
-                let v = _mm256_mul_ps(q, dx);
-                acc[1] = _mm256_add_ps(acc[1], v);
-                acc[2] = _mm256_fmadd_ps(q, dy, acc[2]);
-                acc[3] = _mm256_fmadd_ps(v, dx, acc[3]);
-                acc[4] = _mm256_fmadd_ps(v, dy, acc[4]);
+                acc[2] = _mm256_fmadd_ps(q, _mm256_set1_ps(gdy), acc[2]);
                 acc[5] = _mm256_fmadd_ps(q, _mm256_set1_ps(gdy * gdy), acc[5]);
                 acc[6] = _mm256_fmadd_ps(gc[0], w, acc[6]);
                 acc[7] = _mm256_fmadd_ps(gc[1], w, acc[7]);
@@ -582,6 +582,10 @@ mod avx2 {
                 accumulate!(a);
             }
         }
+        // The dx-weighted sums, once per lane (as the portable twin).
+        acc[1] = _mm256_mul_ps(acc[0], dx);
+        acc[3] = _mm256_mul_ps(acc[1], dx);
+        acc[4] = _mm256_mul_ps(acc[2], dx);
         acc
     }
 

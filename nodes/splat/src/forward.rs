@@ -120,19 +120,32 @@ pub(crate) const LOG2E: f32 = std::f32::consts::LOG2_E;
 const HALF_LOG2E: f32 = 0.5 * std::f32::consts::LOG2_E;
 /// 1.5·2²³: adding it rounds to an integer held in the low mantissa bits.
 const ROUND: f32 = 12_582_912.0;
-/// Minimax polynomial of 2^f on |f| ≤ ½ (relative error), highest degree first. Evaluated
-/// by Horner's rule in f32 with fused multiply-adds its relative error stays below 2.2e-7.
+/// Minimax polynomial of 2^f on |f| ≤ ½ (relative error), lowest degree first. Evaluated in
+/// f32 by Estrin's scheme ([`poly5`]) its relative error stays below 2.4e-7.
 const EXP2_POLY: [f32; 6] = [
-    1.327_647_1e-3,
-    9.675_541e-3,
-    5.550_713e-2,
-    2.402_212e-1,
-    6.931_469_4e-1,
     1.000_000_1,
+    6.931_469_4e-1,
+    2.402_212e-1,
+    5.550_713e-2,
+    9.675_541e-3,
+    1.327_647_1e-3,
 ];
 
+/// The degree-5 polynomial `EXP2_POLY` at f by Estrin's scheme:
+/// `(c0 + c1·f) + f²·((c2 + c3·f) + f²·(c4 + c5·f))` — a dependency chain of three fused
+/// multiply-adds instead of Horner's five.
+#[inline(always)]
+fn poly5(f: f32) -> f32 {
+    let c = &EXP2_POLY;
+    let f2 = f * f;
+    let lo = c[1].mul_add(f, c[0]);
+    let mid = c[3].mul_add(f, c[2]);
+    let hi = c[5].mul_add(f, c[4]);
+    hi.mul_add(f2, mid).mul_add(f2, lo)
+}
+
 /// 2^x for x ≤ 0 (inputs below −126 are clamped), branch-free and free of float→int
-/// conversions so it vectorises; relative error below 2.2e-7.
+/// conversions so it vectorises; relative error below 2.4e-7.
 #[inline(always)]
 pub fn exp2_neg(x: f32) -> f32 {
     exp2_core(x.clamp(-126.0, 0.0))
@@ -145,11 +158,7 @@ pub fn exp2_neg(x: f32) -> f32 {
 pub(crate) fn exp2_core(x: f32) -> f32 {
     let shifted = x + ROUND;
     let n = shifted - ROUND;
-    let f = x - n;
-    let mut p = EXP2_POLY[0];
-    for c in &EXP2_POLY[1..] {
-        p = p.mul_add(f, *c);
-    }
+    let p = poly5(x - n);
     let k = shifted.to_bits().wrapping_sub(ROUND.to_bits());
     let scale = f32::from_bits(k.wrapping_add(127) << 23);
     p * scale
@@ -499,10 +508,17 @@ pub(crate) mod avx512 {
         let shifted = _mm512_add_ps(x, _mm512_set1_ps(ROUND));
         let n = _mm512_sub_ps(shifted, _mm512_set1_ps(ROUND));
         let f = _mm512_sub_ps(x, n);
-        let mut p = _mm512_set1_ps(EXP2_POLY[0]);
-        for c in &EXP2_POLY[1..] {
-            p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(*c));
+        // A macro, not a closure: a closure would be compiled without the target features.
+        macro_rules! c {
+            ($i:expr) => {
+                _mm512_set1_ps(EXP2_POLY[$i])
+            };
         }
+        let f2 = _mm512_mul_ps(f, f);
+        let lo = _mm512_fmadd_ps(c!(1), f, c!(0));
+        let mid = _mm512_fmadd_ps(c!(3), f, c!(2));
+        let hi = _mm512_fmadd_ps(c!(5), f, c!(4));
+        let p = _mm512_fmadd_ps(_mm512_fmadd_ps(hi, f2, mid), f2, lo);
         // p·2ⁿ with n integral and the result normal: exact, like the multiplication by the
         // constructed power of two in the portable twin.
         _mm512_scalef_ps(p, n)
@@ -670,10 +686,17 @@ pub(crate) mod avx2 {
         let shifted = _mm256_add_ps(x, round);
         let n = _mm256_sub_ps(shifted, round);
         let f = _mm256_sub_ps(x, n);
-        let mut p = _mm256_set1_ps(EXP2_POLY[0]);
-        for c in &EXP2_POLY[1..] {
-            p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(*c));
+        // A macro, not a closure: a closure would be compiled without the target features.
+        macro_rules! c {
+            ($i:expr) => {
+                _mm256_set1_ps(EXP2_POLY[$i])
+            };
         }
+        let f2 = _mm256_mul_ps(f, f);
+        let lo = _mm256_fmadd_ps(c!(1), f, c!(0));
+        let mid = _mm256_fmadd_ps(c!(3), f, c!(2));
+        let hi = _mm256_fmadd_ps(c!(5), f, c!(4));
+        let p = _mm256_fmadd_ps(_mm256_fmadd_ps(hi, f2, mid), f2, lo);
         let k = _mm256_sub_epi32(_mm256_castps_si256(shifted), _mm256_castps_si256(round));
         let scale = _mm256_slli_epi32::<23>(_mm256_add_epi32(k, _mm256_set1_epi32(127)));
         _mm256_mul_ps(p, _mm256_castsi256_ps(scale))
@@ -2001,7 +2024,7 @@ pub(crate) mod tests {
             let r = (x as f64).exp2();
             worst = worst.max(((e - r) / r).abs());
         }
-        assert!(worst < 2.2e-7, "worst relative error {worst}");
+        assert!(worst < 2.4e-7, "worst relative error {worst}");
         assert!((exp2_neg(0.0) - 1.0).abs() <= 2.0 * f32::EPSILON);
         assert!(exp2_neg(-1e30) >= 0.0 && exp2_neg(-1e30) < 1e-37);
         assert!(exp2_neg(f32::NEG_INFINITY) < 1e-37);
