@@ -869,26 +869,25 @@ pub(crate) mod avx2 {
                     None
                 };
                 let ok = _mm256_and_ps(act, pass);
-                if _mm256_movemask_ps(ok) != 0 {
-                    let next_t = _mm256_mul_ps(t, _mm256_sub_ps(one, a1));
-                    let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tthr));
-                    let comp = _mm256_andnot_ps(stop, ok);
-                    act = _mm256_andnot_ps(stop, act);
-                    // w is zeroed outside `comp`: there the sums gain w·c = ±0, which leaves
-                    // them unchanged (colour and depth are finite, and a sum that starts at +0
-                    // and gains only products ≥ 0 or ±0 is never −0).
-                    let w = _mm256_and_ps(_mm256_mul_ps(a1, t), comp);
-                    cr = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[0]), cr);
-                    cg = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[1]), cg);
-                    cb = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[2]), cb);
-                    d = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.depth), d);
-                    t = _mm256_blendv_ps(t, next_t, comp);
-                    let kk = _mm256_castsi256_ps(_mm256_set1_epi32((k_base + j + 1) as i32));
-                    last = _mm256_blendv_ps(last, kk, comp);
-                    pairs += (_mm256_movemask_ps(comp) as u32).count_ones();
-                    if _mm256_movemask_ps(act) == 0 {
-                        break;
-                    }
+                // Branch-free: where no lane passes, every update below is a no-op.
+                let next_t = _mm256_mul_ps(t, _mm256_sub_ps(one, a1));
+                let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tthr));
+                let comp = _mm256_andnot_ps(stop, ok);
+                act = _mm256_andnot_ps(stop, act);
+                // w is zeroed outside `comp`: there the sums gain w·c = ±0, which leaves
+                // them unchanged (colour and depth are finite, and a sum that starts at +0
+                // and gains only products ≥ 0 or ±0 is never −0).
+                let w = _mm256_and_ps(_mm256_mul_ps(a1, t), comp);
+                cr = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[0]), cr);
+                cg = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[1]), cg);
+                cb = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.rgb[2]), cb);
+                d = _mm256_fmadd_ps(w, _mm256_set1_ps(sp.depth), d);
+                t = _mm256_blendv_ps(t, next_t, comp);
+                let kk = _mm256_castsi256_ps(_mm256_set1_epi32((k_base + j + 1) as i32));
+                last = _mm256_blendv_ps(last, kk, comp);
+                pairs += (_mm256_movemask_ps(comp) as u32).count_ones();
+                if _mm256_movemask_ps(act) == 0 {
+                    break;
                 }
                 match next {
                     Some((jn, (s, a, p))) => {
