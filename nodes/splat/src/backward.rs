@@ -37,8 +37,8 @@ use crate::adam::ParamGrads;
 use crate::buffers::filled_par;
 use crate::constants::{ALPHA_THRESHOLD, DEPTH_ALPHA_EPS, TILE, TILE_PIXELS};
 use crate::forward::{
-    detect_isa, gauss_of_sigma, row_mask_portable, smooth_cut, Isa, RowGeom, Splat2D, TileCoords,
-    PREFETCH_AHEAD, PROJECT_CHUNK,
+    detect_isa, gauss_of_exponent, row_mask_portable, smooth_cut, Isa, RowGeom, Splat2D,
+    TileCoords, PREFETCH_AHEAD, PROJECT_CHUNK,
 };
 use crate::gaussians::Gaussians;
 use crate::lanes::{c, Lanes, Mask, LANES, P8};
@@ -117,8 +117,8 @@ fn backward_gaussian_portable<const SMOOTH: bool>(
         let row = &mut tile.rows[ly];
         for l in 0..16 {
             let dx = sp.x - tc.px[l];
-            let sigma = g.sigma(dx);
-            let gauss = gauss_of_sigma(sigma);
+            let ex = g.exponent(dx);
+            let gauss = gauss_of_exponent(ex);
             let raw = sp.opacity * gauss;
             let a1 = raw.min(max_alpha);
             let (alpha, pass, da_da1) = if SMOOTH {
@@ -127,7 +127,7 @@ fn backward_gaussian_portable<const SMOOTH: bool>(
             } else {
                 (a1, a1 >= ALPHA_THRESHOLD, 1.0)
             };
-            if !(k < row.last[l] && sigma >= 0.0 && pass) {
+            if !(k < row.last[l] && ex <= 0.0 && pass) {
                 continue;
             }
             let ra = 1.0 / (1.0 - alpha);
@@ -323,7 +323,7 @@ mod avx512 {
         let thr = _mm512_set1_ps(ALPHA_THRESHOLD);
         let kv = _mm512_set1_epi32(k as i32);
         let xs = _mm512_set1_ps(sp.x);
-        let ha = _mm512_set1_ps(RowGeom::half_a(sp));
+        let ea = _mm512_set1_ps(RowGeom::exp_a(sp));
         let o = _mm512_set1_ps(sp.opacity);
         let (cr, cg, cb, cz) = (
             _mm512_set1_ps(sp.rgb[0]),
@@ -339,13 +339,13 @@ mod avx512 {
             let row = tile.rows.get_unchecked_mut(ly);
             let last = _mm512_load_si512(row.last.as_ptr() as *const __m512i);
             let dx = _mm512_sub_ps(xs, px);
-            let u = _mm512_fmadd_ps(ha, dx, _mm512_set1_ps(g.bdy));
-            let sigma = _mm512_fmadd_ps(u, dx, _mm512_set1_ps(g.hc));
-            let gauss = gauss_v(sigma);
+            let u = _mm512_fmadd_ps(ea, dx, _mm512_set1_ps(g.eb));
+            let ex = _mm512_fmadd_ps(u, dx, _mm512_set1_ps(g.ec));
+            let gauss = gauss_v(ex);
             let raw = _mm512_mul_ps(o, gauss);
             let a1 = _mm512_min_ps(raw, maxa);
             let ok = _mm512_cmpgt_epu32_mask(last, kv);
-            let ok = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(ok, sigma, zero);
+            let ok = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(ok, ex, zero);
             let ok = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(ok, a1, thr);
             if ok == 0 {
                 continue;
@@ -499,11 +499,10 @@ mod avx2 {
         let one = _mm256_set1_ps(1.0);
         let maxa = _mm256_set1_ps(max_alpha);
         let thr = _mm256_set1_ps(ALPHA_THRESHOLD);
-        // Unsigned `k < last` as a signed comparison of both with the sign bit flipped.
-        let flip = _mm256_set1_epi32(i32::MIN);
-        let kv = _mm256_xor_si256(_mm256_set1_epi32(k as i32), flip);
+        // `k < last` as a signed comparison: both are below 2³¹ (see `backward_tile_impl`).
+        let kv = _mm256_set1_epi32(k as i32);
         let dx = _mm256_sub_ps(_mm256_set1_ps(sp.x), px);
-        let ha = _mm256_set1_ps(RowGeom::half_a(sp));
+        let ea = _mm256_set1_ps(RowGeom::exp_a(sp));
         let o_v = _mm256_set1_ps(sp.opacity);
         let (cr, cg, cb, cz) = (
             _mm256_set1_ps(sp.rgb[0]),
@@ -521,13 +520,13 @@ mod avx2 {
                 let g = RowGeom::new(sp, *tc.py.get_unchecked(ly));
                 let row = tile.rows.as_mut_ptr().add(ly);
                 let last = _mm256_load_si256((*row).last.as_ptr().add(o) as *const __m256i);
-                let u = _mm256_fmadd_ps(ha, dx, _mm256_set1_ps(g.bdy));
-                let sigma = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.hc));
-                let gauss = gauss_v(sigma);
+                let u = _mm256_fmadd_ps(ea, dx, _mm256_set1_ps(g.eb));
+                let ex = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.ec));
+                let gauss = gauss_v(ex);
                 let raw = _mm256_mul_ps(o_v, gauss);
                 let a1 = _mm256_min_ps(raw, maxa);
-                let ok = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_xor_si256(last, flip), kv));
-                let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero));
+                let ok = _mm256_castsi256_ps(_mm256_cmpgt_epi32(last, kv));
+                let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(ex, zero));
                 let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(a1, thr));
                 // Volatile loads: otherwise LLVM turns the blend-and-store of T and R below
                 // into masked stores, which are slow (microcoded) on some AVX2 CPUs.
@@ -670,6 +669,9 @@ unsafe fn backward_tile_impl<K: BackwardKernel, const SMOOTH: bool>(
     max_alpha: f32,
     emit: &mut impl FnMut(usize, PairGrad),
 ) {
+    // List positions (and so `last` values) stay below 2³¹: the vector kernels compare them
+    // as signed integers. (A tile list that long would need over 8 GiB of ranks alone.)
+    assert!(list.len() < i32::MAX as usize, "tile list too long");
     let max_last = (tile.row_last.iter().copied().max().unwrap_or(0) as usize).min(list.len());
     for k in max_last..list.len() {
         emit(k, [0.0; 10]);

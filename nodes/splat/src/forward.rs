@@ -120,6 +120,8 @@ pub(crate) const LOG2E: f32 = std::f32::consts::LOG2_E;
 const HALF_LOG2E: f32 = 0.5 * std::f32::consts::LOG2_E;
 /// 1.5·2²³: adding it rounds to an integer held in the low mantissa bits.
 const ROUND: f32 = 12_582_912.0;
+/// Added (wrapping) to the bits of x + ROUND, gives n + 127 in the low bits (n = round(x)).
+const EXP_BIAS_FROM_ROUND: u32 = 127u32.wrapping_sub(ROUND.to_bits());
 /// Minimax polynomial of 2^f on |f| ≤ ½ (relative error), lowest degree first. Evaluated in
 /// f32 by Estrin's scheme ([`poly5`]) its relative error stays below 2.4e-7.
 const EXP2_POLY: [f32; 6] = [
@@ -159,19 +161,21 @@ pub(crate) fn exp2_core(x: f32) -> f32 {
     let shifted = x + ROUND;
     let n = shifted - ROUND;
     let p = poly5(x - n);
-    let k = shifted.to_bits().wrapping_sub(ROUND.to_bits());
-    let scale = f32::from_bits(k.wrapping_add(127) << 23);
+    // n + 127 in the low bits: (bits(shifted) − bits(ROUND)) + 127 as one wrapping add.
+    let scale = f32::from_bits(shifted.to_bits().wrapping_add(EXP_BIAS_FROM_ROUND) << 23);
     p * scale
 }
 
-/// e^−σ as the kernels evaluate it, from σ in bits (`sigma2` = σ·log₂e, as [`RowGeom`]
-/// gives it): clamped to [0, SIGMA_CLAMP] first, then 2^−sigma2.
+/// e^−σ as the kernels evaluate it, from the exponent in bits `ex` = −σ·log₂e (as
+/// [`RowGeom::exponent`] gives it): clamped to [−SIGMA_CLAMP, 0] first, then 2^ex.
 #[inline(always)]
-pub(crate) fn gauss_of_sigma(sigma2: f32) -> f32 {
-    // Not `clamp`: a NaN σ must become SIGMA_CLAMP here, as `_mm512_min_ps` makes it.
+pub(crate) fn gauss_of_exponent(ex: f32) -> f32 {
+    // Not `clamp`: a NaN must become −SIGMA_CLAMP here, as `_mm256_max_ps` makes it (`max`
+    // returns the other operand for a NaN). The sign of a zero does not matter: 2^±0 is the
+    // same value.
     #[allow(clippy::manual_clamp)]
-    let sc = sigma2.min(SIGMA_CLAMP).max(0.0);
-    exp2_core(0.0 - sc)
+    let x = ex.max(-SIGMA_CLAMP).min(0.0);
+    exp2_core(x)
 }
 
 /// The smooth cutoff factor s(α) (C¹ smoothstep from 1/255 to 2/255) and its derivative.
@@ -194,22 +198,24 @@ pub(crate) fn effective_max_alpha(s: &RenderSettings) -> f32 {
     }
 }
 
-/// Per-row scalars of one Gaussian: σ in bits (σ·log₂e, the argument of the kernels'
-/// base-2 exponential) on the row at offset dy = y − pixel y is `(ha·dx + bdy)·dx + hc` with
-/// dx = x − pixel x (two fused multiply-adds per pixel).
+/// Per-row scalars of one Gaussian. The kernels' exponent in bits, ex = −σ·log₂e (the
+/// argument of their base-2 exponential), on the row at offset dy = y − pixel y is
+/// `(ea·dx + eb)·dx + ec` with dx = x − pixel x (two fused multiply-adds per pixel). The
+/// coefficients are those of σ·log₂e negated, so `ex` is exactly −(σ·log₂e) as the same
+/// multiply-adds would round it (rounding is symmetric), and σ ≥ 0 exactly when ex ≤ 0.
 #[derive(Clone, Copy)]
 pub(crate) struct RowGeom {
     pub dy: f32,
-    pub ha: f32,
-    pub bdy: f32,
-    pub hc: f32,
+    pub ea: f32,
+    pub eb: f32,
+    pub ec: f32,
 }
 
 impl RowGeom {
-    /// The row-independent `ha` of `sp` (½·a·log₂e).
+    /// The row-independent coefficient `ea` of `sp` (−½·a·log₂e).
     #[inline(always)]
-    pub(crate) fn half_a(sp: &Splat2D) -> f32 {
-        HALF_LOG2E * sp.a
+    pub(crate) fn exp_a(sp: &Splat2D) -> f32 {
+        -(HALF_LOG2E * sp.a)
     }
 
     #[inline(always)]
@@ -217,14 +223,16 @@ impl RowGeom {
         let dy = sp.y - py;
         RowGeom {
             dy,
-            ha: Self::half_a(sp),
-            bdy: LOG2E * sp.b * dy,
-            hc: HALF_LOG2E * sp.c * dy * dy,
+            ea: Self::exp_a(sp),
+            eb: -(LOG2E * sp.b * dy),
+            ec: -(HALF_LOG2E * sp.c * dy * dy),
         }
     }
+
+    /// The exponent in bits, −σ·log₂e, at horizontal offset `dx`.
     #[inline(always)]
-    pub(crate) fn sigma(&self, dx: f32) -> f32 {
-        self.ha.mul_add(dx, self.bdy).mul_add(dx, self.hc)
+    pub(crate) fn exponent(&self, dx: f32) -> f32 {
+        self.ea.mul_add(dx, self.eb).mul_add(dx, self.ec)
     }
 }
 
@@ -326,14 +334,14 @@ fn composite_row_portable<const SMOOTH: bool>(
         let kk = k_base + j + 1;
         for l in lanes.clone() {
             let dx = sp.x - tc.px[l];
-            let sigma = g.sigma(dx);
-            let a1 = (sp.opacity * gauss_of_sigma(sigma)).min(max_alpha);
+            let ex = g.exponent(dx);
+            let a1 = (sp.opacity * gauss_of_exponent(ex)).min(max_alpha);
             let (alpha, pass) = if SMOOTH {
                 (a1 * smooth_cut(a1).0, a1 > ALPHA_THRESHOLD)
             } else {
                 (a1, a1 >= ALPHA_THRESHOLD)
             };
-            if !((act >> l) & 1 != 0 && sigma >= 0.0 && pass) {
+            if !((act >> l) & 1 != 0 && ex <= 0.0 && pass) {
                 continue;
             }
             let t = row.t[l];
@@ -524,12 +532,11 @@ pub(crate) mod avx512 {
         _mm512_scalef_ps(p, n)
     }
 
-    /// [`gauss_of_sigma`] lane-wise.
+    /// [`gauss_of_exponent`] lane-wise.
     #[inline(always)]
-    pub(crate) unsafe fn gauss_v(sigma: __m512) -> __m512 {
-        let zero = _mm512_setzero_ps();
-        let sc = _mm512_max_ps(_mm512_min_ps(sigma, _mm512_set1_ps(SIGMA_CLAMP)), zero);
-        exp2_core_v(_mm512_sub_ps(zero, sc))
+    pub(crate) unsafe fn gauss_v(ex: __m512) -> __m512 {
+        let lo = _mm512_max_ps(ex, _mm512_set1_ps(-SIGMA_CLAMP));
+        exp2_core_v(_mm512_min_ps(lo, _mm512_setzero_ps()))
     }
 
     /// [`row_mask_portable`] with the 16 rows as lanes.
@@ -596,11 +603,11 @@ pub(crate) mod avx512 {
             let sp = splats.get_unchecked(*batch.get_unchecked(j as usize) as usize);
             let g = RowGeom::new(sp, py);
             let dx = _mm512_sub_ps(_mm512_set1_ps(sp.x), px);
-            let u = _mm512_fmadd_ps(_mm512_set1_ps(g.ha), dx, _mm512_set1_ps(g.bdy));
-            let sigma = _mm512_fmadd_ps(u, dx, _mm512_set1_ps(g.hc));
-            let e = gauss_v(sigma);
+            let u = _mm512_fmadd_ps(_mm512_set1_ps(g.ea), dx, _mm512_set1_ps(g.eb));
+            let ex = _mm512_fmadd_ps(u, dx, _mm512_set1_ps(g.ec));
+            let e = gauss_v(ex);
             let a1 = _mm512_min_ps(_mm512_mul_ps(_mm512_set1_ps(sp.opacity), e), maxa);
-            let ok = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(act, sigma, zero);
+            let ok = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(act, ex, zero);
             let ok = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(ok, a1, thr);
             if ok == 0 {
                 continue;
@@ -697,18 +704,20 @@ pub(crate) mod avx2 {
         let mid = _mm256_fmadd_ps(c!(3), f, c!(2));
         let hi = _mm256_fmadd_ps(c!(5), f, c!(4));
         let p = _mm256_fmadd_ps(_mm256_fmadd_ps(hi, f2, mid), f2, lo);
-        let k = _mm256_sub_epi32(_mm256_castps_si256(shifted), _mm256_castps_si256(round));
-        let scale = _mm256_slli_epi32::<23>(_mm256_add_epi32(k, _mm256_set1_epi32(127)));
+        let biased = _mm256_add_epi32(
+            _mm256_castps_si256(shifted),
+            _mm256_set1_epi32(EXP_BIAS_FROM_ROUND as i32),
+        );
+        let scale = _mm256_slli_epi32::<23>(biased);
         _mm256_mul_ps(p, _mm256_castsi256_ps(scale))
     }
 
-    /// [`gauss_of_sigma`] lane-wise (`min`/`max` return their second operand for a NaN, as
-    /// the scalar `min(SIGMA_CLAMP)` / `max(0)` do).
+    /// [`gauss_of_exponent`] lane-wise (`max` returns its second operand for a NaN, as the
+    /// scalar `max(−SIGMA_CLAMP)` does).
     #[inline(always)]
-    pub(crate) unsafe fn gauss_v(sigma: __m256) -> __m256 {
-        let zero = _mm256_setzero_ps();
-        let sc = _mm256_max_ps(_mm256_min_ps(sigma, _mm256_set1_ps(SIGMA_CLAMP)), zero);
-        exp2_core_v(_mm256_sub_ps(zero, sc))
+    pub(crate) unsafe fn gauss_v(ex: __m256) -> __m256 {
+        let lo = _mm256_max_ps(ex, _mm256_set1_ps(-SIGMA_CLAMP));
+        exp2_core_v(_mm256_min_ps(lo, _mm256_setzero_ps()))
     }
 
     /// [`row_mask_portable`] for the eight rows whose centres are `py`, with the chord tested
@@ -842,12 +851,12 @@ pub(crate) mod avx2 {
                 let sp = splats.get_unchecked(*batch.get_unchecked($j as usize) as usize);
                 let g = RowGeom::new(sp, py);
                 let dx = _mm256_sub_ps(_mm256_set1_ps(sp.x), px);
-                let u = _mm256_fmadd_ps(_mm256_set1_ps(g.ha), dx, _mm256_set1_ps(g.bdy));
-                let sigma = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.hc));
-                let e = gauss_v(sigma);
+                let u = _mm256_fmadd_ps(_mm256_set1_ps(g.ea), dx, _mm256_set1_ps(g.eb));
+                let ex = _mm256_fmadd_ps(u, dx, _mm256_set1_ps(g.ec));
+                let e = gauss_v(ex);
                 let a1 = _mm256_min_ps(_mm256_mul_ps(_mm256_set1_ps(sp.opacity), e), maxa);
                 let pass = _mm256_and_ps(
-                    _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero),
+                    _mm256_cmp_ps::<_CMP_LE_OQ>(ex, zero),
                     _mm256_cmp_ps::<_CMP_GE_OQ>(a1, thr),
                 );
                 (sp, a1, pass)
@@ -2049,7 +2058,7 @@ pub(crate) mod tests {
                     + sp.b as f64 * dx as f64 * dy
                     + 0.5 * sp.c as f64 * dy * dy;
                 let want = (-sigma).exp();
-                let got = gauss_of_sigma(g.sigma(dx)) as f64;
+                let got = gauss_of_exponent(g.exponent(dx)) as f64;
                 assert!(
                     (got - want).abs() <= 1e-6 * want + 1e-12,
                     "({px}, {py}): {got} vs {want}"
@@ -2067,17 +2076,22 @@ pub(crate) mod tests {
             eprintln!("no AVX2 + FMA on this CPU: skipped");
             return;
         }
-        let mut sigmas: Vec<f32> = (0..4096).map(|i| i as f32 * 0.0093).collect();
-        sigmas.extend([
-            -1.0,
+        let mut exponents: Vec<f32> = (0..4096).map(|i| i as f32 * -0.0093).collect();
+        exponents.extend([
+            1.0,
             -0.0,
+            0.0,
             f32::NAN,
             f32::INFINITY,
             f32::NEG_INFINITY,
+            -SIGMA_CLAMP,
             SIGMA_CLAMP,
             1e-30,
+            -1e-30,
+            -0.5,
+            -43.5,
         ]);
-        for chunk in sigmas.chunks(8) {
+        for chunk in exponents.chunks(8) {
             let mut v = [0.0f32; 8];
             v[..chunk.len()].copy_from_slice(chunk);
             let mut out = [0.0f32; 8];
@@ -2094,8 +2108,8 @@ pub(crate) mod tests {
             for l in 0..8 {
                 assert_eq!(
                     out[l].to_bits(),
-                    gauss_of_sigma(v[l]).to_bits(),
-                    "sigma {}",
+                    gauss_of_exponent(v[l]).to_bits(),
+                    "exponent {}",
                     v[l]
                 );
             }
@@ -2122,17 +2136,14 @@ pub(crate) mod tests {
                 #[target_feature(enable = "avx512f,avx512dq,avx512bw,fma")]
                 unsafe fn go(v: &[f32; 16], out: &mut [f32; 16]) {
                     let s = _mm512_loadu_ps(v.as_ptr());
-                    _mm512_storeu_ps(
-                        out.as_mut_ptr(),
-                        avx512::gauss_v(_mm512_sub_ps(_mm512_setzero_ps(), s)),
-                    );
+                    _mm512_storeu_ps(out.as_mut_ptr(), avx512::gauss_v(s));
                 }
                 go(&v, &mut out);
             }
             for l in 0..16 {
                 assert_eq!(
                     out[l].to_bits(),
-                    gauss_of_sigma(-v[l]).to_bits(),
+                    gauss_of_exponent(v[l]).to_bits(),
                     "x {}",
                     v[l]
                 );
