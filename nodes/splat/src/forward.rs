@@ -862,23 +862,12 @@ pub(crate) mod avx2 {
                 (sp, a1, pass)
             }};
         }
-        // The next entry's α is computed before the current entry is composited: the two
-        // exponentials are independent, so the CPU overlaps them, while the compositing (the
-        // only dependent part) still runs in list order.
-        if bits != 0 {
-            let mut j = bits.trailing_zeros();
-            bits &= bits - 1;
-            let (mut sp, mut a1, mut pass) = alpha!(j);
-            loop {
-                let next = if bits != 0 {
-                    let jn = bits.trailing_zeros();
-                    bits &= bits - 1;
-                    Some((jn, alpha!(jn)))
-                } else {
-                    None
-                };
-                let ok = _mm256_and_ps(act, pass);
-                // Branch-free: where no lane passes, every update below is a no-op.
+        // Composites entry j (α and pass lanes from `alpha!`). Branch-free: where no lane
+        // passes, every update is a no-op.
+        macro_rules! composite {
+            ($j:expr, $sp:expr, $a1:expr, $pass:expr) => {{
+                let (j, sp, a1): (u32, &Splat2D, __m256) = ($j, $sp, $a1);
+                let ok = _mm256_and_ps(act, $pass);
                 let next_t = _mm256_mul_ps(t, _mm256_sub_ps(one, a1));
                 let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tthr));
                 let comp = _mm256_andnot_ps(stop, ok);
@@ -895,15 +884,27 @@ pub(crate) mod avx2 {
                 let kk = _mm256_castsi256_ps(_mm256_set1_epi32((k_base + j + 1) as i32));
                 last = _mm256_blendv_ps(last, kk, comp);
                 pairs += (_mm256_movemask_ps(comp) as u32).count_ones();
-                if _mm256_movemask_ps(act) == 0 {
-                    break;
-                }
-                match next {
-                    Some((jn, (s, a, p))) => {
-                        (j, sp, a1, pass) = (jn, s, a, p);
-                    }
-                    None => break,
-                }
+            }};
+        }
+        // Two entries per step: both α (independent exponentials the CPU overlaps) before
+        // the two compositing steps, which run in list order. Once no lane is active every
+        // step is a no-op, so the walk may stop after either.
+        while bits != 0 {
+            let j0 = bits.trailing_zeros();
+            bits &= bits - 1;
+            if bits != 0 {
+                let j1 = bits.trailing_zeros();
+                bits &= bits - 1;
+                let (sp0, a0, p0) = alpha!(j0);
+                let (sp1, a1, p1) = alpha!(j1);
+                composite!(j0, sp0, a0, p0);
+                composite!(j1, sp1, a1, p1);
+            } else {
+                let (sp0, a0, p0) = alpha!(j0);
+                composite!(j0, sp0, a0, p0);
+            }
+            if _mm256_movemask_ps(act) == 0 {
+                break;
             }
         }
         _mm256_store_ps(row.t.as_mut_ptr().add(o), t);
