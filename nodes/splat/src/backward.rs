@@ -1202,19 +1202,18 @@ fn vjp_lanes(isa: Isa, job: &LaneJob) -> LaneGrads {
         let dir = [v[0] / len, v[1] / len, v[2] / len];
         let na = sh::basis_len(degree) * 3;
         let rows = sh::coef_rows(&g.sh, idx, kcoef, na);
-        let coef = |q: usize| sh::coef_lane::<L>(&rows, q);
+        let cols = L::columns(&rows, na);
+        let coef = |q: usize| cols[q];
         let g_color = [
             L::from_array(screen[6]),
             L::from_array(screen[7]),
             L::from_array(screen[8]),
         ];
-        let mut sh_grads = [[0.0f32; 48]; LANES];
+        let mut grad_cols = [c::<L>(0.0); crate::lanes::COLUMNS];
         let gd = sh::eval_color_vjp_lanes(degree, coef, dir, g_color, |q, val| {
-            let a = val.to_array();
-            for l in 0..LANES {
-                sh_grads[l][q] = a[l] as f32;
-            }
+            grad_cols[q] = val;
         });
+        let sh_grads = L::rows(&grad_cols, na);
         let dd = gd[0] * dir[0] + gd[1] * dir[1] + gd[2] * dir[2];
         let mut mean = geo.mean;
         for a in 0..3 {

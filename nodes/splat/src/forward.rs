@@ -1404,8 +1404,8 @@ fn project_chunk<L: Lanes>(
             L::select(away, v[1] / vlen, c(0.0)),
             L::select(away, v[2] / vlen, c(1.0)),
         ];
-        let coef = |q: usize| sh::coef_lane::<L>(&rows, q);
-        let col = crate::lanes::to_arrays(sh::eval_color_lanes(degree, coef, dir));
+        let cols = L::columns(&rows, na);
+        let col = crate::lanes::to_arrays(sh::eval_color_lanes(degree, |q| cols[q], dir));
         let m = [pl.mean2d[0].to_array(), pl.mean2d[1].to_array()];
         let kc = crate::lanes::to_arrays(pl.conic);
         let (op, dp) = (pl.opacity.to_array(), pl.depth.to_array());

@@ -71,7 +71,38 @@ pub(crate) trait Lanes:
     fn pow2(self) -> Self;
     /// `(e, m)` with `self = m·2^e` and `m ∈ [1, 2)` for positive normal lanes.
     fn split_exponent(self) -> (Self, Self);
+    /// The columns of eight rows of f32 values: element `q` has `rows[l][q]` (exactly, as
+    /// f64) in lane `l`. Elements from `n` on are unspecified (callers read only `q < n`).
+    #[inline(always)]
+    fn columns(rows: &[[f32; COLUMNS]; LANES], n: usize) -> [Self; COLUMNS] {
+        let mut out = [Self::splat(0.0); COLUMNS];
+        for (q, o) in out.iter_mut().enumerate().take(n) {
+            let mut a = [0.0; LANES];
+            for (v, row) in a.iter_mut().zip(rows) {
+                *v = row[q] as f64;
+            }
+            *o = Self::from_array(a);
+        }
+        out
+    }
+    /// The inverse of [`Lanes::columns`], rounding to f32: row `l` has lane `l` of the
+    /// elements `q < n` (the rest zero).
+    #[inline(always)]
+    fn rows(cols: &[Self; COLUMNS], n: usize) -> [[f32; COLUMNS]; LANES] {
+        let mut out = [[0.0f32; COLUMNS]; LANES];
+        for (q, col) in cols.iter().enumerate().take(n) {
+            let a = col.to_array();
+            for (row, v) in out.iter_mut().zip(a) {
+                row[q] = v as f32;
+            }
+        }
+        out
+    }
 }
+
+/// Values per row of [`Lanes::columns`] and [`Lanes::rows`] (the SH coefficients of one
+/// Gaussian, degree 3).
+pub(crate) const COLUMNS: usize = 48;
 
 /// Whether this CPU runs the AVX-512 lanes (always false off x86-64).
 pub(crate) fn wide_available() -> bool {
@@ -666,6 +697,126 @@ pub(crate) mod avx2 {
             )));
             (e, m)
         }
+        /// Eight values of all eight rows at a time: an 8×8 transpose in registers (unpack,
+        /// shuffle, 128-bit permute), then each column widened to f64.
+        #[inline(always)]
+        fn columns(rows: &[[f32; COLUMNS]; LANES], n: usize) -> [Self; COLUMNS] {
+            // Every element is written below (whole blocks of eight; zeros past the blocks
+            // `n` needs), so the array is not filled first.
+            let mut out = [const { std::mem::MaybeUninit::<Self>::uninit() }; COLUMNS];
+            let blocks = n.min(COLUMNS).div_ceil(8);
+            for q in 8 * blocks..COLUMNS {
+                out[q].write(Self::splat(0.0));
+            }
+            for b in 0..blocks {
+                let q0 = 8 * b;
+                // SAFETY: see the type's invariant; q0 + 8 ≤ COLUMNS, so every load is in
+                // bounds.
+                unsafe {
+                    let r: [__m256; 8] = [
+                        _mm256_loadu_ps(rows[0].as_ptr().add(q0)),
+                        _mm256_loadu_ps(rows[1].as_ptr().add(q0)),
+                        _mm256_loadu_ps(rows[2].as_ptr().add(q0)),
+                        _mm256_loadu_ps(rows[3].as_ptr().add(q0)),
+                        _mm256_loadu_ps(rows[4].as_ptr().add(q0)),
+                        _mm256_loadu_ps(rows[5].as_ptr().add(q0)),
+                        _mm256_loadu_ps(rows[6].as_ptr().add(q0)),
+                        _mm256_loadu_ps(rows[7].as_ptr().add(q0)),
+                    ];
+                    // Pairs of rows interleaved, then quads, then the 128-bit halves.
+                    let t0 = _mm256_unpacklo_ps(r[0], r[1]);
+                    let t1 = _mm256_unpackhi_ps(r[0], r[1]);
+                    let t2 = _mm256_unpacklo_ps(r[2], r[3]);
+                    let t3 = _mm256_unpackhi_ps(r[2], r[3]);
+                    let t4 = _mm256_unpacklo_ps(r[4], r[5]);
+                    let t5 = _mm256_unpackhi_ps(r[4], r[5]);
+                    let t6 = _mm256_unpacklo_ps(r[6], r[7]);
+                    let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+                    let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+                    let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
+                    let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+                    let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
+                    let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
+                    let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
+                    let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
+                    let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
+                    let c = [
+                        _mm256_permute2f128_ps::<0x20>(u0, u4),
+                        _mm256_permute2f128_ps::<0x20>(u1, u5),
+                        _mm256_permute2f128_ps::<0x20>(u2, u6),
+                        _mm256_permute2f128_ps::<0x20>(u3, u7),
+                        _mm256_permute2f128_ps::<0x31>(u0, u4),
+                        _mm256_permute2f128_ps::<0x31>(u1, u5),
+                        _mm256_permute2f128_ps::<0x31>(u2, u6),
+                        _mm256_permute2f128_ps::<0x31>(u3, u7),
+                    ];
+                    for i in 0..8 {
+                        out[q0 + i].write(Y8(
+                            _mm256_cvtps_pd(_mm256_castps256_ps128(c[i])),
+                            _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(c[i])),
+                        ));
+                    }
+                }
+            }
+            // SAFETY: all COLUMNS elements were written above.
+            unsafe { std::mem::transmute::<_, [Self; COLUMNS]>(out) }
+        }
+        /// Eight columns at a time: each narrowed to f32 (as `as f32` rounds), then the 8×8
+        /// transpose of [`Lanes::columns`] (it is its own inverse).
+        #[inline(always)]
+        fn rows(cols: &[Self; COLUMNS], n: usize) -> [[f32; COLUMNS]; LANES] {
+            let mut out = [[0.0f32; COLUMNS]; LANES];
+            let n = n.min(COLUMNS);
+            for b in 0..n / 8 {
+                let q0 = 8 * b;
+                // SAFETY: see the type's invariant; q0 + 8 ≤ COLUMNS, so every store is in
+                // bounds.
+                unsafe {
+                    let mut r = [_mm256_setzero_ps(); 8];
+                    for i in 0..8 {
+                        let c = cols[q0 + i];
+                        r[i] = _mm256_set_m128(_mm256_cvtpd_ps(c.1), _mm256_cvtpd_ps(c.0));
+                    }
+                    let t0 = _mm256_unpacklo_ps(r[0], r[1]);
+                    let t1 = _mm256_unpackhi_ps(r[0], r[1]);
+                    let t2 = _mm256_unpacklo_ps(r[2], r[3]);
+                    let t3 = _mm256_unpackhi_ps(r[2], r[3]);
+                    let t4 = _mm256_unpacklo_ps(r[4], r[5]);
+                    let t5 = _mm256_unpackhi_ps(r[4], r[5]);
+                    let t6 = _mm256_unpacklo_ps(r[6], r[7]);
+                    let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+                    let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+                    let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
+                    let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+                    let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
+                    let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
+                    let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
+                    let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
+                    let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
+                    let rows = [
+                        _mm256_permute2f128_ps::<0x20>(u0, u4),
+                        _mm256_permute2f128_ps::<0x20>(u1, u5),
+                        _mm256_permute2f128_ps::<0x20>(u2, u6),
+                        _mm256_permute2f128_ps::<0x20>(u3, u7),
+                        _mm256_permute2f128_ps::<0x31>(u0, u4),
+                        _mm256_permute2f128_ps::<0x31>(u1, u5),
+                        _mm256_permute2f128_ps::<0x31>(u2, u6),
+                        _mm256_permute2f128_ps::<0x31>(u3, u7),
+                    ];
+                    for l in 0..8 {
+                        _mm256_storeu_ps(out[l].as_mut_ptr().add(q0), rows[l]);
+                    }
+                }
+            }
+            // The last partial block lane by lane.
+            for q in n / 8 * 8..n {
+                let a = cols[q].to_array();
+                for (row, v) in out.iter_mut().zip(a) {
+                    row[q] = v as f32;
+                }
+            }
+            out
+        }
     }
 }
 
@@ -757,6 +908,65 @@ pub(crate) fn sigmoid<L: Lanes>(x: L) -> L {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_columns_equal_the_portable_ones_bit_for_bit() {
+        if !avx2::available() {
+            eprintln!("no AVX2 + FMA on this CPU: skipped");
+            return;
+        }
+        let mut rng = augsplat_core::Rng::new(77);
+        let mut rows = [[0.0f32; COLUMNS]; LANES];
+        for row in rows.iter_mut() {
+            for v in row.iter_mut() {
+                *v = rng.normal() as f32;
+            }
+        }
+        rows[3][5] = f32::NAN;
+        rows[6][40] = f32::INFINITY;
+        rows[1][47] = -0.0;
+        rows[7][0] = 1e-40;
+        for n in [0, 1, 3, 8, 12, 27, 47, 48] {
+            #[target_feature(enable = "avx2,fma")]
+            fn go(rows: &[[f32; COLUMNS]; LANES], n: usize) -> Vec<[f64; LANES]> {
+                avx2::Y8::columns(rows, n)
+                    .iter()
+                    .map(|c| c.to_array())
+                    .collect()
+            }
+            // SAFETY: AVX2 + FMA were detected.
+            let wide = unsafe { go(&rows, n) };
+            let portable = P8::columns(&rows, n);
+            #[target_feature(enable = "avx2,fma")]
+            fn back(rows: &[[f32; COLUMNS]; LANES], n: usize) -> [[f32; COLUMNS]; LANES] {
+                avx2::Y8::rows(&avx2::Y8::columns(rows, n), n)
+            }
+            // SAFETY: AVX2 + FMA were detected.
+            let again = unsafe { back(&rows, n) };
+            assert_eq!(
+                again.map(|r| r.map(f32::to_bits)),
+                P8::rows(&portable, n).map(|r| r.map(f32::to_bits)),
+                "n {n}"
+            );
+            for l in 0..LANES {
+                for q in 0..COLUMNS {
+                    let want = if q < n { rows[l][q].to_bits() } else { 0 };
+                    assert_eq!(again[l][q].to_bits(), want, "n {n}, row {l}, value {q}");
+                }
+            }
+            for q in 0..n {
+                for l in 0..LANES {
+                    assert_eq!(
+                        wide[q][l].to_bits(),
+                        portable[q].0[l].to_bits(),
+                        "n {n}, column {q}, lane {l}"
+                    );
+                    assert_eq!(wide[q][l].to_bits(), (rows[l][q] as f64).to_bits());
+                }
+            }
+        }
+    }
 
     fn ulps(a: f64, b: f64) -> u64 {
         if a == b {

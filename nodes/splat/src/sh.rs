@@ -225,16 +225,6 @@ pub(crate) fn coef_rows(
     rows
 }
 
-/// Coefficient `q` of every lane's row (see [`coef_rows`]).
-#[inline(always)]
-pub(crate) fn coef_lane<L: Lanes>(rows: &[[f32; 48]; LANES], q: usize) -> L {
-    let mut a = [0.0; LANES];
-    for (v, row) in a.iter_mut().zip(rows) {
-        *v = row[q] as f64;
-    }
-    L::from_array(a)
-}
-
 /// [`basis`] of eight directions at once (the same operations per lane, so the same bits).
 #[inline(always)]
 pub(crate) fn basis_lanes<L: Lanes>(degree: u32, d: [L; 3]) -> [L; 16] {
