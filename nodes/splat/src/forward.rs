@@ -17,6 +17,13 @@
 //! held in registers. Rows whose pixels have all stopped are dropped, and the tile ends when
 //! no row is live.
 //!
+//! The exponential. The kernels never form σ: each row's coefficients ([`RowGeom`]) are
+//! those of σ scaled by −log₂e, so two fused multiply-adds per pixel give the exponent in bits
+//! ex = −σ·log₂e, and e^−σ = 2^ex. ex is clamped to [−44, 0], split as n + f with n an
+//! integer and |f| ≤ ½ (the 1.5·2²³ rounding trick; the subtraction is exact), and 2^f comes
+//! from a degree-5 minimax polynomial in Estrin's form (relative error below 2.4e-7), 2ⁿ from
+//! the exponent bits. That is a dependency chain of about nine operations per α.
+//!
 //! Every kernel exists three times: a portable scalar twin, an AVX-512 version (a row is one
 //! vector) and an AVX2 version (a row is two vectors, composited one after the other), the
 //! last two written with intrinsics. All perform the same IEEE operations in the same order
@@ -50,9 +57,9 @@ pub(crate) const BATCH: usize = 64;
 /// How many list entries ahead the tile loops prefetch projected records.
 pub(crate) const PREFETCH_AHEAD: usize = 8;
 
-/// σ in bits (σ·log₂e) is clamped to this before the exponential: beyond it α < 2^−44 <
-/// 1/255 for any opacity ≤ 1, so the clamp never changes a composited value, and 2^−σ stays
-/// a normal float.
+/// The exponent in bits (−σ·log₂e) is clamped to ≥ −this before the exponential: below it
+/// α < 2⁻⁴⁴ < 1/255 for any opacity ≤ 1, so the clamp never changes a composited value, and
+/// the power of two stays a normal float.
 pub(crate) const SIGMA_CLAMP: f32 = 44.0;
 
 /// Padding (pixels) added to the half-chord of the row test, so that rounding never drops
@@ -114,8 +121,8 @@ pub(crate) struct RasterState {
     pub sh_degree: u32,
 }
 
-/// log₂e: the kernels evaluate σ in bits (σ·log₂e) so that e^−σ = 2^−(σ·log₂e).
-pub(crate) const LOG2E: f32 = std::f32::consts::LOG2_E;
+/// log₂e: the kernels evaluate the exponent in bits, −σ·log₂e, so that e^−σ = 2^(−σ·log₂e).
+const LOG2E: f32 = std::f32::consts::LOG2_E;
 /// ½·log₂e, the factor of the conic's diagonal terms in σ·log₂e.
 const HALF_LOG2E: f32 = 0.5 * std::f32::consts::LOG2_E;
 /// 1.5·2²³: adding it rounds to an integer held in the low mantissa bits.
