@@ -17,8 +17,9 @@
 //! interleaved rows (a horizontal tap is an offset of 3 floats), so nothing is de-interleaved.
 //! The image is cut into fixed bands of rows (the cut depends only on the image height); one
 //! task streams through its band: the horizontal pass of the five moment rows (μx, μy, E\[x²\],
-//! E\[y²\], E\[xy\]) goes into an 11-row ring, the vertical pass turns 11 ring rows into one SSIM
-//! row and its three per-pixel partials (dS/dμx, dS/dE\[x²\], dS/dE\[xy\]) in a second ring, and
+//! E\[y²\], E\[xy\]) goes into a 12-row ring, the vertical pass turns 11 ring rows into one SSIM
+//! row and its three per-pixel partials (dS/dμx, dS/dE\[x²\], dS/dE\[xy\]) in a second ring (with
+//! AVX2, two map rows per pass from the 12 ring rows they need, which halves the ring reads), and
 //! as soon as an input row has all the partials it needs, the adjoint passes (vertical gather,
 //! horizontal gather) and the chain rule through the moments (`A + 2x·B + y·C`) add its
 //! gradient, together with the L2/L1 term, straight into the caller's buffer. A band
@@ -268,6 +269,9 @@ const LANES: usize = 16;
 const HALO: usize = SSIM_WINDOW - 1;
 /// The halo in interleaved values (3 channels).
 const HALO3: usize = 3 * HALO;
+/// Rows in the rings of horizontal moments and of partials: one window plus one, so that
+/// two consecutive map rows can be filtered together ([`vertical_pair`]).
+const RING: usize = SSIM_WINDOW + 1;
 /// Rows per band of the fused SSIM for an image of `height` rows: an even number of bands
 /// (two per started 256 rows; one below 48 rows) of equal height, the last one possibly
 /// shorter. A function of the height only, so results do not depend on the thread count;
@@ -325,10 +329,12 @@ impl Geo {
 struct Scratch {
     /// Input rows x, y, x², y², xy (each `rl` long, zero tail).
     rows: Vec<f32>,
-    /// Ring of 11 horizontal-moment rows: `[slot][moment][mp]`.
+    /// Ring of [`RING`] horizontal-moment rows: `[slot][moment][mp]`.
     hm: Vec<f32>,
-    /// Ring of 11 partial rows: `[slot][partial][mp]` (tail beyond `m` kept zero).
+    /// Ring of [`RING`] partial rows: `[slot][partial][mp]` (tail beyond `m` kept zero).
     part: Vec<f32>,
+    /// The SSIM values of the second map row of a [`vertical_pair`] (`mp` values).
+    pair_ssim: Vec<f32>,
     /// Vertical adjoint rows, `[partial][vl]`, data at `30..30 + mp`, zeros around it.
     vb: Vec<f32>,
     /// Horizontal adjoint rows, `[partial][lp]`.
@@ -342,8 +348,9 @@ impl Scratch {
             v.resize(n, 0.0);
         };
         fit(&mut self.rows, 5 * g.rl());
-        fit(&mut self.hm, SSIM_WINDOW * 5 * g.mp);
-        fit(&mut self.part, SSIM_WINDOW * 3 * g.mp);
+        fit(&mut self.hm, RING * 5 * g.mp);
+        fit(&mut self.part, RING * 3 * g.mp);
+        fit(&mut self.pair_ssim, g.mp);
         fit(&mut self.vb, 3 * g.vl());
         fit(&mut self.hb, 3 * g.lp);
     }
@@ -393,7 +400,7 @@ fn hfilter(src: &[f32], dst: &mut [f32], win: &[f32; SSIM_WINDOW]) {
     }
 }
 
-/// Horizontal pass of input row `r`: the five moment rows into ring slot `r % 11`.
+/// Horizontal pass of input row `r`: the five moment rows into ring slot `r % RING`.
 #[inline(always)]
 fn horizontal_row(f: &Fused, pred: &[f32], target: &[f32], r: usize, sc: &mut Scratch) {
     let g = &f.geo;
@@ -410,7 +417,7 @@ fn horizontal_row(f: &Fused, pred: &[f32], target: &[f32], r: usize, sc: &mut Sc
         yy[i] = b * b;
         xy[i] = a * b;
     }
-    let slot = &mut sc.hm[(r % SSIM_WINDOW) * 5 * g.mp..(r % SSIM_WINDOW + 1) * 5 * g.mp];
+    let slot = &mut sc.hm[(r % RING) * 5 * g.mp..(r % RING + 1) * 5 * g.mp];
     for (q, src) in [&*xr, &*yr, &*xx, &*yy, &*xy].into_iter().enumerate() {
         hfilter(src, &mut slot[q * g.mp..(q + 1) * g.mp], &f.win);
     }
@@ -440,15 +447,15 @@ fn ssim_window(mx: f32, my: f32, exx: f32, eyy: f32, exy: f32) -> [f32; 4] {
 }
 
 /// Vertical pass of map row `oy` from ring rows `oy..oy + 11`: the partials into ring slot
-/// `oy % 11` (zero beyond `m`); when `count`, the SSIM values are added to `lanes`.
+/// `oy % RING` (zero beyond `m`); when `count`, the SSIM values are added to `lanes`.
 #[inline(always)]
 fn vertical_row(f: &Fused, oy: usize, sc: &mut Scratch, count: bool, lanes: &mut [f64; LANES]) {
     let g = &f.geo;
     let mp = g.mp;
     let hm = &sc.hm;
-    let slot = oy % SSIM_WINDOW;
+    let slot = oy % RING;
     let part = &mut sc.part[slot * 3 * mp..(slot + 1) * 3 * mp];
-    let base: [usize; SSIM_WINDOW] = std::array::from_fn(|k| ((oy + k) % SSIM_WINDOW) * 5 * mp);
+    let base: [usize; SSIM_WINDOW] = std::array::from_fn(|k| ((oy + k) % RING) * 5 * mp);
     for jb in 0..mp / LANES {
         let j = jb * LANES;
         let mut mo = [[0f32; LANES]; 5];
@@ -483,6 +490,140 @@ fn vertical_row(f: &Fused, oy: usize, sc: &mut Scratch, count: bool, lanes: &mut
     }
 }
 
+/// Whether [`vertical_pair`] runs on this CPU (it needs AVX2 + FMA; elsewhere map rows are
+/// filtered one at a time, with the same results).
+#[inline(always)]
+fn pairs_available() -> bool {
+    cfg!(target_arch = "x86_64") && simd_level() >= 1
+}
+
+/// [`vertical_row`] of map rows `oy` and `oy + 1` in one pass over the 12 moment rows they
+/// read (they share 10, so the ring is read about half as often): each value's sums in the
+/// same order as two single calls, so the results are bit-identical. `count` says per row
+/// whether its SSIM values are added to `lanes`, row `oy`'s first (as two calls would).
+/// Only called where [`pairs_available`].
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn vertical_pair(
+    f: &Fused,
+    oy: usize,
+    sc: &mut Scratch,
+    count: [bool; 2],
+    lanes: &mut [f64; LANES],
+) {
+    let g = &f.geo;
+    let mp = g.mp;
+    let (slot0, slot1) = (oy % RING, (oy + 1) % RING);
+    let base: [usize; RING] = std::array::from_fn(|k| ((oy + k) % RING) * 5 * mp);
+    assert!(sc.hm.len() >= RING * 5 * mp && mp.is_multiple_of(LANES));
+    for jb in 0..mp / LANES {
+        let j = jb * LANES;
+        let mut m0 = [[0f32; LANES]; 5];
+        let mut m1 = [[0f32; LANES]; 5];
+        // SAFETY: `pairs_available` (checked by the caller) means AVX2 and FMA; every read
+        // lies inside the ring (asserted above: base[k] + 4·mp + j + LANES ≤ RING·5·mp).
+        unsafe { pair_avx2::moments(&sc.hm, &base, mp, j, &f.win, &mut m0, &mut m1) };
+        let mut out = [[0f32; LANES]; 4];
+        for l in 0..LANES {
+            let r = ssim_window(m0[0][l], m0[1][l], m0[2][l], m0[3][l], m0[4][l]);
+            for p in 0..4 {
+                out[p][l] = r[p];
+            }
+        }
+        if count[0] {
+            for l in 0..LANES {
+                if j + l < g.m {
+                    lanes[l] += out[0][l] as f64;
+                }
+            }
+        }
+        for p in 0..3 {
+            let o = (slot0 * 3 + p) * mp + j;
+            sc.part[o..o + LANES].copy_from_slice(&out[p + 1]);
+        }
+        for l in 0..LANES {
+            let r = ssim_window(m1[0][l], m1[1][l], m1[2][l], m1[3][l], m1[4][l]);
+            for p in 0..4 {
+                out[p][l] = r[p];
+            }
+        }
+        sc.pair_ssim[j..j + LANES].copy_from_slice(&out[0]);
+        for p in 0..3 {
+            let o = (slot1 * 3 + p) * mp + j;
+            sc.part[o..o + LANES].copy_from_slice(&out[p + 1]);
+        }
+    }
+    for slot in [slot0, slot1] {
+        for p in 0..3 {
+            let o = (slot * 3 + p) * mp;
+            sc.part[o + g.m..o + mp].fill(0.0);
+        }
+    }
+    // Row oy + 1's SSIM values after all of row oy's, as two single calls add them.
+    if count[1] {
+        for (i, &v) in sc.pair_ssim[..g.m].iter().enumerate() {
+            lanes[i % LANES] += v as f64;
+        }
+    }
+}
+
+/// The moment sums of [`vertical_pair`] with explicit AVX2 fused multiply-adds (the
+/// auto-vectorised form of the paired loop compiles to scalar code). Each sum is
+/// `fma(w_k, value, sum)` from +0 over k in ascending order, exactly as [`vertical_row`]'s
+/// `mul_add`s, so the bits are the same.
+#[cfg(target_arch = "x86_64")]
+mod pair_avx2 {
+    use super::{HALO, LANES, RING, SSIM_WINDOW};
+    use std::arch::x86_64::*;
+
+    /// Moments of map rows oy (`m0`) and oy + 1 (`m1`) for the `LANES` values from `j`:
+    /// moment row k (ring offset `base[k]`) feeds `m0` with weight `win[k]` and `m1` with
+    /// weight `win[k − 1]`.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and FMA, and `base[k] + 4·mp + j + LANES ≤ hm.len()` for all k.
+    // Index loops over the five moments: each is one register.
+    #[allow(clippy::needless_range_loop)]
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn moments(
+        hm: &[f32],
+        base: &[usize; RING],
+        mp: usize,
+        j: usize,
+        win: &[f32; SSIM_WINDOW],
+        m0: &mut [[f32; LANES]; 5],
+        m1: &mut [[f32; LANES]; 5],
+    ) {
+        let p = hm.as_ptr();
+        for h in (0..LANES).step_by(8) {
+            let mut a0 = [_mm256_setzero_ps(); 5];
+            let mut a1 = [_mm256_setzero_ps(); 5];
+            let w = _mm256_set1_ps(win[0]);
+            for q in 0..5 {
+                let s = _mm256_loadu_ps(p.add(base[0] + q * mp + j + h));
+                a0[q] = _mm256_fmadd_ps(w, s, a0[q]);
+            }
+            for k in 1..SSIM_WINDOW {
+                let (wa, wb) = (_mm256_set1_ps(win[k]), _mm256_set1_ps(win[k - 1]));
+                for q in 0..5 {
+                    let s = _mm256_loadu_ps(p.add(base[k] + q * mp + j + h));
+                    a0[q] = _mm256_fmadd_ps(wa, s, a0[q]);
+                    a1[q] = _mm256_fmadd_ps(wb, s, a1[q]);
+                }
+            }
+            let w = _mm256_set1_ps(win[HALO]);
+            for q in 0..5 {
+                let s = _mm256_loadu_ps(p.add(base[SSIM_WINDOW] + q * mp + j + h));
+                a1[q] = _mm256_fmadd_ps(w, s, a1[q]);
+            }
+            for q in 0..5 {
+                _mm256_storeu_ps(m0[q].as_mut_ptr().add(h), a0[q]);
+                _mm256_storeu_ps(m1[q].as_mut_ptr().add(h), a1[q]);
+            }
+        }
+    }
+}
+
 /// The backward of input row `y` (`y − a` in the band's gradient rows `grow`): vertical
 /// gather of the partial rows, horizontal gather, chain rule, plus the pixel term.
 #[inline(always)]
@@ -508,7 +649,7 @@ fn gradient_row<const P: u8>(
             let mut acc = [[0f32; LANES]; 3];
             for k in klo..=khi {
                 let wk = f.win[k];
-                let slot = (y - k) % SSIM_WINDOW;
+                let slot = (y - k) % RING;
                 for (p, ap) in acc.iter_mut().enumerate() {
                     let o = (slot * 3 + p) * mp + j;
                     let s = &part[o..o + LANES];
@@ -674,13 +815,27 @@ fn band_impl<const P: u8>(
     for r in oy0..(oy0 + HALO).min(g.h) {
         horizontal_row(f, pred, target, r, sc);
     }
-    for oy in oy0..oy1 {
-        horizontal_row(f, pred, target, oy + HALO, sc);
-        vertical_row(f, oy, sc, oy >= a, &mut ssim);
-        if f.backward && oy >= a {
-            let o = (oy - a) * g.l;
-            gradient_row::<P>(f, pred, target, oy, &mut grad[o..o + g.l], sc, &mut pix);
+    let pairs = pairs_available();
+    let mut oy = oy0;
+    while oy < oy1 {
+        // Two map rows at a time where there are two left (and the paired kernel runs).
+        let rows = if pairs && oy + 1 < oy1 { 2 } else { 1 };
+        for r in 0..rows {
+            horizontal_row(f, pred, target, oy + r + HALO, sc);
         }
+        if rows == 2 {
+            #[cfg(target_arch = "x86_64")]
+            vertical_pair(f, oy, sc, [oy >= a, oy + 1 >= a], &mut ssim);
+        } else {
+            vertical_row(f, oy, sc, oy >= a, &mut ssim);
+        }
+        for y in oy..oy + rows {
+            if f.backward && y >= a {
+                let o = (y - a) * g.l;
+                gradient_row::<P>(f, pred, target, y, &mut grad[o..o + g.l], sc, &mut pix);
+            }
+        }
+        oy += rows;
     }
     for y in a.max(g.oh)..b {
         if f.backward {
