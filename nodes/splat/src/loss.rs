@@ -446,6 +446,30 @@ fn ssim_window(mx: f32, my: f32, exx: f32, eyy: f32, exy: f32) -> [f32; 4] {
     [s, a, b, c]
 }
 
+/// SSIM and its three partials ([`ssim_window`]) of a block of windows from their five
+/// moment sums, `[moment][lane]`.
+#[inline(always)]
+fn ssim_block(mo: &[[f32; LANES]; 5]) -> [[f32; LANES]; 4] {
+    let mut out = [[0f32; LANES]; 4];
+    for l in 0..LANES {
+        let r = ssim_window(mo[0][l], mo[1][l], mo[2][l], mo[3][l], mo[4][l]);
+        for p in 0..4 {
+            out[p][l] = r[p];
+        }
+    }
+    out
+}
+
+/// Adds the SSIM values of the block at `j` that lie in the map (`j + l < m`) to `lanes`.
+#[inline(always)]
+fn count_block(vals: &[f32; LANES], j: usize, m: usize, lanes: &mut [f64; LANES]) {
+    for l in 0..LANES {
+        if j + l < m {
+            lanes[l] += vals[l] as f64;
+        }
+    }
+}
+
 /// Vertical pass of map row `oy` from ring rows `oy..oy + 11`: the partials into ring slot
 /// `oy % RING` (zero beyond `m`); when `count`, the SSIM values are added to `lanes`.
 #[inline(always)]
@@ -467,19 +491,9 @@ fn vertical_row(f: &Fused, oy: usize, sc: &mut Scratch, count: bool, lanes: &mut
                 }
             }
         }
-        let mut out = [[0f32; LANES]; 4];
-        for l in 0..LANES {
-            let r = ssim_window(mo[0][l], mo[1][l], mo[2][l], mo[3][l], mo[4][l]);
-            for p in 0..4 {
-                out[p][l] = r[p];
-            }
-        }
+        let out = ssim_block(&mo);
         if count {
-            for l in 0..LANES {
-                if j + l < g.m {
-                    lanes[l] += out[0][l] as f64;
-                }
-            }
+            count_block(&out[0], j, g.m, lanes);
         }
         for p in 0..3 {
             part[p * mp + j..p * mp + j + LANES].copy_from_slice(&out[p + 1]);
@@ -523,30 +537,15 @@ fn vertical_pair(
         // SAFETY: `pairs_available` (checked by the caller) means AVX2 and FMA; every read
         // lies inside the ring (asserted above: base[k] + 4·mp + j + LANES ≤ RING·5·mp).
         unsafe { pair_avx2::moments(&sc.hm, &base, mp, j, &f.win, &mut m0, &mut m1) };
-        let mut out = [[0f32; LANES]; 4];
-        for l in 0..LANES {
-            let r = ssim_window(m0[0][l], m0[1][l], m0[2][l], m0[3][l], m0[4][l]);
-            for p in 0..4 {
-                out[p][l] = r[p];
-            }
-        }
+        let out = ssim_block(&m0);
         if count[0] {
-            for l in 0..LANES {
-                if j + l < g.m {
-                    lanes[l] += out[0][l] as f64;
-                }
-            }
+            count_block(&out[0], j, g.m, lanes);
         }
         for p in 0..3 {
             let o = (slot0 * 3 + p) * mp + j;
             sc.part[o..o + LANES].copy_from_slice(&out[p + 1]);
         }
-        for l in 0..LANES {
-            let r = ssim_window(m1[0][l], m1[1][l], m1[2][l], m1[3][l], m1[4][l]);
-            for p in 0..4 {
-                out[p][l] = r[p];
-            }
-        }
+        let out = ssim_block(&m1);
         sc.pair_ssim[j..j + LANES].copy_from_slice(&out[0]);
         for p in 0..3 {
             let o = (slot1 * 3 + p) * mp + j;
