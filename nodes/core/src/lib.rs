@@ -4,7 +4,8 @@
 //! [`camera::Camera`] (OpenCV axes, world-to-camera), [`image::ImageF32`] and its file
 //! formats (PNG/JPEG in, PNG/EXR/NPY out), the on-disk [`scene::Scene`] artifact that the
 //! import node writes and every later stage reads, small fixed-size linear algebra in
-//! [`linalg`], the deterministic [`rng::Rng`], and [`cputime`] for benchmarks on shared machines.
+//! [`linalg`], the deterministic [`rng::Rng`], [`cputime`] for benchmarks on shared machines, and
+//! [`simd`], the one answer to "which instruction set do the kernels run?".
 
 // Index loops read best in small fixed-size numeric code.
 #![allow(clippy::needless_range_loop)]
@@ -17,6 +18,7 @@ pub mod image;
 pub mod linalg;
 pub mod rng;
 pub mod scene;
+pub mod simd;
 
 pub use camera::Camera;
 pub use error::CoreError;
