@@ -173,6 +173,10 @@ fn demo_report_renders_in_headless_chromium() {
     );
 
     let Some(exe) = chromium() else {
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "CI=true but `chromium` is not installed (.ci/run installs it: apt-get install -y chromium)"
+        );
         eprintln!(
             "skipping the browser check: `chromium` is not installed (apt-get install -y chromium)"
         );
