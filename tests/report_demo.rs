@@ -1,39 +1,19 @@
-//! The report of the demo pipeline (issue 7): runs `pipelines/demo.ron` at tiny sizes through
-//! the CLI, then checks the `report` node's page — well-formed enough for a browser, the three
+//! The report of the demo pipeline: runs the demo at the test suite's tiny sizes
+//! (`tests/tiny.ron`) through the CLI, then checks the `report` node's page — well-formed enough for a browser, the three
 //! methods in the results table, the plots — and that headless Chromium loads it without
 //! errors and shows the table and SVG plots. The screenshot is kept under the tests' temp
 //! dir (`target/tmp/report_demo/shot.png`) as a CI artefact. The browser part skips with a
-//! message when `chromium` is not installed.
+//! message when `chromium` is not installed (and fails under `CI=true`).
 
 use augsplat_graph::store::unhex;
 use augsplat_graph::Store;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
-/// Tiny sizes (as in the method-pipeline tests), with test views large enough for LPIPS-alex.
-const TINY: &[&str] = &[
-    "scene.width=48",
-    "scene.height=40",
-    "scene.views=12",
-    "scene.points=400",
-    "scene.supersample=1",
-    "split.count=None",
-    "field.steps=10",
-    "field.rays_per_step=64",
-    "field.chunk_rays=32",
-    "field.levels=4",
-    "field.log2_table_size=10",
-    "field.max_resolution=64",
-    "field.march_steps=16",
-    "field.occupancy_resolution=16",
-    "poses.count=6",
-    "poses.downscale=2",
-    "params.gs_steps=20",
-    "params.eval_every=10",
-    "params.warmup=10",
-    "params.synthetic_batch=2",
+/// Timing records on, so the report shows its time plots (not part of any key).
+const WALL_TIME: &[&str] = &[
     "baseline.record_wall_time=true",
     "staged.record_wall_time=true",
     "dual.record_wall_time=true",
@@ -52,22 +32,23 @@ fn run_demo(cache: &Path) -> PathBuf {
     let summary = cache.with_extension("summary.json");
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_augsplat"));
     cmd.arg("run")
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/demo.ron"))
+        .arg(augsplat_testkit::tiny::pipeline())
         .arg("--cache")
         .arg(cache)
         .arg("--summary-json")
         .arg(&summary)
         .arg("--quiet");
-    for s in TINY {
+    for s in WALL_TIME {
         cmd.arg("--set").arg(s);
     }
     match shared_lpips() {
         Some(dir) => {
-            cmd.env("AUGSPLAT_LPIPS_WEIGHTS", dir);
+            cmd.env("AUGSPLAT_LPIPS_WEIGHTS", dir)
+                .arg("--set")
+                .arg("params.lpips=Alex");
         }
         None => {
             eprintln!("../shared/data/lpips absent: the demo report is made without LPIPS");
-            cmd.arg("--set").arg("params.lpips=None");
         }
     }
     let out = cmd.output().expect("runs the augsplat binary");
@@ -94,56 +75,12 @@ fn run_demo(cache: &Path) -> PathBuf {
     store.output_dir(&manifest)
 }
 
-fn chromium() -> Option<&'static str> {
-    ["chromium", "chromium-browser", "google-chrome"]
-        .into_iter()
-        .find(|name| {
-            Command::new(name)
-                .arg("--version")
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .status()
-                .is_ok_and(|s| s.success())
-        })
-}
-
 /// Runs headless Chromium with `extra` arguments (killed after two minutes); returns
 /// (stdout, stderr).
-fn chrome(exe: &str, profile: &Path, extra: &[String]) -> (String, String) {
-    let dir = tempfile::tempdir().unwrap();
-    let (o, e) = (dir.path().join("o"), dir.path().join("e"));
-    let mut child = Command::new(exe)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-dev-shm-usage",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--no-first-run",
-            "--enable-logging=stderr",
-            "--v=0",
-        ])
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .args(extra)
-        .stdout(std::fs::File::create(&o).unwrap())
-        .stderr(std::fs::File::create(&e).unwrap())
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if start.elapsed() > Duration::from_secs(120) {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("chromium did not finish within two minutes");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    (
-        std::fs::read_to_string(o).unwrap_or_default(),
-        std::fs::read_to_string(e).unwrap_or_default(),
-    )
+fn chrome(exe: &Path, profile: &Path, extra: &[String]) -> (String, String) {
+    let mut cmd = augsplat_testkit::browser::headless(exe, profile);
+    cmd.args(extra);
+    augsplat_testkit::browser::run_limited(cmd, Duration::from_secs(120))
 }
 
 #[test]
@@ -172,14 +109,7 @@ fn demo_report_renders_in_headless_chromium() {
         "synthetic views with confidence maps"
     );
 
-    let Some(exe) = chromium() else {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "CI=true but `chromium` is not installed (.ci/run installs it: apt-get install -y chromium)"
-        );
-        eprintln!(
-            "skipping the browser check: `chromium` is not installed (apt-get install -y chromium)"
-        );
+    let Some(exe) = augsplat_testkit::browser::chromium("the demo report's browser check") else {
         return;
     };
     let keep = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("report_demo");
@@ -189,7 +119,7 @@ fn demo_report_renders_in_headless_chromium() {
     let _ = std::fs::remove_file(&shot);
     let url = format!("file://{}", keep.join("index.html").display());
     let (dom, log) = chrome(
-        exe,
+        &exe,
         &dir.path().join("p1"),
         &["--dump-dom".into(), url.clone()],
     );
@@ -207,7 +137,7 @@ fn demo_report_renders_in_headless_chromium() {
         assert!(!log.contains(bad), "chromium reported `{bad}`:\n{log}");
     }
     let (_, log) = chrome(
-        exe,
+        &exe,
         &dir.path().join("p2"),
         &[
             format!("--screenshot={}", shot.display()),

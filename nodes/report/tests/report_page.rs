@@ -9,8 +9,7 @@ use augsplat_report::report_node::{files, ReportArgs};
 use augsplat_report::ReportNode;
 use common::*;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const VOID: [&str; 6] = ["meta", "img", "br", "hr", "input", "link"];
 
@@ -221,74 +220,9 @@ fn report_errors_are_clear() {
     assert!(err.contains("at least one evaluation"), "{err}");
 }
 
-fn chromium() -> Option<PathBuf> {
-    for name in ["chromium", "chromium-browser", "google-chrome"] {
-        let ok = Command::new(name)
-            .arg("--version")
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .status()
-            .is_ok_and(|s| s.success());
-        if ok {
-            return Some(PathBuf::from(name));
-        }
-    }
-    None
-}
-
-/// Runs a command with a time limit; returns (stdout, stderr).
-fn run_limited(mut cmd: Command, limit: Duration) -> (String, String) {
-    let dir = tempfile::tempdir().unwrap();
-    let (o, e) = (dir.path().join("o"), dir.path().join("e"));
-    let mut child = cmd
-        .stdout(std::fs::File::create(&o).unwrap())
-        .stderr(std::fs::File::create(&e).unwrap())
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    loop {
-        if child.try_wait().unwrap().is_some() {
-            break;
-        }
-        if start.elapsed() > limit {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("chromium did not finish within {limit:?}");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    (
-        std::fs::read_to_string(o).unwrap_or_default(),
-        std::fs::read_to_string(e).unwrap_or_default(),
-    )
-}
-
-fn chrome_cmd(exe: &Path, profile: &Path) -> Command {
-    let mut c = Command::new(exe);
-    c.args([
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-dev-shm-usage",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-        "--enable-logging=stderr",
-        "--v=0",
-    ])
-    .arg(format!("--user-data-dir={}", profile.display()));
-    c
-}
-
 #[test]
 fn renders_in_headless_chromium() {
-    let Some(exe) = chromium() else {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "CI=true but `chromium` is not installed (.ci/run installs it: apt-get install -y chromium)"
-        );
-        eprintln!("skipping: `chromium` is not installed (apt-get install -y chromium)");
+    let Some(exe) = augsplat_testkit::browser::chromium("the report page's browser check") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -302,9 +236,9 @@ fn renders_in_headless_chromium() {
     let _ = std::fs::remove_file(&shot);
     std::fs::copy(&index, keep.join("index.html")).unwrap();
 
-    let mut cmd = chrome_cmd(&exe, &dir.path().join("profile1"));
+    let mut cmd = augsplat_testkit::browser::headless(&exe, &dir.path().join("profile1"));
     cmd.arg("--dump-dom").arg(&url);
-    let (dom, log) = run_limited(cmd, Duration::from_secs(120));
+    let (dom, log) = augsplat_testkit::browser::run_limited(cmd, Duration::from_secs(120));
     assert!(
         dom.contains("<table class=\"metrics\">"),
         "DOM lacks the table; stderr:\n{log}"
@@ -320,12 +254,12 @@ fn renders_in_headless_chromium() {
         assert!(!log.contains(bad), "chromium reported `{bad}`:\n{log}");
     }
 
-    let mut cmd = chrome_cmd(&exe, &dir.path().join("profile2"));
+    let mut cmd = augsplat_testkit::browser::headless(&exe, &dir.path().join("profile2"));
     cmd.arg(format!("--screenshot={}", shot.display()))
         .arg("--window-size=1280,2000")
         .arg("--hide-scrollbars")
         .arg(&url);
-    let (_, log) = run_limited(cmd, Duration::from_secs(120));
+    let (_, log) = augsplat_testkit::browser::run_limited(cmd, Duration::from_secs(120));
     let img = image::open(&shot)
         .unwrap_or_else(|e| panic!("no screenshot at {} ({e}); stderr:\n{log}", shot.display()));
     assert_eq!((img.width(), img.height()), (1280, 2000));

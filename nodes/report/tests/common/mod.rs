@@ -9,28 +9,14 @@ use augsplat_report::evaluate::{evaluate, Checkpoint, EvalContext};
 use augsplat_report::ReportError;
 use std::path::{Path, PathBuf};
 
-/// The shared LPIPS weights folder, when present.
+/// The shared LPIPS weights folder, when present (reports the skip otherwise; a failure under
+/// `CI=true`).
 pub fn lpips_dir() -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/lpips");
-    p.join("lpips_alex_v0.1.safetensors").is_file().then_some(p)
+    augsplat_testkit::data::shared_data("LPIPS", "lpips/lpips_alex_v0.1.safetensors")
+        .map(|d| d.join("lpips"))
 }
 
-pub fn camera(w: u32, h: u32, z: f64) -> Camera {
-    Camera {
-        width: w,
-        height: h,
-        fx: w as f64,
-        fy: w as f64,
-        cx: w as f64 / 2.0,
-        cy: h as f64 / 2.0,
-        world_to_camera: [
-            [1.0, 0.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0, 0.0],
-            [0.0, 0.0, 1.0, z],
-            [0.0, 0.0, 0.0, 1.0],
-        ],
-    }
-}
+pub use augsplat_testkit::cameras::facing as camera;
 
 /// A smooth colourful pattern with an edge, values within [0.1, 0.85].
 pub fn pattern(w: u32, h: u32, phase: f32) -> ImageF32 {

@@ -6,14 +6,7 @@ use std::path::{Path, PathBuf};
 
 /// `<workspace root>/../shared/data`, or `None` (with a printed message) when absent.
 pub fn data_dir(test: &str) -> Option<PathBuf> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let d = root.join("../shared/data");
-    if d.is_dir() {
-        Some(d)
-    } else {
-        println!("skipping {test}: {} is absent", d.display());
-        None
-    }
+    augsplat_testkit::data::shared_data(test, "")
 }
 
 /// Runs node `N` standalone with `inputs` (name, folder) and returns the output root

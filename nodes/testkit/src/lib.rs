@@ -1,0 +1,38 @@
+//! Helpers shared by augsplat's tests and examples (a dev-dependency only).
+//!
+//! - [`data`]: the shared data folder beside the repository (`../shared/data`), found the same
+//!   way from every crate, with one skip rule;
+//! - [`browser`]: headless Chromium for the report tests;
+//! - [`cameras`]: test cameras (facing the origin, on a ring);
+//! - [`tiny`]: the tiny sizes at which the test suite runs the method pipelines (the same
+//!   values as `tests/tiny.ron`, checked by a test of the CLI).
+//!
+//! The skip rule: outside CI a test whose external requirement (the shared data, Chromium) is
+//! missing prints what it skips and passes; under `CI=true` — where `.ci/run` provides every
+//! requirement — it fails instead, so a broken CI set-up cannot turn into silent passes.
+
+pub mod browser;
+pub mod cameras;
+pub mod data;
+pub mod tiny;
+
+use std::path::PathBuf;
+
+/// The workspace root (the folder of the top-level `Cargo.toml`).
+pub fn workspace_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// Whether the tests run under CI (`CI=true`), where missing requirements fail.
+pub fn under_ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| v == "true")
+}
+
+/// Reports a missing requirement: panics under CI, else prints `skipping <test>: <why>`.
+pub fn skip(test: &str, why: &str) {
+    assert!(
+        !under_ci(),
+        "{test}: {why} — required under CI=true (.ci/run provides it)"
+    );
+    eprintln!("skipping {test}: {why}");
+}
