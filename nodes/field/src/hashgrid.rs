@@ -9,9 +9,9 @@
 //!
 //! The level kernels work on blocks of 16 points: corner indices and weights of the next block
 //! are computed (and, on hashed levels, prefetched) while the current block is gathered or
-//! scattered; two-feature levels gather with AVX-512 or, failing that, AVX2 when available,
-//! with the same operation order as the scalar loop (the level kernels are also compiled for
-//! AVX2 on CPUs without AVX-512; the bits do not change).
+//! scattered. The level kernels are compiled for the portable tier and for AVX2 and chosen by
+//! [`augsplat_core::simd::active`]; in the AVX2 tier, two-feature levels gather with AVX2,
+//! with the same operation order as the scalar loop (the bits do not change).
 
 use crate::error::FieldError;
 use serde::{Deserialize, Serialize};
@@ -164,55 +164,18 @@ fn prefetch_block<const F: usize>(t: &[f32], idx: &[[u32; BLOCK]; 8], cnt: usize
     let _ = (t, idx, cnt);
 }
 
-/// Two-feature levels on AVX-512: the 8 corner entries of 16 points are fetched with 64-bit
-/// gathers (one entry = both features), de-interleaved and blended with the same separate
-/// multiply and add, in the same corner order, as the scalar loop (so the bits match it).
-///
-/// # Safety
-/// AVX-512F must be available; `idx` entries must be `< t.len() / 2`; `out` must hold rows
-/// `0` and `1` (stride `ld`) up to column `start + 16`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn gather2_block(
-    t: &[f32],
-    idx: &[[u32; BLOCK]; 8],
-    w: &[[f32; BLOCK]; 8],
-    out: &mut [f32],
-    ld: usize,
-    start: usize,
-) {
-    use std::arch::x86_64::*;
-    let base = t.as_ptr() as *const f64;
-    let even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
-    let odd = _mm512_setr_epi32(1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
-    let mut a0 = _mm512_setzero_ps();
-    let mut a1 = _mm512_setzero_ps();
-    for c in 0..8 {
-        let lo = _mm256_loadu_si256(idx[c].as_ptr() as *const __m256i);
-        let hi = _mm256_loadu_si256(idx[c].as_ptr().add(8) as *const __m256i);
-        let g_lo = _mm512_castpd_ps(_mm512_i32gather_pd::<8>(lo, base));
-        let g_hi = _mm512_castpd_ps(_mm512_i32gather_pd::<8>(hi, base));
-        let f0 = _mm512_permutex2var_ps(g_lo, even, g_hi);
-        let f1 = _mm512_permutex2var_ps(g_lo, odd, g_hi);
-        let wc = _mm512_loadu_ps(w[c].as_ptr());
-        a0 = _mm512_add_ps(a0, _mm512_mul_ps(wc, f0));
-        a1 = _mm512_add_ps(a1, _mm512_mul_ps(wc, f1));
-    }
-    _mm512_storeu_ps(out.as_mut_ptr().add(start), a0);
-    _mm512_storeu_ps(out.as_mut_ptr().add(ld + start), a1);
-}
-
-/// Two-feature levels on AVX2: [`gather2_block`] with 4-entry gathers. The index vectors are
-/// interleaved (`i0 i1 i4 i5` / `i2 i3 i6 i7`) so that one in-lane shuffle de-interleaves the
-/// two features in point order; blending is the same separate multiply and add, in the same
-/// corner order, as the scalar loop (so the bits match it).
+/// Two-feature levels on AVX2: the 8 corner entries of 16 points are fetched with 4-entry
+/// 64-bit gathers (one entry = both features). The index vectors are interleaved
+/// (`i0 i1 i4 i5` / `i2 i3 i6 i7`) so that one in-lane shuffle de-interleaves the two features
+/// in point order; blending is the same separate multiply and add, in the same corner order,
+/// as the scalar loop (so the bits match it).
 ///
 /// # Safety
 /// AVX2 must be available; `idx` entries must be `< t.len() / 2`; `out` must hold rows `0`
 /// and `1` (stride `ld`) up to column `start + 16`.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn gather2_block_avx2(
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
+unsafe fn gather2_block(
     t: &[f32],
     idx: &[[u32; BLOCK]; 8],
     w: &[[f32; BLOCK]; 8],
@@ -242,7 +205,7 @@ unsafe fn gather2_block_avx2(
     }
 }
 
-/// The encode kernel with the SIMD gathers of two-feature levels where the CPU has them.
+/// The encode kernel with the SIMD gathers of two-feature levels in the AVX2 tier.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn encode_level_body<const F: usize, const DENSE: bool>(
@@ -280,15 +243,7 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
         && F == 2
         && BLOCK == 16
         && ld >= BLOCK
-        && std::arch::is_x86_feature_detected!("avx512f");
-    #[cfg(target_arch = "x86_64")]
-    let gather2_avx2 = GATHER
-        && F == 2
-        && BLOCK == 16
-        && ld >= BLOCK
-        && !gather2
-        && std::arch::is_x86_feature_detected!("avx2")
-        && std::arch::is_x86_feature_detected!("fma");
+        && augsplat_core::simd::active() == augsplat_core::simd::Isa::Avx2;
     // Double-buffered corners: block b + 1 is computed and prefetched while block b is
     // gathered.
     let mut idx = [[[0u32; BLOCK]; 8]; 2];
@@ -317,16 +272,10 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
         let cnt = (n - start).min(BLOCK);
         #[cfg(target_arch = "x86_64")]
         if gather2 {
-            // SAFETY: AVX-512F checked; every index is a valid entry (< size) and the output
-            // rows hold `start + BLOCK ≤ ld` columns (`start` is a multiple of BLOCK < n).
+            // SAFETY: `active` returns `Avx2` only on CPUs with its features; every index is a
+            // valid entry (< size) and the output rows hold `start + BLOCK ≤ ld` columns
+            // (`start` is a multiple of BLOCK < n).
             unsafe { gather2_block(t, idx, w, out, ld, start) };
-            cur ^= 1;
-            continue;
-        }
-        #[cfg(target_arch = "x86_64")]
-        if gather2_avx2 {
-            // SAFETY: AVX2 and FMA checked; indices and output rows as for `gather2_block`.
-            unsafe { gather2_block_avx2(t, idx, w, out, ld, start) };
             cur ^= 1;
             continue;
         }
@@ -419,6 +368,9 @@ fn backward_level_body<const F: usize, const DENSE: bool>(
     }
 }
 
+/// Defines a level kernel once per tier and dispatches by [`augsplat_core::simd::active`]: what
+/// [`augsplat_core::multiversion!`] does, for bodies generic over `F` and `DENSE` (which that
+/// macro does not take), with the same tiers and the same AVX2 feature set.
 macro_rules! level_kernel {
     ($name:ident, $body:ident, $first:ident) => {
         #[allow(clippy::too_many_arguments)]
@@ -435,32 +387,17 @@ macro_rules! level_kernel {
         ) {
             #[cfg(target_arch = "x86_64")]
             {
-                #[target_feature(enable = "avx512f,avx512vl,avx2")]
-                #[allow(clippy::too_many_arguments)]
-                unsafe fn fast<const F: usize, const DENSE: bool>(
-                    a: &[f32], res: u32, size: usize, px: &[f32], py: &[f32], pz: &[f32], n: usize, ld: usize, b: &mut [f32],
-                ) {
-                    level_kernel!(@call $body, a, res, size, px, py, pz, n, ld, b)
-                }
-                // The same body compiled for AVX2 (8-lane corner computation; Rust never
+                // The body compiled for AVX2 (8-lane corner computation; Rust never
                 // contracts a separate multiply and add, so the bits are unchanged).
-                #[target_feature(enable = "avx2,fma")]
+                #[target_feature(enable = "avx2,fma,bmi1,popcnt")]
                 #[allow(clippy::too_many_arguments)]
                 unsafe fn avx2<const F: usize, const DENSE: bool>(
                     a: &[f32], res: u32, size: usize, px: &[f32], py: &[f32], pz: &[f32], n: usize, ld: usize, b: &mut [f32],
                 ) {
                     level_kernel!(@call $body, a, res, size, px, py, pz, n, ld, b)
                 }
-                if std::arch::is_x86_feature_detected!("avx512f")
-                    && std::arch::is_x86_feature_detected!("avx512vl")
-                {
-                    // SAFETY: the CPU supports the enabled features (checked above).
-                    return unsafe { fast::<F, DENSE>($first, res, size, px, py, pz, n, ld, other) };
-                }
-                if std::arch::is_x86_feature_detected!("avx2")
-                    && std::arch::is_x86_feature_detected!("fma")
-                {
-                    // SAFETY: the CPU supports the enabled features (checked above).
+                if augsplat_core::simd::active() == augsplat_core::simd::Isa::Avx2 {
+                    // SAFETY: `active` returns `Avx2` only on CPUs with its features.
                     return unsafe { avx2::<F, DENSE>($first, res, size, px, py, pz, n, ld, other) };
                 }
             }
@@ -682,12 +619,19 @@ mod tests {
         p
     }
 
-    /// The dispatched level kernels (AVX-512 or AVX2 gathers, AVX2-compiled bodies, whichever
-    /// this CPU selects) give exactly the bits of the portable scalar kernels, on dense and
+    /// The dispatched level kernels of every tier (in the AVX2 tier: AVX2 gathers and
+    /// AVX2-compiled bodies) give exactly the bits of the portable scalar kernels, on dense and
     /// hashed levels with 1, 2, 4 and 8 features, batches that end inside a block, and padded
     /// rows.
     #[test]
     fn simd_level_kernels_match_portable_bitwise() {
+        augsplat_core::simd::for_each_isa(
+            "hash-grid level kernels against the scalar loop",
+            |_| level_kernels_match_portable_once(),
+        );
+    }
+
+    fn level_kernels_match_portable_once() {
         let mut rng = Rng::new(31);
         for f in [2u32, 1, 4, 8] {
             let grid = HashGrid::new(HashGridConfig {

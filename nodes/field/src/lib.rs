@@ -16,10 +16,6 @@ pub mod constants;
 pub mod contraction;
 pub mod error;
 pub mod field;
-#[cfg(target_arch = "x86_64")]
-mod gemm256;
-#[cfg(target_arch = "x86_64")]
-mod gemm512;
 pub mod hashgrid;
 pub mod io;
 pub mod mlp;

@@ -57,12 +57,12 @@ fn main() {
             .trim()
     );
     println!(
-        "images {}×{} ({} / {}), {threads} threads, kernel {:?}",
+        "images {}×{} ({} / {}), {threads} threads, tier {}",
         a.width,
         a.height,
         pa.display(),
         pb.display(),
-        augsplat_metrics::gemm::Isa::detect()
+        augsplat_core::simd::active()
     );
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)

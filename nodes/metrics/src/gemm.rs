@@ -9,62 +9,29 @@
 //!   micro-kernel over K in blocks of [`KC`] (A block in L2, B micro-panel in L1).
 //! - Every output element is one accumulator that adds its K products in increasing k order,
 //!   whatever the tiling or thread count: results are bit-identical for any number of threads.
-//! - The micro-kernel is chosen at run time: AVX-512F (8×32), AVX2+FMA (6×16) or portable
-//!   Rust (4×16). Different instruction sets may round differently (FMA); one machine always
-//!   gives the same bits.
+//! - The micro-kernel is the one of the instruction-set tier ([`augsplat_core::simd::active`])
+//!   when the weights are packed: AVX2 + FMA (6×16) or portable Rust (4×16). The tile shape
+//!   does not change any sum, but the AVX2 kernel fuses its multiply-adds and the portable one
+//!   does not, so the two tiers may differ in the last bits; one tier always gives the same
+//!   bits.
 
+use augsplat_core::simd::{self, Isa};
 use rayon::prelude::*;
-use std::sync::OnceLock;
 
 /// Output pixels per parallel tile.
 pub const TILE_N: usize = 256;
 /// K block length.
 pub const KC: usize = 256;
 
-/// The micro-kernel family in use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Isa {
-    /// AVX-512F, 8 rows × 32 columns.
-    Avx512,
-    /// AVX2 with FMA, 6 rows × 16 columns.
-    Avx2Fma,
-    /// Plain Rust, 4 rows × 16 columns.
-    Portable,
-}
+/// Columns of the micro-tile (two ymm registers in the AVX2 tier).
+pub const NR: usize = 16;
 
-impl Isa {
-    /// The best kernel this CPU supports (detected once).
-    pub fn detect() -> Isa {
-        static ISA: OnceLock<Isa> = OnceLock::new();
-        *ISA.get_or_init(|| {
-            #[cfg(target_arch = "x86_64")]
-            {
-                if std::arch::is_x86_feature_detected!("avx512f") {
-                    return Isa::Avx512;
-                }
-                if std::arch::is_x86_feature_detected!("avx2")
-                    && std::arch::is_x86_feature_detected!("fma")
-                {
-                    return Isa::Avx2Fma;
-                }
-            }
-            Isa::Portable
-        })
-    }
-    /// Rows of the micro-tile.
-    pub fn mr(self) -> usize {
-        match self {
-            Isa::Avx512 => 8,
-            Isa::Avx2Fma => 6,
-            Isa::Portable => 4,
-        }
-    }
-    /// Columns of the micro-tile.
-    pub fn nr(self) -> usize {
-        match self {
-            Isa::Avx512 => 32,
-            Isa::Avx2Fma | Isa::Portable => 16,
-        }
+/// Rows of the micro-tile of a tier's kernel: 6 with AVX2 + FMA (12 ymm accumulators), 4 in
+/// the portable kernel.
+pub fn micro_rows(isa: Isa) -> usize {
+    match isa {
+        Isa::Avx2 => 6,
+        Isa::Portable => 4,
     }
 }
 
@@ -86,14 +53,16 @@ pub struct PackedWeights {
 }
 
 impl PackedWeights {
-    /// Packs OIHW weights `[m, c_in, kh, kw]` and a bias of length m.
+    /// Packs OIHW weights `[m, c_in, kh, kw]` and a bias of length m for the micro-kernel of
+    /// the active tier ([`augsplat_core::simd::active`]).
     ///
     /// Panics if the slice lengths do not match the shape (callers check shapes first).
     pub fn new(weights: &[f32], bias: &[f32], m: usize, c_in: usize, kh: usize, kw: usize) -> Self {
-        Self::with_isa(Isa::detect(), weights, bias, m, c_in, kh, kw)
+        Self::with_isa(simd::active(), weights, bias, m, c_in, kh, kw)
     }
 
-    /// As [`PackedWeights::new`] with a chosen kernel family (tests compare them).
+    /// As [`PackedWeights::new`] for the micro-kernel of tier `isa`, capped by what the CPU
+    /// supports.
     pub fn with_isa(
         isa: Isa,
         weights: &[f32],
@@ -103,10 +72,11 @@ impl PackedWeights {
         kh: usize,
         kw: usize,
     ) -> Self {
+        let isa = isa.min(Isa::detect());
         let k = c_in * kh * kw;
         assert_eq!(weights.len(), m * k, "weight length");
         assert_eq!(bias.len(), m, "bias length");
-        let mr = isa.mr();
+        let mr = micro_rows(isa);
         let panels = m.div_ceil(mr);
         let mut data = vec![0f32; panels * k * mr];
         for row in 0..m {
@@ -124,6 +94,11 @@ impl PackedWeights {
             data,
             bias: bias.to_vec(),
         }
+    }
+
+    /// The tier whose micro-kernel these weights are packed for.
+    pub fn isa(&self) -> Isa {
+        self.isa
     }
 
     fn k(&self) -> usize {
@@ -188,7 +163,7 @@ pub fn conv2d_relu(
             tile(&padded, &geo, weights, n0, nt, bbuf)
         })
         .collect();
-    let (mr, nr) = (weights.isa.mr(), weights.isa.nr());
+    let (mr, nr) = (micro_rows(weights.isa), NR);
     let mut out = vec![0f32; weights.m * n];
     out.par_chunks_mut(n).enumerate().for_each(|(row, dst)| {
         let (p, r) = (row / mr, row % mr);
@@ -232,7 +207,7 @@ fn tile(
     b: &mut Vec<f32>,
 ) -> Vec<f32> {
     let isa = wts.isa;
-    let (mr, nr) = (isa.mr(), isa.nr());
+    let (mr, nr) = (micro_rows(isa), NR);
     let k = wts.k();
     let npan = nt.div_ceil(nr);
     let mpan = wts.m.div_ceil(mr);
@@ -311,16 +286,13 @@ fn tile(
 /// `c[MR × NR] += a[kc × MR]ᵀ · b[kc × NR]`, k in increasing order, one accumulator per
 /// element.
 fn micro_kernel(isa: Isa, kc: usize, a: &[f32], b: &[f32], c: &mut [f32]) {
-    let (mr, nr) = (isa.mr(), isa.nr());
+    let (mr, nr) = (micro_rows(isa), NR);
     assert!(a.len() >= kc * mr && b.len() >= kc * nr && c.len() >= mr * nr);
     match isa {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `Isa::Avx512` is only produced when the CPU reports AVX-512F (or chosen by a
-        // caller on such a CPU); slice lengths were checked above.
-        Isa::Avx512 => unsafe { x86::kernel_8x32(kc, a.as_ptr(), b.as_ptr(), c.as_mut_ptr()) },
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: as above, for AVX2 + FMA.
-        Isa::Avx2Fma => unsafe { x86::kernel_6x16(kc, a.as_ptr(), b.as_ptr(), c.as_mut_ptr()) },
+        // SAFETY: `PackedWeights` holds `Isa::Avx2` only on CPUs with its features (capped by
+        // `Isa::detect`); slice lengths were checked above.
+        Isa::Avx2 => unsafe { x86::kernel_6x16(kc, a.as_ptr(), b.as_ptr(), c.as_mut_ptr()) },
         _ => kernel_portable(kc, a, b, c),
     }
 }
@@ -350,34 +322,9 @@ fn kernel_portable(kc: usize, a: &[f32], b: &[f32], c: &mut [f32]) {
 mod x86 {
     use std::arch::x86_64::*;
 
-    /// 8×32 AVX-512 micro-kernel. Caller guarantees AVX-512F and `a: kc×8`, `b: kc×32`,
-    /// `c: 8×32` valid.
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn kernel_8x32(kc: usize, a: *const f32, b: *const f32, c: *mut f32) {
-        let mut acc = [[_mm512_setzero_ps(); 2]; 8];
-        for (r, row) in acc.iter_mut().enumerate() {
-            row[0] = _mm512_loadu_ps(c.add(r * 32));
-            row[1] = _mm512_loadu_ps(c.add(r * 32 + 16));
-        }
-        for p in 0..kc {
-            let b0 = _mm512_loadu_ps(b.add(p * 32));
-            let b1 = _mm512_loadu_ps(b.add(p * 32 + 16));
-            let ap = a.add(p * 8);
-            for (r, row) in acc.iter_mut().enumerate() {
-                let av = _mm512_set1_ps(*ap.add(r));
-                row[0] = _mm512_fmadd_ps(av, b0, row[0]);
-                row[1] = _mm512_fmadd_ps(av, b1, row[1]);
-            }
-        }
-        for (r, row) in acc.iter().enumerate() {
-            _mm512_storeu_ps(c.add(r * 32), row[0]);
-            _mm512_storeu_ps(c.add(r * 32 + 16), row[1]);
-        }
-    }
-
     /// 6×16 AVX2+FMA micro-kernel. Caller guarantees AVX2 and FMA and `a: kc×6`, `b: kc×16`,
     /// `c: 6×16` valid.
-    #[target_feature(enable = "avx2,fma")]
+    #[target_feature(enable = "avx2,fma,bmi1,popcnt")]
     pub unsafe fn kernel_6x16(kc: usize, a: *const f32, b: *const f32, c: *mut f32) {
         let mut acc = [[_mm256_setzero_ps(); 2]; 6];
         for (r, row) in acc.iter_mut().enumerate() {
@@ -450,22 +397,7 @@ mod tests {
         (0..n).map(|_| rng.next_f32() * 2.0 - 1.0).collect()
     }
 
-    fn isas() -> Vec<Isa> {
-        let mut v = vec![Isa::Portable];
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                v.push(Isa::Avx2Fma);
-            }
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                v.push(Isa::Avx512);
-            }
-        }
-        v
-    }
-
+    /// Every tier's micro-kernel against the f64 convolution.
     #[test]
     fn conv_matches_f64_reference() {
         // Odd sizes: partial M panels, partial N panels and tiles, K longer than one KC block.
@@ -484,8 +416,9 @@ mod tests {
             let bias = values(m, 3);
             let reference =
                 conv_reference(&input, c_in, h, w, &wts, &bias, (m, kh, kw), stride, pad);
-            for isa in isas() {
-                let packed = PackedWeights::with_isa(isa, &wts, &bias, m, c_in, kh, kw);
+            simd::for_each_isa("conv micro-kernel against f64", |isa| {
+                let packed = PackedWeights::new(&wts, &bias, m, c_in, kh, kw);
+                assert_eq!(packed.isa(), isa);
                 let (out, _, _) = conv2d_relu(&input, h, w, &packed, stride, pad);
                 assert_eq!(out.len(), reference.len());
                 for (i, (&o, &r)) in out.iter().zip(&reference).enumerate() {
@@ -494,7 +427,7 @@ mod tests {
                         "{isa:?} case {c_in}x{h}x{w} k{kh} elem {i}: {o} vs {r}"
                     );
                 }
-            }
+            });
         }
     }
 

@@ -133,11 +133,11 @@ struct Buffers {
     smap: Vec<f32>,
 }
 
-/// Sum of the SSIM map over output rows `r0..r1` and columns `crop..w-crop` of one channel,
-/// using the widest vector instructions available (the arithmetic is the same, so the bits are
-/// too: Rust never fuses multiply-adds on its own).
-#[allow(clippy::too_many_arguments)]
-fn chunk_sum(
+// `chunk_sum`: the sum of the SSIM map over output rows `r0..r1` and columns `crop..w-crop`
+// of one channel, compiled for every instruction-set tier and dispatched by
+// `augsplat_core::simd::active` (the arithmetic is the same, so the bits are too: Rust never
+// fuses multiply-adds on its own).
+augsplat_core::multiversion!(fn chunk_sum(
     x: &[f32],
     y: &[f32],
     w: usize,
@@ -147,33 +147,7 @@ fn chunk_sum(
     crop: usize,
     g: &[f32; WINDOW],
     buf: &mut Buffers,
-) -> f64 {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked above).
-            return unsafe { chunk_sum_avx2(x, y, w, h, r0, r1, crop, g, buf) };
-        }
-    }
-    chunk_sum_generic(x, y, w, h, r0, r1, crop, g, buf)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn chunk_sum_avx2(
-    x: &[f32],
-    y: &[f32],
-    w: usize,
-    h: usize,
-    r0: usize,
-    r1: usize,
-    crop: usize,
-    g: &[f32; WINDOW],
-    buf: &mut Buffers,
-) -> f64 {
-    chunk_sum_generic(x, y, w, h, r0, r1, crop, g, buf)
-}
+) -> f64 => chunk_sum_generic);
 
 /// `out[i] = Σ_k g[k] p[i + k]` over an 11-tap symmetric window (`p.len() == out.len() + 10`),
 /// taps paired as `g[k] (p[i+k] + p[i+10−k])`.
@@ -372,6 +346,22 @@ mod tests {
         let s10 = noise_image(10, 40, 3);
         assert!(ssim(&s10, &s10).is_ok());
         assert!(ssim_valid(&s10, &s10).is_err());
+    }
+
+    /// Every tier (the filters compiled for AVX2 and the portable build) gives the same bits.
+    #[test]
+    fn every_tier_gives_the_same_bits() {
+        let a = noise_image(70, 53, 6);
+        let b = noise_image(70, 53, 7);
+        let runs = augsplat_core::simd::for_each_isa("ssim filters", |_| {
+            (
+                ssim(&a, &b).unwrap().to_bits(),
+                ssim_valid(&a, &b).unwrap().to_bits(),
+            )
+        });
+        for (isa, bits) in &runs {
+            assert_eq!(*bits, runs[0].1, "{isa} vs {}", runs[0].0);
+        }
     }
 
     #[test]

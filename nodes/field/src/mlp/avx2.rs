@@ -1,14 +1,12 @@
-//! AVX2 + FMA register-blocked kernels for the dense layers of [`crate::mlp`] (x86-64 only),
-//! for CPUs without AVX-512 (e.g. AMD Zen 2/3). The structure follows [`crate::gemm512`] with
-//! 8-lane ymm registers and 16 of them instead of 32:
+//! AVX2 + FMA register-blocked kernels for the dense layers of [`crate::mlp`] (x86-64 only;
+//! the [`augsplat_core::simd::Isa::Avx2`] tier), with 8-lane ymm registers:
 //!
 //! - Forward / input gradient: a tile of up to 6 outputs × 16 batch columns (2 ymm each), or of
 //!   up to 3 outputs × 32 columns when the layer has at most 3 outputs, lives in 12 ymm
 //!   accumulators; every step of the reduction loads the tile's column vectors and broadcasts
 //!   one weight per output. Bias, ReLU or the ReLU mask of the layer below are applied in the
 //!   store. Each output sums `b + Σ_i w_i x_i` in `i` order with fused multiply-adds — the same
-//!   operations, hence the same bits, as the auto-vectorised path with fused multiply-adds and
-//!   as the AVX-512 kernels.
+//!   operations, hence the same bits, as the portable twin with fused multiply-adds.
 //! - Weight gradient `dW = δ·Xᵀ`: the batch is cut into blocks of `kc` columns; each block of
 //!   `X` is transposed (8×8 in-register transposes) to sample-major rows, then a tile of up to
 //!   6 outputs × 16 inputs (or 3 outputs × 32 inputs) accumulates in registers, one sample
@@ -28,7 +26,7 @@
 
 use std::arch::x86_64::*;
 
-use crate::mlp::Store;
+use super::Store;
 
 /// Store modes of the forward tile (const generic so the store loop is fully unrolled).
 const LINEAR: u8 = 0;
@@ -328,7 +326,7 @@ unsafe fn fwd_mode<const MODE: u8>(
 /// AVX2 and FMA must be available; `ncols` is a multiple of 8; `w.len() ≥ out·inp`,
 /// `b.len() ≥ out`, and every row `r` read or written lies inside its slice
 /// (`r·ld + ncols ≤ len`).
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 #[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn forward(
     w: &[f32],
@@ -398,7 +396,7 @@ unsafe fn transpose8(r: [__m256; 8]) -> [__m256; 8] {
 /// # Safety
 /// AVX2 must be available.
 #[cfg(test)]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 pub(crate) unsafe fn transpose8_slice(src: &[f32; 64], dst: &mut [f32; 64]) {
     let mut r = [_mm256_setzero_ps(); 8];
     for i in 0..8 {
@@ -491,7 +489,7 @@ unsafe fn dw_rows<const OB: usize, const IV: usize>(
 /// AVX2 and FMA must be available; `ncols` is a multiple of 16; `dwp.len() ≥ out·inp_pad`,
 /// `lanes.len() ≥ 16·out`, and the rows of `dy` (stride `lddy`) and `x` (stride `ldx`) hold
 /// `ncols` columns inside their slices.
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 #[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn backward_weights(
     dy: &[f32],
