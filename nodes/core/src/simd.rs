@@ -18,6 +18,12 @@
 //! multiply-adds written as `mul_add`, fixed reduction orders); the tests of every kernel
 //! family run each tier through [`for_each_isa`] and compare bits.
 //!
+//! One documented exception: the dense layers of the radiance field and the convolutions of
+//! LPIPS fuse their multiply-adds in the AVX2 tier but not on the portable path (a software
+//! `fma` would make CPUs without FMA many times slower). Their AVX2 kernels are tested bit for
+//! bit against the portable kernels *run with fused multiply-adds*; a machine without AVX2
+//! gives results that differ from an AVX2 machine's in the last bits for those two kernels.
+//!
 //! # Choosing the tier
 //!
 //! [`active`] is the widest tier the CPU supports, capped by the environment variable
@@ -162,9 +168,13 @@ pub fn active() -> Isa {
 }
 
 /// Runs `f` with every kernel dispatching to `isa` (capped by what the CPU supports), holding a
-/// process-wide lock so forcing scopes never interleave. Kernels called outside such a scope
-/// meanwhile may also see the forced tier, which changes no result (every tier gives the
-/// same bits).
+/// process-wide lock so forcing scopes never interleave.
+///
+/// The forced tier is process-wide: kernels that other threads call meanwhile see it too. For
+/// bit-identical kernels that changes only speed; a test that compares two runs of the field's
+/// dense layers or the LPIPS convolutions (see the module docs) must run them inside one
+/// `with_isa` scope (or in a test binary that forces nothing), so that no forcing test in the
+/// same process can switch their tier between the runs.
 pub fn with_isa<R>(isa: Isa, f: impl FnOnce() -> R) -> R {
     let _guard = FORCE_LOCK.lock().unwrap_or_else(|e| e.into_inner());
     struct Reset;
