@@ -1,21 +1,30 @@
-//! Engine behaviour with toy node kinds that record every execution.
+//! Engine behaviour with toy node kinds that record every execution. Each test owns its
+//! recorder (through its `Env`), so the tests run in parallel.
 
 mod common;
 
 use augsplat_graph::{Engine, RunOptions};
-use common::{lock, registry, take};
+use common::{registry, Recorder};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 struct Env {
     dir: tempfile::TempDir,
     engine: Engine,
+    /// What this test's toy nodes did.
+    rec: Arc<Recorder>,
 }
 
 impl Env {
     fn new() -> Env {
         let dir = tempfile::tempdir().unwrap();
-        let engine = Engine::new(registry(), dir.path().join("cache")).unwrap();
-        Env { dir, engine }
+        let rec = Recorder::new();
+        let engine = Engine::new(registry(rec.clone()), dir.path().join("cache")).unwrap();
+        Env { dir, engine, rec }
+    }
+    /// The nodes run since the last `take`, sorted.
+    fn take(&self) -> Vec<String> {
+        self.rec.take()
     }
     fn write(&self, name: &str, text: &str) -> PathBuf {
         let p = self.dir.path().join(name);
@@ -108,17 +117,16 @@ fn statuses(
 
 #[test]
 fn first_run_runs_all_second_none_and_arg_change_reruns_descendants() {
-    let _g = lock();
     let env = Env::new();
     let f = env.write("p.ron", CHAIN);
     let (plan, report) = env.run(&f, &[]);
     assert!(report.success());
-    assert_eq!(take(), ["app", "len", "other", "src"]);
+    assert_eq!(env.take(), ["app", "len", "other", "src"]);
     assert_eq!(env.read(&plan, &report, "app", "out"), "abab|0.5!");
     assert_eq!(env.read(&plan, &report, "len", "out"), "9");
     let first: Vec<f64> = report.results.iter().flatten().map(|r| r.seconds).collect();
     let (plan, report) = env.run(&f, &[]);
-    assert!(take().is_empty(), "second run must run nothing");
+    assert!(env.take().is_empty(), "second run must run nothing");
     assert!(statuses(&plan, &report).iter().all(|(_, s)| s == "cached"));
     // A cached node takes no time in this run and reports, for the table, its compute time
     // recorded by the run that computed it.
@@ -140,7 +148,7 @@ fn first_run_runs_all_second_none_and_arg_change_reruns_descendants() {
     // Change `app`'s suffix: app and len rerun, src and other stay cached.
     let f2 = env.write("p.ron", &CHAIN.replace(r#"suffix: "!""#, r#"suffix: "%""#));
     let (plan, report) = env.run(&f2, &[]);
-    assert_eq!(take(), ["app", "len"]);
+    assert_eq!(env.take(), ["app", "len"]);
     let expect: Vec<(String, String)> = [
         ("app", "ran"),
         ("len", "ran"),
@@ -154,12 +162,11 @@ fn first_run_runs_all_second_none_and_arg_change_reruns_descendants() {
     // Changing the source reruns everything downstream of it.
     let f3 = env.write("p.ron", &CHAIN.replace("count: 2", "count: 3"));
     env.run(&f3, &[]);
-    assert_eq!(take(), ["app", "len", "other", "src"]);
+    assert_eq!(env.take(), ["app", "len", "other", "src"]);
 }
 
 #[test]
 fn early_cutoff_stops_the_cascade() {
-    let _g = lock();
     let env = Env::new();
     let text = r#"(nodes: {
         "src": (kind: "Source", args: (value: "abc")),
@@ -168,19 +175,18 @@ fn early_cutoff_stops_the_cascade() {
     })"#;
     let f = env.write("p.ron", text);
     env.run(&f, &[]);
-    assert_eq!(take(), ["down", "len", "src"]);
+    assert_eq!(env.take(), ["down", "len", "src"]);
     // Same length, different bytes: src and len rerun, len's output is byte-identical, so
     // `down` stays cached.
     let f = env.write("p.ron", &text.replace("\"abc\"", "\"xyz\""));
     let (plan, report) = env.run(&f, &[]);
-    assert_eq!(take(), ["len", "src"]);
+    assert_eq!(env.take(), ["len", "src"]);
     let st = statuses(&plan, &report);
     assert!(st.contains(&("down".into(), "cached".into())), "{st:?}");
 }
 
 #[test]
 fn formatting_only_edits_change_no_key() {
-    let _g = lock();
     let env = Env::new();
     let a = env.write("a.ron", r#"(nodes: {"src": (kind: "Source", args: (value: "v", count: 2)), "app": (kind: "Append", args: (suffix: "s"), inputs: {"a": "src.out"})})"#);
     let b = env.write(
@@ -211,7 +217,7 @@ fn formatting_only_edits_change_no_key() {
     kb.sort();
     assert_eq!(ka, kb);
     assert_eq!(
-        take(),
+        env.take(),
         ["app", "src"],
         "the second file must run nothing new"
     );
@@ -219,13 +225,12 @@ fn formatting_only_edits_change_no_key() {
 
 #[test]
 fn set_behaves_like_editing_the_file() {
-    let _g = lock();
     let env = Env::new();
     let f = env.write("p.ron", CHAIN);
     env.run(&f, &[]);
-    take();
+    env.take();
     let set = env.keys(&f, &["app.suffix=\"%\"", "src.nested.alpha=0.25"]);
-    assert_eq!(take(), ["app", "len", "other", "src"]);
+    assert_eq!(env.take(), ["app", "len", "other", "src"]);
     let edited = env.write(
         "q.ron",
         &CHAIN
@@ -234,7 +239,7 @@ fn set_behaves_like_editing_the_file() {
     );
     let ed = env.keys(&edited, &[]);
     assert!(
-        take().is_empty(),
+        env.take().is_empty(),
         "the edited file must find everything cached"
     );
     assert_eq!(set, ed);
@@ -242,7 +247,6 @@ fn set_behaves_like_editing_the_file() {
 
 #[test]
 fn sweep_runs_shared_upstream_once_with_readable_names() {
-    let _g = lock();
     let env = Env::new();
     let f = env.write(
         "s.ron",
@@ -255,7 +259,7 @@ fn sweep_runs_shared_upstream_once_with_readable_names() {
     )"#,
     );
     let (plan, report) = env.run(&f, &[]);
-    let rec = take();
+    let rec = env.take();
     assert_eq!(rec.iter().filter(|n| *n == "src").count(), 1, "{rec:?}");
     assert_eq!(rec.len(), 5);
     let names: Vec<String> = statuses(&plan, &report)
@@ -289,7 +293,7 @@ fn sweep_runs_shared_upstream_once_with_readable_names() {
     );
     let (plan, report) = env.run(&f, &[]);
     assert_eq!(
-        take(),
+        env.take(),
         [
             "app@suffix=\"a\",count=2",
             "app@suffix=\"b\",count=3",
@@ -316,7 +320,6 @@ fn sweep_runs_shared_upstream_once_with_readable_names() {
 
 #[test]
 fn repeat_growing_runs_one_new_instance_with_its_own_seed() {
-    let _g = lock();
     let env = Env::new();
     let text = r#"(
         params: { "members": 5 },
@@ -330,7 +333,7 @@ fn repeat_growing_runs_one_new_instance_with_its_own_seed() {
     )"#;
     let f = env.write("r.ron", text);
     let (plan, report) = env.run(&f, &[]);
-    assert_eq!(take().len(), 1 + 5 + 5 + 2);
+    assert_eq!(env.take().len(), 1 + 5 + 5 + 2);
     let all = env.read(&plan, &report, "all", "out");
     let parts: Vec<&str> = all.split(',').collect();
     assert_eq!(parts.len(), 5);
@@ -341,7 +344,7 @@ fn repeat_growing_runs_one_new_instance_with_its_own_seed() {
         );
     }
     let (plan, report) = env.run(&f, &["params.members=6"]);
-    assert_eq!(take(), ["all", "member[5]", "tag[5]"]);
+    assert_eq!(env.take(), ["all", "member[5]", "tag[5]"]);
     assert_eq!(env.read(&plan, &report, "all", "out").split(',').count(), 6);
     // Kinds without a seed arg get the index in their key: distinct context seeds.
     let f = env.write("q.ron", r#"(nodes: {"x": (kind: "Fail", repeat: 3)})"#);
@@ -353,7 +356,6 @@ fn repeat_growing_runs_one_new_instance_with_its_own_seed() {
         .map(|n| n["key"].as_str().unwrap().to_string())
         .collect();
     assert_eq!(keys.len(), 3);
-    take();
 }
 
 fn load_err(env: &Env, name: &str, text: &str) -> String {
@@ -366,7 +368,6 @@ fn load_err(env: &Env, name: &str, text: &str) -> String {
 
 #[test]
 fn errors_have_locations_and_hints_and_run_nothing() {
-    let _g = lock();
     let env = Env::new();
     let dir = env.dir.path().canonicalize().unwrap();
     let at = |f: &str, l: u32, c: u32| format!("{}:{l}:{c}", dir.join(f).display());
@@ -507,12 +508,11 @@ fn errors_have_locations_and_hints_and_run_nothing() {
         e.contains("--set app.suffix=3") && e.contains("suffix"),
         "{e}"
     );
-    assert!(take().is_empty(), "nothing may run");
+    assert!(env.take().is_empty(), "nothing may run");
 }
 
 #[test]
 fn failing_node_stores_nothing_and_keeps_ancestors() {
-    let _g = lock();
     let env = Env::new();
     let text = r#"(nodes: {
         "src": (kind: "Source", args: (value: "v")),
@@ -523,7 +523,7 @@ fn failing_node_stores_nothing_and_keeps_ancestors() {
     let f = env.write("f.ron", text);
     let (plan, report) = env.run(&f, &[]);
     assert!(!report.success());
-    assert_eq!(take(), ["bad", "side", "src"]);
+    assert_eq!(env.take(), ["bad", "side", "src"]);
     let st = statuses(&plan, &report);
     let expect: Vec<(String, String)> = [
         ("after", "failed"),
@@ -566,7 +566,7 @@ fn failing_node_stores_nothing_and_keeps_ancestors() {
     );
     // Rerun: ancestors cached, the failing node runs again (and fails again).
     let (_, report) = env.run(&f, &[]);
-    assert_eq!(take(), ["bad"]);
+    assert_eq!(env.take(), ["bad"]);
     assert!(!report.success());
     // A panic is a failure too.
     let f = env.write(
@@ -575,12 +575,10 @@ fn failing_node_stores_nothing_and_keeps_ancestors() {
     );
     let (plan, report) = env.run(&f, &[]);
     assert!(report.failures(&plan)[0].1.contains("toy panic"));
-    take();
 }
 
 #[test]
 fn targets_run_only_what_is_needed() {
-    let _g = lock();
     let env = Env::new();
     let f = env.write("p.ron", CHAIN);
     let (plan, report) = env.run_opts(
@@ -592,7 +590,7 @@ fn targets_run_only_what_is_needed() {
             ..Default::default()
         },
     );
-    assert_eq!(take(), ["app", "src"]);
+    assert_eq!(env.take(), ["app", "src"]);
     assert_eq!(statuses(&plan, &report).len(), 2);
     let sets: Vec<String> = Vec::new();
     let plan = env.engine.load(&f, &sets).unwrap();
@@ -610,7 +608,6 @@ fn targets_run_only_what_is_needed() {
 
 #[test]
 fn independent_nodes_run_in_parallel_and_heavy_nodes_run_alone() {
-    let _g = lock();
     let env = Env::new();
     let f = env.write(
         "p.ron",
@@ -630,13 +627,10 @@ fn independent_nodes_run_in_parallel_and_heavy_nodes_run_alone() {
             ..Default::default()
         },
     );
-    assert_eq!(take().len(), 5);
+    assert_eq!(env.take().len(), 5);
+    assert_eq!(env.rec.max_active(), 3);
     assert_eq!(
-        common::MAX_ACTIVE.load(std::sync::atomic::Ordering::SeqCst),
-        3
-    );
-    assert_eq!(
-        common::VIOLATIONS.load(std::sync::atomic::Ordering::SeqCst),
+        env.rec.violations(),
         0,
         "a Threads::All node ran beside another"
     );
@@ -649,7 +643,7 @@ fn independent_nodes_run_in_parallel_and_heavy_nodes_run_alone() {
         "q.ron",
         r#"(nodes: {"a": (kind: "Source", args: (value: "a", sleep_ms: 100)), "b": (kind: "Source", args: (value: "b", sleep_ms: 100))})"#,
     );
-    common::MAX_ACTIVE.store(0, std::sync::atomic::Ordering::SeqCst);
+    env.rec.reset_max_active();
     env.run_opts(
         &f,
         &[],
@@ -658,16 +652,11 @@ fn independent_nodes_run_in_parallel_and_heavy_nodes_run_alone() {
             ..Default::default()
         },
     );
-    assert_eq!(
-        common::MAX_ACTIVE.load(std::sync::atomic::Ordering::SeqCst),
-        1
-    );
-    take();
+    assert_eq!(env.rec.max_active(), 1);
 }
 
 #[test]
 fn extends_merges_and_paths_resolve_against_their_file() {
-    let _g = lock();
     let env = Env::new();
     std::fs::create_dir_all(env.dir.path().join("base/data")).unwrap();
     std::fs::write(env.dir.path().join("base/data/value.txt"), "external").unwrap();
@@ -695,7 +684,7 @@ fn extends_merges_and_paths_resolve_against_their_file() {
     )"#,
     );
     let (plan, report) = env.run(&f, &[]);
-    assert_eq!(take(), ["app", "ext", "src"]);
+    assert_eq!(env.take(), ["app", "ext", "src"]);
     assert_eq!(env.read(&plan, &report, "ext", "out"), "8");
     assert_eq!(env.read(&plan, &report, "app", "out"), "8base");
     assert_eq!(env.read(&plan, &report, "src", "out"), "v|2");
@@ -724,16 +713,15 @@ fn extends_merges_and_paths_resolve_against_their_file() {
         "{why}"
     );
     env.run(&f, &[]);
-    assert_eq!(take(), ["app", "ext"]);
+    assert_eq!(env.take(), ["app", "ext"]);
 }
 
 #[test]
 fn why_names_the_changed_arg_with_its_location_or_override() {
-    let _g = lock();
     let env = Env::new();
     let f = env.write("p.ron", CHAIN);
     env.run(&f, &[]);
-    take();
+    env.take();
     let plan = env.engine.load(&f, &[]).unwrap();
     assert!(env
         .engine
@@ -773,13 +761,12 @@ fn why_names_the_changed_arg_with_its_location_or_override() {
 
 #[test]
 fn gc_keeps_latest_runs_and_pins() {
-    let _g = lock();
     let env = Env::new();
     let f = env.write("p.ron", CHAIN);
     env.run(&f, &[]);
     let f = env.write("p.ron", &CHAIN.replace("count: 2", "count: 7"));
     let (plan, report) = env.run(&f, &[]);
-    take();
+    env.take();
     let dry = env.engine.gc(true).unwrap();
     assert_eq!(dry.actions_removed, 4);
     assert_eq!(dry.actions_kept, 4);
@@ -790,7 +777,7 @@ fn gc_keeps_latest_runs_and_pins() {
     assert!(rep.blobs_removed > 0);
     assert_eq!(env.read(&plan, &report, "len", "out"), "19");
     env.run(&f, &[]);
-    assert!(take().is_empty(), "the latest run survives gc");
+    assert!(env.take().is_empty(), "the latest run survives gc");
     // While a run holds the store, gc refuses.
     let _held = env.engine.store().lock_shared().unwrap();
     assert!(env.engine.gc(false).is_err());
@@ -798,7 +785,6 @@ fn gc_keeps_latest_runs_and_pins() {
 
 #[test]
 fn two_engines_on_one_store_compute_each_node_once() {
-    let _g = lock();
     let env = Env::new();
     let f = env.write(
         "p.ron",
@@ -812,7 +798,7 @@ fn two_engines_on_one_store_compute_each_node_once() {
     std::thread::scope(|s| {
         for _ in 0..2 {
             s.spawn(|| {
-                let e = Engine::new(registry(), &cache).unwrap();
+                let e = Engine::new(registry(env.rec.clone()), &cache).unwrap();
                 let plan = e.load(&f, &[]).unwrap();
                 let r = e
                     .run(
@@ -827,12 +813,11 @@ fn two_engines_on_one_store_compute_each_node_once() {
             });
         }
     });
-    assert_eq!(take(), ["a", "b", "c"]);
+    assert_eq!(env.take(), ["a", "b", "c"]);
 }
 
 #[test]
 fn keys_and_outputs_do_not_depend_on_thread_budget() {
-    let _g = lock();
     let env1 = Env::new();
     let env2 = Env::new();
     let text = r#"(nodes: {"s": (kind: "Seeded", repeat: 3, args: (seed: 1)), "c": (kind: "Concat", inputs: {"items": "s[*]"})})"#;
@@ -880,12 +865,10 @@ fn keys_and_outputs_do_not_depend_on_thread_budget() {
             ["key", "kind", "name", "seconds", "status"]
         );
     }
-    take();
 }
 
 #[test]
 fn command_kind_runs_a_program_without_a_shell() {
-    let _g = lock();
     let env = Env::new();
     let f = env.write(
         "c.ron",
@@ -930,5 +913,4 @@ fn command_kind_runs_a_program_without_a_shell() {
         r#"(nodes: {"x": (kind: "Command", args: (program: "true", args: ["{in:nope}"]))})"#,
     );
     assert!(e.contains("{in:nope}"), "{e}");
-    take();
 }

@@ -77,7 +77,11 @@ fn keys_of_a_fixed_pipeline_are_pinned() {
     std::fs::write(dir.path().join("data/value.txt"), "external").unwrap();
     let file = dir.path().join("p.ron");
     std::fs::write(&file, PIPELINE).unwrap();
-    let engine = Engine::new(common::registry(), dir.path().join("cache")).unwrap();
+    let engine = Engine::new(
+        common::registry(common::Recorder::new()),
+        dir.path().join("cache"),
+    )
+    .unwrap();
     let plan = engine.load(&file, &[]).unwrap();
     let report = engine
         .run(
