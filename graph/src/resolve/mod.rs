@@ -204,38 +204,74 @@ pub fn load_plan(
     }
     let coords = spec::sweep_points(sweep.as_ref());
     let mut b = Builder::new(registry, store);
-    // Per point: (base instance name -> comp), and the point's document.
     let mut per_point: Vec<Vec<(String, String, usize)>> = Vec::new();
-    let mut docs = Vec::new();
+    let mut points = Vec::new();
     for c in &coords {
         let pt = spec::point(sweep.as_ref(), c);
-        let mut pdoc = doc.clone();
-        for (path, value) in &pt.assignments {
-            spec::apply_set(&mut pdoc, path, value.clone()).map_err(|d| {
-                let label = if pt.label.is_empty() {
-                    String::new()
-                } else {
-                    format!(" (sweep point {})", pt.label)
-                };
-                Diagnostic {
-                    message: format!("{}{label}", d.message),
-                    ..d
-                }
-            })?;
-        }
-        let names = b.resolve_point(&mut pdoc).map_err(|mut e| {
-            if !pt.label.is_empty() {
-                for d in &mut e.0 {
-                    d.message = format!("{} (sweep point {})", d.message, pt.label);
-                }
-            }
-            e
-        })?;
+        let (names, document) = resolve_sweep_point(&mut b, &doc, &pt)?;
         per_point.push(names);
-        docs.push(pdoc);
+        points.push(PointInfo {
+            label: pt.label,
+            instances: Vec::new(),
+            document,
+        });
     }
-    // Instance names: a node that is the same computation at every point keeps its name; one
-    // that varies gets `@` + the sweep axes it depends on.
+    let mut comps = b.comps;
+    let instances = name_instances(&mut comps, &mut points, &per_point, sweep.as_ref(), &coords);
+    let instances = order_by_depth(&mut comps, &mut points, instances);
+    Ok(Plan {
+        file: file.to_path_buf(),
+        id: pipeline_id(file),
+        comps,
+        instances,
+        points,
+    })
+}
+
+/// Resolves sweep point `pt` of `doc`: applies its assignments and resolves the resulting
+/// document (messages name the point). Returns (instance name, node name, comp) per instance
+/// and the point's resolved document.
+#[allow(clippy::type_complexity)]
+fn resolve_sweep_point(
+    b: &mut Builder,
+    doc: &Value,
+    pt: &spec::SweepPoint,
+) -> Result<(Vec<(String, String, usize)>, Value), PipelineError> {
+    let mut pdoc = doc.clone();
+    for (path, value) in &pt.assignments {
+        spec::apply_set(&mut pdoc, path, value.clone()).map_err(|d| {
+            let label = if pt.label.is_empty() {
+                String::new()
+            } else {
+                format!(" (sweep point {})", pt.label)
+            };
+            Diagnostic {
+                message: format!("{}{label}", d.message),
+                ..d
+            }
+        })?;
+    }
+    let names = b.resolve_point(&mut pdoc).map_err(|mut e| {
+        if !pt.label.is_empty() {
+            for d in &mut e.0 {
+                d.message = format!("{} (sweep point {})", d.message, pt.label);
+            }
+        }
+        e
+    })?;
+    Ok((names, pdoc))
+}
+
+/// Names the instances across sweep points: a node that is the same computation at every
+/// point keeps its name; one that varies gets `@` + the sweep axes it depends on. Fills
+/// `comps[..].instances` and `points[..].instances`; instances come in first-seen order.
+fn name_instances(
+    comps: &mut [Comp],
+    points: &mut [PointInfo],
+    per_point: &[Vec<(String, String, usize)>],
+    sweep: Option<&spec::Sweep>,
+    coords: &[Vec<usize>],
+) -> Vec<Instance> {
     let mut order: Vec<(String, String)> = Vec::new();
     let mut table: BTreeMap<String, Vec<Option<usize>>> = BTreeMap::new();
     for (p, names) in per_point.iter().enumerate() {
@@ -249,70 +285,23 @@ pub fn load_plan(
     }
     let mut instances: Vec<Instance> = Vec::new();
     let mut inst_index: HashMap<String, usize> = HashMap::new();
-    let mut points: Vec<PointInfo> = coords
-        .iter()
-        .zip(docs)
-        .map(|(c, d)| PointInfo {
-            label: spec::point(sweep.as_ref(), c).label,
-            instances: Vec::new(),
-            document: d,
-        })
-        .collect();
     for (name, base) in &order {
         let comps_at = &table[name];
-        let first = comps_at.iter().flatten().next().copied();
-        let all_same = comps_at.iter().flatten().all(|c| Some(*c) == first);
-        let relevant: Vec<usize> = match &sweep {
-            Some(s) if !all_same => {
-                let mut rel = Vec::new();
-                if s.grid {
-                    for a in 0..s.axes.len() {
-                        let differs = (0..coords.len()).any(|p| {
-                            (0..coords.len()).any(|q| {
-                                (0..s.axes.len())
-                                    .all(|k| (k == a) != (coords[p][k] == coords[q][k]))
-                                    && comps_at[p].is_some()
-                                    && comps_at[q].is_some()
-                                    && comps_at[p] != comps_at[q]
-                            })
-                        });
-                        if differs {
-                            rel.push(a);
-                        }
-                    }
-                }
-                if rel.is_empty() {
-                    rel = (0..s.axes.len()).collect();
-                }
-                rel
-            }
-            _ => Vec::new(),
-        };
-        // Check the label determines the computation; else use every axis.
-        let label_of = |p: usize, rel: &[usize]| -> String {
-            let s = sweep.as_ref().expect("relevant axes imply a sweep");
-            rel.iter()
+        let relevant = relevant_axes(sweep, coords, comps_at);
+        let label_of = |p: usize| -> String {
+            let s = sweep.expect("relevant axes imply a sweep");
+            relevant
+                .iter()
                 .map(|&a| format!("{}={}", s.axes[a].1, s.axes[a].2[coords[p][a]].to_ron()))
                 .collect::<Vec<_>>()
                 .join(",")
         };
-        let mut relevant = relevant;
-        if !relevant.is_empty() {
-            let mut seen: HashMap<String, usize> = HashMap::new();
-            let ambiguous = (0..coords.len()).any(|p| match comps_at[p] {
-                Some(c) => *seen.entry(label_of(p, &relevant)).or_insert(c) != c,
-                None => false,
-            });
-            if ambiguous {
-                relevant = (0..sweep.as_ref().map_or(0, |s| s.axes.len())).collect();
-            }
-        }
         for (p, c) in comps_at.iter().enumerate() {
             let Some(c) = *c else { continue };
             let full = if relevant.is_empty() {
                 name.clone()
             } else {
-                format!("{name}@{}", label_of(p, &relevant))
+                format!("{name}@{}", label_of(p))
             };
             let idx = *inst_index.entry(full.clone()).or_insert_with(|| {
                 instances.push(Instance {
@@ -321,17 +310,78 @@ pub fn load_plan(
                     comp: c,
                     points: Vec::new(),
                 });
-                b.comps[c].instances.push(instances.len() - 1);
+                comps[c].instances.push(instances.len() - 1);
                 instances.len() - 1
             });
             instances[idx].points.push(p);
             points[p].instances.push(idx);
         }
     }
-    // List instances by dependency depth, then file order, so tables read top-down.
-    let mut depth = vec![0usize; b.comps.len()];
-    for c in 0..b.comps.len() {
-        for slot in &b.comps[c].inputs {
+    instances
+}
+
+/// The sweep axes (indices) a node's name must show, given its computation at each point
+/// (`comps_at`, `None` where the point lacks it): none when it is one computation at every
+/// point; on a grid, the axes along which it changes; every axis for a zip, or when those
+/// axes' values do not determine the computation.
+fn relevant_axes(
+    sweep: Option<&spec::Sweep>,
+    coords: &[Vec<usize>],
+    comps_at: &[Option<usize>],
+) -> Vec<usize> {
+    let first = comps_at.iter().flatten().next().copied();
+    let all_same = comps_at.iter().flatten().all(|c| Some(*c) == first);
+    let s = match sweep {
+        Some(s) if !all_same => s,
+        _ => return Vec::new(),
+    };
+    let mut rel = Vec::new();
+    if s.grid {
+        for a in 0..s.axes.len() {
+            let differs = (0..coords.len()).any(|p| {
+                (0..coords.len()).any(|q| {
+                    (0..s.axes.len()).all(|k| (k == a) != (coords[p][k] == coords[q][k]))
+                        && comps_at[p].is_some()
+                        && comps_at[q].is_some()
+                        && comps_at[p] != comps_at[q]
+                })
+            });
+            if differs {
+                rel.push(a);
+            }
+        }
+    }
+    if rel.is_empty() {
+        rel = (0..s.axes.len()).collect();
+    }
+    // Check the label determines the computation; else use every axis.
+    let label_of = |p: usize| -> String {
+        rel.iter()
+            .map(|&a| format!("{}={}", s.axes[a].1, s.axes[a].2[coords[p][a]].to_ron()))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    let mut seen: HashMap<String, usize> = HashMap::new();
+    let ambiguous = (0..coords.len()).any(|p| match comps_at[p] {
+        Some(c) => *seen.entry(label_of(p)).or_insert(c) != c,
+        None => false,
+    });
+    if ambiguous {
+        rel = (0..s.axes.len()).collect();
+    }
+    rel
+}
+
+/// Lists instances by dependency depth, then first-seen order, so tables read top-down;
+/// renumbers the instance indices held by `comps` and `points` to match.
+fn order_by_depth(
+    comps: &mut [Comp],
+    points: &mut [PointInfo],
+    instances: Vec<Instance>,
+) -> Vec<Instance> {
+    let mut depth = vec![0usize; comps.len()];
+    for c in 0..comps.len() {
+        for slot in &comps[c].inputs {
             for (src, _) in &slot.sources {
                 if let Source::Node { comp, .. } = src {
                     depth[c] = depth[c].max(depth[*comp] + 1);
@@ -345,24 +395,16 @@ pub fn load_plan(
     for (new, &old) in perm.iter().enumerate() {
         new_index[old] = new;
     }
-    let mut comps = b.comps;
-    for c in &mut comps {
+    for c in comps.iter_mut() {
         for i in &mut c.instances {
             *i = new_index[*i];
         }
         c.instances.sort_unstable();
     }
-    for p in &mut points {
+    for p in points.iter_mut() {
         for i in &mut p.instances {
             *i = new_index[*i];
         }
     }
-    let instances = perm.into_iter().map(|i| instances[i].clone()).collect();
-    Ok(Plan {
-        file: file.to_path_buf(),
-        id: pipeline_id(file),
-        comps,
-        instances,
-        points,
-    })
+    perm.into_iter().map(|i| instances[i].clone()).collect()
 }
