@@ -3,6 +3,8 @@
 //! test's recorder only, and tests can run in parallel without seeing each other's runs.
 #![allow(dead_code)]
 
+pub mod env;
+
 use augsplat_graph::{
     ArgsBox, ArgsError, DynNode, InputDecl, Node, NodeError, Registry, RunContext, Threads,
 };
