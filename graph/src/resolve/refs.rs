@@ -70,6 +70,39 @@ impl Builder<'_> {
         Ok(h)
     }
 
+    /// The source of `Path("..")` reference `item` (with tuple `items`): the file or folder,
+    /// relative to the file that wrote it, must exist; it is content-hashed.
+    fn external_ref(
+        &mut self,
+        item: &Value,
+        items: &[Value],
+    ) -> Result<Vec<(LSource, String)>, Diagnostic> {
+        let Some(rel) = items
+            .first()
+            .and_then(|v| v.as_str())
+            .filter(|_| items.len() == 1)
+        else {
+            return Err(Diagnostic::at(
+                &item.origin,
+                "write `Path(\"relative/or/absolute/path\")`",
+            ));
+        };
+        let p = item.origin.base_dir().join(rel);
+        if !p.exists() {
+            return Err(Diagnostic::at(
+                &item.origin,
+                format!("external input {} does not exist", p.display()),
+            )
+            .hint("paths are relative to the pipeline file that writes them"));
+        }
+        let abs = std::fs::canonicalize(&p).unwrap_or(p);
+        let h = self.ext_hash(&abs, &item.origin)?;
+        Ok(vec![(
+            LSource::External(abs.clone(), h),
+            format!("Path({:?})", abs.display().to_string()),
+        )])
+    }
+
     /// Resolves one written reference `item` of input `decl` of instance `l` to its sources
     /// with their written form (`field[0].weights`, `Path(..)`).
     pub(super) fn resolve_ref(
@@ -83,30 +116,7 @@ impl Builder<'_> {
     ) -> Result<Vec<(LSource, String)>, Diagnostic> {
         if let ValueKind::Tuple(Some(t), items) = &item.kind {
             if t == "Path" {
-                let Some(rel) = items
-                    .first()
-                    .and_then(|v| v.as_str())
-                    .filter(|_| items.len() == 1)
-                else {
-                    return Err(Diagnostic::at(
-                        &item.origin,
-                        "write `Path(\"relative/or/absolute/path\")`",
-                    ));
-                };
-                let p = item.origin.base_dir().join(rel);
-                if !p.exists() {
-                    return Err(Diagnostic::at(
-                        &item.origin,
-                        format!("external input {} does not exist", p.display()),
-                    )
-                    .hint("paths are relative to the pipeline file that writes them"));
-                }
-                let abs = std::fs::canonicalize(&p).unwrap_or(p);
-                let h = self.ext_hash(&abs, &item.origin)?;
-                return Ok(vec![(
-                    LSource::External(abs.clone(), h),
-                    format!("Path({:?})", abs.display().to_string()),
-                )]);
+                return self.external_ref(item, items);
             }
         }
         let Some(text) = item.as_str() else {
@@ -142,110 +152,11 @@ impl Builder<'_> {
             )
             .hint(hint));
         };
-        let picked: Vec<usize> = match (&r.index, repeated) {
-            (RefIndex::None, false) => ids.clone(),
-            (RefIndex::None, true) if decl.many => ids.clone(),
-            (RefIndex::None, true) => {
-                return Err(Diagnostic::at(
-                    &item.origin,
-                    format!("`{}` has {} instances; say which", r.node, ids.len()),
-                )
-                .hint(format!(
-                "write `{0}[i]` for the same index, `{0}[0]` for one, or `{0}[*]` for a list input",
-                r.node
-            )))
-            }
-            (RefIndex::All, _) => {
-                if !decl.many {
-                    return Err(Diagnostic::at(
-                        &item.origin,
-                        format!(
-                            "input `{}` takes one folder, but `{}[*]` is a list",
-                            decl.name, r.node
-                        ),
-                    )
-                    .hint("use `[i]` or a fixed index, or connect a list input"));
-                }
-                ids.clone()
-            }
-            (RefIndex::Same, _) => {
-                let Some(i) = l.index else {
-                    return Err(Diagnostic::at(
-                        &item.origin,
-                        format!("`{}[i]` needs `{}` to have `repeat`", r.node, l.base),
-                    )
-                    .hint("use a fixed index such as `[0]`"));
-                };
-                if !repeated {
-                    return Err(Diagnostic::at(
-                        &item.origin,
-                        format!(
-                            "`{}` has no `repeat`; write `{}` without an index",
-                            r.node, r.node
-                        ),
-                    ));
-                }
-                match ids.get(i) {
-                    Some(&x) => vec![x],
-                    None => {
-                        return Err(Diagnostic::at(
-                            &item.origin,
-                            format!(
-                                "`{}[i]` with i = {i}: `{}` has only {} instances",
-                                r.node,
-                                r.node,
-                                ids.len()
-                            ),
-                        )
-                        .hint("give both nodes the same `repeat`"))
-                    }
-                }
-            }
-            (RefIndex::Fixed(k), _) => match (repeated, ids.get(*k)) {
-                (true, Some(&x)) => vec![x],
-                _ => {
-                    return Err(Diagnostic::at(
-                        &item.origin,
-                        format!(
-                            "`{}[{k}]`: `{}` has {} instance(s)",
-                            r.node,
-                            r.node,
-                            ids.len()
-                        ),
-                    ))
-                }
-            },
-        };
+        let picked = pick_instances(&r, ids, *repeated, l, decl, item)?;
         let mut out = Vec::new();
         for j in picked {
             let t = &locals[j];
-            let output = match &r.output {
-                Some(o) if t.outputs.contains(o) => o.clone(),
-                Some(o) => {
-                    return Err(Diagnostic::at(
-                        &item.origin,
-                        format!("`{}` ({}) has no output `{o}`", r.node, t.node.kind()),
-                    )
-                    .hint(format!("its outputs: {}", t.outputs.join(", "))))
-                }
-                None if t.outputs.len() == 1 => t.outputs[0].clone(),
-                None => {
-                    return Err(Diagnostic::at(
-                        &item.origin,
-                        format!(
-                            "`{}` ({}) has {} outputs; say which",
-                            r.node,
-                            t.node.kind(),
-                            t.outputs.len()
-                        ),
-                    )
-                    .hint(format!(
-                        "write `{}.OUTPUT` with OUTPUT one of {}",
-                        r.node,
-                        t.outputs.join(", ")
-                    )))
-                }
-            };
+            let output = pick_output(&r, t, item)?;
             out.push((
                 LSource::Local(j, output.clone()),
                 format!("{}.{output}", t.name),
@@ -253,6 +164,125 @@ impl Builder<'_> {
         }
         Ok(out)
     }
+}
+
+/// The instances (indices into the locals) that reference `r` takes from node `r.node`
+/// (instances `ids`, `repeated` when it has `repeat`), for input `decl` of instance `l`.
+fn pick_instances(
+    r: &RefSpec,
+    ids: &[usize],
+    repeated: bool,
+    l: &Local,
+    decl: &InputDecl,
+    item: &Value,
+) -> Result<Vec<usize>, Diagnostic> {
+    let picked: Vec<usize> = match (&r.index, repeated) {
+        (RefIndex::None, false) => ids.to_vec(),
+        (RefIndex::None, true) if decl.many => ids.to_vec(),
+        (RefIndex::None, true) => {
+            return Err(Diagnostic::at(
+                &item.origin,
+                format!("`{}` has {} instances; say which", r.node, ids.len()),
+            )
+            .hint(format!(
+                "write `{0}[i]` for the same index, `{0}[0]` for one, or `{0}[*]` for a list input",
+                r.node
+            )))
+        }
+        (RefIndex::All, _) => {
+            if !decl.many {
+                return Err(Diagnostic::at(
+                    &item.origin,
+                    format!(
+                        "input `{}` takes one folder, but `{}[*]` is a list",
+                        decl.name, r.node
+                    ),
+                )
+                .hint("use `[i]` or a fixed index, or connect a list input"));
+            }
+            ids.to_vec()
+        }
+        (RefIndex::Same, _) => {
+            let Some(i) = l.index else {
+                return Err(Diagnostic::at(
+                    &item.origin,
+                    format!("`{}[i]` needs `{}` to have `repeat`", r.node, l.base),
+                )
+                .hint("use a fixed index such as `[0]`"));
+            };
+            if !repeated {
+                return Err(Diagnostic::at(
+                    &item.origin,
+                    format!(
+                        "`{}` has no `repeat`; write `{}` without an index",
+                        r.node, r.node
+                    ),
+                ));
+            }
+            match ids.get(i) {
+                Some(&x) => vec![x],
+                None => {
+                    return Err(Diagnostic::at(
+                        &item.origin,
+                        format!(
+                            "`{}[i]` with i = {i}: `{}` has only {} instances",
+                            r.node,
+                            r.node,
+                            ids.len()
+                        ),
+                    )
+                    .hint("give both nodes the same `repeat`"))
+                }
+            }
+        }
+        (RefIndex::Fixed(k), _) => match (repeated, ids.get(*k)) {
+            (true, Some(&x)) => vec![x],
+            _ => {
+                return Err(Diagnostic::at(
+                    &item.origin,
+                    format!(
+                        "`{}[{k}]`: `{}` has {} instance(s)",
+                        r.node,
+                        r.node,
+                        ids.len()
+                    ),
+                ))
+            }
+        },
+    };
+    Ok(picked)
+}
+
+/// The output of instance `t` that reference `r` names (its only output when `r` names none).
+fn pick_output(r: &RefSpec, t: &Local, item: &Value) -> Result<String, Diagnostic> {
+    let output = match &r.output {
+        Some(o) if t.outputs.contains(o) => o.clone(),
+        Some(o) => {
+            return Err(Diagnostic::at(
+                &item.origin,
+                format!("`{}` ({}) has no output `{o}`", r.node, t.node.kind()),
+            )
+            .hint(format!("its outputs: {}", t.outputs.join(", "))))
+        }
+        None if t.outputs.len() == 1 => t.outputs[0].clone(),
+        None => {
+            return Err(Diagnostic::at(
+                &item.origin,
+                format!(
+                    "`{}` ({}) has {} outputs; say which",
+                    r.node,
+                    t.node.kind(),
+                    t.outputs.len()
+                ),
+            )
+            .hint(format!(
+                "write `{}.OUTPUT` with OUTPUT one of {}",
+                r.node,
+                t.outputs.join(", ")
+            )))
+        }
+    };
+    Ok(output)
 }
 
 /// Whether two names are close (case-insensitive equal, one contains the other, or edit distance ≤ 2).
