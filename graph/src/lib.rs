@@ -6,7 +6,8 @@
 //! - [`resolve`]: typing against the registry, repeats, references, cycles, dedup → [`Plan`].
 //! - [`key`]: what identifies a computation (structural id) and addresses its outputs (key).
 //! - [`store`]: blobs, manifests, action cache, claims, records, GC.
-//! - [`exec`]: the local executor and its scheduler; [`explain`]: `plan` and `why`; [`engine`]: the library API.
+//! - [`exec`]: the local executor and its scheduler; [`explain`]: `plan` and `why`;
+//!   [`engine`]: the library API.
 //! - [`command`]: the `Command` node kind (external programs).
 //!
 //! See `graph/README.md` for the pipeline syntax and the engine's semantics.
