@@ -4,7 +4,7 @@
 
 use super::{CompResult, Status};
 use crate::error::EngineError;
-use crate::node::{ProgressSink, RunContext};
+use crate::node::{NodeError, ProgressSink, RunContext};
 use crate::resolve::Plan;
 use crate::store::{
     hex, hostname, now_unix, remove_tree, unhex, ActionEntry, Hash, Store, STORE_FORMAT,
@@ -182,34 +182,11 @@ fn run_in_scratch(
     });
     let secs = t.elapsed().as_secs_f64();
     let log_text = sink.lines.lock().map(|l| l.join("\n")).unwrap_or_default();
-    let tail = |log: &str| -> String {
-        let lines: Vec<&str> = log.lines().collect();
-        let start = lines.len().saturating_sub(20);
-        if lines.is_empty() {
-            String::new()
-        } else {
-            format!(
-                "\n  last lines of its log:\n    {}",
-                lines[start..].join("\n    ")
-            )
-        }
-    };
-    let err = match res {
-        Ok(Ok(())) => None,
-        Ok(Err(e)) => Some(e.message().to_string()),
-        Err(p) => Some(format!(
-            "panicked: {}",
-            p.downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| p.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "(no message)".into())
-        )),
-    };
-    if let Some(m) = err {
+    if let Some(m) = failure_of(res) {
         let msg = format!(
             "node `{name}` ({}) failed: {m}{}",
             comp.node.kind(),
-            tail(&log_text)
+            log_tail(&log_text)
         );
         let _ = store.write_atomic(
             &store
@@ -267,4 +244,34 @@ fn run_in_scratch(
         outputs: manifests,
         waited: false,
     })
+}
+
+/// Why a node's run failed (its error, or its panic's message), or `None` when it succeeded.
+fn failure_of(res: std::thread::Result<Result<(), NodeError>>) -> Option<String> {
+    match res {
+        Ok(Ok(())) => None,
+        Ok(Err(e)) => Some(e.message().to_string()),
+        Err(p) => Some(format!(
+            "panicked: {}",
+            p.downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| p.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "(no message)".into())
+        )),
+    }
+}
+
+/// The last 20 lines of a node's log, formatted to follow a failure message (empty when the
+/// log is).
+fn log_tail(log: &str) -> String {
+    let lines: Vec<&str> = log.lines().collect();
+    let start = lines.len().saturating_sub(20);
+    if lines.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "\n  last lines of its log:\n    {}",
+            lines[start..].join("\n    ")
+        )
+    }
 }
