@@ -4,8 +4,10 @@
 //! - [`registry`]: kinds by name and the type-erased adapter.
 //! - [`syntax`]: a RON reader that keeps positions; [`spec`]: `extends`, `--set`, params, sweeps.
 //! - [`resolve`]: typing against the registry, repeats, references, cycles, dedup → [`Plan`].
+//! - [`key`]: what identifies a computation (structural id) and addresses its outputs (key).
 //! - [`store`]: blobs, manifests, action cache, claims, records, GC.
-//! - [`exec`]: the local executor; [`explain`]: `plan` and `why`; [`engine`]: the library API.
+//! - [`exec`]: the local executor and its scheduler; [`explain`]: `plan` and `why`;
+//!   [`engine`]: the library API.
 //! - [`command`]: the `Command` node kind (external programs).
 //!
 //! See `graph/README.md` for the pipeline syntax and the engine's semantics.
@@ -15,6 +17,7 @@ pub mod engine;
 pub mod error;
 pub mod exec;
 pub mod explain;
+pub mod key;
 pub mod node;
 pub mod registry;
 pub mod resolve;

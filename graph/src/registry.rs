@@ -142,6 +142,14 @@ impl Registry {
             .insert(N::KIND, Arc::new(Adapter::<N>(std::marker::PhantomData)));
         self
     }
+    /// Registers an already type-erased kind under its [`DynNode::kind`] (a later
+    /// registration of the same name replaces it): e.g. a wrapper that instruments another
+    /// kind. The wrapper must answer `kind`, `version` and `canonical_args` exactly as the
+    /// kind it wraps does, or it changes keys.
+    pub fn register_dyn(&mut self, node: Arc<dyn DynNode>) -> &mut Self {
+        self.kinds.insert(node.kind(), node);
+        self
+    }
     /// The kind called `name`.
     pub fn get(&self, name: &str) -> Option<&Arc<dyn DynNode>> {
         self.kinds.get(name)

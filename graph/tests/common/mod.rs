@@ -1,49 +1,127 @@
-//! Toy node kinds that record every execution, for the engine's tests.
+//! Toy node kinds for the engine's tests, and a [`Recorder`] that each test owns: the
+//! registry from [`registry`] wraps every toy kind so that its runs are recorded in that
+//! test's recorder only, and tests can run in parallel without seeing each other's runs.
 #![allow(dead_code)]
 
-use augsplat_graph::{InputDecl, Node, NodeError, Registry, RunContext, Threads};
+pub mod env;
+
+use augsplat_graph::{
+    ArgsBox, ArgsError, DynNode, InputDecl, Node, NodeError, Registry, RunContext, Threads,
+};
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
-/// Every execution: (node name, kind).
-pub static RECORD: Mutex<Vec<String>> = Mutex::new(Vec::new());
-/// Serialises tests (they share RECORD).
-pub static SERIAL: Mutex<()> = Mutex::new(());
-static ACTIVE: AtomicUsize = AtomicUsize::new(0);
-/// The most nodes seen running at once.
-pub static MAX_ACTIVE: AtomicUsize = AtomicUsize::new(0);
-/// Set while a Threads::All node runs; other nodes record a violation if they see it.
-pub static HEAVY_RUNNING: AtomicUsize = AtomicUsize::new(0);
-pub static VIOLATIONS: AtomicUsize = AtomicUsize::new(0);
-
-pub fn lock() -> std::sync::MutexGuard<'static, ()> {
-    let g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    RECORD.lock().unwrap().clear();
-    MAX_ACTIVE.store(0, Ordering::SeqCst);
-    VIOLATIONS.store(0, Ordering::SeqCst);
-    g
+/// What the toy nodes of one test did: which nodes ran, how many ran at once, and whether a
+/// `Threads::All` node ever ran beside another.
+#[derive(Default)]
+pub struct Recorder {
+    /// Every execution's node name since the last `take`.
+    record: Mutex<Vec<String>>,
+    /// Nodes (other than `Threads::All` ones) running now.
+    active: AtomicUsize,
+    /// The most nodes seen running at once.
+    max_active: AtomicUsize,
+    /// `Threads::All` nodes running now.
+    heavy_running: AtomicUsize,
+    /// Times a node started while a `Threads::All` node ran, or a `Threads::All` node started
+    /// while others ran.
+    violations: AtomicUsize,
 }
 
-/// The names recorded since the last `take`, sorted.
-pub fn take() -> Vec<String> {
-    let mut v = std::mem::take(&mut *RECORD.lock().unwrap());
-    v.sort();
-    v
-}
-
-fn record(ctx: &RunContext) {
-    RECORD.lock().unwrap().push(ctx.node_name().to_string());
-}
-
-fn enter(ms: u64) {
-    let now = ACTIVE.fetch_add(1, Ordering::SeqCst) + 1;
-    MAX_ACTIVE.fetch_max(now, Ordering::SeqCst);
-    if HEAVY_RUNNING.load(Ordering::SeqCst) > 0 {
-        VIOLATIONS.fetch_add(1, Ordering::SeqCst);
+impl Recorder {
+    /// A fresh recorder to share with a registry.
+    pub fn new() -> Arc<Recorder> {
+        Arc::new(Recorder::default())
     }
+    /// The names recorded since the last `take`, sorted.
+    pub fn take(&self) -> Vec<String> {
+        let mut v = std::mem::take(&mut *self.record.lock().unwrap());
+        v.sort();
+        v
+    }
+    /// The most nodes seen running at once.
+    pub fn max_active(&self) -> usize {
+        self.max_active.load(Ordering::SeqCst)
+    }
+    /// Forgets the most nodes seen running at once.
+    pub fn reset_max_active(&self) {
+        self.max_active.store(0, Ordering::SeqCst);
+    }
+    /// Times a `Threads::All` node ran beside another.
+    pub fn violations(&self) -> usize {
+        self.violations.load(Ordering::SeqCst)
+    }
+    /// Runs `f` as node `name`: records it and counts it as running meanwhile.
+    fn running<T>(&self, name: &str, heavy: bool, f: impl FnOnce() -> T) -> T {
+        self.record.lock().unwrap().push(name.to_string());
+        if heavy {
+            self.heavy_running.fetch_add(1, Ordering::SeqCst);
+            if self.active.load(Ordering::SeqCst) > 0 {
+                self.violations.fetch_add(1, Ordering::SeqCst);
+            }
+            let r = f();
+            self.heavy_running.fetch_sub(1, Ordering::SeqCst);
+            r
+        } else {
+            let now = self.active.fetch_add(1, Ordering::SeqCst) + 1;
+            self.max_active.fetch_max(now, Ordering::SeqCst);
+            if self.heavy_running.load(Ordering::SeqCst) > 0 {
+                self.violations.fetch_add(1, Ordering::SeqCst);
+            }
+            let r = f();
+            self.active.fetch_sub(1, Ordering::SeqCst);
+            r
+        }
+    }
+}
+
+/// A toy kind whose runs go to a recorder; everything else (and so every key) is the kind's.
+struct Recorded {
+    inner: Arc<dyn DynNode>,
+    rec: Arc<Recorder>,
+}
+
+impl DynNode for Recorded {
+    fn kind(&self) -> &'static str {
+        self.inner.kind()
+    }
+    fn version(&self) -> u32 {
+        self.inner.version()
+    }
+    fn parse_args(&self, ron_text: &str) -> Result<ArgsBox, ArgsError> {
+        self.inner.parse_args(ron_text)
+    }
+    fn canonical_args(&self, args: &ArgsBox) -> Vec<u8> {
+        self.inner.canonical_args(args)
+    }
+    fn args_json(&self, args: &ArgsBox) -> serde_json::Value {
+        self.inner.args_json(args)
+    }
+    fn default_args_json(&self) -> serde_json::Value {
+        self.inner.default_args_json()
+    }
+    fn inputs(&self, args: &ArgsBox) -> Vec<InputDecl> {
+        self.inner.inputs(args)
+    }
+    fn outputs(&self, args: &ArgsBox) -> Vec<String> {
+        self.inner.outputs(args)
+    }
+    fn threads(&self, args: &ArgsBox) -> Threads {
+        self.inner.threads(args)
+    }
+    fn validate(&self, args: &ArgsBox) -> Result<(), String> {
+        self.inner.validate(args)
+    }
+    fn run(&self, args: &ArgsBox, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let heavy = self.inner.threads(args) == Threads::All;
+        let name = ctx.node_name().to_string();
+        self.rec.running(&name, heavy, || self.inner.run(args, ctx))
+    }
+}
+
+fn sleep(ms: u64) {
     std::thread::sleep(std::time::Duration::from_millis(ms));
-    ACTIVE.fetch_sub(1, Ordering::SeqCst);
 }
 
 #[derive(Clone, Default, Serialize, Deserialize)]
@@ -84,8 +162,7 @@ impl Node for Source {
         vec!["out".into()]
     }
     fn run(args: &SourceArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
-        record(ctx);
-        enter(args.sleep_ms);
+        sleep(args.sleep_ms);
         let text = args.value.repeat(args.count.max(1) as usize);
         std::fs::write(
             ctx.output("out")?.join("value.txt"),
@@ -115,8 +192,7 @@ impl Node for Append {
         vec!["out".into(), "len".into()]
     }
     fn run(args: &AppendArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
-        record(ctx);
-        enter(args.sleep_ms);
+        sleep(args.sleep_ms);
         let v = std::fs::read_to_string(ctx.input("a")?.join("value.txt"))?;
         let s = format!("{v}{}", args.suffix);
         std::fs::write(ctx.output("out")?.join("value.txt"), &s)?;
@@ -142,7 +218,6 @@ impl Node for Len {
         vec!["out".into()]
     }
     fn run(_: &LenArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
-        record(ctx);
         let v = std::fs::read_to_string(ctx.input("a")?.join("value.txt"))?;
         std::fs::write(ctx.output("out")?.join("value.txt"), v.len().to_string())?;
         Ok(())
@@ -168,7 +243,6 @@ impl Node for Concat {
         vec!["out".into()]
     }
     fn run(args: &ConcatArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
-        record(ctx);
         let mut parts = Vec::new();
         for p in ctx.input_list("items")? {
             parts.push(std::fs::read_to_string(p.join("value.txt"))?);
@@ -197,7 +271,6 @@ impl Node for Seeded {
         vec!["out".into()]
     }
     fn run(args: &SeededArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
-        record(ctx);
         std::fs::write(
             ctx.output("out")?.join("value.txt"),
             format!("{} {}", args.seed, ctx.seed()),
@@ -232,7 +305,6 @@ impl Node for Fail {
         Ok(())
     }
     fn run(args: &FailArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
-        record(ctx);
         std::fs::write(ctx.output("out")?.join("value.txt"), "partial")?;
         ctx.log("about to decide");
         if args.panic {
@@ -267,13 +339,7 @@ impl Node for Heavy {
         Threads::All
     }
     fn run(args: &HeavyArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
-        record(ctx);
-        HEAVY_RUNNING.fetch_add(1, Ordering::SeqCst);
-        if ACTIVE.load(Ordering::SeqCst) > 0 {
-            VIOLATIONS.fetch_add(1, Ordering::SeqCst);
-        }
-        std::thread::sleep(std::time::Duration::from_millis(args.sleep_ms));
-        HEAVY_RUNNING.fetch_sub(1, Ordering::SeqCst);
+        sleep(args.sleep_ms);
         let pool = rayon::current_num_threads();
         std::fs::write(
             ctx.output("out")?.join("value.txt"),
@@ -283,15 +349,23 @@ impl Node for Heavy {
     }
 }
 
-/// Every toy kind plus the engine's own.
-pub fn registry() -> Registry {
-    let mut r = Registry::with_engine_kinds();
-    r.register::<Source>()
+/// Every toy kind, recording into `rec`, plus the engine's own kinds.
+pub fn registry(rec: Arc<Recorder>) -> Registry {
+    let mut toys = Registry::new();
+    toys.register::<Source>()
         .register::<Append>()
         .register::<Len>()
         .register::<Concat>();
-    r.register::<Seeded>()
+    toys.register::<Seeded>()
         .register::<Fail>()
         .register::<Heavy>();
+    let mut r = Registry::with_engine_kinds();
+    for name in toys.names() {
+        let inner = toys.get(name).expect("listed").clone();
+        r.register_dyn(Arc::new(Recorded {
+            inner,
+            rec: rec.clone(),
+        }));
+    }
     r
 }

@@ -1,0 +1,277 @@
+//! Running one computation: claim its key, look in the store again, run the node in a scratch
+//! folder inside a rayon pool of its thread budget, promote its outputs, and write its action
+//! entry last (by atomic rename), so a node that fails, panics or is killed leaves no entry.
+
+use super::{CompResult, Status};
+use crate::error::EngineError;
+use crate::node::{NodeError, ProgressSink, RunContext};
+use crate::resolve::Plan;
+use crate::store::{
+    hex, hostname, now_unix, remove_tree, unhex, ActionEntry, Hash, Store, STORE_FORMAT,
+};
+use indicatif::ProgressBar;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// Collects a running node's log and drives its progress bar.
+struct NodeSink {
+    lines: Mutex<Vec<String>>,
+    bar: Option<ProgressBar>,
+}
+
+impl ProgressSink for NodeSink {
+    fn progress(&self, done: u64, total: u64, message: &str) {
+        if let Some(b) = &self.bar {
+            b.set_length(total);
+            b.set_position(done);
+            if !message.is_empty() {
+                b.set_message(message.to_string());
+            }
+        }
+    }
+    fn log(&self, line: &str) {
+        if let Ok(mut l) = self.lines.lock() {
+            l.push(line.to_string());
+        }
+        if let Some(b) = &self.bar {
+            b.set_message(line.chars().take(60).collect::<String>());
+        }
+    }
+}
+
+/// The output manifests named by a cache entry.
+pub(super) fn outputs_of(entry: &ActionEntry) -> Result<BTreeMap<String, Hash>, EngineError> {
+    entry
+        .outputs
+        .iter()
+        .map(|(k, v)| {
+            unhex(v).map(|h| (k.clone(), h)).ok_or_else(|| {
+                EngineError::Other(format!("action {} has a bad manifest hash", entry.key))
+            })
+        })
+        .collect()
+}
+
+/// A computation ready to run: everything a worker thread needs.
+pub(super) struct Job {
+    /// Index into [`Plan::comps`].
+    pub(super) comp: usize,
+    /// Its display name (the first instance's).
+    pub(super) name: String,
+    /// Its key.
+    pub(super) key: Hash,
+    /// Its input folders, per input name.
+    pub(super) inputs: Vec<(String, Vec<PathBuf>)>,
+    /// Its thread budget (the size of its rayon pool).
+    pub(super) threads: usize,
+    /// Its progress bar, when bars are drawn.
+    pub(super) bar: Option<ProgressBar>,
+}
+
+impl Job {
+    /// Runs the computation (on a worker thread) and clears its progress bar.
+    pub(super) fn run(self, plan: &Plan, store: &Store) -> CompResult {
+        let bar = self.bar.clone();
+        let r = run_one(plan, store, self);
+        if let Some(b) = bar {
+            b.finish_and_clear();
+        }
+        r
+    }
+}
+
+/// Claims the job's key, finds it cached if another process finished it meanwhile, and
+/// otherwise runs it in a fresh scratch folder (removed afterwards).
+fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
+    let key = job.key;
+    let fail = |m: String, secs: f64| CompResult {
+        status: Status::Failed(m),
+        key: Some(key),
+        seconds: secs,
+        computed_seconds: secs,
+        outputs: BTreeMap::new(),
+        waited: false,
+    };
+    let claim = match store.claim(&key) {
+        Ok(c) => c,
+        Err(e) => return fail(e.to_string(), 0.0),
+    };
+    // Another process may have finished it while we waited for the claim.
+    match store.action(&key) {
+        Ok(Some(entry)) => {
+            return match outputs_of(&entry) {
+                Ok(outputs) => CompResult {
+                    status: Status::Cached,
+                    key: Some(key),
+                    seconds: 0.0,
+                    computed_seconds: entry.seconds,
+                    outputs,
+                    waited: claim.waited,
+                },
+                Err(e) => fail(e.to_string(), 0.0),
+            }
+        }
+        Ok(None) => {}
+        Err(e) => return fail(e.to_string(), 0.0),
+    }
+    let scratch = match store.new_scratch(&key) {
+        Ok(s) => s,
+        Err(e) => return fail(e.to_string(), 0.0),
+    };
+    let result = run_in_scratch(plan, store, job, &scratch);
+    remove_tree(&scratch);
+    drop(claim);
+    match result {
+        Ok(r) => r,
+        Err((m, secs)) => fail(m, secs),
+    }
+}
+
+/// Runs the job's node in `scratch` and stores its outputs and action entry. On failure:
+/// the message and the seconds the node ran (its log goes to `runs/failed-<key>.log`).
+fn run_in_scratch(
+    plan: &Plan,
+    store: &Store,
+    job: Job,
+    scratch: &std::path::Path,
+) -> Result<CompResult, (String, f64)> {
+    let Job {
+        comp: c,
+        name,
+        key,
+        inputs,
+        threads,
+        bar,
+    } = job;
+    let name = name.as_str();
+    let comp = &plan.comps[c];
+    let mut outputs = Vec::new();
+    for o in &comp.outputs {
+        let p = scratch.join("out").join(o);
+        std::fs::create_dir_all(&p).map_err(|e| (format!("creating {}: {e}", p.display()), 0.0))?;
+        outputs.push((o.clone(), p));
+    }
+    let work = scratch.join("work");
+    std::fs::create_dir_all(&work)
+        .map_err(|e| (format!("creating {}: {e}", work.display()), 0.0))?;
+    let sink = Arc::new(NodeSink {
+        lines: Mutex::new(Vec::new()),
+        bar,
+    });
+    let seed = u64::from_le_bytes(key[..8].try_into().expect("8 bytes"));
+    let mut ctx = RunContext {
+        inputs,
+        outputs: outputs.clone(),
+        scratch: work,
+        seed,
+        threads,
+        sink: sink.clone(),
+        node_name: name.to_string(),
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| (format!("building a thread pool: {e}"), 0.0))?;
+    let t = Instant::now();
+    let res = pool.install(|| {
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            comp.node.run(&comp.args, &mut ctx)
+        }))
+    });
+    let secs = t.elapsed().as_secs_f64();
+    let log_text = sink.lines.lock().map(|l| l.join("\n")).unwrap_or_default();
+    if let Some(m) = failure_of(res) {
+        let msg = format!(
+            "node `{name}` ({}) failed: {m}{}",
+            comp.node.kind(),
+            log_tail(&log_text)
+        );
+        let _ = store.write_atomic(
+            &store
+                .root()
+                .join("runs")
+                .join(format!("failed-{}.log", hex(&key))),
+            format!("{msg}\n\n{log_text}\n").as_bytes(),
+        );
+        return Err((msg, secs));
+    }
+    let mut manifests = BTreeMap::new();
+    for (o, p) in &outputs {
+        if !p.is_dir() {
+            return Err((
+                format!(
+                    "node `{name}` ({}) removed its output folder `{o}`",
+                    comp.node.kind()
+                ),
+                secs,
+            ));
+        }
+        let m = pool
+            .install(|| store.promote(p))
+            .map_err(|e| (format!("storing output `{o}` of `{name}`: {e}"), secs))?;
+        manifests.insert(o.clone(), m);
+    }
+    let log = if log_text.is_empty() {
+        None
+    } else {
+        store.put_blob(log_text.as_bytes()).ok()
+    };
+    let entry = ActionEntry {
+        format: STORE_FORMAT,
+        key: hex(&key),
+        kind: comp.node.kind().to_string(),
+        version: comp.node.version(),
+        name: name.to_string(),
+        outputs: manifests.iter().map(|(k, v)| (k.clone(), hex(v))).collect(),
+        seconds: secs,
+        time_unix: now_unix(),
+        host: hostname(),
+        pid: std::process::id(),
+        seed,
+        threads,
+        log,
+    };
+    store
+        .write_action(&key, &entry)
+        .map_err(|e| (e.to_string(), secs))?;
+    Ok(CompResult {
+        status: Status::Ran,
+        key: Some(key),
+        seconds: secs,
+        computed_seconds: secs,
+        outputs: manifests,
+        waited: false,
+    })
+}
+
+/// Why a node's run failed (its error, or its panic's message), or `None` when it succeeded.
+fn failure_of(res: std::thread::Result<Result<(), NodeError>>) -> Option<String> {
+    match res {
+        Ok(Ok(())) => None,
+        Ok(Err(e)) => Some(e.message().to_string()),
+        Err(p) => Some(format!(
+            "panicked: {}",
+            p.downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| p.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "(no message)".into())
+        )),
+    }
+}
+
+/// The last 20 lines of a node's log, formatted to follow a failure message (empty when the
+/// log is).
+fn log_tail(log: &str) -> String {
+    let lines: Vec<&str> = log.lines().collect();
+    let start = lines.len().saturating_sub(20);
+    if lines.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "\n  last lines of its log:\n    {}",
+            lines[start..].join("\n    ")
+        )
+    }
+}
