@@ -6,6 +6,7 @@ mod buffers;
 pub mod constants;
 pub mod densify;
 pub mod error;
+pub mod fit;
 pub mod forward;
 pub mod gaussians;
 pub mod init;

@@ -408,6 +408,14 @@ impl TrainArgs {
         self.init.validate()?;
         self.schedule.validate()
     }
+    /// The method's name for reports: `label`, or the schedule's name when it is empty.
+    pub fn method_label(&self) -> String {
+        if self.label.is_empty() {
+            self.schedule.name().to_string()
+        } else {
+            self.label.clone()
+        }
+    }
     /// The active SH degree at 0-based step `step`.
     pub fn active_sh_degree(&self, step: u64) -> u32 {
         ((step / self.sh_increase_every.max(1)).min(self.sh_degree as u64)) as u32
@@ -456,6 +464,16 @@ pub struct RealView {
     pub camera: Camera,
     /// Interleaved RGB, `H·W·3`.
     pub image: Vec<f32>,
+}
+
+impl RealView {
+    /// The view as [`crate::init::initial_gaussians`] reads it.
+    pub fn init_view(&self) -> crate::init::InitView<'_> {
+        crate::init::InitView {
+            camera: &self.camera,
+            image: &self.image,
+        }
+    }
 }
 
 /// Real images with the `(1 − λ)·P + λ·(1 − SSIM)` loss.
@@ -761,6 +779,10 @@ impl<'a> Trainer<'a> {
     pub fn args(&self) -> &TrainArgs {
         &self.args
     }
+    /// The Gaussians, ending the training.
+    pub fn into_gaussians(self) -> Gaussians {
+        self.g
+    }
 
     fn next_real(&mut self) -> Option<usize> {
         let n = self.real.len();
@@ -936,21 +958,11 @@ impl<'a> Trainer<'a> {
     }
 }
 
-/// Held-out evaluation of one set of Gaussians.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Evaluation {
-    /// Mean per-view PSNR, dB.
-    pub psnr: f64,
-    /// Mean per-view SSIM (torchmetrics convention).
-    pub ssim: f64,
-    /// Mean per-view MSE.
-    pub mse: f64,
-    /// Mean per-view LPIPS when a model was given.
-    pub lpips: Option<f64>,
-    /// Mean per-view average error `(MSE·√(1−SSIM)·LPIPS)^⅓`, when LPIPS is available (the
-    /// convention of the `Evaluate` node, so curve and evaluation agree).
-    pub avg_error: Option<f64>,
-}
+/// Held-out evaluation of one set of Gaussians: the mean over views of
+/// [`augsplat_metrics::measure::Measurement`] (LPIPS and the average error
+/// `(MSE·√(1−SSIM)·LPIPS)^⅓` when a model is given), the definition `Evaluate` uses too, so a
+/// curve and an evaluation agree.
+pub type Evaluation = augsplat_metrics::measure::Measurement;
 
 /// Error of an evaluation (a metric rejected an image).
 #[derive(Debug, thiserror::Error)]
@@ -963,9 +975,11 @@ pub struct EvalError {
     pub source: augsplat_metrics::MetricsError,
 }
 
-/// Renders every view (colour clamped to [0, 1], as gsplat's evaluation) and averages PSNR,
-/// SSIM, MSE (and LPIPS and the average error) over views with `augsplat-metrics`. A view
-/// rendered exactly counts as 100 dB (instead of +∞) so the mean stays finite.
+/// Renders every view (colour clamped to [0, 1], as gsplat's evaluation), measures it with
+/// [`augsplat_metrics::measure::measure`] and averages over views
+/// ([`augsplat_metrics::measure::mean`]). A view rendered exactly has an infinite PSNR (the
+/// one PSNR convention, see `augsplat_metrics::measure`), and so has the mean. No views: all
+/// zeros.
 pub fn evaluate(
     g: &Gaussians,
     views: &[RealView],
@@ -973,38 +987,19 @@ pub fn evaluate(
     lpips: Option<&augsplat_metrics::lpips::Lpips>,
 ) -> Result<Evaluation, EvalError> {
     use augsplat_core::ImageF32;
-    let mut e = Evaluation::default();
-    if views.is_empty() {
-        return Ok(e);
-    }
-    let (mut lp, mut avg) = (0.0, 0.0);
+    use augsplat_metrics::measure;
+    let mut ms = Vec::with_capacity(views.len());
     for v in views {
         let out = crate::render(g, &v.camera, settings);
         let (w, h) = (v.camera.width, v.camera.height);
         let pred = ImageF32::from_vec(w, h, 3, out.rgb.iter().map(|x| x.clamp(0.0, 1.0)).collect());
         let gt = ImageF32::from_vec(w, h, 3, v.image.clone());
-        let err = |source| EvalError {
-            view: v.name.clone(),
-            source,
-        };
-        let mse = augsplat_metrics::mse(&pred, &gt).map_err(err)?;
-        let ssim = augsplat_metrics::ssim(&pred, &gt).map_err(err)?;
-        e.mse += mse;
-        e.psnr += augsplat_metrics::psnr_from_mse(mse).min(100.0);
-        e.ssim += ssim;
-        if let Some(m) = lpips {
-            let l = m.distance(&pred, &gt).map_err(err)?;
-            lp += l;
-            avg += augsplat_metrics::average_error(mse, ssim, l);
-        }
+        ms.push(
+            measure::measure(&pred, &gt, lpips).map_err(|source| EvalError {
+                view: v.name.clone(),
+                source,
+            })?,
+        );
     }
-    let n = views.len() as f64;
-    e.mse /= n;
-    e.psnr /= n;
-    e.ssim /= n;
-    if lpips.is_some() {
-        e.lpips = Some(lp / n);
-        e.avg_error = Some(avg / n);
-    }
-    Ok(e)
+    Ok(measure::mean(&ms).unwrap_or_default())
 }
