@@ -6,7 +6,7 @@
 mod train_util;
 
 use augsplat_core::artifacts::{self, SyntheticSet, SyntheticView, TrainingCurve};
-use augsplat_core::image::{read_rgb, write_exr};
+use augsplat_core::image::read_rgb;
 use augsplat_core::Scene;
 use augsplat_graph::{Node, RunContext};
 use augsplat_splat::node::BestRecord;
@@ -46,32 +46,19 @@ fn small_args() -> TrainArgs {
 
 /// A SyntheticSet made from the training views at half resolution, weights from a ramp.
 fn make_synthetic(train: &Path, dir: &Path) {
-    std::fs::create_dir_all(dir).unwrap();
+    SyntheticSet::create_folders(dir).unwrap();
     let scene = Scene::load(train).unwrap();
     let mut set = SyntheticSet::default();
-    for (i, v) in scene.views.iter().enumerate().take(4) {
+    for v in scene.views.iter().take(4) {
         let img = read_rgb(&train.join(&v.image)).unwrap().downscale(2);
         let cam = v.camera.resized(img.width, img.height);
-        let (w, h) = (img.width, img.height);
-        let planes: Vec<Vec<f32>> = (0..3).map(|c| img.channel(c)).collect();
-        let weight: Vec<f32> = (0..w * h).map(|p| (p % w) as f32 / w as f32).collect();
-        let t = format!("t{i}.exr");
-        let wf = format!("w{i}.exr");
-        write_exr(
-            &dir.join(&t),
-            w,
-            h,
-            &[("R", &planes[0]), ("G", &planes[1]), ("B", &planes[2])],
-        )
-        .unwrap();
-        write_exr(&dir.join(&wf), w, h, &[("W", &weight)]).unwrap();
-        set.views.push(SyntheticView {
-            name: v.name.clone(),
-            camera: cam,
-            target: t,
-            weight: wf,
-            weight_sum: weight.iter().map(|&x| x as f64).sum(),
-        });
+        let w = img.width;
+        let planar: Vec<f32> = (0..3).flat_map(|c| img.channel(c)).collect();
+        let weight: Vec<f32> = (0..w * img.height)
+            .map(|p| (p % w) as f32 / w as f32)
+            .collect();
+        set.views
+            .push(SyntheticView::write(dir, &v.name, &cam, &planar, &weight).unwrap());
     }
     artifacts::write_json(&dir.join(artifacts::files::SYNTHETIC), &set).unwrap();
 }
