@@ -380,3 +380,109 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), CoreError>
         serde_json::to_string_pretty(value).map_err(|e| CoreError::format(path, e.to_string()))?;
     std::fs::write(path, text).map_err(|e| CoreError::io(path, e))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera(w: u32, h: u32) -> Camera {
+        let mut m = [[0.0; 4]; 4];
+        for (i, row) in m.iter_mut().enumerate() {
+            row[i] = 1.0;
+        }
+        Camera {
+            width: w,
+            height: h,
+            fx: w as f64,
+            fy: w as f64,
+            cx: w as f64 / 2.0,
+            cy: h as f64 / 2.0,
+            world_to_camera: m,
+        }
+    }
+
+    #[test]
+    fn synthetic_view_round_trips_through_its_owner() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        SyntheticSet::create_folders(dir).unwrap();
+        let (w, h) = (5u32, 3u32);
+        let n = (w * h) as usize;
+        let target: Vec<f32> = (0..3 * n).map(|i| i as f32 / (3 * n) as f32).collect();
+        let weight: Vec<f32> = (0..n).map(|i| (i % 4) as f32 / 4.0).collect();
+        let v = SyntheticView::write(dir, "a view/1", &camera(w, h), &target, &weight).unwrap();
+        assert_eq!(v.target, "targets/a_view_1.exr");
+        assert_eq!(v.weight, "weights/a_view_1.exr");
+        assert!(dir.join("previews/a_view_1_target.png").is_file());
+        assert!(dir.join("previews/a_view_1_weight.png").is_file());
+        let sum: f64 = weight.iter().map(|&x| x as f64).sum();
+        assert_eq!(v.weight_sum, sum);
+        let px = v.read(dir).unwrap();
+        assert_eq!(px.weight, weight);
+        // The target comes back interleaved.
+        assert_eq!((px.target.width, px.target.height), (w, h));
+        for p in 0..n {
+            for c in 0..3 {
+                assert_eq!(px.target.data[3 * p + c], target[c * n + p]);
+            }
+        }
+        // A camera of another size is an error naming the view.
+        let mut other = v.clone();
+        other.camera = camera(w + 1, h);
+        let e = other.read(dir).unwrap_err().to_string();
+        assert!(e.contains("a view/1") && e.contains("6×3"), "{e}");
+        // A weight file without its W channel is an error naming the file.
+        other = v.clone();
+        other.weight = v.target.clone();
+        let e = other.read(dir).unwrap_err().to_string();
+        assert!(e.contains("no channel W"), "{e}");
+    }
+
+    #[test]
+    fn render_sets_of_one_ensemble_are_compatible() {
+        let view = |name: &str, w: u32| RenderedView {
+            name: name.into(),
+            camera: camera(w, 4),
+            file: format!("{name}.exr"),
+        };
+        let a = RenderSet {
+            views: vec![view("x", 8), view("y", 8)],
+        };
+        let dirs = [Path::new("m0"), Path::new("m1")];
+        assert!(RenderSet::check_compatible(&[a.clone(), a.clone()], &dirs).is_ok());
+        let fewer = RenderSet {
+            views: vec![view("x", 8)],
+        };
+        let e = RenderSet::check_compatible(&[a.clone(), fewer], &dirs).unwrap_err();
+        assert!(e.contains("member 1 (m1) has 1 views"), "{e}");
+        let resized = RenderSet {
+            views: vec![view("x", 8), view("y", 9)],
+        };
+        let e = RenderSet::check_compatible(&[a, resized], &dirs).unwrap_err();
+        assert!(e.contains("view `y` (9×4)"), "{e}");
+    }
+
+    #[test]
+    fn curve_psnr_may_be_infinite_and_finite_values_keep_their_text() {
+        let p = CurvePoint {
+            step: 3,
+            psnr: 31.25,
+            ..Default::default()
+        };
+        #[derive(Serialize)]
+        struct Plain {
+            psnr: f64,
+        }
+        let text = serde_json::to_string(&p).unwrap();
+        let plain = serde_json::to_string(&Plain { psnr: 31.25 }).unwrap();
+        assert!(text.contains(&plain[1..plain.len() - 1]), "{text}");
+        let inf = CurvePoint {
+            psnr: f64::INFINITY,
+            ..p
+        };
+        let text = serde_json::to_string(&inf).unwrap();
+        assert!(text.contains("\"psnr\":\"inf\""), "{text}");
+        let back: CurvePoint = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.psnr, f64::INFINITY);
+    }
+}
