@@ -17,7 +17,9 @@ pub mod ply;
 pub mod project;
 pub mod reference;
 pub mod render;
+pub mod schedule;
 pub mod sh;
+pub mod supervision;
 pub mod tiles;
 pub mod train;
 
