@@ -4,6 +4,8 @@
 //!   neighbour interpolations, then N drawn), with a report of how near they stay;
 //! - [`aggregate`]: ensemble aggregation kernels — per-pixel median target and variance-based
 //!   confidence weights `(1 − V_norm)^γ`;
+//! - [`ensemble`]: a whole ensemble's render sets → the synthetic set (the library side of
+//!   `AggregateEnsemble`);
 //! - [`nodes`]: the node kinds `SynthesizePoses`, `AggregateEnsemble` and `ScenePoses` (the
 //!   poses of a scene's real views, e.g. to render the ensemble at the held-out views).
 //!
@@ -11,6 +13,7 @@
 //! reruns only the aggregation and what follows it.
 
 pub mod aggregate;
+pub mod ensemble;
 pub mod nodes;
 pub mod poses;
 

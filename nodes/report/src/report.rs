@@ -432,22 +432,9 @@ fn synthetic_section(opts: &ReportOptions, dir: &Path) -> Result<String, ReportE
     for i in 0..k {
         // Evenly spaced picks, deterministic.
         let v = &set.views[if k <= 1 { 0 } else { i * (n - 1) / (k - 1) }];
-        let target = image::read_rgb(&dir.join(&v.target))?;
-        let wpath = dir.join(&v.weight);
-        let exr = image::read_exr(&wpath)?;
-        let w = exr.channel("W").ok_or_else(|| {
-            ReportError::invalid(
-                &wpath,
-                format!("weight EXR has no W channel (has {:?})", exr.names()),
-            )
-        })?;
-        if exr.width != target.width || exr.height != target.height {
-            return Err(ReportError::invalid(
-                &wpath,
-                "weight map and target differ in size",
-            ));
-        }
-        let conf = html::confidence_colormap(w, exr.width, exr.height);
+        let px = v.read(dir)?;
+        let (target, w) = (px.target, px.weight.as_slice());
+        let conf = html::confidence_colormap(w, target.width, target.height);
         let mean = if w.is_empty() {
             0.0
         } else {

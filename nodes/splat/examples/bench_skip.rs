@@ -12,7 +12,7 @@
 //! composited (Gaussian, pixel) pairs saved — machine-independent measures of the work.
 
 use augsplat_core::artifacts::{self, SyntheticSet};
-use augsplat_core::{image, Camera};
+use augsplat_core::Camera;
 use augsplat_splat::loss::{self, WeightNorm};
 use augsplat_splat::train::SynthView;
 use augsplat_splat::{backward, read_ply, render_masked, RenderSettings};
@@ -25,14 +25,12 @@ fn load(dir: &Path, skip_below: f64) -> Vec<SynthView> {
     set.views
         .iter()
         .map(|v| {
-            let target = image::read_rgb(&dir.join(&v.target)).expect("target EXR");
-            let exr = image::read_exr(&dir.join(&v.weight)).expect("weight EXR");
-            let weight = exr.channel("W").expect("channel W").to_vec();
+            let px = v.read(dir).expect("synthetic view");
             SynthView::new(
                 v.name.clone(),
                 v.camera.clone(),
-                target.data,
-                weight,
+                px.target.data,
+                px.weight,
                 skip_below,
             )
         })

@@ -9,7 +9,7 @@
 //! in growing shells) so initialisation is O(N) for well-spread clouds, not O(N²).
 
 use crate::Gaussians;
-use augsplat_core::{Camera, PointCloud, Rng};
+use augsplat_core::{Camera, PointCloud, Rng, Scene};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -336,4 +336,65 @@ fn build(
     }
     g.means = positions;
     g
+}
+
+/// The initial Gaussians [`initial_gaussians`] chose, and why.
+#[derive(Clone, Debug)]
+pub struct Initial {
+    /// The Gaussians to start training from.
+    pub gaussians: Gaussians,
+    /// What was chosen, in words, when the scene had no sparse points (`None` when the
+    /// Gaussians come from the points).
+    pub note: Option<String>,
+}
+
+/// The initialisation policy of a training run: the scene's sparse points when it has any
+/// ([`from_points`]); otherwise `args.random_points` random Gaussians, on the training views'
+/// rays between the scene's `near` and `far` bounds ([`random_in_frusta`]) when
+/// `args.random_in` is [`RandomInit::Frusta`] and those bounds are usable (finite,
+/// 0 < near < far), else in a cube around the training cameras' mean ([`random`]).
+pub fn initial_gaussians(
+    cloud: &PointCloud,
+    scene: &Scene,
+    views: &[InitView<'_>],
+    sh_degree: u32,
+    args: &InitArgs,
+    scene_scale: f64,
+    seed: u64,
+) -> Initial {
+    if !cloud.is_empty() {
+        return Initial {
+            gaussians: from_points(cloud, sh_degree, args, scene_scale, seed),
+            note: None,
+        };
+    }
+    let (near, far) = (scene.near, scene.far);
+    let bounds_ok = near.is_finite() && far.is_finite() && near > 0.0 && far > near;
+    match args.random_in {
+        RandomInit::Frusta if bounds_ok => Initial {
+            note: Some(format!(
+                "no sparse points: {} random Gaussians on training rays, depth {near:.3}–{far:.3} (uniform in disparity)",
+                args.random_points
+            )),
+            gaussians: random_in_frusta(views, near, far, sh_degree, args, scene_scale, seed),
+        },
+        mode => {
+            let cs: Vec<[f64; 3]> = views.iter().map(|v| v.camera.center()).collect();
+            let center =
+                std::array::from_fn(|k| cs.iter().map(|c| c[k]).sum::<f64>() / cs.len() as f64);
+            Initial {
+                note: Some(format!(
+                    "no sparse points: {} random Gaussians in a cube of half-side {} scene scales{}",
+                    args.random_points,
+                    args.random_extent,
+                    if mode == RandomInit::Frusta {
+                        format!(" (the scene's bounds {near}–{far} are unusable for Frusta)")
+                    } else {
+                        String::new()
+                    }
+                )),
+                gaussians: random(center, sh_degree, args, scene_scale, seed),
+            }
+        }
+    }
 }

@@ -6,6 +6,7 @@ mod buffers;
 pub mod constants;
 pub mod densify;
 pub mod error;
+pub mod fit;
 pub mod forward;
 pub mod gaussians;
 pub mod init;
@@ -16,7 +17,9 @@ pub mod ply;
 pub mod project;
 pub mod reference;
 pub mod render;
+pub mod schedule;
 pub mod sh;
+pub mod supervision;
 pub mod tiles;
 pub mod train;
 

@@ -29,7 +29,9 @@
 use crate::adam::{Adam, LearningRates, ParamGrads};
 use crate::densify::{self, Densifier, DensifyArgs, DensifySchedule};
 use crate::init::InitArgs;
-use crate::loss::{self, PixelLoss, WeightNorm};
+use crate::loss::PixelLoss;
+pub use crate::schedule::{dual_lambda, dual_raw_weight, Schedule, StepPlan};
+pub use crate::supervision::{RealImages, RealView, Supervision, SynthView, SyntheticImages};
 use crate::{Gaussians, Gradients, RenderOutput, RenderSettings};
 use augsplat_core::{Camera, Rng};
 use rayon::prelude::*;
@@ -59,7 +61,7 @@ impl Default for RealLoss {
 #[serde(default, deny_unknown_fields)]
 pub struct SyntheticArgs {
     /// Normalise the weighted L2 by the weight sum (else by the pixel count), see
-    /// [`loss::weighted_l2`].
+    /// [`crate::loss::weighted_l2`].
     pub normalize_by_weight_sum: bool,
     /// Pixels whose weight is below this are neither rendered nor back-propagated (0 = render
     /// everything; tiles with no such pixel are skipped by the rasteriser).
@@ -74,214 +76,6 @@ impl Default for SyntheticArgs {
             normalize_by_weight_sum: true,
             skip_below: 0.0,
             densify_from_synthetic: false,
-        }
-    }
-}
-
-fn d_warmup() -> u64 {
-    300
-}
-fn d_batch() -> usize {
-    20
-}
-fn d_true() -> bool {
-    true
-}
-fn d_w_nerf0() -> f64 {
-    2.0
-}
-fn d_w_real() -> f64 {
-    1.0
-}
-fn d_quarter() -> f64 {
-    300.0
-}
-fn d_off_below() -> Option<f64> {
-    Some(0.1)
-}
-
-/// How real and synthetic supervision are mixed over the run. Omitted variant fields take
-/// the paper's defaults (Staged 300 / 20 / reset; Dual 2.0 / 1.0 / 300 / Some(0.1) / 20).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub enum Schedule {
-    /// Real images only (3DGS).
-    #[default]
-    Baseline,
-    /// Synthetic-only for exactly `warmup_steps` steps, then real only. At the switch, when
-    /// `reset_at_switch`, opacities are clamped to at most 0.1 and the optimiser state is
-    /// cleared (a fresh Adam), as the authors' code.
-    Staged {
-        /// Steps of synthetic-only supervision.
-        #[serde(default = "d_warmup")]
-        warmup_steps: u64,
-        /// Synthetic views per step.
-        #[serde(default = "d_batch")]
-        synthetic_batch: usize,
-        /// Reset opacities and optimiser state at the switch.
-        #[serde(default = "d_true")]
-        reset_at_switch: bool,
-    },
-    /// Both every step: `λ_nerf(t) = w̃/(w̃ + w_real)`, `w̃ = w_nerf0 · 4^(−t/D)`, the real
-    /// weight `w_real/(w̃ + w_real)`. The synthetic branch is off once `w̃ < off_below`
-    /// (authors' code: 0.1; `None` = never). `quarter_decay` D = 0 means the synthetic branch
-    /// is off from step 0 (the limit of an infinitely fast decay), never NaN.
-    Dual {
-        /// w_nerf0.
-        #[serde(default = "d_w_nerf0")]
-        w_nerf0: f64,
-        /// w_real.
-        #[serde(default = "d_w_real")]
-        w_real: f64,
-        /// D, steps over which the synthetic weight quarters.
-        #[serde(default = "d_quarter")]
-        quarter_decay: f64,
-        /// Switch the synthetic branch off when its raw weight drops below this.
-        #[serde(default = "d_off_below")]
-        off_below: Option<f64>,
-        /// Synthetic views per step.
-        #[serde(default = "d_batch")]
-        synthetic_batch: usize,
-    },
-}
-
-/// What one step does, as decided by the [`Schedule`].
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct StepPlan {
-    /// Weight of the real loss (0 = no real render this step).
-    pub real_weight: f64,
-    /// Weight of the synthetic loss (0 = no synthetic render this step).
-    pub synthetic_weight: f64,
-    /// Synthetic views rendered this step.
-    pub synthetic_batch: usize,
-    /// Staged: this is the first real-only step (reset happens before it).
-    pub switch: bool,
-}
-
-/// Dual's raw synthetic weight `w̃ = w_nerf0 · 4^(−t/D)`; 0 for D = 0 (see [`Schedule::Dual`]).
-pub fn dual_raw_weight(w_nerf0: f64, quarter_decay: f64, step: u64) -> f64 {
-    if quarter_decay <= 0.0 {
-        return 0.0;
-    }
-    w_nerf0 * 4f64.powf(-(step as f64) / quarter_decay)
-}
-
-/// Dual's `λ_nerf(t) = w̃/(w̃ + w_real)` (without the `off_below` switch).
-pub fn dual_lambda(w_nerf0: f64, w_real: f64, quarter_decay: f64, step: u64) -> f64 {
-    let w = dual_raw_weight(w_nerf0, quarter_decay, step);
-    if w + w_real <= 0.0 {
-        return 0.0;
-    }
-    w / (w + w_real)
-}
-
-impl Schedule {
-    /// Short name for reports: "3DGS", "Staged", "Dual".
-    pub fn name(&self) -> &'static str {
-        match self {
-            Schedule::Baseline => "3DGS",
-            Schedule::Staged { .. } => "Staged",
-            Schedule::Dual { .. } => "Dual",
-        }
-    }
-    /// Whether the schedule needs a synthetic source.
-    pub fn needs_synthetic(&self) -> bool {
-        !matches!(self, Schedule::Baseline)
-    }
-    /// Checks ranges.
-    pub fn validate(&self) -> Result<(), String> {
-        match *self {
-            Schedule::Baseline => Ok(()),
-            Schedule::Staged {
-                synthetic_batch, ..
-            } => {
-                if synthetic_batch == 0 {
-                    return Err("schedule Staged: synthetic_batch must be ≥ 1".into());
-                }
-                Ok(())
-            }
-            Schedule::Dual {
-                w_nerf0,
-                w_real,
-                quarter_decay,
-                off_below,
-                synthetic_batch,
-            } => {
-                for (n, v) in [
-                    ("w_nerf0", w_nerf0),
-                    ("w_real", w_real),
-                    ("quarter_decay", quarter_decay),
-                ] {
-                    if !v.is_finite() || v < 0.0 {
-                        return Err(format!("schedule Dual: {n} = {v} must be finite and ≥ 0"));
-                    }
-                }
-                if w_real <= 0.0 {
-                    return Err("schedule Dual: w_real must be > 0".into());
-                }
-                if let Some(o) = off_below {
-                    if !o.is_finite() || o < 0.0 {
-                        return Err(format!(
-                            "schedule Dual: off_below = {o} must be finite and ≥ 0"
-                        ));
-                    }
-                }
-                if synthetic_batch == 0 {
-                    return Err("schedule Dual: synthetic_batch must be ≥ 1".into());
-                }
-                Ok(())
-            }
-        }
-    }
-    /// The plan of 0-based step `step`. Pure: tests check it against the closed forms.
-    pub fn plan(&self, step: u64) -> StepPlan {
-        let real_only = StepPlan {
-            real_weight: 1.0,
-            synthetic_weight: 0.0,
-            synthetic_batch: 0,
-            switch: false,
-        };
-        match *self {
-            Schedule::Baseline => real_only,
-            Schedule::Staged {
-                warmup_steps,
-                synthetic_batch,
-                ..
-            } => {
-                if step < warmup_steps {
-                    StepPlan {
-                        real_weight: 0.0,
-                        synthetic_weight: 1.0,
-                        synthetic_batch,
-                        switch: false,
-                    }
-                } else {
-                    StepPlan {
-                        switch: step == warmup_steps && warmup_steps > 0,
-                        ..real_only
-                    }
-                }
-            }
-            Schedule::Dual {
-                w_nerf0,
-                w_real,
-                quarter_decay,
-                off_below,
-                synthetic_batch,
-            } => {
-                let raw = dual_raw_weight(w_nerf0, quarter_decay, step);
-                let off = raw <= 0.0 || off_below.is_some_and(|o| raw < o);
-                if off {
-                    return real_only;
-                }
-                let lam = raw / (raw + w_real);
-                StepPlan {
-                    real_weight: 1.0 - lam,
-                    synthetic_weight: lam,
-                    synthetic_batch,
-                    switch: false,
-                }
-            }
         }
     }
 }
@@ -408,6 +202,14 @@ impl TrainArgs {
         self.init.validate()?;
         self.schedule.validate()
     }
+    /// The method's name for reports: `label`, or the schedule's name when it is empty.
+    pub fn method_label(&self) -> String {
+        if self.label.is_empty() {
+            self.schedule.name().to_string()
+        } else {
+            self.label.clone()
+        }
+    }
     /// The active SH degree at 0-based step `step`.
     pub fn active_sh_degree(&self, step: u64) -> u32 {
         ((step / self.sh_increase_every.max(1)).min(self.sh_degree as u64)) as u32
@@ -421,146 +223,6 @@ impl TrainArgs {
             antialiased: self.antialiased,
             ..RenderSettings::default()
         }
-    }
-}
-
-/// A source of supervision: views with cameras and a loss on the rendered colour.
-pub trait Supervision: Send + Sync {
-    /// Number of views.
-    fn len(&self) -> usize;
-    /// Whether there are no views.
-    fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-    /// The camera of view `i` (its resolution is the render resolution).
-    fn camera(&self, i: usize) -> &Camera;
-    /// Pixels to render (non-zero) for view `i`; `None` renders all.
-    fn mask(&self, _i: usize) -> Option<&[u8]> {
-        None
-    }
-    /// Whether view `i` has anything to supervise (e.g. a non-zero weight sum).
-    fn usable(&self, _i: usize) -> bool {
-        true
-    }
-    /// The loss of view `i` for rendered colour `rgb` (`H·W·3`); adds `scale · dL/d(rgb)`
-    /// into `grad`.
-    fn loss(&self, i: usize, rgb: &[f32], scale: f32, grad: &mut [f32]) -> f64;
-}
-
-/// One real training image.
-#[derive(Clone, Debug)]
-pub struct RealView {
-    /// Name, for logs.
-    pub name: String,
-    /// Camera (its size equals the image size).
-    pub camera: Camera,
-    /// Interleaved RGB, `H·W·3`.
-    pub image: Vec<f32>,
-}
-
-/// Real images with the `(1 − λ)·P + λ·(1 − SSIM)` loss.
-#[derive(Clone, Debug)]
-pub struct RealImages {
-    /// The views.
-    pub views: Vec<RealView>,
-    /// The loss.
-    pub loss: RealLoss,
-}
-
-impl Supervision for RealImages {
-    fn len(&self) -> usize {
-        self.views.len()
-    }
-    fn camera(&self, i: usize) -> &Camera {
-        &self.views[i].camera
-    }
-    fn loss(&self, i: usize, rgb: &[f32], scale: f32, grad: &mut [f32]) -> f64 {
-        let v = &self.views[i];
-        let (w, h) = (v.camera.width as usize, v.camera.height as usize);
-        loss::photometric(
-            rgb,
-            &v.image,
-            w,
-            h,
-            self.loss.kind,
-            self.loss.ssim_lambda as f32,
-            scale,
-            grad,
-        )
-        .0
-    }
-}
-
-/// One synthetic supervision view.
-#[derive(Clone, Debug)]
-pub struct SynthView {
-    /// Name, for logs.
-    pub name: String,
-    /// Camera at the synthetic resolution.
-    pub camera: Camera,
-    /// Target colour (ensemble median), `H·W·3`.
-    pub target: Vec<f32>,
-    /// Confidence weights, `H·W` (already zeroed where masked out).
-    pub weight: Vec<f32>,
-    /// Render mask (1 = render) when pixels are skipped.
-    pub mask: Option<Vec<u8>>,
-    /// Sum of the (masked) weights.
-    pub weight_sum: f64,
-}
-
-impl SynthView {
-    /// Builds a view, applying `skip_below`: pixels with weight < `skip_below` get weight 0
-    /// and, when `skip_below > 0`, are masked out of rendering. Non-finite weights become 0.
-    pub fn new(
-        name: String,
-        camera: Camera,
-        target: Vec<f32>,
-        mut weight: Vec<f32>,
-        skip_below: f64,
-    ) -> Self {
-        for w in &mut weight {
-            if !w.is_finite() || (*w as f64) < skip_below || *w < 0.0 {
-                *w = 0.0;
-            }
-        }
-        let mask = (skip_below > 0.0).then(|| weight.iter().map(|&w| (w > 0.0) as u8).collect());
-        let weight_sum = weight.iter().map(|&w| w as f64).sum();
-        SynthView {
-            name,
-            camera,
-            target,
-            weight,
-            mask,
-            weight_sum,
-        }
-    }
-}
-
-/// Synthetic views with the confidence-weighted L2 loss.
-#[derive(Clone, Debug)]
-pub struct SyntheticImages {
-    /// The views.
-    pub views: Vec<SynthView>,
-    /// Normalisation of the weighted L2.
-    pub norm: WeightNorm,
-}
-
-impl Supervision for SyntheticImages {
-    fn len(&self) -> usize {
-        self.views.len()
-    }
-    fn camera(&self, i: usize) -> &Camera {
-        &self.views[i].camera
-    }
-    fn mask(&self, i: usize) -> Option<&[u8]> {
-        self.views[i].mask.as_deref()
-    }
-    fn usable(&self, i: usize) -> bool {
-        self.views[i].weight_sum > 0.0
-    }
-    fn loss(&self, i: usize, rgb: &[f32], scale: f32, grad: &mut [f32]) -> f64 {
-        let v = &self.views[i];
-        loss::weighted_l2(rgb, &v.target, &v.weight, self.norm, scale, grad)
     }
 }
 
@@ -761,6 +423,10 @@ impl<'a> Trainer<'a> {
     pub fn args(&self) -> &TrainArgs {
         &self.args
     }
+    /// The Gaussians, ending the training.
+    pub fn into_gaussians(self) -> Gaussians {
+        self.g
+    }
 
     fn next_real(&mut self) -> Option<usize> {
         let n = self.real.len();
@@ -936,21 +602,11 @@ impl<'a> Trainer<'a> {
     }
 }
 
-/// Held-out evaluation of one set of Gaussians.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Evaluation {
-    /// Mean per-view PSNR, dB.
-    pub psnr: f64,
-    /// Mean per-view SSIM (torchmetrics convention).
-    pub ssim: f64,
-    /// Mean per-view MSE.
-    pub mse: f64,
-    /// Mean per-view LPIPS when a model was given.
-    pub lpips: Option<f64>,
-    /// Mean per-view average error `(MSE·√(1−SSIM)·LPIPS)^⅓`, when LPIPS is available (the
-    /// convention of the `Evaluate` node, so curve and evaluation agree).
-    pub avg_error: Option<f64>,
-}
+/// Held-out evaluation of one set of Gaussians: the mean over views of
+/// [`augsplat_metrics::measure::Measurement`] (LPIPS and the average error
+/// `(MSE·√(1−SSIM)·LPIPS)^⅓` when a model is given), the definition `Evaluate` uses too, so a
+/// curve and an evaluation agree.
+pub type Evaluation = augsplat_metrics::measure::Measurement;
 
 /// Error of an evaluation (a metric rejected an image).
 #[derive(Debug, thiserror::Error)]
@@ -963,9 +619,11 @@ pub struct EvalError {
     pub source: augsplat_metrics::MetricsError,
 }
 
-/// Renders every view (colour clamped to [0, 1], as gsplat's evaluation) and averages PSNR,
-/// SSIM, MSE (and LPIPS and the average error) over views with `augsplat-metrics`. A view
-/// rendered exactly counts as 100 dB (instead of +∞) so the mean stays finite.
+/// Renders every view (colour clamped to [0, 1], as gsplat's evaluation), measures it with
+/// [`augsplat_metrics::measure::measure`] and averages over views
+/// ([`augsplat_metrics::measure::mean`]). A view rendered exactly has an infinite PSNR (the
+/// one PSNR convention, see `augsplat_metrics::measure`), and so has the mean. No views: all
+/// zeros.
 pub fn evaluate(
     g: &Gaussians,
     views: &[RealView],
@@ -973,38 +631,19 @@ pub fn evaluate(
     lpips: Option<&augsplat_metrics::lpips::Lpips>,
 ) -> Result<Evaluation, EvalError> {
     use augsplat_core::ImageF32;
-    let mut e = Evaluation::default();
-    if views.is_empty() {
-        return Ok(e);
-    }
-    let (mut lp, mut avg) = (0.0, 0.0);
+    use augsplat_metrics::measure;
+    let mut ms = Vec::with_capacity(views.len());
     for v in views {
         let out = crate::render(g, &v.camera, settings);
         let (w, h) = (v.camera.width, v.camera.height);
         let pred = ImageF32::from_vec(w, h, 3, out.rgb.iter().map(|x| x.clamp(0.0, 1.0)).collect());
         let gt = ImageF32::from_vec(w, h, 3, v.image.clone());
-        let err = |source| EvalError {
-            view: v.name.clone(),
-            source,
-        };
-        let mse = augsplat_metrics::mse(&pred, &gt).map_err(err)?;
-        let ssim = augsplat_metrics::ssim(&pred, &gt).map_err(err)?;
-        e.mse += mse;
-        e.psnr += augsplat_metrics::psnr_from_mse(mse).min(100.0);
-        e.ssim += ssim;
-        if let Some(m) = lpips {
-            let l = m.distance(&pred, &gt).map_err(err)?;
-            lp += l;
-            avg += augsplat_metrics::average_error(mse, ssim, l);
-        }
+        ms.push(
+            measure::measure(&pred, &gt, lpips).map_err(|source| EvalError {
+                view: v.name.clone(),
+                source,
+            })?,
+        );
     }
-    let n = views.len() as f64;
-    e.mse /= n;
-    e.psnr /= n;
-    e.ssim /= n;
-    if lpips.is_some() {
-        e.lpips = Some(lp / n);
-        e.avg_error = Some(avg / n);
-    }
-    Ok(e)
+    Ok(measure::mean(&ms).unwrap_or_default())
 }

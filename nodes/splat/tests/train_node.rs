@@ -6,7 +6,7 @@
 mod train_util;
 
 use augsplat_core::artifacts::{self, SyntheticSet, SyntheticView, TrainingCurve};
-use augsplat_core::image::{read_rgb, write_exr};
+use augsplat_core::image::read_rgb;
 use augsplat_core::Scene;
 use augsplat_graph::{Node, RunContext};
 use augsplat_splat::node::BestRecord;
@@ -46,32 +46,19 @@ fn small_args() -> TrainArgs {
 
 /// A SyntheticSet made from the training views at half resolution, weights from a ramp.
 fn make_synthetic(train: &Path, dir: &Path) {
-    std::fs::create_dir_all(dir).unwrap();
+    SyntheticSet::create_folders(dir).unwrap();
     let scene = Scene::load(train).unwrap();
     let mut set = SyntheticSet::default();
-    for (i, v) in scene.views.iter().enumerate().take(4) {
+    for v in scene.views.iter().take(4) {
         let img = read_rgb(&train.join(&v.image)).unwrap().downscale(2);
         let cam = v.camera.resized(img.width, img.height);
-        let (w, h) = (img.width, img.height);
-        let planes: Vec<Vec<f32>> = (0..3).map(|c| img.channel(c)).collect();
-        let weight: Vec<f32> = (0..w * h).map(|p| (p % w) as f32 / w as f32).collect();
-        let t = format!("t{i}.exr");
-        let wf = format!("w{i}.exr");
-        write_exr(
-            &dir.join(&t),
-            w,
-            h,
-            &[("R", &planes[0]), ("G", &planes[1]), ("B", &planes[2])],
-        )
-        .unwrap();
-        write_exr(&dir.join(&wf), w, h, &[("W", &weight)]).unwrap();
-        set.views.push(SyntheticView {
-            name: v.name.clone(),
-            camera: cam,
-            target: t,
-            weight: wf,
-            weight_sum: weight.iter().map(|&x| x as f64).sum(),
-        });
+        let w = img.width;
+        let planar: Vec<f32> = (0..3).flat_map(|c| img.channel(c)).collect();
+        let weight: Vec<f32> = (0..w * img.height)
+            .map(|p| (p % w) as f32 / w as f32)
+            .collect();
+        set.views
+            .push(SyntheticView::write(dir, &v.name, &cam, &planar, &weight).unwrap());
     }
     artifacts::write_json(&dir.join(artifacts::files::SYNTHETIC), &set).unwrap();
 }
@@ -274,4 +261,80 @@ fn curve_average_error_is_the_mean_of_per_view_average_errors() {
         per_view.iter().map(|p| p.2).sum::<f64>() / n,
     );
     assert!((got - of_means).abs() > 1e-9, "{got} vs {of_means}");
+}
+
+/// The library's training policy, called without a graph, gives the node's outputs: the same
+/// curve and the same checkpoints. Early stopping and `steps = 0` follow the documented rules.
+#[test]
+fn fit_without_a_graph_matches_the_node() {
+    use augsplat_splat::fit::{self, Criterion, FitEvent};
+    use augsplat_splat::init::initial_gaussians;
+    use augsplat_splat::train::{scene_scale, RealImages, RealView};
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, test) = train_util::make_scene(tmp.path(), 48, 40, 9, 300);
+    let args = small_args();
+    let node = run_node(
+        &args,
+        vec![("train", &train), ("test", &test)],
+        &tmp.path().join("o"),
+        2,
+    )
+    .unwrap();
+    let real = RealImages {
+        views: fit::load_real_views(&train, "train").unwrap(),
+        loss: args.real_loss.clone(),
+    };
+    let held_out = fit::load_real_views(&test, "test").unwrap();
+    let scene = Scene::load(&train).unwrap();
+    let cloud = scene.load_points(&train).unwrap();
+    let cams: Vec<_> = real.views.iter().map(|v| &v.camera).collect();
+    let sscale = scene_scale(&cams);
+    let views: Vec<_> = real.views.iter().map(RealView::init_view).collect();
+    let g0 = |a: &TrainArgs| {
+        initial_gaussians(&cloud, &scene, &views, a.sh_degree, &a.init, sscale, a.seed).gaussians
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    let run = |a: &TrainArgs| {
+        let mut events = Vec::new();
+        let f = pool.install(|| {
+            fit::fit(a, g0(a), sscale, &real, None, &held_out, None, &mut |e| {
+                events.push(e)
+            })
+        });
+        (f.unwrap(), events)
+    };
+    let (fitted, events) = run(&args);
+    assert_eq!(fitted.criterion, Criterion::Psnr);
+    let curve: TrainingCurve = artifacts::read_json(&node.join("curve.json")).unwrap();
+    assert_eq!(fitted.curve, curve);
+    let best: BestRecord = artifacts::read_json(&node.join("best.json")).unwrap();
+    assert_eq!(fitted.best_record(), best);
+    let final_ply = tmp.path().join("final.ply");
+    augsplat_splat::write_ply(&final_ply, &fitted.last).unwrap();
+    assert!(std::fs::read(&final_ply).unwrap() == std::fs::read(node.join("final.ply")).unwrap());
+    let progress = events
+        .iter()
+        .filter(|e| matches!(e, FitEvent::Progress { .. }))
+        .count();
+    assert_eq!(progress, 20);
+
+    // Patience p stops once p evaluations in a row did not improve: p = 0 stops at the first
+    // evaluation, which is kept.
+    let mut impatient = small_args();
+    impatient.early_stop_patience = Some(0);
+    let (stopped, _) = run(&impatient);
+    assert!(stopped.early_stopped);
+    assert_eq!((stopped.steps_run, stopped.curve.points.len()), (10, 1));
+    assert_eq!(stopped.best_point, stopped.curve.points[0]);
+
+    // No steps: the initialisation is evaluated and kept.
+    let mut none = small_args();
+    none.steps = 0;
+    let (init_only, _) = run(&none);
+    assert_eq!((init_only.steps_run, init_only.curve.points.len()), (0, 1));
+    assert_eq!(init_only.best_point.step, 0);
+    assert_eq!(init_only.best.len(), init_only.last.len());
 }

@@ -211,7 +211,7 @@ pub fn make_evals(root: &Path) -> Vec<PathBuf> {
 
 /// Writes a synthetic set of `n` 24×16 views (targets and weight maps) into `dir`.
 pub fn make_synthetic(dir: &Path, n: usize) {
-    std::fs::create_dir_all(dir.join("targets")).unwrap();
+    SyntheticSet::create_folders(dir).unwrap();
     let mut set = SyntheticSet::default();
     for i in 0..n {
         let (w, h) = (24u32, 16u32);
@@ -219,18 +219,10 @@ pub fn make_synthetic(dir: &Path, n: usize) {
         let weight: Vec<f32> = (0..w * h)
             .map(|p| ((p % w) as f32 / (w - 1) as f32).powf(1.5))
             .collect();
-        let (r, g, b) = (t.channel(0), t.channel(1), t.channel(2));
-        let target = format!("targets/syn{i:03}.exr");
-        let wfile = format!("targets/syn{i:03}_w.exr");
-        image::write_exr(&dir.join(&target), w, h, &[("R", &r), ("G", &g), ("B", &b)]).unwrap();
-        image::write_exr(&dir.join(&wfile), w, h, &[("W", &weight)]).unwrap();
-        set.views.push(SyntheticView {
-            name: format!("syn{i:03}"),
-            camera: camera(w, h, 1.0),
-            target,
-            weight: wfile,
-            weight_sum: weight.iter().map(|&v| v as f64).sum(),
-        });
+        let planar: Vec<f32> = (0..3).flat_map(|c| t.channel(c)).collect();
+        let name = format!("syn{i:03}");
+        let view = SyntheticView::write(dir, &name, &camera(w, h, 1.0), &planar, &weight);
+        set.views.push(view.unwrap());
     }
     artifacts::write_json(&dir.join("synthetic.json"), &set).unwrap();
 }

@@ -1,0 +1,378 @@
+//! Training policy: a whole training run from loaded inputs to the kept checkpoints, as the
+//! `OptimizeSplats` node runs it — and as benches and library users can run it without a
+//! graph.
+//!
+//! - Inputs: [`load_real_views`] (a scene folder), [`load_synthetic`] (an `AggregateEnsemble`
+//!   output, read through
+//!   [`SyntheticView::read`](augsplat_core::artifacts::SyntheticView::read)), [`load_lpips`], and
+//!   [`check_supervision`] (the schedule's needs against what was connected). The initial
+//!   Gaussians come from [`crate::init::initial_gaussians`].
+//! - [`fit`]: steps the [`Trainer`]; evaluates the held-out views every `eval_every` steps and
+//!   after the last step ([`evaluate`], the metrics of `augsplat_metrics::measure`); keeps the
+//!   best checkpoint — the lowest average error when an LPIPS model is given, else the highest
+//!   PSNR ([`Criterion`]); stops early after `early_stop_patience` evaluations without
+//!   improvement. With `steps = 0` the initialisation itself is evaluated and kept.
+//! - [`Fitted::best_record`]: the `best.json` record of the kept checkpoint.
+//!
+//! Wall-clock seconds enter the curve only with `record_wall_time`, so that a run's outputs
+//! are byte-identical for identical arguments and inputs.
+
+use crate::loss::WeightNorm;
+use crate::train::{
+    evaluate, EvalError, Evaluation, RealImages, RealView, Supervision, SynthView, SyntheticArgs,
+    SyntheticImages, TrainArgs, Trainer,
+};
+use crate::Gaussians;
+use augsplat_core::artifacts::{self, CurvePoint, SyntheticSet, TrainingCurve};
+use augsplat_core::Scene;
+use augsplat_graph::NodeError;
+use augsplat_metrics::lpips::{self, Backbone, Lpips};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Loads the views of the scene folder `dir` as training or held-out images, checking each
+/// camera and that each image has its camera's size. `what` names the input in errors.
+pub fn load_real_views(dir: &Path, what: &str) -> Result<Vec<RealView>, NodeError> {
+    let scene =
+        Scene::load(dir).map_err(|e| NodeError::from(e).context(format!("input `{what}`")))?;
+    let mut out = Vec::with_capacity(scene.views.len());
+    for (i, v) in scene.views.iter().enumerate() {
+        v.camera
+            .validate()
+            .map_err(|m| NodeError::new(format!("input `{what}`: view {}: {m}", v.name)))?;
+        let img = scene
+            .load_image(dir, i)
+            .map_err(|e| NodeError::from(e).context(format!("input `{what}`")))?;
+        if (img.width, img.height) != (v.camera.width, v.camera.height) {
+            return Err(NodeError::new(format!(
+                "input `{what}`: image {} is {}×{} but its camera is {}×{}",
+                dir.join(&v.image).display(),
+                img.width,
+                img.height,
+                v.camera.width,
+                v.camera.height
+            )));
+        }
+        out.push(RealView {
+            name: v.name.clone(),
+            camera: v.camera.clone(),
+            image: img.data,
+        });
+    }
+    Ok(out)
+}
+
+/// Loads a synthetic set's folder (`synthetic.json` and each view's target and weights) as
+/// synthetic supervision with the options `opts` (skip threshold, normalisation).
+pub fn load_synthetic(dir: &Path, opts: &SyntheticArgs) -> Result<SyntheticImages, NodeError> {
+    let set: SyntheticSet = artifacts::read_json(&dir.join(artifacts::files::SYNTHETIC))
+        .map_err(|e| NodeError::from(e).context("input `synthetic`"))?;
+    let mut views = Vec::with_capacity(set.views.len());
+    for v in &set.views {
+        v.camera
+            .validate()
+            .map_err(|m| NodeError::new(format!("input `synthetic`: view {}: {m}", v.name)))?;
+        let px = v
+            .read(dir)
+            .map_err(|e| NodeError::from(e).context("input `synthetic`"))?;
+        views.push(SynthView::new(
+            v.name.clone(),
+            v.camera.clone(),
+            px.target.data,
+            px.weight,
+            opts.skip_below,
+        ));
+    }
+    Ok(SyntheticImages {
+        views,
+        norm: if opts.normalize_by_weight_sum {
+            WeightNorm::WeightSum
+        } else {
+            WeightNorm::PixelCount
+        },
+    })
+}
+
+/// Loads the LPIPS model of backbone `net` ("alex" or "vgg") from `dir`, a folder holding
+/// `lpips_{alex,vgg}_v0.1.safetensors` or the weights file itself.
+pub fn load_lpips(dir: &Path, net: &str) -> Result<Lpips, NodeError> {
+    let backbone: Backbone = net.parse().map_err(NodeError::new)?;
+    let path = lpips::find_weights(Some(dir), backbone).ok_or_else(|| {
+        NodeError::new(format!(
+            "input `lpips`: {} holds no {}",
+            dir.display(),
+            backbone.file_name()
+        ))
+    })?;
+    Ok(Lpips::load(&path)?)
+}
+
+/// Checks that the schedule of `args` has the synthetic supervision it needs: an error when
+/// it needs some and none is given, a warning (returned) when every synthetic view has zero
+/// weight.
+pub fn check_supervision(
+    args: &TrainArgs,
+    synthetic: Option<&SyntheticImages>,
+) -> Result<Option<String>, NodeError> {
+    if !args.schedule.needs_synthetic() {
+        return Ok(None);
+    }
+    match synthetic {
+        None => Err(NodeError::new(format!(
+            "schedule {} needs the `synthetic` input (an AggregateEnsemble output)",
+            args.schedule.name()
+        ))),
+        Some(s) if s.views.iter().all(|v| v.weight_sum <= 0.0) => Ok(Some(
+            "warning: every synthetic view has zero weight; synthetic supervision does nothing"
+                .into(),
+        )),
+        _ => Ok(None),
+    }
+}
+
+/// How [`fit`] picks the checkpoint it keeps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Criterion {
+    /// The lowest held-out average error (needs an LPIPS model).
+    AvgError,
+    /// The highest held-out PSNR.
+    Psnr,
+}
+
+impl Criterion {
+    /// `avg_error` or `psnr`, as `best.json` names it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Criterion::AvgError => "avg_error",
+            Criterion::Psnr => "psnr",
+        }
+    }
+    /// Whether evaluation `p` is better than the kept `best` (strictly; a missing average
+    /// error counts as infinite).
+    pub fn better(self, p: &CurvePoint, best: &CurvePoint) -> bool {
+        match self {
+            Criterion::AvgError => {
+                p.avg_error.unwrap_or(f64::INFINITY) < best.avg_error.unwrap_or(f64::INFINITY)
+            }
+            Criterion::Psnr => p.psnr > best.psnr,
+        }
+    }
+}
+
+/// What [`fit`] reports while it runs.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FitEvent {
+    /// A line for the log (densification, evaluations, an early stop).
+    Log(String),
+    /// `done` of `total` steps are done.
+    Progress {
+        /// Steps done.
+        done: u64,
+        /// Steps requested.
+        total: u64,
+        /// In words.
+        message: String,
+    },
+}
+
+/// The outcome of [`fit`].
+#[derive(Clone, Debug)]
+pub struct Fitted {
+    /// The Gaussians after the last step run.
+    pub last: Gaussians,
+    /// The kept checkpoint.
+    pub best: Gaussians,
+    /// The kept checkpoint's evaluation.
+    pub best_point: CurvePoint,
+    /// Every evaluation, in step order.
+    pub curve: TrainingCurve,
+    /// How the checkpoint was chosen.
+    pub criterion: Criterion,
+    /// Steps actually run (fewer than requested after an early stop).
+    pub steps_run: u64,
+    /// Whether training stopped early.
+    pub early_stopped: bool,
+    /// Scene scale used by the learning rates and densification.
+    pub scene_scale: f64,
+    /// Wall-clock seconds of the run.
+    pub seconds: f64,
+}
+
+/// `best.json`: the selected checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BestRecord {
+    /// Method label.
+    pub label: String,
+    /// "avg_error" (lowest) or "psnr" (highest).
+    pub criterion: String,
+    /// Steps done at the checkpoint.
+    pub step: u64,
+    /// The evaluation there.
+    pub point: CurvePoint,
+    /// Steps actually run (less than requested after an early stop).
+    pub steps_run: u64,
+    /// Whether training stopped early.
+    pub early_stopped: bool,
+    /// Scene scale used by the learning rates and densification.
+    pub scene_scale: f64,
+}
+
+impl Fitted {
+    /// The `best.json` record of the kept checkpoint.
+    pub fn best_record(&self) -> BestRecord {
+        BestRecord {
+            label: self.curve.label.clone(),
+            criterion: self.criterion.name().into(),
+            step: self.best_point.step,
+            point: self.best_point.clone(),
+            steps_run: self.steps_run,
+            early_stopped: self.early_stopped,
+            scene_scale: self.scene_scale,
+        }
+    }
+}
+
+fn point(step: u64, e: &Evaluation, g: &Gaussians, seconds: f64, loss: f64) -> CurvePoint {
+    CurvePoint {
+        step,
+        psnr: e.psnr,
+        ssim: e.ssim,
+        lpips: e.lpips,
+        mse: e.mse,
+        avg_error: e.avg_error,
+        primitives: g.len() as u64,
+        seconds,
+        loss,
+    }
+}
+
+/// Trains from `g0` on `real` (and `synthetic`, as the schedule of `args` mixes them) for
+/// `args.steps` steps, evaluating on `test` (with `lpips` when given) every `args.eval_every`
+/// steps and after the last one, keeping the best checkpoint and stopping early per
+/// `args.early_stop_patience` (see the module documentation). `on_event` receives the log
+/// lines and progress. The curve's label is [`TrainArgs::method_label`].
+#[allow(clippy::too_many_arguments)]
+pub fn fit(
+    args: &TrainArgs,
+    g0: Gaussians,
+    scene_scale: f64,
+    real: &RealImages,
+    synthetic: Option<&SyntheticImages>,
+    test: &[RealView],
+    lpips: Option<&Lpips>,
+    on_event: &mut dyn FnMut(FitEvent),
+) -> Result<Fitted, EvalError> {
+    let a = args;
+    let label = a.method_label();
+    let criterion = if lpips.is_some() {
+        Criterion::AvgError
+    } else {
+        Criterion::Psnr
+    };
+    let mut trainer = Trainer::new(
+        a.clone(),
+        g0,
+        scene_scale,
+        real,
+        synthetic.map(|s| s as &dyn Supervision),
+    );
+    let mut curve = TrainingCurve {
+        label: label.clone(),
+        points: Vec::new(),
+    };
+    let mut best: Option<(CurvePoint, Gaussians)> = None;
+    let mut since_best = 0u32;
+    let mut early = false;
+    let t0 = std::time::Instant::now();
+    let mut loss_acc = 0.0;
+    let mut loss_n = 0u64;
+    while trainer.steps_done() < a.steps {
+        let rep = trainer.step();
+        loss_acc += rep.loss;
+        loss_n += 1;
+        let done = trainer.steps_done();
+        if rep.refine.cloned + rep.refine.split + rep.refine.pruned > 0 || rep.refine.reset {
+            on_event(FitEvent::Log(format!(
+                "step {done}: cloned {}, split {}, pruned {}{} → {} Gaussians",
+                rep.refine.cloned,
+                rep.refine.split,
+                rep.refine.pruned,
+                if rep.refine.reset {
+                    ", opacity reset"
+                } else {
+                    ""
+                },
+                rep.gaussians
+            )));
+        }
+        if done.is_multiple_of(a.eval_every) || done == a.steps {
+            let settings = a.render_settings(done);
+            let e = evaluate(trainer.gaussians(), test, &settings, lpips)?;
+            let secs = t0.elapsed().as_secs_f64();
+            let p = point(
+                done,
+                &e,
+                trainer.gaussians(),
+                if a.record_wall_time { secs } else { 0.0 },
+                loss_acc / loss_n.max(1) as f64,
+            );
+            loss_acc = 0.0;
+            loss_n = 0;
+            on_event(FitEvent::Log(format!(
+                "step {done}: PSNR {:.3} SSIM {:.4}{} loss {:.5} Gaussians {} ({secs:.1} s)",
+                p.psnr,
+                p.ssim,
+                p.lpips.map_or(String::new(), |l| format!(" LPIPS {l:.4}")),
+                p.loss,
+                p.primitives
+            )));
+            let better = match &best {
+                None => true,
+                Some((b, _)) => criterion.better(&p, b),
+            };
+            if better {
+                best = Some((p.clone(), trainer.gaussians().clone()));
+                since_best = 0;
+            } else {
+                since_best += 1;
+            }
+            curve.points.push(p);
+            if let Some(pat) = a.early_stop_patience {
+                if since_best >= pat && done < a.steps {
+                    on_event(FitEvent::Log(format!(
+                        "early stop at step {done}: no improvement in {pat} evaluations"
+                    )));
+                    early = true;
+                    break;
+                }
+            }
+        }
+        on_event(FitEvent::Progress {
+            done,
+            total: a.steps,
+            message: format!("{label} step {done}/{}", a.steps),
+        });
+    }
+    let steps_run = trainer.steps_done();
+    let (best_point, best) = match best {
+        Some(b) => b,
+        None => {
+            // steps = 0: evaluate the initialisation.
+            let e = evaluate(trainer.gaussians(), test, &a.render_settings(0), lpips)?;
+            let p = point(0, &e, trainer.gaussians(), 0.0, 0.0);
+            curve.points.push(p.clone());
+            (p, trainer.gaussians().clone())
+        }
+    };
+    Ok(Fitted {
+        last: trainer.into_gaussians(),
+        best,
+        best_point,
+        curve,
+        criterion,
+        steps_run,
+        early_stopped: early,
+        scene_scale,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
