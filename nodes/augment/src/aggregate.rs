@@ -1,5 +1,5 @@
-//! Ensemble aggregation kernels (AugSplat §3.2, DESIGN.md §6): per-pixel median target and
-//! variance-based confidence weights.
+//! Ensemble aggregation kernels (AugSplat §3.2; docs/design.md, *The method*): per-pixel
+//! median target and variance-based confidence weights.
 //!
 //! For one view seen by M members (planar RGB, `n = width × height` pixels):
 //! 1. **target** `T_c(p) = median_m I_m,c(p)` per channel; for an even M the mean of the two

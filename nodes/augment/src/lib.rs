@@ -1,4 +1,4 @@
-//! augsplat-augment: AugSplat's augmentation stage (DESIGN.md §6).
+//! augsplat-augment: AugSplat's augmentation stage (docs/design.md, *The method*).
 //!
 //! - [`poses`]: synthetic camera poses near the training cameras (jittered copies and
 //!   neighbour interpolations, then N drawn), with a report of how near they stay;

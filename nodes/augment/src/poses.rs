@@ -1,4 +1,5 @@
-//! Synthetic pose synthesis (AugSplat §3 and the authors' reference code, DESIGN.md §6).
+//! Synthetic pose synthesis (AugSplat §3 and the authors' reference code; docs/design.md,
+//! *The method*).
 //!
 //! The candidate pool has two parts:
 //! - **jittered copies** of the training poses: copy `k` perturbs training camera `k mod n`

@@ -1,4 +1,4 @@
-//! What skipping low-confidence synthetic pixels saves (issue 6): for each threshold, the
+//! What skipping low-confidence synthetic pixels saves: for each threshold, the
 //! synthetic part of a training step — masked render, confidence-weighted L2, backward — over
 //! every view of an `AggregateEnsemble` output, with a trained model.
 //!

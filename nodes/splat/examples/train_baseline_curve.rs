@@ -1,4 +1,4 @@
-//! The baseline acceptance run of issue 4: the generated scene (all 30 views, 128×96, every
+//! The baseline acceptance run: the generated scene (all 30 views, 128×96, every
 //! 8th view held out) optimised with `OptimizeSplats` (Baseline schedule), printing the
 //! held-out curve.
 //!
