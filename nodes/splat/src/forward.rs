@@ -17,7 +17,7 @@
 //! held in registers. Rows whose pixels have all stopped are dropped, and the tile ends when
 //! no row is live.
 //!
-//! The exponential. The kernels never form σ: each row's coefficients ([`RowGeom`]) are
+//! The exponential. The kernels never form σ: each row's coefficients (`RowGeom`) are
 //! those of σ scaled by −log₂e, so two fused multiply-adds per pixel give the exponent in bits
 //! ex = −σ·log₂e, and e^−σ = 2^ex. ex is clamped to [−44, 0], split as n + f with n an
 //! integer and |f| ≤ ½ (the 1.5·2²³ rounding trick; the subtraction is exact), and 2^f comes
