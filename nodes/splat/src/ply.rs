@@ -1,4 +1,4 @@
-//! Inria-layout PLY export and import (DESIGN.md §4): binary little-endian float32 vertex
+//! Inria-layout PLY export and import (docs/design.md, *Gaussians and PLY*): binary little-endian float32 vertex
 //! properties `x y z nx ny nz f_dc_0..2 f_rest_* opacity scale_0..2 rot_0..3`, raw
 //! (pre-activation) values. `f_rest` is channel-major: coefficient k ≥ 1 of channel c is
 //! `f_rest_{c·(K−1)+(k−1)}` with K = (degree + 1)². The reader accepts the properties in any

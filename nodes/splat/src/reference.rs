@@ -1,6 +1,6 @@
 //! An independent, untiled f64 reference renderer for tests.
 //!
-//! It follows DESIGN.md §4 literally — every pixel visits every non-culled Gaussian in
+//! It follows docs/design.md (*Compositing*) literally — every pixel visits every non-culled Gaussian in
 //! (depth, index) order — with its own f64 parameter set ([`RefGaussians`]) so that tests
 //! can take central finite differences of any parameter. It shares no code with the fast
 //! path except the constants (rotation from `augsplat_core::linalg`, matrices written out,

@@ -1,6 +1,6 @@
 //! The public rendering entry points: [`render`], [`render_masked`] and [`backward`].
 //!
-//! The pipeline (gsplat "classic" 3DGS, DESIGN.md §4): per-Gaussian projection
+//! The pipeline (gsplat "classic" 3DGS, docs/design.md, *Compositing*): per-Gaussian projection
 //! ([`crate::project`]) → tile binning with one depth sort ([`crate::tiles`]) → per-tile
 //! front-to-back compositing (`crate::forward`); the backward pass (`crate::backward`)
 //! recomputes each tile back to front from the per-pixel last-contributor index and final

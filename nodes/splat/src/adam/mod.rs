@@ -339,7 +339,7 @@ fn update_chunk_body(
     }
 }
 
-crate::loss::multiversion!(fn update_chunk(
+augsplat_core::multiversion!(fn update_chunk(
     p: &mut [f32],
     g: &[f32],
     m: &mut [f32],

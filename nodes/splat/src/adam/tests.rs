@@ -214,7 +214,7 @@ fn update_is_bit_identical_for_every_instruction_set_and_thread_count() {
                 bits(&g, &adam)
             })
     };
-    let results = crate::loss::test_simd::each_level(|| [run(1), run(2), run(3)]);
+    let results = augsplat_core::simd::for_each_isa("adam", |_| [run(1), run(2), run(3)]);
     let first = &results[0].1[0];
     for (level, rs) in &results {
         for (k, r) in rs.iter().enumerate() {
