@@ -14,7 +14,6 @@ use augsplat_augment::aggregate::{aggregate_view, AggregateParams, Workspace};
 use augsplat_augment::poses::{candidate_pool, synthesize_poses, PoseParams};
 use augsplat_augment::AggregateEnsemble;
 use augsplat_core::artifacts::{self, files, RenderSet, RenderedView};
-use augsplat_core::linalg::{self, mat4_from_rt};
 use augsplat_core::{image, Camera, Rng};
 use augsplat_graph::{Node, RunContext};
 use rayon::prelude::*;
@@ -22,20 +21,8 @@ use std::time::Instant;
 
 fn camera(i: usize, n: usize, w: u32, h: u32) -> Camera {
     let a = i as f64 / n as f64 * std::f64::consts::TAU;
-    let c = [3.0 * a.cos(), 0.1 * (i as f64).sin(), 3.0 * a.sin()];
-    let f = linalg::normalize(linalg::scale(c, -1.0));
-    let x = linalg::normalize(linalg::cross([0.0, -1.0, 0.0], f));
-    let y = linalg::cross(f, x);
-    let r = [x, y, f];
-    Camera {
-        width: w,
-        height: h,
-        fx: w as f64,
-        fy: w as f64,
-        cx: w as f64 / 2.0,
-        cy: h as f64 / 2.0,
-        world_to_camera: mat4_from_rt(&r, linalg::scale(linalg::mat3_vec(&r, c), -1.0)),
-    }
+    let eye = [3.0 * a.cos(), 0.1 * (i as f64).sin(), 3.0 * a.sin()];
+    augsplat_testkit::cameras::looking_at_origin(eye, w, h)
 }
 
 fn time<T>(label: &str, reps: usize, mut f: impl FnMut() -> T) -> f64 {

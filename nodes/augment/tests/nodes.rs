@@ -7,27 +7,14 @@ use augsplat_augment::nodes::{AggregateReport, AGGREGATE_REPORT, POSES_REPORT};
 use augsplat_augment::poses::{PoseParams, PosesReport};
 use augsplat_augment::{AggregateEnsemble, ScenePoses, SynthesizePoses};
 use augsplat_core::artifacts::{self, files, PoseSet, RenderSet, RenderedView, SyntheticSet};
-use augsplat_core::linalg::{self, mat4_from_rt};
 use augsplat_core::{image, Camera, Rng, Scene, SceneView};
 use augsplat_graph::{Node, RunContext};
 use std::path::{Path, PathBuf};
 
 fn camera(i: usize, n: usize, w: u32, h: u32) -> Camera {
     let a = i as f64 / n as f64 * std::f64::consts::TAU;
-    let c = [3.0 * a.cos(), 0.2, 3.0 * a.sin()];
-    let f = linalg::normalize(linalg::scale(c, -1.0));
-    let x = linalg::normalize(linalg::cross([0.0, -1.0, 0.0], f));
-    let y = linalg::cross(f, x);
-    let r = [x, y, f];
-    Camera {
-        width: w,
-        height: h,
-        fx: w as f64,
-        fy: w as f64,
-        cx: w as f64 / 2.0,
-        cy: h as f64 / 2.0,
-        world_to_camera: mat4_from_rt(&r, linalg::scale(linalg::mat3_vec(&r, c), -1.0)),
-    }
+    let eye = [3.0 * a.cos(), 0.2, 3.0 * a.sin()];
+    augsplat_testkit::cameras::looking_at_origin(eye, w, h)
 }
 
 fn write_scene(dir: &Path, n: usize) {

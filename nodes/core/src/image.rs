@@ -45,6 +45,23 @@ impl ImageF32 {
             data,
         }
     }
+    /// An image whose value at (x, y, channel) is `f(x, y, channel)`.
+    pub fn from_fn(
+        width: u32,
+        height: u32,
+        channels: u32,
+        f: impl Fn(u32, u32, u32) -> f32,
+    ) -> Self {
+        let mut data = Vec::with_capacity((width * height * channels) as usize);
+        for y in 0..height {
+            for x in 0..width {
+                for c in 0..channels {
+                    data.push(f(x, y, c));
+                }
+            }
+        }
+        ImageF32::from_vec(width, height, channels, data)
+    }
     /// Number of pixels.
     pub fn pixels(&self) -> usize {
         (self.width * self.height) as usize

@@ -135,15 +135,7 @@ mod tests {
     use super::*;
 
     fn img(w: u32, h: u32, f: impl Fn(u32, u32, u32) -> f32) -> ImageF32 {
-        let mut im = ImageF32::new(w, h, 3);
-        for y in 0..h {
-            for x in 0..w {
-                for c in 0..3 {
-                    im.set(x, y, c, f(x, y, c));
-                }
-            }
-        }
-        im
+        ImageF32::from_fn(w, h, 3, f)
     }
 
     #[test]
