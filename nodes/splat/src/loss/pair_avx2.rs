@@ -16,6 +16,7 @@ use std::arch::x86_64::*;
 // Index loops over the five moments: each is one register.
 #[allow(clippy::needless_range_loop)]
 #[target_feature(enable = "avx2,fma")]
+#[inline]
 pub(super) unsafe fn moments(
     hm: &[f32],
     base: &[usize; RING],
