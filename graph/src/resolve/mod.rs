@@ -233,7 +233,7 @@ pub fn load_plan(
 /// and the point's resolved document.
 #[allow(clippy::type_complexity)]
 fn resolve_sweep_point(
-    b: &mut Builder,
+    b: &mut Builder<'_>,
     doc: &Value,
     pt: &spec::SweepPoint,
 ) -> Result<(Vec<(String, String, usize)>, Value), PipelineError> {

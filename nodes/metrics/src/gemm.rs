@@ -132,7 +132,7 @@ pub fn conv2d_relu(
     let n = oh * ow;
     // Zero-pad once so that im2col needs no bounds checks.
     let (hp, wp) = (h + 2 * pad, w + 2 * pad);
-    let padded: std::borrow::Cow<[f32]> = if pad == 0 {
+    let padded: std::borrow::Cow<'_, [f32]> = if pad == 0 {
         std::borrow::Cow::Borrowed(input)
     } else {
         let mut p = vec![0f32; weights.c_in * hp * wp];

@@ -312,7 +312,7 @@ fn bad_weight_files_are_rejected() {
     // The alex file without its last head, and with a wrongly shaped head.
     let bytes = std::fs::read(d.join(Backbone::Alex.file_name())).unwrap();
     let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
-    let keep: Vec<(String, safetensors::tensor::TensorView)> = st
+    let keep: Vec<(String, safetensors::tensor::TensorView<'_>)> = st
         .tensors()
         .into_iter()
         .filter(|(n, _)| n != "lin4.model.1.weight")

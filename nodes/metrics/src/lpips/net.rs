@@ -113,7 +113,7 @@ impl Net {
         backbone: Backbone,
         get: impl Fn(&str) -> Result<(Vec<usize>, Vec<f32>), String>,
     ) -> Result<Net, String> {
-        let get: &Getter = &get;
+        let get: &Getter<'_> = &get;
         let mut layers = Vec::new();
         let mut tap_channels = Vec::new();
         let mut channels = 3;

@@ -49,7 +49,7 @@ pub(super) fn gaussian_gradients(
     cam: &Camera,
     out: &RenderOutput,
     pair_grads: &[PairGrad],
-    sinks: GradSinks,
+    sinks: GradSinks<'_>,
     mode: Mode,
 ) {
     let st = &out.state;
@@ -63,7 +63,7 @@ pub(super) fn gaussian_gradients(
     let isa = simd::active();
     let c = PROJECT_CHUNK;
     let mut m2d = sinks.means2d_abs.map(|v| v.chunks_mut(c));
-    let chunks: Vec<SinkChunk> = sinks
+    let chunks: Vec<SinkChunk<'_>> = sinks
         .means
         .chunks_mut(c)
         .zip(sinks.log_scales.chunks_mut(c))
@@ -219,9 +219,9 @@ pub(super) struct LaneGrads {
 
 /// The projection and colour backward of one batch, in the lanes of `isa`: the same IEEE
 /// operations on every instruction set (and as the scalar `sh` functions).
-pub(super) fn vjp_lanes(isa: Isa, job: &LaneJob) -> LaneGrads {
+pub(super) fn vjp_lanes(isa: Isa, job: &LaneJob<'_>) -> LaneGrads {
     #[inline(always)]
-    fn run<L: Lanes>(job: &LaneJob) -> LaneGrads {
+    fn run<L: Lanes>(job: &LaneJob<'_>) -> LaneGrads {
         let LaneJob {
             cm,
             g,
@@ -276,7 +276,7 @@ pub(super) fn vjp_lanes(isa: Isa, job: &LaneJob) -> LaneGrads {
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx2,fma")]
-        fn avx2(job: &LaneJob) -> LaneGrads {
+        fn avx2(job: &LaneJob<'_>) -> LaneGrads {
             run::<crate::lanes::avx2::Y8>(job)
         }
         if isa == Isa::Avx2 {

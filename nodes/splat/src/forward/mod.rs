@@ -244,16 +244,16 @@ pub(crate) fn render_impl(
     stats.visible = visible.len();
     let rank_id = depth_order(&visible, &depth);
     drop(depth);
-    // SAFETY (both gathers): `rank_id` lists visible Gaussians only, whose records and
-    // rectangles `project_all` wrote.
     let splats: Vec<Splat2D> = rank_id
         .par_iter()
         .with_min_len(PROJECT_CHUNK)
+        // SAFETY: `rank_id` lists visible Gaussians only, whose records `project_all` wrote.
         .map(|&i| unsafe { all_splats[i as usize].assume_init() })
         .collect();
     let rects: Vec<[u32; 4]> = rank_id
         .par_iter()
         .with_min_len(PROJECT_CHUNK)
+        // SAFETY: as above, for the rectangles.
         .map(|&i| unsafe { all_rects[i as usize].assume_init() })
         .collect();
     drop(all_splats);
@@ -323,10 +323,10 @@ pub(crate) fn render_impl(
                     } else {
                         0.0
                     };
+                    let rgb: [f32; 3] = std::array::from_fn(|ch| row.c[ch][lx] + tt * bg[ch]);
                     // SAFETY: pixel (x, y) lies inside the image (checked above) and inside
                     // this tile only, so no other tile writes it; the buffers outlive the
                     // parallel loop.
-                    let rgb: [f32; 3] = std::array::from_fn(|ch| row.c[ch][lx] + tt * bg[ch]);
                     unsafe { out.write(p, rgb, a, dv) };
                 }
             }

@@ -74,7 +74,7 @@ pub(super) struct ProjectJob<'a> {
 /// Projects one chunk of Gaussians (see [`project_all`]), eight at a time in lanes `L`.
 #[inline(always)]
 pub(super) fn project_chunk<L: Lanes>(
-    job: &ProjectJob,
+    job: &ProjectJob<'_>,
     sp_out: &mut [MaybeUninit<Splat2D>],
     rect_out: &mut [MaybeUninit<[u32; 4]>],
     st_out: &mut [u8],
@@ -181,7 +181,7 @@ pub(super) fn project_chunk<L: Lanes>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 pub(super) fn project_chunk_avx2(
-    job: &ProjectJob,
+    job: &ProjectJob<'_>,
     sp_out: &mut [MaybeUninit<Splat2D>],
     rect_out: &mut [MaybeUninit<[u32; 4]>],
     st_out: &mut [u8],
@@ -192,7 +192,7 @@ pub(super) fn project_chunk_avx2(
 /// Runs [`project_chunk`] in the lanes of tier `isa` (every tier gives the same bits).
 pub(super) fn project_chunk_dispatch(
     isa: Isa,
-    job: &ProjectJob,
+    job: &ProjectJob<'_>,
     sp_out: &mut [MaybeUninit<Splat2D>],
     rect_out: &mut [MaybeUninit<[u32; 4]>],
     st_out: &mut [u8],
