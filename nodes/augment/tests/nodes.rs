@@ -94,12 +94,7 @@ fn run_in_pool<N: Node>(
     threads: usize,
 ) -> Result<(), String> {
     let mut ctx = RunContext::standalone(inputs, outputs, root, 0, threads).unwrap();
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .unwrap()
-        .install(|| N::run(args, &mut ctx))
-        .map_err(|e| e.to_string())
+    augsplat_testkit::with_threads(threads, || N::run(args, &mut ctx)).map_err(|e| e.to_string())
 }
 
 /// Every file under `dir` with its bytes, by relative path.

@@ -286,13 +286,7 @@ fn thread_count_does_not_change_bits() {
     let Some(d) = lpips_dir() else { return };
     let m = model(&d, Backbone::Alex);
     let (x, y) = (noise(203, 141, 3), noise(203, 141, 4));
-    let run = |n| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build()
-            .unwrap()
-            .install(|| m.distance(&x, &y).unwrap())
-    };
+    let run = |n| augsplat_testkit::with_threads(n, || m.distance(&x, &y).unwrap());
     assert_eq!(run(1).to_bits(), run(2).to_bits());
     assert_eq!(run(2).to_bits(), run(3).to_bits());
 }

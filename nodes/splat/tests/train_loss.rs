@@ -189,15 +189,11 @@ fn photometric_loss_combines_terms_and_is_thread_count_invariant() {
     let p = random_image(&mut rng, w, h);
     let t = random_image(&mut rng, w, h);
     let run = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| {
-                let mut g = vec![0.0f32; p.len()];
-                let r = loss::photometric(&p, &t, w, h, PixelLoss::L2, 0.2, 1.0, &mut g);
-                (r, g)
-            })
+        augsplat_testkit::with_threads(threads, || {
+            let mut g = vec![0.0f32; p.len()];
+            let r = loss::photometric(&p, &t, w, h, PixelLoss::L2, 0.2, 1.0, &mut g);
+            (r, g)
+        })
     };
     let (a, ga) = run(1);
     let (b, gb) = run(2);

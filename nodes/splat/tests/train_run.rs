@@ -71,18 +71,14 @@ fn training_steps_are_bit_identical_for_1_and_2_threads() {
         ..Default::default()
     };
     let run = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| {
-                let mut t = Trainer::new(args.clone(), initial(&train, 1, ss), ss, &real, None);
-                let mut reps = Vec::new();
-                for _ in 0..6 {
-                    reps.push(t.step());
-                }
-                (bits(t.gaussians()), reps)
-            })
+        augsplat_testkit::with_threads(threads, || {
+            let mut t = Trainer::new(args.clone(), initial(&train, 1, ss), ss, &real, None);
+            let mut reps = Vec::new();
+            for _ in 0..6 {
+                reps.push(t.step());
+            }
+            (bits(t.gaussians()), reps)
+        })
     };
     let (a, ra) = run(1);
     let (b, rb) = run(2);

@@ -4,6 +4,7 @@
 //!   way from every crate, with one skip rule;
 //! - [`browser`]: headless Chromium for the report tests;
 //! - [`cameras`]: test cameras (facing the origin, on a ring);
+//! - [`with_threads`]: run a closure on a fresh pool of a given size (determinism tests);
 //! - [`tiny`]: the tiny sizes at which the test suite runs the method pipelines (the same
 //!   values as `tests/tiny.ron`, checked by a test of the CLI).
 //!
@@ -35,4 +36,16 @@ pub fn skip(test: &str, why: &str) {
         "{test}: {why} — required under CI=true (.ci/run provides it)"
     );
     eprintln!("skipping {test}: {why}");
+}
+
+/// Runs `f` on a fresh rayon pool of `threads` threads (the determinism tests compare the
+/// bits of one computation at several thread counts).
+///
+/// Panics if the pool cannot be built (a test set-up failure).
+pub fn with_threads<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a rayon pool for the test")
+        .install(f)
 }

@@ -201,18 +201,14 @@ fn update_is_bit_identical_for_every_instruction_set_and_thread_count() {
     let steps: Vec<ParamGrads> = (0..2).map(|_| grads(n, &mut rng, 27)).collect();
     let lr = LearningRates::default();
     let run = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| {
-                let mut g = g0.clone();
-                let mut adam = Adam::new(n, 16);
-                for s in &steps {
-                    adam.step(&mut g, s, &lr, 1e-3);
-                }
-                bits(&g, &adam)
-            })
+        augsplat_testkit::with_threads(threads, || {
+            let mut g = g0.clone();
+            let mut adam = Adam::new(n, 16);
+            for s in &steps {
+                adam.step(&mut g, s, &lr, 1e-3);
+            }
+            bits(&g, &adam)
+        })
     };
     let results = augsplat_core::simd::for_each_isa("adam", |_| [run(1), run(2), run(3)]);
     let first = &results[0].1[0];

@@ -163,20 +163,16 @@ fn losses_are_bit_identical_for_every_instruction_set_and_thread_count() {
     let p = image(&mut rng, w, h);
     let t = correlated(&mut rng, &p, 0.6);
     let run = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| {
-                let mut g = vec![0f32; p.len()];
-                let a = photometric(&p, &t, w, h, PixelLoss::L2, 0.2, 1.0, &mut g);
-                let b = photometric(&p, &t, w, h, PixelLoss::L1, 0.3, 0.5, &mut g);
-                let c = l2(&p, &t, 0.7, &mut g);
-                let d = l1(&p, &t, 0.7, &mut g);
-                let bits = |v: (f64, f64, f64)| [v.0.to_bits(), v.1.to_bits(), v.2.to_bits()];
-                let vals = [bits(a), bits(b), [c.to_bits(), d.to_bits(), 0]];
-                (vals, g.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
-            })
+        augsplat_testkit::with_threads(threads, || {
+            let mut g = vec![0f32; p.len()];
+            let a = photometric(&p, &t, w, h, PixelLoss::L2, 0.2, 1.0, &mut g);
+            let b = photometric(&p, &t, w, h, PixelLoss::L1, 0.3, 0.5, &mut g);
+            let c = l2(&p, &t, 0.7, &mut g);
+            let d = l1(&p, &t, 0.7, &mut g);
+            let bits = |v: (f64, f64, f64)| [v.0.to_bits(), v.1.to_bits(), v.2.to_bits()];
+            let vals = [bits(a), bits(b), [c.to_bits(), d.to_bits(), 0]];
+            (vals, g.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+        })
     };
     let results = for_each_isa("losses", |_| [run(1), run(2), run(3)]);
     let first = &results[0].1[0];
