@@ -45,6 +45,9 @@ pub enum Command {
     Expand(commands::expand::Args),
     /// Remove cache entries that no root (pinned result, latest run of a pipeline) needs.
     Gc(commands::gc::Args),
+    /// Re-hash every blob and output folder of the store; name damaged entries (`--repair`
+    /// removes them so the next run recomputes them).
+    Verify(commands::verify::Args),
     /// Describe a scene on disk (COLMAP, transforms.json, LLFF or an augsplat scene folder).
     Inspect(commands::inspect::Args),
     /// Render a Gaussian splat PLY from a camera (and optionally its gradients for a loss).
@@ -67,6 +70,7 @@ pub fn main_with(registry: Registry) -> ExitCode {
         Command::Why(a) => commands::why::run(a, &registry),
         Command::Expand(a) => commands::expand::run(a, &registry),
         Command::Gc(a) => commands::gc::run(a, &registry),
+        Command::Verify(a) => commands::verify::run(a, &registry),
         Command::Inspect(a) => commands::inspect::run(a),
         Command::Render(a) => commands::render::run(a),
         Command::Metrics(a) => commands::metrics::run(a),

@@ -440,3 +440,47 @@ fn run_lists_its_results_and_out_copies_them() {
         "data\nmore\n"
     );
 }
+
+/// `verify` on a sound store exits 0; after a blob is damaged it names the node, the blob and
+/// the repair command and exits 1; `verify --repair` removes the damage and the next run
+/// recomputes it.
+#[test]
+fn verify_names_damage_exits_nonzero_and_repair_lets_run_recompute() {
+    let env = Env::new();
+    let f = chain(&env, "true");
+    let fs_ = f.to_str().unwrap();
+    let out = env.run(&["run", fs_]);
+    assert!(out.status.success(), "{}", text(&out));
+    let out = env.run(&["verify"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("the store is sound"), "{}", text(&out));
+    // Damage the blob of `a`'s output ("data\n"): one flipped bit, same size.
+    let p = std::fs::read_dir(env.path("cache/blobs"))
+        .unwrap()
+        .flatten()
+        .flat_map(|d| std::fs::read_dir(d.path()).unwrap().flatten())
+        .map(|e| e.path())
+        .find(|p| std::fs::read(p).unwrap() == b"data\n")
+        .expect("the blob of `a`'s output");
+    let blob = p.file_name().unwrap().to_string_lossy().to_string();
+    let mut perm = std::fs::metadata(&p).unwrap().permissions();
+    #[allow(clippy::permissions_set_readonly_false)]
+    perm.set_readonly(false);
+    std::fs::set_permissions(&p, perm).unwrap();
+    std::fs::write(&p, b"dbta\n").unwrap();
+    let out = env.run(&["verify"]);
+    let t = text(&out);
+    assert!(!out.status.success(), "{t}");
+    assert!(t.contains("node `a`") && t.contains(&blob), "{t}");
+    assert!(t.contains("verify --repair"), "{t}");
+    let out = env.run(&["verify", "--repair"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("removed:"), "{}", text(&out));
+    assert!(env.run(&["verify"]).status.success());
+    let out = env.run(&["run", fs_]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(
+        std::fs::read(&p).unwrap() == b"data\n",
+        "the blob is whole again"
+    );
+}

@@ -62,8 +62,12 @@ impl Engine {
         crate::explain::why_text(plan, &self.store, node)
     }
     /// Garbage collection (see [`Store::gc`]).
-    pub fn gc(&self, dry_run: bool) -> Result<GcReport, EngineError> {
-        self.store.gc(dry_run)
+    pub fn gc(&self, dry_run: bool, repair: bool) -> Result<GcReport, EngineError> {
+        self.store.gc(dry_run, repair)
+    }
+    /// Verification of the whole store (see [`Store::verify`]).
+    pub fn verify(&self, repair: bool) -> Result<crate::verify::VerifyReport, EngineError> {
+        self.store.verify(repair)
     }
 }
 

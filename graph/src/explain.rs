@@ -4,6 +4,7 @@ use crate::error::EngineError;
 use crate::exec::{arg_origin, flatten_args, plan_keys, PlannedKeys};
 use crate::resolve::{Plan, Source};
 use crate::store::{hex, Store};
+use crate::verify::EntryState;
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
 
@@ -16,15 +17,19 @@ pub enum Expect {
     WillRun,
     /// An input will be recomputed first; it runs unless early cutoff finds identical inputs.
     AfterUpstream,
+    /// Its key has an entry in the store that cannot be used (missing or unreadable outputs):
+    /// it will be recomputed.
+    Broken(String),
 }
 
 impl Expect {
     /// Short text.
-    pub fn as_str(&self) -> &'static str {
+    pub fn as_str(&self) -> String {
         match self {
-            Expect::Cached => "cached",
-            Expect::WillRun => "will run",
-            Expect::AfterUpstream => "will run (inputs recomputed first)",
+            Expect::Cached => "cached".into(),
+            Expect::WillRun => "will run".into(),
+            Expect::AfterUpstream => "will run (inputs recomputed first)".into(),
+            Expect::Broken(reason) => format!("broken, will run again: {reason}"),
         }
     }
 }
@@ -37,18 +42,20 @@ pub fn expectations(
 ) -> Result<Vec<Option<Expect>>, EngineError> {
     let need = plan.needed(targets)?;
     let keys = plan_keys(plan, store)?;
-    Ok(keys
-        .iter()
+    keys.iter()
         .enumerate()
         .map(|(c, k)| {
             let e = match k {
                 Some((_, Some(_))) => Expect::Cached,
-                Some((_, None)) => Expect::WillRun,
+                Some((key, None)) => match store.action_state(key)? {
+                    EntryState::Broken { reason, .. } => Expect::Broken(reason),
+                    _ => Expect::WillRun,
+                },
                 None => Expect::AfterUpstream,
             };
-            need[c].then_some(e)
+            Ok(need[c].then_some(e))
         })
-        .collect())
+        .collect()
 }
 
 /// The text of `augsplat plan`: per node, cached or will run; per sweep point, new vs cached.

@@ -17,6 +17,7 @@ pub mod engine;
 pub mod error;
 pub mod exec;
 pub mod explain;
+pub mod gc;
 pub mod key;
 pub mod node;
 pub mod registry;
@@ -24,6 +25,7 @@ pub mod resolve;
 pub mod spec;
 pub mod store;
 pub mod syntax;
+pub mod verify;
 
 pub use engine::{default_cache_dir, expand_text, run_pipeline, Engine};
 pub use error::{Diagnostic, EngineError, PipelineError};
@@ -32,3 +34,4 @@ pub use node::{InputDecl, Node, NodeError, NullSink, ProgressSink, RunContext, T
 pub use registry::{ArgsBox, ArgsError, DynNode, Registry};
 pub use resolve::Plan;
 pub use store::{GcReport, Store};
+pub use verify::{EntryState, Problem, VerifyReport};

@@ -138,6 +138,11 @@ pub struct GcReport {
     pub bytes_removed: u64,
     /// Scratch folders, stale claim files and half-written files removed.
     pub scratch_removed: usize,
+    /// Kept entries that are broken (an output, manifest, file or blob is missing): the next
+    /// run recomputes them. Each names the node, key and what is missing.
+    pub broken: Vec<String>,
+    /// Unreadable kept entries and manifests dropped by `repair`.
+    pub repaired: Vec<String>,
 }
 
 /// A store on disk.
@@ -232,7 +237,7 @@ impl Store {
         }
     }
 
-    fn action_path(&self, key: &Hash) -> PathBuf {
+    pub(crate) fn action_path(&self, key: &Hash) -> PathBuf {
         let h = hex(key);
         self.root
             .join("actions")
@@ -243,7 +248,7 @@ impl Store {
     pub fn output_dir(&self, manifest: &Hash) -> PathBuf {
         self.root.join("outputs").join(hex(manifest))
     }
-    fn blob_path(&self, h: &str) -> PathBuf {
+    pub(crate) fn blob_path(&self, h: &str) -> PathBuf {
         self.root.join("blobs").join(&h[..2]).join(h)
     }
     /// The path of a blob (e.g. a node log).
@@ -253,32 +258,13 @@ impl Store {
             .filter(|p| p.exists())
     }
 
-    /// The action entry of `key`, if present and complete (every output folder exists).
+    /// The action entry of `key`, if present and complete (see [`Store::action_state`]: a
+    /// broken entry counts as absent).
     pub fn action(&self, key: &Hash) -> Result<Option<ActionEntry>, EngineError> {
-        let p = self.action_path(key);
-        let bytes = match fs::read(&p) {
-            Ok(b) => b,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-            Err(e) => {
-                return Err(EngineError::Io {
-                    what: "reading",
-                    path: p,
-                    source: e,
-                })
-            }
-        };
-        let entry: ActionEntry = match serde_json::from_slice(&bytes) {
-            Ok(e) => e,
-            // Written by atomic rename, so damage means tampering; treat as absent and recompute.
-            Err(_) => return Ok(None),
-        };
-        for m in entry.outputs.values() {
-            match unhex(m) {
-                Some(h) if self.output_dir(&h).is_dir() => {}
-                _ => return Ok(None),
-            }
-        }
-        Ok(Some(entry))
+        Ok(match self.action_state(key)? {
+            crate::verify::EntryState::Present(e) => Some(e),
+            _ => None,
+        })
     }
 
     /// Claims `key`: returns at once if no other process computes it, else waits until that
@@ -476,139 +462,10 @@ impl Store {
             &serde_json::to_vec_pretty(&serde_json::json!({ "keys": keys })).expect("json"),
         )
     }
-
-    /// Garbage collection: keeps every action reachable from a root (the latest run of each
-    /// pipeline, every pin) with its outputs, blobs and log; removes the rest, all scratch
-    /// files and stale claims. Refuses while a run holds the store. With `dry_run`, removes
-    /// nothing and reports what it would remove.
-    pub fn gc(&self, dry_run: bool) -> Result<GcReport, EngineError> {
-        let Some(_lock) = self.try_lock_exclusive()? else {
-            return Err(EngineError::Busy(format!(
-                "a run is using the store {}; gc never removes what a running job uses: retry when it has finished",
-                self.root.display()
-            )));
-        };
-        let mut rep = GcReport::default();
-        let mut keep_keys: BTreeSet<String> = BTreeSet::new();
-        for dir in ["runs/latest", "pins"] {
-            for f in list_dir(&self.root.join(dir)) {
-                let Some(v) = fs::read(&f)
-                    .ok()
-                    .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-                else {
-                    continue;
-                };
-                collect_keys(&v, &mut keep_keys);
-                rep.root_files.push(
-                    f.strip_prefix(&self.root)
-                        .unwrap_or(&f)
-                        .display()
-                        .to_string(),
-                );
-            }
-        }
-        rep.roots = keep_keys.len();
-        let mut keep_manifests = BTreeSet::new();
-        let mut keep_blobs = BTreeSet::new();
-        for sub in list_dir(&self.root.join("actions")) {
-            for f in list_dir(&sub) {
-                let stem = f
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().to_string())
-                    .unwrap_or_default();
-                if keep_keys.contains(&stem) {
-                    if let Some(entry) = fs::read(&f)
-                        .ok()
-                        .and_then(|b| serde_json::from_slice::<ActionEntry>(&b).ok())
-                    {
-                        keep_manifests.extend(entry.outputs.values().cloned());
-                        keep_blobs.extend(entry.log.clone());
-                        rep.actions_kept += 1;
-                        continue;
-                    }
-                }
-                rep.actions_removed += 1;
-                if !dry_run {
-                    let _ = fs::remove_file(&f);
-                }
-            }
-        }
-        for f in list_dir(&self.root.join("manifests")) {
-            let stem = f
-                .file_stem()
-                .map(|s| s.to_string_lossy().to_string())
-                .unwrap_or_default();
-            if keep_manifests.contains(&stem) {
-                if let Some(m) = fs::read(&f)
-                    .ok()
-                    .and_then(|b| serde_json::from_slice::<Manifest>(&b).ok())
-                {
-                    keep_blobs.extend(
-                        m.entries
-                            .into_iter()
-                            .filter(|e| !e.hash.is_empty())
-                            .map(|e| e.hash),
-                    );
-                }
-                rep.outputs_kept += 1;
-                continue;
-            }
-            rep.outputs_removed += 1;
-            if !dry_run {
-                remove_tree(&self.root.join("outputs").join(&stem));
-                let _ = fs::remove_file(&f);
-            }
-        }
-        // Output folders whose manifest file is missing (interrupted promotion) go too.
-        for d in list_dir(&self.root.join("outputs")) {
-            let name = d
-                .file_name()
-                .map(|s| s.to_string_lossy().to_string())
-                .unwrap_or_default();
-            if !keep_manifests.contains(&name)
-                && !self
-                    .root
-                    .join("manifests")
-                    .join(format!("{name}.json"))
-                    .exists()
-            {
-                rep.scratch_removed += 1;
-                if !dry_run {
-                    remove_tree(&d);
-                }
-            }
-        }
-        for sub in list_dir(&self.root.join("blobs")) {
-            for f in list_dir(&sub) {
-                let name = f
-                    .file_name()
-                    .map(|s| s.to_string_lossy().to_string())
-                    .unwrap_or_default();
-                if keep_blobs.contains(&name) {
-                    rep.blobs_kept += 1;
-                    continue;
-                }
-                rep.blobs_removed += 1;
-                rep.bytes_removed += fs::metadata(&f).map(|m| m.len()).unwrap_or(0);
-                if !dry_run {
-                    set_readonly(&f, false);
-                    let _ = fs::remove_file(&f);
-                }
-            }
-        }
-        for dir in ["tmp", "locks"] {
-            for f in list_dir(&self.root.join(dir)) {
-                rep.scratch_removed += 1;
-                if !dry_run {
-                    remove_tree(&f);
-                }
-            }
-        }
-        Ok(rep)
-    }
 }
 
-fn collect_keys(v: &serde_json::Value, out: &mut BTreeSet<String>) {
+/// Collects every `key` string and `keys` list of a run record or pin (the GC roots).
+pub(crate) fn collect_keys(v: &serde_json::Value, out: &mut BTreeSet<String>) {
     match v {
         serde_json::Value::Object(m) => {
             for (k, x) in m {
@@ -628,7 +485,8 @@ fn collect_keys(v: &serde_json::Value, out: &mut BTreeSet<String>) {
     }
 }
 
-fn list_dir(p: &Path) -> Vec<PathBuf> {
+/// The entries of a folder, sorted (none if it cannot be read).
+pub(crate) fn list_dir(p: &Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = fs::read_dir(p)
         .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect())
         .unwrap_or_default();
@@ -717,7 +575,8 @@ pub fn scan_folder(
     Ok(Manifest { entries })
 }
 
-fn set_readonly(p: &Path, ro: bool) {
+/// Sets or clears the write bits of a file or folder (best effort).
+pub(crate) fn set_readonly(p: &Path, ro: bool) {
     if let Ok(m) = fs::metadata(p) {
         let mut perm = m.permissions();
         #[cfg(unix)]

@@ -447,12 +447,12 @@ fn gc_keeps_latest_runs_and_pins() {
     let f = env.write("p.ron", &CHAIN.replace("count: 2", "count: 7"));
     let (plan, report) = env.run(&f, &[]);
     env.take();
-    let dry = env.engine.gc(true).unwrap();
+    let dry = env.engine.gc(true, false).unwrap();
     assert_eq!(dry.actions_removed, 4);
     assert_eq!(dry.actions_kept, 4);
-    let again = env.engine.gc(true).unwrap();
+    let again = env.engine.gc(true, false).unwrap();
     assert_eq!(again.actions_removed, 4, "a dry run removes nothing");
-    let rep = env.engine.gc(false).unwrap();
+    let rep = env.engine.gc(false, false).unwrap();
     assert_eq!(rep.actions_removed, 4);
     assert!(rep.blobs_removed > 0);
     assert_eq!(env.read(&plan, &report, "len", "out"), "19");
@@ -460,7 +460,7 @@ fn gc_keeps_latest_runs_and_pins() {
     assert!(env.take().is_empty(), "the latest run survives gc");
     // While a run holds the store, gc refuses.
     let _held = env.engine.store().lock_shared().unwrap();
-    assert!(env.engine.gc(false).is_err());
+    assert!(env.engine.gc(false, false).is_err());
 }
 
 #[test]

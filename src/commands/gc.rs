@@ -11,6 +11,10 @@ pub struct Args {
     /// Report what would be removed, remove nothing.
     #[arg(long)]
     pub dry_run: bool,
+    /// Drop kept entries and manifests that cannot be read (instead of stopping with an
+    /// error); their nodes are recomputed by the next run.
+    #[arg(long)]
+    pub repair: bool,
     /// The store (default: $AUGSPLAT_CACHE, else ./cache).
     #[arg(long, value_name = "DIR")]
     pub cache: Option<PathBuf>,
@@ -19,7 +23,9 @@ pub struct Args {
 /// Runs `augsplat gc`.
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
     let engine = open_engine(registry, args.cache)?;
-    let r = engine.gc(args.dry_run).map_err(|e| e.to_string())?;
+    let r = engine
+        .gc(args.dry_run, args.repair)
+        .map_err(|e| e.to_string())?;
     let verb = if args.dry_run {
         "would remove"
     } else {
@@ -33,10 +39,22 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
     for f in &r.root_files {
         println!("  {f}");
     }
+    for f in &r.repaired {
+        println!("repair: dropped unreadable {f}");
+    }
     println!(
         "kept: {} actions, {} outputs, {} blobs",
         r.actions_kept, r.outputs_kept, r.blobs_kept
     );
+    if !r.broken.is_empty() {
+        println!(
+            "broken (kept, recomputed by the next run that needs them): {}",
+            r.broken.len()
+        );
+        for b in &r.broken {
+            println!("  {b}");
+        }
+    }
     println!(
         "{verb}: {} actions, {} outputs, {} blobs ({:.1} MiB), {} scratch/claim files",
         r.actions_removed,

@@ -8,6 +8,7 @@ pub mod metrics;
 pub mod plan;
 pub mod render;
 pub mod run;
+pub mod verify;
 pub mod weights;
 pub mod why;
 

@@ -116,6 +116,9 @@ fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
         Ok(None) => {}
         Err(e) => return fail(e.to_string(), 0.0),
     }
+    if let Err(m) = check_inputs(store, &job) {
+        return fail(m, 0.0);
+    }
     let scratch = match store.new_scratch(&key) {
         Ok(s) => s,
         Err(e) => return fail(e.to_string(), 0.0),
@@ -127,6 +130,28 @@ fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
         Ok(r) => r,
         Err((m, secs)) => fail(m, secs),
     }
+}
+
+/// Checks every stored output the job reads against its manifest (cheap when a verified-at
+/// stamp still matches, see [`Store::check_output`]); a damaged one fails the node before it
+/// runs, naming the file and the repair command.
+fn check_inputs(store: &Store, job: &Job) -> Result<(), String> {
+    for (name, folders) in &job.inputs {
+        for folder in folders {
+            let Some(m) = store.output_of_folder(folder) else {
+                continue;
+            };
+            store.check_output(&m).map_err(|damage| {
+                format!(
+                    "input `{name}` comes from a damaged store entry ({}): {damage}. Run \
+                     `augsplat verify --repair` to remove the damaged entries, then run again \
+                     to recompute them",
+                    folder.display()
+                )
+            })?;
+        }
+    }
+    Ok(())
 }
 
 /// Runs the job's node in `scratch` and stores its outputs and action entry. On failure:

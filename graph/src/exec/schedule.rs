@@ -14,9 +14,10 @@ use crate::error::EngineError;
 use crate::key::compute_key;
 use crate::node::Threads;
 use crate::resolve::{Plan, Source};
-use crate::store::{Hash, Store};
+use crate::store::{hex, Hash, Store};
+use crate::verify::EntryState;
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -96,6 +97,8 @@ pub(super) struct Scheduler<'a> {
     /// Running computations and the threads each holds.
     running: BTreeMap<usize, usize>,
     progress: Progress,
+    /// Computations whose broken cache entry was already reported.
+    warned_broken: BTreeSet<usize>,
 }
 
 impl<'a> Scheduler<'a> {
@@ -145,6 +148,7 @@ impl<'a> Scheduler<'a> {
             ready,
             running: BTreeMap::new(),
             progress: Progress::new(show_progress, total),
+            warned_broken: BTreeSet::new(),
         }
     }
 
@@ -163,7 +167,19 @@ impl<'a> Scheduler<'a> {
             let c = self.ready[i];
             let (manifests, folders) = self.inputs_of(c)?;
             let key = compute_key(&self.plan.comps[c], &manifests);
-            if let Some(entry) = self.store.action(&key)? {
+            let state = self.store.action_state(&key)?;
+            if let EntryState::Broken { reason, .. } = &state {
+                if self.warned_broken.insert(c) {
+                    let name = self.plan.comps[c].display_name(self.plan);
+                    self.progress.multi.suspend(|| {
+                        eprintln!(
+                            "warning: `{name}`: its cached result (key {}…) is broken: {reason}; recomputing it",
+                            &hex(&key)[..16]
+                        )
+                    });
+                }
+            }
+            if let EntryState::Present(entry) = state {
                 self.ready.remove(i);
                 let outputs = outputs_of(&entry)?;
                 self.finish(

@@ -1,0 +1,208 @@
+//! The store proves what it holds: a flipped bit is found by `verify` and refused as a node's
+//! input, a missing blob makes an entry broken (reported by `plan`, recomputed by `run`), and
+//! `gc` never removes anything when it cannot read a kept entry.
+
+mod common;
+
+use common::env::{statuses, Env, CHAIN};
+use std::fs;
+use std::path::{Path, PathBuf};
+
+/// Makes `p` writable and flips one bit of its first byte in place (same inode, same size),
+/// as disk corruption or a stray write through a hard link would.
+fn flip_bit(p: &Path) {
+    let mut perm = fs::metadata(p).unwrap().permissions();
+    #[allow(clippy::permissions_set_readonly_false)]
+    perm.set_readonly(false);
+    fs::set_permissions(p, perm).unwrap();
+    let mut bytes = fs::read(p).unwrap();
+    bytes[0] ^= 0x04;
+    fs::write(p, bytes).unwrap();
+}
+
+/// Every file below `dir`, sorted.
+fn files_below(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in fs::read_dir(&d).unwrap().flatten() {
+            if e.file_type().unwrap().is_dir() {
+                stack.push(e.path());
+            } else {
+                out.push(e.path());
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn a_flipped_bit_is_named_by_verify_refused_as_input_and_repaired() {
+    let env = Env::new();
+    let f = env.write("p.ron", CHAIN);
+    let (plan, report) = env.run(&f, &[]);
+    assert!(report.success());
+    env.take();
+    let store = env.engine.store();
+    assert!(store.verify(false).unwrap().clean());
+    let src_out = report.output_dir(&plan, store, "src", "out").unwrap();
+    // The stored value is a hard link to its blob: flipping the file flips the blob.
+    flip_bit(&src_out.join("value.txt"));
+
+    let v = store.verify(false).unwrap();
+    assert!(!v.clean());
+    assert!(
+        v.damage
+            .iter()
+            .any(|p| p.detail.contains("not to its name")),
+        "the blob is named: {:?}",
+        v.damage
+    );
+    let broken = v
+        .broken_actions
+        .iter()
+        .find(|p| p.node.as_deref() == Some("src"))
+        .unwrap_or_else(|| panic!("src's entry is named: {:?}", v.broken_actions));
+    assert_eq!(broken.key.as_ref().unwrap().len(), 64);
+
+    // A dependent that must run refuses the damaged input, naming it and the repair.
+    let f2 = env.write("p.ron", &CHAIN.replace(r#"suffix: "!""#, r#"suffix: "%""#));
+    let (plan2, report2) = env.run(&f2, &[]);
+    assert!(!report2.success());
+    assert!(
+        env.take().is_empty(),
+        "no node computed on the damaged input"
+    );
+    let s = report2.summary_json(&plan2).to_string();
+    assert!(s.contains("damaged store entry"), "{s}");
+    assert!(s.contains("verify --repair"), "{s}");
+
+    // Repair removes the damaged entries; the next run recomputes them, as a clean store would.
+    let r = store.verify(true).unwrap();
+    assert!(!r.removed.is_empty());
+    assert!(
+        store.verify(false).unwrap().clean(),
+        "repaired store is sound"
+    );
+    let (plan3, report3) = env.run(&f2, &[]);
+    assert!(report3.success());
+    assert!(env.take().contains(&"src".to_string()));
+    assert_eq!(env.read(&plan3, &report3, "app", "out"), "abab|0.5%");
+
+    let clean = Env::new();
+    let fc = clean.write("p.ron", &CHAIN.replace(r#"suffix: "!""#, r#"suffix: "%""#));
+    assert_eq!(clean.keys(&fc, &[]), env.keys(&f2, &[]));
+}
+
+#[test]
+fn a_deleted_blob_is_broken_in_plan_and_recomputed_by_run() {
+    let env = Env::new();
+    let f = env.write("p.ron", CHAIN);
+    let (plan, report) = env.run(&f, &[]);
+    assert!(report.success());
+    env.take();
+    let store = env.engine.store();
+    // Remove the blob of `app`'s output `out` (its content is `app`'s alone; the hard-linked
+    // output folder keeps a copy, but the store no longer holds the blob).
+    let app_out = report.output_dir(&plan, store, "app", "out").unwrap();
+    let m = store.output_of_folder(&app_out).unwrap();
+    let manifest = store.read_manifest(&m).unwrap();
+    for e in manifest.entries.iter().filter(|e| !e.hash.is_empty()) {
+        let blob = store.root().join("blobs").join(&e.hash[..2]).join(&e.hash);
+        fs::remove_file(blob).unwrap();
+    }
+    let text = env
+        .engine
+        .plan_text(&env.engine.load(&f, &[]).unwrap(), &[])
+        .unwrap();
+    let line = text.lines().find(|l| l.starts_with("app")).unwrap();
+    assert!(line.contains("broken"), "{text}");
+    assert!(line.contains("missing"), "{text}");
+    let gc = env.engine.gc(true, false).unwrap();
+    assert!(
+        gc.broken.iter().any(|b| b.contains("`app`")),
+        "{:?}",
+        gc.broken
+    );
+    assert!(!store.verify(false).unwrap().clean());
+
+    let (plan2, report2) = env.run(&f, &[]);
+    assert!(report2.success());
+    // `app` is recomputed; `len` reads identical bytes again, so it stays cached.
+    assert_eq!(env.take(), ["app"]);
+    let st = statuses(&plan2, &report2);
+    assert!(
+        st.contains(&("app".to_string(), "ran".to_string())),
+        "{st:?}"
+    );
+    assert!(
+        st.contains(&("len".to_string(), "cached".to_string())),
+        "{st:?}"
+    );
+    assert!(
+        store.verify(false).unwrap().clean(),
+        "the rerun healed the store"
+    );
+}
+
+#[test]
+fn gc_stops_on_an_unreadable_kept_manifest_and_removes_nothing() {
+    let env = Env::new();
+    let f = env.write("p.ron", CHAIN);
+    let (plan, report) = env.run(&f, &[]);
+    assert!(report.success());
+    // Something gc would remove: the previous outputs of `app` after an edit.
+    let f2 = env.write("p.ron", &CHAIN.replace(r#"suffix: "!""#, r#"suffix: "%""#));
+    assert!(env.run(&f2, &[]).1.success());
+    let store = env.engine.store();
+    let src_out = report.output_dir(&plan, store, "src", "out").unwrap();
+    let m = store.output_of_folder(&src_out).unwrap();
+    let mpath = store
+        .root()
+        .join("manifests")
+        .join(format!("{}.json", augsplat_graph::store::hex(&m)));
+    fs::write(&mpath, b"{ not json").unwrap();
+    let before = files_below(store.root());
+    let err = env.engine.gc(false, false).unwrap_err().to_string();
+    assert!(err.contains(&mpath.display().to_string()), "{err}");
+    assert!(err.contains("nothing was removed"), "{err}");
+    assert_eq!(files_below(store.root()), before, "gc removed something");
+
+    // With --repair the unreadable manifest is dropped first, then gc proceeds; the next run
+    // recomputes `src`.
+    let rep = env.engine.gc(false, true).unwrap();
+    assert!(
+        rep.repaired.iter().any(|p| p.contains("manifests")),
+        "{:?}",
+        rep.repaired
+    );
+    assert!(rep.actions_removed > 0);
+    env.take();
+    assert!(env.run(&f2, &[]).1.success());
+    assert!(env.take().contains(&"src".to_string()));
+}
+
+#[test]
+fn input_checks_use_a_stamp_and_still_see_a_rewritten_file() {
+    let env = Env::new();
+    let f = env.write("p.ron", CHAIN);
+    let (plan, report) = env.run(&f, &[]);
+    assert!(report.success());
+    let store = env.engine.store();
+    let out = report.output_dir(&plan, store, "src", "out").unwrap();
+    let m = store.output_of_folder(&out).unwrap();
+    store.check_output(&m).unwrap();
+    let stamp = store
+        .root()
+        .join("verified")
+        .join(format!("{}.json", augsplat_graph::store::hex(&m)));
+    assert!(stamp.is_file(), "a verified-at stamp is written");
+    store.check_output(&m).unwrap();
+    // A rewrite of the same size changes the modification time: the stamp no longer matches
+    // and the hash is checked again.
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    flip_bit(&out.join("value.txt"));
+    let err = store.check_output(&m).unwrap_err();
+    assert!(err.contains("does not match its manifest"), "{err}");
+}
