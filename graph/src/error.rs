@@ -42,11 +42,13 @@ impl From<SyntaxError> for Diagnostic {
     fn from(e: SyntaxError) -> Self {
         Diagnostic {
             origin: Some(e.origin),
-            message: format!("syntax error: {}", e.message),
-            hint: Some(
+            hint: Some(if e.message.contains("written twice") {
+                "keep one of them (a file that `extends` another replaces the base's entries; within one map or struct each name appears once)".into()
+            } else {
                 "RON: structs `(name: value, ..)`, maps `{\"key\": value}`, lists `[a, b]`, strings in double quotes, commas between items"
-                    .into(),
-            ),
+                    .into()
+            }),
+            message: format!("syntax error: {}", e.message),
         }
     }
 }

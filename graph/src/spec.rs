@@ -15,6 +15,7 @@
 
 use crate::error::Diagnostic;
 use crate::syntax::{self, Origin, Value, ValueKind};
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -311,19 +312,32 @@ pub fn apply_set(doc: &mut Value, path: &str, value: Value) -> Result<(), Diagno
             return Err(Diagnostic::at(&params.origin, "`params` must be a map"));
         }
         let name = parts[1];
-        let slot = match map_entry_mut(params, name) {
-            Some(s) => s,
-            None => {
-                if let ValueKind::Map(e) = &mut params.kind {
-                    e.push((
-                        Value::new(ValueKind::Str(name.into()), origin.clone()),
-                        Value::new(ValueKind::Unit, origin.clone()),
-                    ));
-                    &mut e.last_mut().expect("just pushed").1
-                } else {
-                    unreachable!("checked to be a map")
-                }
-            }
+        let known: Vec<String> = match &params.kind {
+            ValueKind::Map(e) => e
+                .iter()
+                .filter_map(|(k, _)| k.as_str().map(str::to_string))
+                .collect(),
+            _ => Vec::new(),
+        };
+        let Some(slot) = map_entry_mut(params, name) else {
+            // A param no file declares is used by no node: setting it would change nothing
+            // the user can see, so it is a typo.
+            let close: Vec<&str> = known
+                .iter()
+                .map(String::as_str)
+                .filter(|k| crate::resolve::refs::similar(k, name))
+                .collect();
+            let hint = if !close.is_empty() {
+                format!("did you mean `params.{}`?", close.join("` or `params."))
+            } else if known.is_empty() {
+                "this pipeline declares no params".to_string()
+            } else {
+                format!("params: {}", known.join(", "))
+            };
+            return Err(
+                Diagnostic::at(&origin, format!("there is no param `{name}` (`{path}`)"))
+                    .hint(hint),
+            );
         };
         return set_in(slot, &parts[2..], value, path);
     }
@@ -570,6 +584,45 @@ pub fn point(sweep: Option<&Sweep>, coords: &[usize]) -> SweepPoint {
     }
 }
 
+/// The params that `doc` declares but no node uses through `Param("name")` (name and where it
+/// is declared): setting them changes nothing, which `plan` and `run` warn about.
+pub fn unused_params(doc: &Value) -> Vec<(String, crate::syntax::Origin)> {
+    fn used(v: &Value, out: &mut BTreeSet<String>) {
+        match &v.kind {
+            ValueKind::Tuple(Some(n), items) if n == "Param" => {
+                if let [x] = items.as_slice() {
+                    if let Some(name) = x.as_str() {
+                        out.insert(name.to_string());
+                    }
+                }
+            }
+            ValueKind::List(items) | ValueKind::Tuple(_, items) => {
+                items.iter().for_each(|i| used(i, out))
+            }
+            ValueKind::Map(entries) => entries.iter().for_each(|(k, v)| {
+                used(k, out);
+                used(v, out)
+            }),
+            ValueKind::Struct(_, fields) => fields.iter().for_each(|(_, v)| used(v, out)),
+            _ => {}
+        }
+    }
+    let mut names = BTreeSet::new();
+    if let Some(nodes) = doc.field("nodes") {
+        used(nodes, &mut names);
+    }
+    let Some(ValueKind::Map(entries)) = doc.field("params").map(|p| &p.kind) else {
+        return Vec::new();
+    };
+    entries
+        .iter()
+        .filter_map(|(k, _)| {
+            let name = k.as_str()?;
+            (!names.contains(name)).then(|| (name.to_string(), k.origin.clone()))
+        })
+        .collect()
+}
+
 /// Replaces every `Param("name")` inside `v` by the parameter's value.
 pub fn substitute_params(v: &mut Value, params: &[(String, Value)]) -> Result<(), Diagnostic> {
     if let ValueKind::Tuple(Some(n), items) = &v.kind {
@@ -666,7 +719,7 @@ mod tests {
 
     #[test]
     fn set_paths() {
-        let mut d = parse(r#"(nodes: {"x": (kind: "K")})"#);
+        let mut d = parse(r#"(nodes: {"x": (kind: "K")}, params: {"m": 1})"#);
         let (p, v) = parse_set("x.a.b=[1, 2]").unwrap();
         apply_set(&mut d, &p, v).unwrap();
         let (p, v) = parse_set("params.m=3").unwrap();
@@ -675,6 +728,10 @@ mod tests {
             d.to_ron(),
             r#"(nodes: {"x": (kind: "K", args: (a: (b: [1, 2])))}, params: {"m": 3})"#
         );
+        // An undeclared param is a typo, not a new param.
+        let (p, v) = parse_set("params.n=3").unwrap();
+        let e = apply_set(&mut d, &p, v).unwrap_err();
+        assert!(e.message.contains("no param `n`"), "{e:?}");
         let (p, v) = parse_set("nope.a=1").unwrap();
         assert!(apply_set(&mut d, &p, v)
             .unwrap_err()

@@ -403,6 +403,9 @@ impl Store {
             .unwrap_or_default();
         let mut new: Cache = BTreeMap::new();
         let meta = fs::metadata(&abs).map_err(io("reading input", &abs))?;
+        if !meta.is_file() && !meta.is_dir() {
+            return Err(special_file_error(&abs, &meta.file_type()));
+        }
         let manifest = if meta.is_file() {
             let h = cached_hash(&old, &mut new, "", &abs, &meta)?;
             Manifest {
@@ -529,6 +532,33 @@ pub fn hash_file(path: &Path) -> Result<String, EngineError> {
     Ok(h.finalize().to_hex().to_string())
 }
 
+/// The error for a FIFO, socket or device file where a plain file or folder must be (reading
+/// one would block forever or never end).
+fn special_file_error(p: &Path, ft: &fs::FileType) -> EngineError {
+    #[cfg(unix)]
+    let what = {
+        use std::os::unix::fs::FileTypeExt;
+        if ft.is_fifo() {
+            "a FIFO (named pipe)"
+        } else if ft.is_socket() {
+            "a socket"
+        } else if ft.is_block_device() || ft.is_char_device() {
+            "a device file"
+        } else {
+            "not a plain file"
+        }
+    };
+    #[cfg(not(unix))]
+    let what = {
+        let _ = ft;
+        "not a plain file"
+    };
+    EngineError::Other(format!(
+        "{} is {what}; pipeline inputs and node outputs must hold plain files and folders",
+        p.display()
+    ))
+}
+
 /// Lists a folder recursively (sorted, `/`-separated, folders end with `/`), hashing each file
 /// with `hash(rel, path, size)`. Symbolic links are refused.
 pub fn scan_folder(
@@ -553,6 +583,8 @@ pub fn scan_folder(
                     "{} is a symbolic link; outputs and inputs must hold plain files",
                     p.display()
                 )));
+            } else if !ft.is_dir() && !ft.is_file() {
+                return Err(special_file_error(&p, &ft));
             } else if ft.is_dir() {
                 entries.push(ManifestEntry {
                     path: format!("{rel}/"),

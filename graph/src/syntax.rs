@@ -482,6 +482,23 @@ impl Parser {
                         break;
                     }
                     let k = self.value()?;
+                    if let ValueKind::Str(name) = &k.kind {
+                        let first =
+                            entries
+                                .iter()
+                                .find_map(|(e, _): &(Value, Value)| match &e.kind {
+                                    ValueKind::Str(n) if n == name => Some(e.origin.clone()),
+                                    _ => None,
+                                });
+                        if let Some(first) = first {
+                            return Err(SyntaxError {
+                                origin: k.origin.clone(),
+                                message: format!(
+                                    "key \"{name}\" is written twice in this map (first at {first}); a second entry would silently replace the first"
+                                ),
+                            });
+                        }
+                    }
                     self.expect(':')?;
                     let v = self.value()?;
                     entries.push((k, v));

@@ -258,3 +258,118 @@ fn command_kind_runs_a_program_without_a_shell() {
     );
     assert!(e.contains("{in:nope}"), "{e}");
 }
+
+/// Typos an ablation would silently run: a `--set` or a sweep of an undeclared param, the same
+/// key twice in a map, a huge `repeat`; each is an error with its location and, where a close
+/// name exists, "did you mean". A declared param that no node uses is a warning.
+#[test]
+fn typos_in_params_and_maps_are_errors_with_locations() {
+    let env = Env::new();
+    let text = r#"(
+    params: { "suffix": "!", "count": 2 },
+    nodes: {
+        "src": (kind: "Source", args: (value: "ab", count: Param("count"))),
+        "app": (kind: "Append", args: (suffix: Param("suffix")), inputs: { "a": "src" }),
+    },
+)"#;
+    let f = env.write("p.ron", text);
+    let e = env
+        .engine
+        .load(&f, &["params.sufix=\"?\"".to_string()])
+        .err()
+        .expect("an undeclared param is an error")
+        .to_string();
+    assert!(e.contains("--set params.sufix"), "{e}");
+    assert!(e.contains("there is no param `sufix`"), "{e}");
+    assert!(e.contains("did you mean `params.suffix`?"), "{e}");
+    assert!(env
+        .engine
+        .load(&f, &["params.suffix=\"?\"".to_string()])
+        .is_ok());
+
+    let e = load_err(
+        &env,
+        "sweep.ron",
+        &text.replace("\n)", "\n    sweep: Grid({ \"params.cuont\": [1, 2] }),\n)"),
+    );
+    assert!(e.contains("there is no param `cuont`"), "{e}");
+    assert!(e.contains("did you mean `params.count`?"), "{e}");
+
+    let e = load_err(
+        &env,
+        "dup_node.ron",
+        &text.replace(
+            "\"app\": (kind",
+            "\"src\": (kind: \"Source\", args: (value: \"x\")),\n        \"app\": (kind",
+        ),
+    );
+    assert!(e.contains("dup_node.ron:5:9"), "{e}");
+    assert!(e.contains("key \"src\" is written twice"), "{e}");
+    assert!(e.contains("first at"), "{e}");
+
+    let e = load_err(
+        &env,
+        "dup_param.ron",
+        &text.replace("\"count\": 2 }", "\"count\": 2, \"suffix\": \"?\" }"),
+    );
+    assert!(e.contains("dup_param.ron:2:"), "{e}");
+    assert!(e.contains("key \"suffix\" is written twice"), "{e}");
+
+    let e = load_err(
+        &env,
+        "huge.ron",
+        r#"(nodes: { "src": (kind: "Source", repeat: 1000000000, args: (value: "a")) })"#,
+    );
+    assert!(e.contains("huge.ron:1:"), "{e}");
+    assert!(e.contains("at most 10000"), "{e}");
+
+    let f = env.write(
+        "unused.ron",
+        &text.replace("\"count\": 2 }", "\"count\": 2, \"gamma\": 1.5 }"),
+    );
+    let plan = env.engine.load(&f, &[]).unwrap();
+    assert_eq!(plan.warnings.len(), 1, "{:?}", plan.warnings);
+    assert!(
+        plan.warnings[0].contains("unused.ron:2:"),
+        "{:?}",
+        plan.warnings
+    );
+    assert!(
+        plan.warnings[0].contains("param `gamma`"),
+        "{:?}",
+        plan.warnings
+    );
+    assert!(env
+        .engine
+        .load(&env.write("p.ron", text), &[])
+        .unwrap()
+        .warnings
+        .is_empty());
+}
+
+/// A FIFO inside an input folder is an error naming it, at once (reading it would block).
+#[cfg(unix)]
+#[test]
+fn a_fifo_in_an_input_folder_is_an_error_not_a_hang() {
+    let env = Env::new();
+    let data = env.dir.path().join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    std::fs::write(data.join("a.txt"), "x").unwrap();
+    let fifo = data.join("pipe");
+    let ok = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let f = env.write(
+        "p.ron",
+        r#"(nodes: { "ext": (kind: "Len", inputs: { "a": Path("data") }) })"#,
+    );
+    let t = std::time::Instant::now();
+    let e = match env.engine.load(&f, &[]) {
+        Ok(_) => panic!("a FIFO input must not load"),
+        Err(e) => e.to_string(),
+    };
+    assert!(t.elapsed() < std::time::Duration::from_secs(1));
+    assert!(e.contains("pipe") && e.contains("FIFO"), "{e}");
+}

@@ -121,6 +121,9 @@ impl PipelineArgs {
         let plan = engine
             .load(&self.file, &self.sets)
             .map_err(|e| e.to_string())?;
+        for w in &plan.warnings {
+            eprintln!("warning: {w}");
+        }
         Ok((engine, plan))
     }
 }

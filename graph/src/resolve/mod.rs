@@ -18,7 +18,7 @@
 //! what addresses its outputs (its key) live in [`crate::key`].
 
 mod point;
-mod refs;
+pub(crate) mod refs;
 
 pub use crate::key::{compute_key, pipeline_id};
 
@@ -135,6 +135,9 @@ pub struct Plan {
     pub instances: Vec<Instance>,
     /// Sweep points (one without a sweep).
     pub points: Vec<PointInfo>,
+    /// Things that load but are probably not what the user meant (a declared param that no
+    /// node uses), each with its location; `plan` and `run` print them.
+    pub warnings: Vec<String>,
 }
 
 impl Plan {
@@ -198,6 +201,21 @@ pub fn load_plan(
         let (path, value) = spec::parse_set(s)?;
         spec::apply_set(&mut doc, &path, value)?;
     }
+    // Params inherited through `extends` are the base file's business: warn about those the
+    // pipeline file itself declares or a `--set` gives.
+    let own_file = std::fs::canonicalize(file).unwrap_or_else(|_| file.to_path_buf());
+    let warnings: Vec<String> = spec::unused_params(&doc)
+        .into_iter()
+        .filter(|(_, origin)| match origin {
+            crate::syntax::Origin::File { path, .. } => {
+                std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf()) == own_file
+            }
+            _ => true,
+        })
+        .map(|(name, origin)| {
+            format!("{origin}: param `{name}` is declared but no node uses it (`Param(\"{name}\")`); setting it changes nothing")
+        })
+        .collect();
     let sweep = spec::sweep_of(&doc)?;
     if let ValueKind::Struct(_, f) = &mut doc.kind {
         f.retain(|(n, _)| n != "sweep");
@@ -225,6 +243,7 @@ pub fn load_plan(
         comps,
         instances,
         points,
+        warnings,
     })
 }
 

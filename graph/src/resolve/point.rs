@@ -406,11 +406,23 @@ impl Builder<'_> {
     }
 }
 
+/// The largest `repeat` a node may have: each instance is a computation with its own key,
+/// entry and output folders, so more would be a typo rather than an ensemble.
+pub const MAX_REPEAT: usize = 10_000;
+
 /// Node body `v`'s `repeat`: `None` without one.
 fn node_repeat(v: &Value) -> Result<Option<usize>, Diagnostic> {
     match v.field("repeat") {
         None => Ok(None),
         Some(r) => match &r.kind {
+            ValueKind::Num(n) if n.parse::<usize>().is_ok_and(|k| k > MAX_REPEAT) => {
+                Err(Diagnostic::at(
+                    &r.origin,
+                    format!(
+                        "`repeat` is {n}; at most {MAX_REPEAT} instances of a node are allowed"
+                    ),
+                ))
+            }
             ValueKind::Num(n) if n.parse::<usize>().is_ok() => {
                 Ok(Some(n.parse::<usize>().expect("checked")))
             }

@@ -286,7 +286,7 @@ fn pick_output(r: &RefSpec, t: &Local, item: &Value) -> Result<String, Diagnosti
 }
 
 /// Whether two names are close (case-insensitive equal, one contains the other, or edit distance ≤ 2).
-pub(super) fn similar(a: &str, b: &str) -> bool {
+pub(crate) fn similar(a: &str, b: &str) -> bool {
     let (a, b) = (a.to_lowercase(), b.to_lowercase());
     if a == b || (b.len() >= 3 && a.contains(&b)) || (a.len() >= 3 && b.contains(&a)) {
         return true;
