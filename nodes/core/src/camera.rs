@@ -102,6 +102,14 @@ impl Camera {
                 self.width, self.height
             ));
         }
+        if self.width > Camera::MAX_SIDE || self.height > Camera::MAX_SIDE {
+            return Err(format!(
+                "image size {}×{} exceeds the largest supported side, {} pixels",
+                self.width,
+                self.height,
+                Camera::MAX_SIDE
+            ));
+        }
         for (name, v) in [
             ("fx", self.fx),
             ("fy", self.fy),
@@ -126,6 +134,54 @@ impl Camera {
         {
             return Err("pose contains a non-finite value".into());
         }
+        self.check_rotation()
+    }
+
+    /// The largest image side a camera may have (a 16384×16384 image is 3 GiB in f32 RGB);
+    /// larger sizes are errors rather than allocation failures.
+    pub const MAX_SIDE: u32 = 16384;
+
+    /// How far from orthonormal a rotation may be (each entry of R·Rᵀ − I) and still be a
+    /// rotation.
+    pub const ROTATION_TOLERANCE: f64 = 1e-4;
+
+    /// Checks that the pose is rigid: the rotation block orthonormal to
+    /// [`Camera::ROTATION_TOLERANCE`] with determinant +1, and the last row `[0, 0, 0, 1]`. The
+    /// message shows the offending matrix.
+    pub fn check_rotation(&self) -> Result<(), String> {
+        let m = &self.world_to_camera;
+        let show = || {
+            let rows: Vec<String> = m
+                .iter()
+                .map(|r| format!("[{}, {}, {}, {}]", r[0], r[1], r[2], r[3]))
+                .collect();
+            format!("[{}]", rows.join(", "))
+        };
+        if m[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(format!(
+                "world_to_camera's last row must be [0, 0, 0, 1]; the matrix is {}",
+                show()
+            ));
+        }
+        let r = self.rotation();
+        let mut worst = 0.0f64;
+        for i in 0..3 {
+            for j in 0..3 {
+                let dot: f64 = (0..3).map(|k| r[i][k] * r[j][k]).sum();
+                let want = if i == j { 1.0 } else { 0.0 };
+                worst = worst.max((dot - want).abs());
+            }
+        }
+        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
+            - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+        if worst > Camera::ROTATION_TOLERANCE || det <= 0.0 {
+            return Err(format!(
+                "the rotation of world_to_camera is not a rotation (R·Rᵀ is off the identity by {worst:.3e}, det {det:.6}; allowed: {:e} and +1); the matrix is {}",
+                Camera::ROTATION_TOLERANCE,
+                show()
+            ));
+        }
         Ok(())
     }
 }
@@ -134,6 +190,56 @@ impl Camera {
 mod tests {
     use super::*;
     use crate::linalg::{axis_angle, mat4_from_rt};
+
+    #[test]
+    fn validate_rejects_non_rigid_poses_and_huge_images() {
+        let good = Camera {
+            width: 64,
+            height: 48,
+            fx: 50.0,
+            fy: 50.0,
+            cx: 32.0,
+            cy: 24.0,
+            world_to_camera: mat4_from_rt(&axis_angle([0.3, -0.5, 0.8], 0.7), [0.1, 0.2, 3.0]),
+        };
+        assert!(good.validate().is_ok());
+        // A scaled rotation, a singular one, a reflection, a projective last row.
+        let mut scaled = good.clone();
+        for r in scaled.world_to_camera.iter_mut().take(3) {
+            for v in r.iter_mut().take(3) {
+                *v *= 1.01;
+            }
+        }
+        let e = scaled.validate().unwrap_err();
+        assert!(
+            e.contains("not a rotation") && e.contains("the matrix is [["),
+            "{e}"
+        );
+        let mut singular = good.clone();
+        singular.world_to_camera[2] = [0.0, 0.0, 0.0, 3.0];
+        assert!(singular.validate().unwrap_err().contains("not a rotation"));
+        let mut mirror = good.clone();
+        for v in mirror.world_to_camera[0].iter_mut().take(3) {
+            *v = -*v;
+        }
+        assert!(mirror.validate().unwrap_err().contains("det -1"));
+        let mut projective = good.clone();
+        projective.world_to_camera[3] = [0.0, 0.0, 0.1, 1.0];
+        assert!(projective.validate().unwrap_err().contains("last row"));
+        // Within the tolerance (rounded files) is fine.
+        let mut rounded = good.clone();
+        rounded.world_to_camera[0][0] += 2e-5;
+        assert!(rounded.validate().is_ok());
+        let huge = Camera {
+            width: 100_000,
+            height: 100_000,
+            ..good
+        };
+        assert!(huge
+            .validate()
+            .unwrap_err()
+            .contains("largest supported side"));
+    }
 
     #[test]
     fn ray_and_projection_agree() {

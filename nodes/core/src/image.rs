@@ -6,6 +6,7 @@
 //! NPY (float32). Colour values are stored as encoded in the file (no linearisation).
 
 use crate::CoreError;
+use std::fs::File;
 use std::path::Path;
 
 /// An interleaved float image.
@@ -150,6 +151,7 @@ pub fn read_rgb(path: &Path) -> Result<ImageF32, CoreError> {
             Ok(img)
         }
         _ => {
+            check_complete(path)?;
             let reader = ::image::ImageReader::open(path)
                 .map_err(|e| CoreError::io(path, e))?
                 .with_guessed_format()
@@ -162,6 +164,44 @@ pub fn read_rgb(path: &Path) -> Result<ImageF32, CoreError> {
             Ok(ImageF32::from_vec(w, h, 3, rgb.into_raw()))
         }
     }
+}
+
+/// Refuses a PNG or JPEG file that ends before its end marker (a PNG's `IEND` chunk, a JPEG's
+/// EOI marker `FF D9`): decoders fill the missing rows with grey instead of failing, which
+/// would silently train on a broken photo. Other formats pass (their decoders report
+/// truncation themselves).
+fn check_complete(path: &Path) -> Result<(), CoreError> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = File::open(path).map_err(|e| CoreError::io(path, e))?;
+    let len = f.metadata().map_err(|e| CoreError::io(path, e))?.len();
+    let mut head = [0u8; 8];
+    let got = f.read(&mut head).map_err(|e| CoreError::io(path, e))?;
+    let head = &head[..got];
+    let tail_len = len.min(4096);
+    f.seek(SeekFrom::Start(len - tail_len))
+        .map_err(|e| CoreError::io(path, e))?;
+    let mut tail = vec![0u8; tail_len as usize];
+    f.read_exact(&mut tail)
+        .map_err(|e| CoreError::io(path, e))?;
+    let truncated = |what: &str| {
+        Err(CoreError::format(
+            path,
+            format!("the file is truncated: it ends ({len} bytes) before the {what}"),
+        ))
+    };
+    if head.starts_with(&[0x89, b'P', b'N', b'G']) {
+        // The IEND chunk: length 0, "IEND", CRC; only trailing garbage may follow it.
+        if !tail.windows(4).any(|w| w == b"IEND") {
+            return truncated("PNG's IEND chunk");
+        }
+    } else if head.starts_with(&[0xff, 0xd8]) {
+        // Inside the entropy-coded data 0xFF is always followed by 0x00 or a restart marker,
+        // so an EOI near the end means the scan was written to its end.
+        if !tail.windows(2).any(|w| w == [0xff, 0xd9]) {
+            return truncated("JPEG end-of-image marker (FF D9)");
+        }
+    }
+    Ok(())
 }
 
 /// Image width and height from the file header, without decoding the pixels.
@@ -455,6 +495,32 @@ mod tests {
         std::fs::write(&p, b"not an image").unwrap();
         let err = read_rgb(&p).unwrap_err().to_string();
         assert!(err.contains("x.png"), "{err}");
+    }
+
+    #[test]
+    fn truncated_png_and_jpeg_are_errors_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = ramp(64, 48, 3);
+        let png = dir.path().join("a.png");
+        write_png(&png, &img).unwrap();
+        let rgb8: Vec<u8> = img.data.iter().map(|&v| to_u8(v)).collect();
+        let mut jpeg = Vec::new();
+        ::image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
+            .encode(&rgb8, 64, 48, ::image::ExtendedColorType::Rgb8)
+            .unwrap();
+        let jpg = dir.path().join("a.jpg");
+        std::fs::write(&jpg, &jpeg).unwrap();
+        for p in [&png, &jpg] {
+            let whole = read_rgb(p).unwrap();
+            assert_eq!((whole.width, whole.height), (64, 48));
+            let bytes = std::fs::read(p).unwrap();
+            let cut = dir
+                .path()
+                .join(format!("cut.{}", p.extension().unwrap().to_string_lossy()));
+            std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+            let err = read_rgb(&cut).unwrap_err().to_string();
+            assert!(err.contains("cut.") && err.contains("truncated"), "{err}");
+        }
     }
 
     #[test]

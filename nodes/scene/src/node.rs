@@ -66,6 +66,11 @@ pub struct ImportSceneArgs {
     pub undistort: bool,
     /// The normalisation policy.
     pub normalize: NormalizeMode,
+    /// Import a COLMAP model or transforms.json whose registered views lack their image file,
+    /// leaving those views out (listed on the terminal and in the log). Off by default: a
+    /// missing photo is an error. (Not serialised when off, so keys of earlier runs stand.)
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub allow_missing_images: bool,
 }
 
 impl Default for ImportSceneArgs {
@@ -78,6 +83,7 @@ impl Default for ImportSceneArgs {
             downscale: 1,
             undistort: true,
             normalize: NormalizeMode::Cameras,
+            allow_missing_images: false,
         }
     }
 }
@@ -220,6 +226,24 @@ impl Node for ImportScene {
         let source = ctx.input("source")?.to_path_buf();
         let out = ctx.output("scene")?.to_path_buf();
         let raw = read_source(&source, a)?;
+        if !raw.missing_images.is_empty() {
+            let list: Vec<String> = raw.missing_images.iter().map(|p| rel(&source, p)).collect();
+            if !a.allow_missing_images {
+                return Err(NodeError::new(format!(
+                    "{} registered view(s) of {} have no image file: {}. Restore the photos, or set \
+                     `allow_missing_images: true` to import without those views",
+                    list.len(),
+                    raw.source,
+                    list.join(", ")
+                )));
+            }
+            // On the terminal as well as in the log: a smaller scene changes every result.
+            eprintln!(
+                "warning: ImportScene: skipping {} registered view(s) without an image file: {}",
+                list.len(),
+                list.join(", ")
+            );
+        }
         let opts = ImportOptions {
             downscale: a.downscale,
             undistort: a.undistort,

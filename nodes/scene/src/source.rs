@@ -71,6 +71,10 @@ pub struct RawScene {
     pub points: RawPoints,
     /// Warnings for the log (skipped images, ignored fields).
     pub warnings: Vec<String>,
+    /// Image files of registered views (COLMAP images, transforms.json frames) that do not
+    /// exist; those views are left out. `ImportScene` refuses them unless
+    /// `allow_missing_images` is set.
+    pub missing_images: Vec<PathBuf>,
 }
 
 /// The image extensions the importers look for.
@@ -137,9 +141,11 @@ pub fn load_colmap(model_dir: &Path, images_dir: &Path) -> Result<RawScene> {
     let mut warnings = Vec::new();
     let mut views = Vec::new();
     let mut view_of_image: BTreeMap<u32, usize> = BTreeMap::new();
+    let mut missing_images = Vec::new();
     for img in model.images.values() {
         let path = images_dir.join(&img.name);
         if !path.is_file() {
+            missing_images.push(path.clone());
             warnings.push(format!(
                 "skipping registered image {} ({}): file {} not found",
                 img.id,
@@ -250,6 +256,7 @@ pub fn load_colmap(model_dir: &Path, images_dir: &Path) -> Result<RawScene> {
         views,
         points,
         warnings,
+        missing_images,
     })
 }
 
@@ -267,6 +274,7 @@ pub fn load_transforms(file: &Path) -> Result<RawScene> {
         .ok_or_else(|| SceneError::format(file, "no `frames` array"))?;
     let base = file.parent().unwrap_or(Path::new("."));
     let mut warnings = Vec::new();
+    let mut missing_images = Vec::new();
     let mut views = Vec::new();
     for (k, frame) in frames.iter().enumerate() {
         let at = |m: String| SceneError::format(file, format!("frame {k}: {m}"));
@@ -289,6 +297,7 @@ pub fn load_transforms(file: &Path) -> Result<RawScene> {
             }
         }
         if !path.is_file() {
+            missing_images.push(path.clone());
             warnings.push(format!(
                 "skipping frame {k}: image {} not found",
                 path.display()
@@ -397,6 +406,7 @@ pub fn load_transforms(file: &Path) -> Result<RawScene> {
         views,
         points: RawPoints::default(),
         warnings,
+        missing_images,
     })
 }
 
@@ -541,6 +551,7 @@ pub fn load_llff(dir: &Path, images_dir: &Path) -> Result<RawScene> {
         views,
         points: RawPoints::default(),
         warnings: Vec::new(),
+        missing_images: Vec::new(),
     })
 }
 

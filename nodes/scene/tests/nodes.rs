@@ -365,6 +365,29 @@ fn bad_inputs_give_clear_errors_naming_the_file() {
         "{e}"
     );
 
+    // A registered view whose photo is missing is an error by default...
+    let d = fresh("one_missing");
+    std::fs::remove_file(d.join("images/view_001.png")).unwrap();
+    let e = import_err(&d, &args, &root());
+    assert!(
+        e.contains("view_001.png") && e.contains("allow_missing_images: true"),
+        "{e}"
+    );
+    // ...and skipped (with the list on the terminal and in the log) when allowed.
+    let allow = ImportSceneArgs {
+        allow_missing_images: true,
+        ..Default::default()
+    };
+    run_node::<ImportScene>(&allow, &[("source", &d)], &root(), 1).unwrap();
+
+    // A truncated photo (its last rows missing) is an error, not rows of grey.
+    let d = fresh("truncated_png");
+    let p = d.join("images/view_002.png");
+    let bytes = std::fs::read(&p).unwrap();
+    std::fs::write(&p, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let e = import_err(&d, &args, &root());
+    assert!(e.contains("view_002.png") && e.contains("truncated"), "{e}");
+
     // Zero views left after filtering (every image missing).
     let d = fresh("noviews");
     std::fs::remove_dir_all(d.join("images")).unwrap();

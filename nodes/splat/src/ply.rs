@@ -7,6 +7,7 @@
 
 use crate::error::SplatError;
 use crate::gaussians::{sh_coeffs, Gaussians};
+use std::io::Seek;
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
@@ -182,6 +183,18 @@ pub fn read_ply(path: &Path) -> Result<Gaussians, SplatError> {
         rest.push(find(&format!("f_rest_{j}"))?);
     }
     let stride = props.len();
+    // A header may claim more vertices than the file holds: never allocate for more than the
+    // bytes after the header can carry.
+    let file_len = r.get_ref().metadata().map_err(io)?.len();
+    let header_len = r.stream_position().map_err(io)?;
+    let body_vertices = (file_len.saturating_sub(header_len) / (stride as u64 * 4).max(1)) as usize;
+    if n > body_vertices {
+        return Err(bad(format!(
+            "file ends at vertex {body_vertices} of {n} (the header claims {n} vertices of {} bytes; the file holds {} bytes after the header)",
+            stride * 4,
+            file_len.saturating_sub(header_len)
+        )));
+    }
     let mut g = Gaussians::empty(degree);
     g.means.reserve(n);
     g.sh.reserve(n * k * 3);

@@ -101,6 +101,16 @@ fn bad_files_give_clear_errors() {
         e.to_string().contains("missing vertex property `opacity`"),
         "{e}"
     );
+    // A header that claims a billion vertices is refused before anything is allocated.
+    let huge = String::from_utf8_lossy(&bytes).replacen(
+        "element vertex 3",
+        "element vertex 1000000000",
+        1,
+    );
+    let t = std::time::Instant::now();
+    let e = read_ply(&write("h.ply", huge.as_bytes())).unwrap_err();
+    assert!(e.to_string().contains("of 1000000000"), "{e}");
+    assert!(t.elapsed() < std::time::Duration::from_secs(1));
     let e = read_ply(&write("n.ply", b"hello")).unwrap_err();
     assert!(e.to_string().contains("not a PLY"), "{e}");
     let e = read_ply(&dir.path().join("absent.ply")).unwrap_err();
