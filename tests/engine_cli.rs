@@ -484,3 +484,36 @@ fn verify_names_damage_exits_nonzero_and_repair_lets_run_recompute() {
         "the blob is whole again"
     );
 }
+
+/// A `Command` whose program writes to its input works on a copy: the node fails, the stored
+/// blob and the user's external file are unchanged, and the store stays sound.
+#[test]
+fn a_command_that_writes_to_its_inputs_fails_and_changes_nothing() {
+    let env = Env::new();
+    let ext = env.write("user.txt", "mine\n");
+    let f = env.write(
+        "p.ron",
+        r#"(
+    nodes: {
+        "a": (kind: "Command", args: (program: "sh", args: ["-c", "echo data > $AUGSPLAT_OUT_OUT/x"])),
+        "evil": (kind: "Command",
+            args: (program: "sh", inputs: ["src", "user"],
+                   args: ["-c", "chmod -R u+w {in:src} {in:user}; echo more >> {in:src}/x; echo more >> {in:user}; echo ok > {out:out}/y"]),
+            inputs: { "src": "a", "user": Path("user.txt") }),
+    },
+)"#,
+    );
+    let out = env.run(&["run", f.to_str().unwrap()]);
+    let t = text(&out);
+    assert!(!out.status.success(), "{t}");
+    assert!(t.contains("changed its input"), "{t}");
+    assert_eq!(std::fs::read_to_string(&ext).unwrap(), "mine\n");
+    let blob = std::fs::read_dir(env.path("cache/blobs"))
+        .unwrap()
+        .flatten()
+        .flat_map(|d| std::fs::read_dir(d.path()).unwrap().flatten())
+        .any(|e| std::fs::read(e.path()).unwrap() == b"data\n");
+    assert!(blob, "the stored blob still holds `data`");
+    let v = env.run(&["verify"]);
+    assert!(v.status.success(), "{}", text(&v));
+}

@@ -10,11 +10,17 @@
 //! a non-zero exit fails the node, showing the log's last lines. The program runs in the
 //! scratch folder. To make a script's content part of the key, pass it as an input:
 //! `inputs: { "script": Path("augment.py") }` with `args: ["{in:script}", ..]`.
+//!
+//! Inputs are handed over as copies (cloned extents where the filesystem can): `{in:NAME}` is
+//! a copy of the stored folder or the external file, so nothing the program does — as root
+//! too — reaches a stored blob or the user's files. A program that changes its copy fails the
+//! node all the same: inputs are read-only by contract.
 
 use crate::node::{InputDecl, Node, NodeError, RunContext, Threads};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
 use std::process::Stdio;
 
 /// Args of [`Command`].
@@ -146,22 +152,43 @@ impl Node for Command {
         Ok(())
     }
     fn run(args: &CommandArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
+        // The program gets copies of its inputs (reflinks where the filesystem has them), so
+        // that nothing it does — as root too — reaches a stored blob or a user's file.
+        let copies_root = ctx
+            .scratch()
+            .parent()
+            .unwrap_or(ctx.scratch())
+            .join("inputs");
+        let mut copies: Vec<(String, Vec<PathBuf>)> = Vec::new();
         let mut vars: Vec<(String, Vec<String>)> = Vec::new();
-        for n in args.inputs.iter().chain(&args.list_inputs) {
-            let v = ctx
-                .input_list(n)?
-                .iter()
-                .map(|p| p.display().to_string())
-                .collect();
+        let mut add_input = |n: &str, paths: Vec<PathBuf>| -> Result<(), NodeError> {
+            let mut v = Vec::new();
+            let mut mine = Vec::new();
+            for (i, p) in paths.iter().enumerate() {
+                let dest = copies_root.join(n).join(i.to_string());
+                let copy = copy_input(p, &dest).map_err(|e| {
+                    NodeError::new(format!("copying input `{n}` ({}): {e}", p.display()))
+                })?;
+                v.push(copy.display().to_string());
+                mine.push(copy);
+            }
             vars.push((format!("in:{n}"), v));
+            copies.push((n.to_string(), mine));
+            Ok(())
+        };
+        for n in args.inputs.iter().chain(&args.list_inputs) {
+            add_input(n, ctx.input_list(n)?.to_vec())?;
         }
         for n in &args.optional_inputs {
-            let v = ctx
-                .optional_input(n)
-                .map(|p| vec![p.display().to_string()])
-                .unwrap_or_default();
-            vars.push((format!("in:{n}"), v));
+            add_input(
+                n,
+                ctx.optional_input(n)
+                    .map(|p| p.to_path_buf())
+                    .into_iter()
+                    .collect(),
+            )?;
         }
+        let before = crate::exec::input_snapshot(&copies);
         for n in &args.outputs {
             vars.push((
                 format!("out:{n}"),
@@ -249,6 +276,41 @@ impl Node for Command {
                 args.program
             )));
         }
+        if let Some(change) =
+            crate::exec::changed_input(&before, &crate::exec::input_snapshot(&copies))
+        {
+            return Err(NodeError::new(format!(
+                "`{}` changed its input {change} (a copy: the original is untouched); inputs \
+                 are read-only, write to an output folder instead",
+                args.program
+            )));
+        }
         Ok(())
     }
+}
+
+/// Copies an input file or folder to `dest/<its name>` (files by `fs::copy`, which clones
+/// extents where the filesystem can) and returns the copy's path.
+fn copy_input(src: &Path, dest: &Path) -> std::io::Result<PathBuf> {
+    fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
+        if from.is_dir() {
+            std::fs::create_dir_all(to)?;
+            for e in std::fs::read_dir(from)? {
+                let e = e?;
+                copy_tree(&e.path(), &to.join(e.file_name()))?;
+            }
+        } else {
+            std::fs::copy(from, to)?;
+            // Copies of read-only blobs stay read-only; nothing relies on it (root ignores it).
+        }
+        Ok(())
+    }
+    std::fs::create_dir_all(dest)?;
+    let name = src
+        .file_name()
+        .map(|n| n.to_os_string())
+        .unwrap_or_else(|| "input".into());
+    let to = dest.join(name);
+    copy_tree(src, &to)?;
+    Ok(to)
 }

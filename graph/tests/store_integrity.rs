@@ -206,3 +206,67 @@ fn input_checks_use_a_stamp_and_still_see_a_rewritten_file() {
     let err = store.check_output(&m).unwrap_err();
     assert!(err.contains("does not match its manifest"), "{err}");
 }
+
+/// A node kind that appends to its input file (what a buggy node or script might do).
+struct Vandal;
+impl augsplat_graph::Node for Vandal {
+    const KIND: &'static str = "Vandal";
+    const VERSION: u32 = 1;
+    type Args = ();
+    fn inputs(_: &()) -> Vec<augsplat_graph::InputDecl> {
+        vec![augsplat_graph::InputDecl::one("a")]
+    }
+    fn outputs(_: &()) -> Vec<String> {
+        vec!["out".into()]
+    }
+    fn run(_: &(), ctx: &mut augsplat_graph::RunContext) -> Result<(), augsplat_graph::NodeError> {
+        let p = ctx.input("a")?.join("value.txt");
+        let mut perm = fs::metadata(&p)?.permissions();
+        #[allow(clippy::permissions_set_readonly_false)]
+        perm.set_readonly(false);
+        fs::set_permissions(&p, perm)?;
+        use std::io::Write;
+        fs::OpenOptions::new()
+            .append(true)
+            .open(&p)?
+            .write_all(b"!")?;
+        Ok(())
+    }
+}
+
+#[test]
+fn a_node_that_writes_to_its_input_fails_and_nothing_is_cached() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut reg = common::registry(common::Recorder::new());
+    reg.register::<Vandal>();
+    let engine = augsplat_graph::Engine::new(reg, dir.path().join("cache")).unwrap();
+    let f = dir.path().join("p.ron");
+    fs::write(
+        &f,
+        r#"(nodes: {
+            "src": (kind: "Source", args: (value: "ab", count: 1)),
+            "bad": (kind: "Vandal", inputs: { "a": "src" }),
+        })"#,
+    )
+    .unwrap();
+    let plan = engine.load(&f, &[]).unwrap();
+    let report = engine
+        .run(&plan, &augsplat_graph::RunOptions::default())
+        .unwrap();
+    assert!(!report.success());
+    let s = report.summary_json(&plan).to_string();
+    assert!(
+        s.contains("changed its input `a`") && s.contains("value.txt"),
+        "{s}"
+    );
+    assert!(s.contains("verify --repair"), "{s}");
+    // No entry for `bad`; `verify` sees the damage the node did to `src`'s stored output.
+    let v = engine.store().verify(false).unwrap();
+    assert!(
+        v.broken_actions
+            .iter()
+            .any(|p| p.node.as_deref() == Some("src")),
+        "{v:?}"
+    );
+    assert_eq!(v.actions, 1, "only `src` has an entry");
+}

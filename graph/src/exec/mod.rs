@@ -13,6 +13,7 @@ mod run;
 mod schedule;
 
 pub use report::{arg_origin, flatten_args, instance_record};
+pub(crate) use run::{changed_input, input_snapshot};
 
 use crate::error::EngineError;
 use crate::key::compute_key;

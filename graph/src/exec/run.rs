@@ -154,6 +154,66 @@ fn check_inputs(store: &Store, job: &Job) -> Result<(), String> {
     Ok(())
 }
 
+/// Per input name, every file and folder below each of its paths with its size and
+/// modification time (a stat per file: cheap beside any node).
+pub(crate) type InputSnapshot = BTreeMap<String, BTreeMap<PathBuf, (u64, i128)>>;
+
+pub(crate) fn input_snapshot(inputs: &[(String, Vec<PathBuf>)]) -> InputSnapshot {
+    fn walk(p: &std::path::Path, out: &mut BTreeMap<PathBuf, (u64, i128)>) {
+        let Ok(meta) = std::fs::symlink_metadata(p) else {
+            return;
+        };
+        let mtime = meta
+            .modified()
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map(|d| d.as_nanos() as i128)
+            .unwrap_or(-1);
+        out.insert(
+            p.to_path_buf(),
+            (if meta.is_dir() { 0 } else { meta.len() }, mtime),
+        );
+        if meta.is_dir() {
+            if let Ok(rd) = std::fs::read_dir(p) {
+                for e in rd.flatten() {
+                    walk(&e.path(), out);
+                }
+            }
+        }
+    }
+    inputs
+        .iter()
+        .map(|(name, paths)| {
+            let mut files = BTreeMap::new();
+            for p in paths {
+                walk(p, &mut files);
+            }
+            (name.clone(), files)
+        })
+        .collect()
+}
+
+/// The first difference between two snapshots, in words (`None` when the inputs are as they
+/// were).
+pub(crate) fn changed_input(before: &InputSnapshot, after: &InputSnapshot) -> Option<String> {
+    for (name, b) in before {
+        let a = after.get(name)?;
+        for (p, st) in b {
+            match a.get(p) {
+                None => return Some(format!("`{name}`: {} was removed", p.display())),
+                Some(x) if x != st => {
+                    return Some(format!("`{name}`: {} was modified", p.display()))
+                }
+                _ => {}
+            }
+        }
+        if let Some(p) = a.keys().find(|p| !b.contains_key(*p)) {
+            return Some(format!("`{name}`: {} was added", p.display()));
+        }
+    }
+    None
+}
+
 /// Runs the job's node in `scratch` and stores its outputs and action entry. On failure:
 /// the message and the seconds the node ran (its log goes to `runs/failed-<key>.log`).
 fn run_in_scratch(
@@ -186,6 +246,8 @@ fn run_in_scratch(
         bar,
     });
     let seed = u64::from_le_bytes(key[..8].try_into().expect("8 bytes"));
+    // What the node's inputs look like now; a node that changes them fails (below).
+    let before = input_snapshot(&inputs);
     let mut ctx = RunContext {
         inputs,
         outputs: outputs.clone(),
@@ -219,6 +281,15 @@ fn run_in_scratch(
                 .join("runs")
                 .join(format!("failed-{}.log", hex(&key))),
             format!("{msg}\n\n{log_text}\n").as_bytes(),
+        );
+        return Err((msg, secs));
+    }
+    if let Some(change) = changed_input(&before, &input_snapshot(&ctx.inputs)) {
+        let msg = format!(
+            "node `{name}` ({}) changed its input {change}; inputs are read-only (write to an \
+             output folder instead). If the input came from the store, run `augsplat verify \
+             --repair` before the next run",
+            comp.node.kind()
         );
         return Err((msg, secs));
     }
