@@ -150,7 +150,7 @@ fn failing_import_in_a_pipeline_stores_nothing() {
         .map(|e| e.unwrap().path())
         .find(|p| p.join("sparse/0/cameras.txt").is_file())
         .expect("the export folder in the store");
-    copy_dir(&export, &src);
+    augsplat_testkit::copy_dir(&export, &src);
     std::fs::write(src.join("images/view_002.png"), b"not an image").unwrap();
     let out = run("scene");
     assert!(!out.status.success());
@@ -173,21 +173,4 @@ fn failing_import_in_a_pipeline_stores_nothing() {
     let out = run("scene");
     assert!(out.status.success(), "{}", text(&out));
     assert_eq!(action_entries(&cache), before + 1);
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let p = e.unwrap().path();
-        let dst = to.join(p.file_name().unwrap());
-        if p.is_dir() {
-            copy_dir(&p, &dst);
-        } else {
-            std::fs::copy(&p, &dst).unwrap();
-            let mut perm = std::fs::metadata(&dst).unwrap().permissions();
-            #[allow(clippy::permissions_set_readonly_false)]
-            perm.set_readonly(false);
-            std::fs::set_permissions(&dst, perm).unwrap();
-        }
-    }
 }

@@ -497,6 +497,16 @@ pub(crate) fn list_dir(p: &Path) -> Vec<PathBuf> {
     v
 }
 
+/// A file's modification time in nanoseconds since the epoch (−1 when unknown): with its size,
+/// what the hash caches and verified-at stamps compare.
+pub(crate) fn mtime_ns(meta: &fs::Metadata) -> i128 {
+    meta.modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map(|d| d.as_nanos() as i128)
+        .unwrap_or(-1)
+}
+
 fn cached_hash(
     old: &BTreeMap<String, (u64, i128, String)>,
     new: &mut BTreeMap<String, (u64, i128, String)>,
@@ -504,12 +514,7 @@ fn cached_hash(
     path: &Path,
     meta: &fs::Metadata,
 ) -> Result<String, EngineError> {
-    let mtime = meta
-        .modified()
-        .ok()
-        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-        .map(|d| d.as_nanos() as i128)
-        .unwrap_or(-1);
+    let mtime = mtime_ns(meta);
     let h = match old.get(rel) {
         Some((s, m, h)) if *s == meta.len() && *m == mtime && mtime >= 0 => h.clone(),
         _ => hash_file(path)?,

@@ -16,7 +16,7 @@
 
 use crate::error::EngineError;
 use crate::store::{
-    hash_file, hex, list_dir, remove_tree, unhex, ActionEntry, Hash, Manifest, Store,
+    hash_file, hex, list_dir, mtime_ns, remove_tree, unhex, ActionEntry, Hash, Manifest, Store,
 };
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
@@ -96,12 +96,7 @@ impl VerifyReport {
 type FileStamp = (u64, i128, u64);
 
 fn file_stamp(meta: &fs::Metadata) -> FileStamp {
-    let mtime = meta
-        .modified()
-        .ok()
-        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-        .map(|d| d.as_nanos() as i128)
-        .unwrap_or(-1);
+    let mtime = mtime_ns(meta);
     #[cfg(unix)]
     let ino = {
         use std::os::unix::fs::MetadataExt;

@@ -37,13 +37,24 @@ fn files_below(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
-#[test]
-fn a_flipped_bit_is_named_by_verify_refused_as_input_and_repaired() {
+/// The toy chain run once on a fresh store (its recorder emptied).
+fn chain_run() -> (
+    Env,
+    PathBuf,
+    augsplat_graph::Plan,
+    augsplat_graph::RunReport,
+) {
     let env = Env::new();
     let f = env.write("p.ron", CHAIN);
     let (plan, report) = env.run(&f, &[]);
     assert!(report.success());
     env.take();
+    (env, f, plan, report)
+}
+
+#[test]
+fn a_flipped_bit_is_named_by_verify_refused_as_input_and_repaired() {
+    let (env, _, plan, report) = chain_run();
     let store = env.engine.store();
     assert!(store.verify(false).unwrap().clean());
     let src_out = report.output_dir(&plan, store, "src", "out").unwrap();
@@ -97,11 +108,7 @@ fn a_flipped_bit_is_named_by_verify_refused_as_input_and_repaired() {
 
 #[test]
 fn a_deleted_blob_is_broken_in_plan_and_recomputed_by_run() {
-    let env = Env::new();
-    let f = env.write("p.ron", CHAIN);
-    let (plan, report) = env.run(&f, &[]);
-    assert!(report.success());
-    env.take();
+    let (env, f, plan, report) = chain_run();
     let store = env.engine.store();
     // Remove the blob of `app`'s output `out` (its content is `app`'s alone; the hard-linked
     // output folder keeps a copy, but the store no longer holds the blob).
@@ -148,10 +155,7 @@ fn a_deleted_blob_is_broken_in_plan_and_recomputed_by_run() {
 
 #[test]
 fn gc_stops_on_an_unreadable_kept_manifest_and_removes_nothing() {
-    let env = Env::new();
-    let f = env.write("p.ron", CHAIN);
-    let (plan, report) = env.run(&f, &[]);
-    assert!(report.success());
+    let (env, _, plan, report) = chain_run();
     // Something gc would remove: the previous outputs of `app` after an edit.
     let f2 = env.write("p.ron", &CHAIN.replace(r#"suffix: "!""#, r#"suffix: "%""#));
     assert!(env.run(&f2, &[]).1.success());
@@ -185,10 +189,7 @@ fn gc_stops_on_an_unreadable_kept_manifest_and_removes_nothing() {
 
 #[test]
 fn input_checks_use_a_stamp_and_still_see_a_rewritten_file() {
-    let env = Env::new();
-    let f = env.write("p.ron", CHAIN);
-    let (plan, report) = env.run(&f, &[]);
-    assert!(report.success());
+    let (env, _, plan, report) = chain_run();
     let store = env.engine.store();
     let out = report.output_dir(&plan, store, "src", "out").unwrap();
     let m = store.output_of_folder(&out).unwrap();

@@ -163,12 +163,7 @@ pub(crate) fn input_snapshot(inputs: &[(String, Vec<PathBuf>)]) -> InputSnapshot
         let Ok(meta) = std::fs::symlink_metadata(p) else {
             return;
         };
-        let mtime = meta
-            .modified()
-            .ok()
-            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-            .map(|d| d.as_nanos() as i128)
-            .unwrap_or(-1);
+        let mtime = crate::store::mtime_ns(&meta);
         out.insert(
             p.to_path_buf(),
             (if meta.is_dir() { 0 } else { meta.len() }, mtime),

@@ -195,7 +195,7 @@ pub fn results_tables(evals: &[EvalDir], labels: &[String]) -> Vec<MetricTable> 
             let b = e.metrics.best.as_ref()?;
             Some(MetricRow {
                 label: label.clone(),
-                detail: format!("step {} (by {})", b.step, b.criterion.name()),
+                detail: format!("step {} (by {})", b.step, b.criterion.describe()),
                 values: values(&Metrics::from_curve_point(&b.point)),
             })
         })

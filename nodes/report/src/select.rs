@@ -19,25 +19,8 @@
 use augsplat_core::artifacts::{CurvePoint, TrainingCurve};
 use serde::{Deserialize, Serialize};
 
-/// What a best step was chosen by.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Criterion {
-    /// Lowest average error (the paper's rule).
-    AvgError,
-    /// Highest PSNR (fallback when LPIPS, hence the average error, is unavailable).
-    Psnr,
-}
-
-impl Criterion {
-    /// Short human name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Criterion::AvgError => "average error",
-            Criterion::Psnr => "PSNR",
-        }
-    }
-}
+/// What a best step was chosen by: the splat library's checkpoint criterion (one owner).
+pub use augsplat_splat::fit::Criterion;
 
 /// The best evaluation point of a curve.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

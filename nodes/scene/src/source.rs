@@ -2,14 +2,15 @@
 //! original image files, intrinsics with distortion, point tracks with keypoints).
 //!
 //! - COLMAP: a model folder (binary or text) plus an images folder; registered images whose
-//!   file is missing are skipped with a warning; photos that COLMAP did not register (listed in
+//!   file is missing are left out and listed in [`RawScene::missing_images`] (`ImportScene`
+//!   refuses them unless `allow_missing_images` is set); photos that COLMAP did not register (listed in
 //!   an `image_list.txt` next to the model, or else present in the images folder) are reported
 //!   as skipped.
 //! - transforms.json (nerfstudio / instant-ngp): camera-to-world in OpenGL axes (x right,
 //!   y up, z back), converted here to OpenCV world-to-camera; global or per-frame intrinsics
 //!   (`fl_x fl_y cx cy w h`, or `camera_angle_x`/`camera_angle_y`), `k1 k2 k3 k4 p1 p2`
 //!   distortion; `aabb_scale` and other keys are ignored; frames whose image is missing are
-//!   skipped with a warning.
+//!   left out and listed likewise.
 //! - LLFF: `poses_bounds.npy` (N×17: a 3×5 [R | t | (h, w, f)] camera-to-world in (down,
 //!   right, back) axes at full resolution, then near and far) with an `images_N` folder; the
 //!   intrinsics follow the actual size of the images in that folder, principal point at the

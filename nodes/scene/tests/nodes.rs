@@ -282,7 +282,7 @@ fn bad_inputs_give_clear_errors_naming_the_file() {
     let good = colmap_source(tmp.path());
     let fresh = |name: &str| {
         let d = tmp.path().join(name);
-        copy_dir(&good, &d);
+        augsplat_testkit::copy_dir(&good, &d);
         d
     };
     let args = ImportSceneArgs::default();
@@ -415,17 +415,4 @@ fn edit(path: &Path, f: impl Fn(&str) -> String) {
     let text = std::fs::read_to_string(path).unwrap();
     let out: Vec<String> = text.lines().map(f).collect();
     std::fs::write(path, out.join("\n") + "\n").unwrap();
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let p = e.unwrap().path();
-        let dst = to.join(p.file_name().unwrap());
-        if p.is_dir() {
-            copy_dir(&p, &dst);
-        } else {
-            std::fs::copy(&p, &dst).unwrap();
-        }
-    }
 }

@@ -76,32 +76,9 @@ fn step_scene(n: usize, w: u32, h: u32, seed: u64) -> (Gaussians, Camera) {
             [0.0, 0.0, 4.0],
         ),
     };
-    let mut rng = Rng::new(seed);
-    let mut g = Gaussians::empty(3);
-    let px = 4.0 / (w as f64 * 0.9);
-    for _ in 0..n {
-        g.means.push([
-            rng.uniform(-2.0, 2.0) as f32,
-            rng.uniform(-2.0, 2.0) as f32,
-            rng.uniform(-1.5, 1.5) as f32,
-        ]);
-        let s = (px * rng.uniform(0.7, 3.0)).ln() as f32;
-        g.log_scales.push([
-            s,
-            s + rng.uniform(-0.3, 0.3) as f32,
-            s + rng.uniform(-0.3, 0.3) as f32,
-        ]);
-        g.quats.push([
-            1.0,
-            rng.uniform(-0.5, 0.5) as f32,
-            rng.uniform(-0.5, 0.5) as f32,
-            rng.uniform(-0.5, 0.5) as f32,
-        ]);
-        g.opacity_logits.push(rng.uniform(-2.0, 2.0) as f32);
-        for _ in 0..48 {
-            g.sh.push(rng.uniform(-0.3, 0.3) as f32);
-        }
-    }
+    // Typical 3DGS mid-training density: scales such that footprints are a few pixels.
+    let px = 4.0 / (w as f64 * 0.9); // world size of one pixel at depth 4
+    let g = Gaussians::random_cloud(n, px, seed);
     (g, cam)
 }
 

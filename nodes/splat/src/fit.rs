@@ -130,12 +130,14 @@ pub fn check_supervision(
     }
 }
 
-/// How [`fit`] picks the checkpoint it keeps.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// How a checkpoint is chosen: by [`fit`] for the model it keeps, and by the evaluation's
+/// best-step rule (serialised as `avg_error` / `psnr`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Criterion {
-    /// The lowest held-out average error (needs an LPIPS model).
+    /// The lowest held-out average error (the paper's rule; needs an LPIPS model).
     AvgError,
-    /// The highest held-out PSNR.
+    /// The highest held-out PSNR (the fallback when the average error is unavailable).
     Psnr,
 }
 
@@ -145,6 +147,13 @@ impl Criterion {
         match self {
             Criterion::AvgError => "avg_error",
             Criterion::Psnr => "psnr",
+        }
+    }
+    /// "average error" or "PSNR", for reports.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Criterion::AvgError => "average error",
+            Criterion::Psnr => "PSNR",
         }
     }
     /// Whether evaluation `p` is better than the kept `best` (strictly; a missing average

@@ -26,6 +26,40 @@ pub struct Gaussians {
 }
 
 impl Gaussians {
+    /// A seeded random cloud for benchmarks and tests (what `train_step_bench` and
+    /// `bench_raster` render): `n` Gaussians uniform in the box [−2, 2]² × [−1.5, 1.5] (for a
+    /// camera 4 units away, the box's centre), scales of 0.7–3 × `pixel` (world units; mildly
+    /// anisotropic), rotations near the identity, opacity logits in [−2, 2], SH degree 3 with
+    /// coefficients in [−0.3, 0.3].
+    pub fn random_cloud(n: usize, pixel: f64, seed: u64) -> Self {
+        let mut rng = augsplat_core::Rng::new(seed);
+        let mut g = Gaussians::empty(3);
+        for _ in 0..n {
+            g.means.push([
+                rng.uniform(-2.0, 2.0) as f32,
+                rng.uniform(-2.0, 2.0) as f32,
+                rng.uniform(-1.5, 1.5) as f32,
+            ]);
+            let s = (pixel * rng.uniform(0.7, 3.0)).ln() as f32;
+            g.log_scales.push([
+                s,
+                s + rng.uniform(-0.3, 0.3) as f32,
+                s + rng.uniform(-0.3, 0.3) as f32,
+            ]);
+            g.quats.push([
+                1.0,
+                rng.uniform(-0.5, 0.5) as f32,
+                rng.uniform(-0.5, 0.5) as f32,
+                rng.uniform(-0.5, 0.5) as f32,
+            ]);
+            g.opacity_logits.push(rng.uniform(-2.0, 2.0) as f32);
+            for _ in 0..48 {
+                g.sh.push(rng.uniform(-0.3, 0.3) as f32);
+            }
+        }
+        g
+    }
+
     /// An empty set with SH storage for `sh_degree`.
     pub fn empty(sh_degree: u32) -> Self {
         Gaussians {

@@ -6,6 +6,21 @@ use augsplat_core::{linalg, Camera};
 /// A `w`×`h` camera with focal length `w`, the principal point at the centre, identity
 /// rotation and translation `(0, 0, z)` (world points at Z = 0 lie `z` in front of it).
 pub fn facing(w: u32, h: u32, z: f64) -> Camera {
+    square_pixels(
+        w,
+        h,
+        [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, z],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+    )
+}
+
+/// A `w`×`h` camera with focal length `w` (square pixels), the principal point at the centre,
+/// and pose `world_to_camera`.
+pub fn square_pixels(w: u32, h: u32, world_to_camera: [[f64; 4]; 4]) -> Camera {
     Camera {
         width: w,
         height: h,
@@ -13,12 +28,7 @@ pub fn facing(w: u32, h: u32, z: f64) -> Camera {
         fy: w as f64,
         cx: w as f64 / 2.0,
         cy: h as f64 / 2.0,
-        world_to_camera: [
-            [1.0, 0.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0, 0.0],
-            [0.0, 0.0, 1.0, z],
-            [0.0, 0.0, 0.0, 1.0],
-        ],
+        world_to_camera,
     }
 }
 
@@ -29,15 +39,11 @@ pub fn looking_at_origin(eye: [f64; 3], w: u32, h: u32) -> Camera {
     let x = linalg::normalize(linalg::cross([0.0, -1.0, 0.0], f));
     let y = linalg::cross(f, x);
     let r = [x, y, f];
-    Camera {
-        width: w,
-        height: h,
-        fx: w as f64,
-        fy: w as f64,
-        cx: w as f64 / 2.0,
-        cy: h as f64 / 2.0,
-        world_to_camera: mat4_from_rt(&r, linalg::scale(linalg::mat3_vec(&r, eye), -1.0)),
-    }
+    square_pixels(
+        w,
+        h,
+        mat4_from_rt(&r, linalg::scale(linalg::mat3_vec(&r, eye), -1.0)),
+    )
 }
 
 /// Camera `i` of `n` on a horizontal ring of radius `radius` at height `y`, looking at the

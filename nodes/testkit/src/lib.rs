@@ -4,6 +4,7 @@
 //!   way from every crate, with one skip rule;
 //! - [`browser`]: headless Chromium for the report tests;
 //! - [`cameras`]: test cameras (facing the origin, on a ring);
+//! - [`copy_dir`]: a writable copy of a folder (to corrupt or edit in a test);
 //! - [`with_threads`]: run a closure on a fresh pool of a given size (determinism tests);
 //! - [`tiny`]: the tiny sizes at which the test suite runs the method pipelines (the same
 //!   values as `tests/tiny.ron`, checked by a test of the CLI).
@@ -48,4 +49,23 @@ pub fn with_threads<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R 
         .build()
         .expect("a rayon pool for the test")
         .install(f)
+}
+
+/// Copies the folder `from` to `to` recursively as writable files (sources in the store or the
+/// shared data folder are read-only). Panics on I/O errors (a test set-up failure).
+pub fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).expect("creating the copy's folder");
+    for e in std::fs::read_dir(from).expect("listing the folder to copy") {
+        let p = e.expect("a folder entry").path();
+        let dst = to.join(p.file_name().expect("an entry name"));
+        if p.is_dir() {
+            copy_dir(&p, &dst);
+        } else {
+            std::fs::copy(&p, &dst).expect("copying a file");
+            let mut perm = std::fs::metadata(&dst).expect("the copy").permissions();
+            #[allow(clippy::permissions_set_readonly_false)]
+            perm.set_readonly(false);
+            std::fs::set_permissions(&dst, perm).expect("making the copy writable");
+        }
+    }
 }
