@@ -236,6 +236,41 @@ impl SyntheticView {
                 ),
             ));
         }
+        // A custom augmentation node may write anything: refuse what would poison training.
+        if let Some((i, v)) = weight
+            .iter()
+            .enumerate()
+            .find(|(_, v)| !(v.is_finite() && (0.0..=1.0).contains(*v)))
+        {
+            return Err(CoreError::format(
+                &wpath,
+                format!(
+                    "view {}: weight {v} at pixel ({}, {}) is not a confidence in [0, 1]",
+                    self.name,
+                    i as u32 % w,
+                    i as u32 / w
+                ),
+            ));
+        }
+        if let Some(i) = target.data.iter().position(|v| !v.is_finite()) {
+            let p = i as u32 / 3;
+            return Err(CoreError::format(
+                dir.join(&self.target),
+                format!(
+                    "view {}: target value {} at pixel ({}, {}) is not finite",
+                    self.name,
+                    target.data[i],
+                    p % w,
+                    p / w
+                ),
+            ));
+        }
+        self.camera.validate().map_err(|e| {
+            CoreError::format(
+                dir.join("synthetic.json"),
+                format!("view {}: invalid camera: {e}", self.name),
+            )
+        })?;
         Ok(SyntheticPixels { target, weight })
     }
 }
@@ -436,6 +471,34 @@ mod tests {
         other.weight = v.target.clone();
         let e = other.read(dir).unwrap_err().to_string();
         assert!(e.contains("no channel W"), "{e}");
+        // What a custom augmentation node might write: NaN or out-of-range weights, a
+        // non-finite target, a missing file. Each is an error naming the file and the pixel.
+        let mut bad_w = weight.clone();
+        bad_w[7] = f32::NAN;
+        let b = SyntheticView::write(dir, "nan", &camera(w, h), &target, &bad_w).unwrap();
+        let e = b.read(dir).unwrap_err().to_string();
+        assert!(
+            e.contains("weights/nan.exr") && e.contains("pixel (2, 1)"),
+            "{e}"
+        );
+        bad_w[7] = 1.5;
+        let b = SyntheticView::write(dir, "big", &camera(w, h), &target, &bad_w).unwrap();
+        assert!(b
+            .read(dir)
+            .unwrap_err()
+            .to_string()
+            .contains("not a confidence in [0, 1]"));
+        let mut bad_t = target.clone();
+        bad_t[n + 4] = f32::INFINITY;
+        let b = SyntheticView::write(dir, "inf", &camera(w, h), &bad_t, &weight).unwrap();
+        let e = b.read(dir).unwrap_err().to_string();
+        assert!(
+            e.contains("targets/inf.exr") && e.contains("pixel (4, 0)"),
+            "{e}"
+        );
+        std::fs::remove_file(dir.join(&v.weight)).unwrap();
+        let e = v.read(dir).unwrap_err().to_string();
+        assert!(e.contains("weights/a_view_1.exr"), "{e}");
     }
 
     #[test]
