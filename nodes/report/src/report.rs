@@ -80,17 +80,18 @@ pub fn build_report(
     let mut md = format!("# {}\n\n", opts.title.replace('\n', " "));
 
     // --- notes -----------------------------------------------------------------------------
-    let mut notes: Vec<String> = Vec::new();
+    let mut per_method: Vec<(&str, &str)> = Vec::new();
     for (e, label) in evals.iter().zip(&labels) {
         for n in &e.metrics.notes {
-            notes.push(format!("{label}: {n}"));
+            per_method.push((label, n));
         }
         if let Some(b) = &e.metrics.best {
             if let Some(n) = &b.note {
-                notes.push(format!("{label}: {n}"));
+                per_method.push((label, n));
             }
         }
     }
+    let notes = group_notes(&per_method);
 
     // --- tables ----------------------------------------------------------------------------
     let tables = results_tables(evals, &labels);
@@ -565,4 +566,49 @@ fn time_section(evals: &[EvalDir], labels: &[String], md: &mut String) -> String
     }
     md.push_str("\nPlots, images and synthetic views: see `index.html`.\n");
     out
+}
+
+/// The notes of the methods, one line per distinct note with the methods it concerns
+/// (`3DGS, Staged, Dual: LPIPS … not computed …`), in order of first appearance: the same
+/// missing-weights note is not repeated for every method.
+pub fn group_notes(per_method: &[(&str, &str)]) -> Vec<String> {
+    let mut groups: Vec<(&str, Vec<&str>)> = Vec::new();
+    for &(label, note) in per_method {
+        match groups.iter_mut().find(|(n, _)| *n == note) {
+            Some((_, labels)) => {
+                if !labels.contains(&label) {
+                    labels.push(label);
+                }
+            }
+            None => groups.push((note, vec![label])),
+        }
+    }
+    groups
+        .into_iter()
+        .map(|(note, labels)| format!("{}: {note}", labels.join(", ")))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::group_notes;
+
+    #[test]
+    fn the_same_note_of_several_methods_is_one_line() {
+        let lines = group_notes(&[
+            ("3DGS", "no LPIPS weights"),
+            ("3DGS", "wall time not recorded"),
+            ("Staged", "no LPIPS weights"),
+            ("Dual", "no LPIPS weights"),
+            ("Dual", "best step chosen by PSNR"),
+        ]);
+        assert_eq!(
+            lines,
+            [
+                "3DGS, Staged, Dual: no LPIPS weights",
+                "3DGS: wall time not recorded",
+                "Dual: best step chosen by PSNR",
+            ]
+        );
+    }
 }

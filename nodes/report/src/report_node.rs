@@ -48,7 +48,7 @@ pub mod files {
 
 impl Node for ReportNode {
     const KIND: &'static str = "Report";
-    const VERSION: u32 = 1;
+    const VERSION: u32 = 2;
     type Args = ReportArgs;
 
     fn inputs(_args: &ReportArgs) -> Vec<InputDecl> {
