@@ -10,10 +10,8 @@
 
 use crate::error::EngineError;
 use crate::store::{
-    collect_keys, list_dir, remove_tree, set_readonly, unhex, ActionEntry, GcReport, Manifest,
-    Store,
+    collect_keys, list_dir, remove_tree, set_readonly, ActionEntry, GcReport, Manifest, Store,
 };
-use crate::verify::EntryState;
 use std::collections::BTreeSet;
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -72,14 +70,14 @@ impl Store {
                     .and_then(|b| serde_json::from_slice::<ActionEntry>(&b).ok())
                 {
                     Some(entry) => {
-                        if let Some(h) = unhex(&key) {
-                            if let EntryState::Broken { reason, .. } = self.action_state(&h)? {
-                                rep.broken.push(format!(
-                                    "node `{}` (key {}…): {reason}",
-                                    entry.name,
-                                    &key[..16]
-                                ));
-                            }
+                        // The entry is already parsed: check its outputs without reading it
+                        // again.
+                        if let Some(reason) = self.entry_problem(&entry) {
+                            rep.broken.push(format!(
+                                "node `{}` (key {}…): {reason}",
+                                entry.name,
+                                &key[..key.len().min(16)]
+                            ));
                         }
                         keep_manifests.extend(entry.outputs.values().cloned());
                         keep_blobs.extend(entry.log.clone());

@@ -171,7 +171,7 @@ impl Store {
     }
 
     /// What makes `entry` unusable, if anything (missing manifest, folder, file or blob).
-    fn entry_problem(&self, entry: &ActionEntry) -> Option<String> {
+    pub(crate) fn entry_problem(&self, entry: &ActionEntry) -> Option<String> {
         for (out, m) in &entry.outputs {
             let Some(h) = unhex(m) else {
                 return Some(format!("output `{out}` names a bad manifest hash {m:?}"));
