@@ -52,6 +52,8 @@ pub enum Command {
     Inspect(commands::inspect::Args),
     /// Render a Gaussian splat PLY from a camera (and optionally its gradients for a loss).
     Render(commands::render::Args),
+    /// Write the interactive 3-D viewer (WebGL2, one self-contained HTML page) for splat PLYs.
+    View(commands::view::Args),
     /// Compare two images: PSNR, SSIM, LPIPS and the average error.
     Metrics(commands::metrics::Args),
     /// Manage model weights (LPIPS).
@@ -73,6 +75,7 @@ pub fn main_with(registry: Registry) -> ExitCode {
         Command::Verify(a) => commands::verify::run(a, &registry),
         Command::Inspect(a) => commands::inspect::run(a),
         Command::Render(a) => commands::render::run(a),
+        Command::View(a) => commands::view::run(a),
         Command::Metrics(a) => commands::metrics::run(a),
         Command::Weights(a) => commands::weights::run(a),
         Command::Compare(a) => commands::compare::run(a),

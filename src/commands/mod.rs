@@ -9,6 +9,7 @@ pub mod plan;
 pub mod render;
 pub mod run;
 pub mod verify;
+pub mod view;
 pub mod weights;
 pub mod why;
 

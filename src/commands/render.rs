@@ -48,7 +48,7 @@ pub struct Args {
     pub grads_out: Option<PathBuf>,
 }
 
-fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
+pub(crate) fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
     if parts.len() != 3 {
         return Err(format!("expected R,G,B (three numbers), got `{s}`"));

@@ -5,7 +5,10 @@
 //!   the best step of the training curve, the evaluation at the baseline's best step;
 //! - `metrics.csv` — the same per-view and mean metrics as a table ([`EvalMetrics::to_csv`]);
 //! - `renders/<view>.png`, `gt/<view>.png` — the evaluated renders and their ground truth;
-//! - `curve.json` — the training curve of the model (copied; absent when the model had none).
+//! - `curve.json` — the training curve of the model (copied; absent when the model had none);
+//! - `cameras.json` — the held-out cameras as rendered, `[{"name", "camera"}]` in view order;
+//! - `model.ply` — the evaluated checkpoint (a copy: the store keeps one blob for both), for
+//!   the report's 3-D viewer.
 //!
 //! Infinite PSNR (a render identical to its ground truth) is written as the string `"inf"` in
 //! JSON and CSV, because JSON has no infinity.
@@ -28,6 +31,19 @@ pub mod files {
     pub const RENDERS: &str = "renders";
     /// Folder of ground-truth images.
     pub const GT: &str = "gt";
+    /// The held-out cameras as rendered.
+    pub const CAMERAS: &str = "cameras.json";
+    /// The evaluated checkpoint.
+    pub const MODEL: &str = "model.ply";
+}
+
+/// One entry of `cameras.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalCamera {
+    /// The view's name.
+    pub name: String,
+    /// The camera at the evaluation resolution.
+    pub camera: augsplat_core::Camera,
 }
 
 /// Version of the `metrics.json` layout.
@@ -377,6 +393,19 @@ impl EvalDir {
     /// Path of the ground truth of view `name`.
     pub fn gt_path(&self, name: &str) -> PathBuf {
         self.dir.join(files::GT).join(png_name(name))
+    }
+    /// The evaluated checkpoint, when the folder has it (folders written before it was added
+    /// do not).
+    pub fn model_path(&self) -> Option<PathBuf> {
+        Some(self.dir.join(files::MODEL)).filter(|p| p.is_file())
+    }
+    /// The held-out cameras as rendered (empty when the folder has no `cameras.json`).
+    pub fn cameras(&self) -> Result<Vec<EvalCamera>, ReportError> {
+        let p = self.dir.join(files::CAMERAS);
+        if !p.is_file() {
+            return Ok(Vec::new());
+        }
+        Ok(artifacts::read_json(&p)?)
     }
 }
 

@@ -99,8 +99,9 @@ impl Node for EvaluateNode {
     // 2: the FMA rasteriser kernels change renders in the last bits. 3: LPIPS weights only
     // from the `lpips` input (no environment or default-folder fallback). 4: the projection's
     // own exp/ln (eight Gaussians per vector) change renders in the last bits. 5: the
-    // kernels' base-2 exponential changes renders in the last bits.
-    const VERSION: u32 = 5;
+    // kernels' base-2 exponential changes renders in the last bits. 6: the folder holds the
+    // evaluated checkpoint (`model.ply`) and the cameras (`cameras.json`) for the viewer.
+    const VERSION: u32 = 6;
     type Args = EvaluateArgs;
 
     fn inputs(_args: &EvaluateArgs) -> Vec<InputDecl> {
@@ -179,6 +180,10 @@ impl Node for EvaluateNode {
         let metrics = evaluate(&context, &test, &out, render, &|done, total| {
             ctx.progress(done, total, "views")
         })?;
+        // The evaluated checkpoint beside its renders, for the report's 3-D viewer (the store
+        // keeps one blob for both copies).
+        let copy = out.join(files::MODEL);
+        std::fs::copy(&ply, &copy).map_err(|e| NodeError::from(e).context(copy.display()))?;
         ctx.log(format!(
             "{}: {} views, mean PSNR {} dB, {:.2} s",
             metrics.label,
@@ -315,6 +320,7 @@ where
         std::fs::create_dir_all(d).map_err(|e| ReportError::io(d, e))?;
     }
     let mut views = Vec::with_capacity(scene.views.len());
+    let mut cameras = Vec::with_capacity(scene.views.len());
     let mut seen = std::collections::BTreeSet::new();
     let mut size_notes: Vec<String> = Vec::new();
     for (i, view) in scene.views.iter().enumerate() {
@@ -341,6 +347,10 @@ where
             )
         })?;
         let mut img = render(&cam)?;
+        cameras.push(evalset::EvalCamera {
+            name: view.name.clone(),
+            camera: cam.clone(),
+        });
         if (img.width, img.height, img.channels) != (gt.width, gt.height, 3) {
             return Err(ReportError::Message(format!(
                 "render of view {:?} is {}×{}×{}, ground truth {}×{}×3",
@@ -459,6 +469,7 @@ where
         notes,
     };
     artifacts::write_json(&out.join(files::METRICS), &metrics)?;
+    artifacts::write_json(&out.join(files::CAMERAS), &cameras)?;
     let csv = out.join(files::METRICS_CSV);
     std::fs::write(&csv, metrics.to_csv()).map_err(|e| ReportError::io(&csv, e))?;
     Ok(metrics)

@@ -11,7 +11,8 @@
 //! - [`ensemble`]: the `EvaluateEnsemble` node (each radiance-field member and their per-pixel
 //!   median on the held-out views);
 //! - [`report`], [`report_node`]: the report builder and the `Report` node;
-//! - [`compare`]: metric deltas across runs (ablation points).
+//! - [`compare`]: metric deltas across runs (ablation points);
+//! - [`viewer`]: the interactive WebGL2 splat viewer of the report and `augsplat view`.
 
 pub mod compare;
 pub mod ensemble;
@@ -23,6 +24,7 @@ pub mod report;
 pub mod report_node;
 pub mod select;
 pub mod svg;
+pub mod viewer;
 
 pub use ensemble::EvaluateEnsembleNode;
 pub use error::ReportError;

@@ -18,6 +18,10 @@ pub struct ReportArgs {
     pub max_synthetic: usize,
     /// Display width of full images, pixels.
     pub image_width: u32,
+    /// Embed the interactive 3-D viewer of the evaluated models.
+    pub viewer: bool,
+    /// Cap on the Gaussians per viewer pane (the most opaque are kept; 24 bytes each).
+    pub viewer_max_gaussians: usize,
 }
 
 impl Default for ReportArgs {
@@ -28,14 +32,17 @@ impl Default for ReportArgs {
             max_views: o.max_views,
             max_synthetic: o.max_synthetic,
             image_width: o.image_width,
+            viewer: o.viewer,
+            viewer_max_gaussians: o.viewer_max_gaussians,
         }
     }
 }
 
 /// `Report`: inputs `evals` (a list of `Evaluate` outputs, in display order; the first one
-/// places the zoomed crops) and optional `synthetic` (a synthetic set for example views with
-/// confidence maps); output `report` with `index.html` (self-contained, no scripts) and
-/// `summary.md`.
+/// places the zoomed crops), optional `synthetic` (a synthetic set for example views with
+/// confidence maps) and optional `train` (the training scene, whose cameras the 3-D viewer
+/// draws); output `report` with `index.html` (self-contained: no external files, the one
+/// script is the viewer's) and `summary.md`.
 pub struct ReportNode;
 
 /// File names of the `report` output.
@@ -48,11 +55,16 @@ pub mod files {
 
 impl Node for ReportNode {
     const KIND: &'static str = "Report";
-    const VERSION: u32 = 2;
+    // 3: the page embeds the 3-D viewer.
+    const VERSION: u32 = 3;
     type Args = ReportArgs;
 
     fn inputs(_args: &ReportArgs) -> Vec<InputDecl> {
-        vec![InputDecl::many("evals"), InputDecl::optional("synthetic")]
+        vec![
+            InputDecl::many("evals"),
+            InputDecl::optional("synthetic"),
+            InputDecl::optional("train"),
+        ]
     }
     fn outputs(_args: &ReportArgs) -> Vec<String> {
         vec!["report".into()]
@@ -63,6 +75,9 @@ impl Node for ReportNode {
                 "image_width {} must be within 16..=4096",
                 args.image_width
             ));
+        }
+        if args.viewer_max_gaussians == 0 {
+            return Err("viewer_max_gaussians must be at least 1 (use viewer: false to leave the viewer out)".into());
         }
         Ok(())
     }
@@ -76,6 +91,9 @@ impl Node for ReportNode {
             max_views: args.max_views,
             max_synthetic: args.max_synthetic,
             image_width: args.image_width,
+            viewer: args.viewer,
+            viewer_max_gaussians: args.viewer_max_gaussians,
+            train_scene: ctx.optional_input("train").map(|p| p.to_path_buf()),
             ..ReportOptions::default()
         };
         let synthetic = ctx.optional_input("synthetic").map(|p| p.to_path_buf());

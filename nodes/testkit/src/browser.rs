@@ -37,6 +37,9 @@ pub fn headless(exe: &Path, profile: &Path) -> Command {
         "--headless",
         "--no-sandbox",
         "--disable-gpu",
+        // WebGL2 (the report's 3-D viewer) on the software rasteriser, without the
+        // deprecation warning Chromium otherwise logs as a console message.
+        "--enable-unsafe-swiftshader",
         "--disable-dev-shm-usage",
         "--disable-background-networking",
         "--disable-component-update",
@@ -81,4 +84,80 @@ pub fn run_limited(mut cmd: Command, limit: Duration) -> (String, String) {
     );
     let _ = std::fs::remove_dir_all(&dir);
     out
+}
+
+/// The bytes of the `data:…;base64,` URL that is the whole text of the element with id `id`
+/// in a DOM dump (`--dump-dom`), or `None` when there is no such element. The last match
+/// counts (a script's source may mention the id before the element that carries it).
+///
+/// Panics on a malformed URL (a test failure).
+pub fn data_url_in_dom(dom: &str, id: &str) -> Option<Vec<u8>> {
+    let at = dom.rfind(&format!("id=\"{id}\""))?;
+    let start = at + dom[at..].find('>')? + 1;
+    let end = start + dom[start..].find('<')?;
+    let text = dom[start..end].trim();
+    let b64 = &text[text.find(";base64,").expect("a base64 data URL") + 8..];
+    Some(decode_base64(b64))
+}
+
+/// The text of the element with id `id` in a DOM dump (HTML entities `&amp;`, `&lt;`, `&gt;`
+/// and `&quot;` decoded), or `None`. The last match counts, as in [`data_url_in_dom`].
+pub fn text_in_dom(dom: &str, id: &str) -> Option<String> {
+    let at = dom.rfind(&format!("id=\"{id}\""))?;
+    let start = at + dom[at..].find('>')? + 1;
+    let end = start + dom[start..].find('<')?;
+    Some(
+        dom[start..end]
+            .replace("&lt;", "<")
+            .replace("&gt;", ">")
+            .replace("&quot;", "\"")
+            .replace("&amp;", "&"),
+    )
+}
+
+/// Decodes standard base64 (padding optional); panics on other characters.
+pub fn decode_base64(s: &str) -> Vec<u8> {
+    let value = |c: u8| -> u32 {
+        match c {
+            b'A'..=b'Z' => u32::from(c - b'A'),
+            b'a'..=b'z' => u32::from(c - b'a') + 26,
+            b'0'..=b'9' => u32::from(c - b'0') + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => panic!("not base64: {:?}", c as char),
+        }
+    };
+    let digits: Vec<u8> = s
+        .bytes()
+        .filter(|&c| c != b'=' && !c.is_ascii_whitespace())
+        .collect();
+    let mut out = Vec::with_capacity(digits.len() * 3 / 4);
+    for chunk in digits.chunks(4) {
+        let mut acc = 0u32;
+        for (i, &c) in chunk.iter().enumerate() {
+            acc |= value(c) << (18 - 6 * i);
+        }
+        let bytes = acc.to_be_bytes();
+        out.extend_from_slice(&bytes[1..chunk.len()]);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn base64_round_trip() {
+        for (text, b64) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
+            assert_eq!(super::decode_base64(b64), text.as_bytes());
+        }
+        assert_eq!(super::decode_base64("+/8A"), vec![0xfb, 0xff, 0x00]);
+    }
 }
