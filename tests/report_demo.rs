@@ -210,6 +210,25 @@ fn demo_report_renders_in_headless_chromium() {
         );
     }
     assert!(html.contains("All methods at the baseline&#39;s best step"));
+    // Every column when the LPIPS weights are installed (`Installed("lpips")` finds them
+    // through AUGSPLAT_LPIPS_WEIGHTS); else one line says how to get them.
+    let method_rows: Vec<&str> = md
+        .lines()
+        .filter(|l| {
+            ["| 3DGS (", "| Staged (", "| Dual ("]
+                .iter()
+                .any(|p| l.starts_with(p))
+        })
+        .collect();
+    assert_eq!(method_rows.len(), 9, "three tables of three methods:\n{md}");
+    if shared_lpips().is_some() {
+        for row in &method_rows {
+            assert!(!row.contains('—'), "a column is missing: {row}");
+        }
+        assert!(!md.contains("LPIPS weights"), "{md}");
+    } else {
+        assert_eq!(md.matches("LPIPS weights").count(), 1, "{md}");
+    }
     assert!(html.matches("<svg").count() >= 7);
     assert!(
         html.contains("confidence"),

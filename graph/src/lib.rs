@@ -31,7 +31,7 @@ pub use engine::{default_cache_dir, expand_text, run_pipeline, Engine};
 pub use error::{Diagnostic, EngineError, PipelineError};
 pub use exec::{RunOptions, RunReport, Status};
 pub use node::{InputDecl, Node, NodeError, NullSink, ProgressSink, RunContext, Threads};
-pub use registry::{ArgsBox, ArgsError, DynNode, Registry};
+pub use registry::{ArgsBox, ArgsError, DynNode, InstalledResource, Registry};
 pub use resolve::Plan;
 pub use store::{GcReport, Store};
 pub use verify::{EntryState, Problem, VerifyReport};

@@ -119,10 +119,22 @@ impl<N: Node> DynNode for Adapter<N> {
     }
 }
 
-/// Node kinds by name.
+/// Where a named installed resource lives on this machine (model weights a user downloads
+/// once, say), for the `Installed("name")` input reference: `locate` returns its file or
+/// folder, or `None` when it is not installed; `hint` tells a user how to install it.
+#[derive(Clone)]
+pub struct InstalledResource {
+    /// Finds the resource; `None` when it is not installed.
+    pub locate: Arc<dyn Fn() -> Option<std::path::PathBuf> + Send + Sync>,
+    /// How to install it, in words (shown when a required input names a missing one).
+    pub hint: String,
+}
+
+/// Node kinds by name, and the installed resources pipelines may name.
 #[derive(Clone, Default)]
 pub struct Registry {
     kinds: BTreeMap<&'static str, Arc<dyn DynNode>>,
+    resources: BTreeMap<String, InstalledResource>,
 }
 
 impl Registry {
@@ -157,5 +169,31 @@ impl Registry {
     /// All registered kind names, sorted.
     pub fn names(&self) -> Vec<&'static str> {
         self.kinds.keys().copied().collect()
+    }
+    /// Registers installed resource `name` (a later registration of the same name replaces
+    /// it). Pipelines connect it with `Installed("name")`; it is content-hashed like a
+    /// `Path(..)`, so installing or changing it changes the keys of the nodes that read it.
+    pub fn register_resource(
+        &mut self,
+        name: &str,
+        locate: impl Fn() -> Option<std::path::PathBuf> + Send + Sync + 'static,
+        hint: &str,
+    ) -> &mut Self {
+        self.resources.insert(
+            name.to_string(),
+            InstalledResource {
+                locate: Arc::new(locate),
+                hint: hint.to_string(),
+            },
+        );
+        self
+    }
+    /// The installed resource called `name`.
+    pub fn resource(&self, name: &str) -> Option<&InstalledResource> {
+        self.resources.get(name)
+    }
+    /// All registered resource names, sorted.
+    pub fn resource_names(&self) -> Vec<&str> {
+        self.resources.keys().map(String::as_str).collect()
     }
 }

@@ -32,6 +32,9 @@ pub(super) struct Builder<'a> {
     by_sid: HashMap<Hash, usize>,
     /// Content hashes of external inputs already hashed, by absolute path.
     pub(super) ext_cache: HashMap<PathBuf, Hash>,
+    /// `Installed(..)` references to resources that are not installed, so far (each leaves
+    /// an optional input unconnected).
+    pub(super) uninstalled: usize,
 }
 
 /// A node instance within one point, before deduplication.
@@ -99,6 +102,7 @@ impl<'a> Builder<'a> {
             comps: Vec::new(),
             by_sid: HashMap::new(),
             ext_cache: HashMap::new(),
+            uninstalled: 0,
         }
     }
 }
@@ -316,12 +320,21 @@ impl Builder<'_> {
                 _ => vec![v],
             };
             let errors_before = errors.len();
+            let uninstalled_before = self.uninstalled;
             let mut sources = Vec::new();
             for item in items {
                 match self.resolve_ref(l, item, decl, by_node, locals, all_names) {
                     Ok(mut s) => sources.append(&mut s),
                     Err(d) => errors.push(d),
                 }
+            }
+            // An optional input whose only references name resources that are not installed
+            // stays unconnected, as if it were not written.
+            if sources.is_empty()
+                && self.uninstalled > uninstalled_before
+                && errors.len() == errors_before
+            {
+                continue;
             }
             if !decl.many
                 && sources.len() != 1

@@ -1,5 +1,5 @@
-//! Input references: parsing `"node[i].output"`-style strings and `Path(..)`, and resolving
-//! them against one point's instances.
+//! Input references: parsing `"node[i].output"`-style strings, `Path(..)` and
+//! `Installed(..)`, and resolving them against one point's instances.
 
 use super::point::{Builder, ByNode, LSource, Local};
 use crate::error::Diagnostic;
@@ -103,6 +103,59 @@ impl Builder<'_> {
         )])
     }
 
+    /// The source of `Installed("name")` reference `item` (with tuple `items`): the file or
+    /// folder where the registry's resource `name` is installed, content-hashed as a
+    /// `Path(..)`. A resource that is not installed leaves an optional input unconnected (no
+    /// source) and fails a required one with the resource's install hint.
+    fn installed_ref(
+        &mut self,
+        item: &Value,
+        items: &[Value],
+        decl: &InputDecl,
+    ) -> Result<Vec<(LSource, String)>, Diagnostic> {
+        let Some(name) = items
+            .first()
+            .and_then(|v| v.as_str())
+            .filter(|_| items.len() == 1)
+        else {
+            return Err(Diagnostic::at(&item.origin, "write `Installed(\"name\")`"));
+        };
+        let Some(res) = self.registry.resource(name) else {
+            let known = self.registry.resource_names();
+            return Err(Diagnostic::at(
+                &item.origin,
+                format!("no installed resource is called `{name}`"),
+            )
+            .hint(if known.is_empty() {
+                "this build registers none".to_string()
+            } else {
+                format!("known: {}", known.join(", "))
+            }));
+        };
+        match (res.locate)().filter(|p| p.exists()) {
+            Some(p) => {
+                let abs = std::fs::canonicalize(&p).unwrap_or(p);
+                let h = self.ext_hash(&abs, &item.origin)?;
+                Ok(vec![(
+                    LSource::External(abs.clone(), h),
+                    format!("Installed({name:?}) = {}", abs.display()),
+                )])
+            }
+            None if decl.optional => {
+                self.uninstalled += 1;
+                Ok(Vec::new())
+            }
+            None => Err(Diagnostic::at(
+                &item.origin,
+                format!(
+                    "`{name}` is not installed, and input `{}` needs it",
+                    decl.name
+                ),
+            )
+            .hint(res.hint.clone())),
+        }
+    }
+
     /// Resolves one written reference `item` of input `decl` of instance `l` to its sources
     /// with their written form (`field[0].weights`, `Path(..)`).
     pub(super) fn resolve_ref(
@@ -118,12 +171,15 @@ impl Builder<'_> {
             if t == "Path" {
                 return self.external_ref(item, items);
             }
+            if t == "Installed" {
+                return self.installed_ref(item, items, decl);
+            }
         }
         let Some(text) = item.as_str() else {
             return Err(Diagnostic::at(
                 &item.origin,
                 format!(
-                    "an input reference must be a string \"node.output\" or Path(\"..\"), found {}",
+                    "an input reference must be a string \"node.output\", Path(\"..\") or Installed(\"..\"), found {}",
                     item.describe()
                 ),
             ));

@@ -31,9 +31,28 @@ pub use error::ReportError;
 pub use evaluate::EvaluateNode;
 pub use report_node::ReportNode;
 
-/// Registers this family's node kinds (`Report`; `Evaluate`; `EvaluateEnsemble`).
+/// Registers this family's node kinds (`Report`; `Evaluate`; `EvaluateEnsemble`) and the
+/// installed resource `lpips` (pipelines connect it with `Installed("lpips")`).
 pub fn register(registry: &mut augsplat_graph::Registry) {
     registry.register::<EvaluateNode>();
     registry.register::<EvaluateEnsembleNode>();
     registry.register::<ReportNode>();
+    registry.register_resource("lpips", installed_lpips, evaluate::LPIPS_INSTALL_HINT);
+}
+
+/// Where LPIPS weights are installed: the file or folder `AUGSPLAT_LPIPS_WEIGHTS` names, else
+/// the default folder (`augsplat weights status` shows it) when it holds a weight file.
+pub fn installed_lpips() -> Option<std::path::PathBuf> {
+    use augsplat_metrics::lpips::{default_dir, Backbone, WEIGHTS_ENV};
+    if let Some(v) = std::env::var_os(WEIGHTS_ENV).filter(|v| !v.is_empty()) {
+        let p = std::path::PathBuf::from(v);
+        if p.exists() {
+            return Some(p);
+        }
+    }
+    default_dir().filter(|d| {
+        [Backbone::Alex, Backbone::Vgg]
+            .iter()
+            .any(|b| d.join(b.file_name()).is_file())
+    })
 }

@@ -90,18 +90,35 @@ pub fn build_report(
     let mut md = format!("# {}\n\n", opts.title.replace('\n', " "));
 
     // --- notes -----------------------------------------------------------------------------
+    // An evaluation without LPIPS says so in up to three notes (no weights, hence no average
+    // error, hence a best step by PSNR): the report says it once, with how to get them.
     let mut per_method: Vec<(&str, &str)> = Vec::new();
+    let mut without_lpips: Vec<&str> = Vec::new();
+    let mut lpips_off_by_choice = true;
     for (e, label) in evals.iter().zip(&labels) {
-        for n in &e.metrics.notes {
-            per_method.push((label, n));
+        let no_lpips = e.metrics.lpips_net.is_none();
+        if no_lpips {
+            without_lpips.push(label);
+            lpips_off_by_choice &= e.metrics.notes.iter().any(|n| n.contains("(lpips: None)"));
         }
-        if let Some(b) = &e.metrics.best {
-            if let Some(n) = &b.note {
+        for n in &e.metrics.notes {
+            if !(no_lpips && is_lpips_note(n)) {
                 per_method.push((label, n));
             }
         }
+        if let Some(b) = &e.metrics.best {
+            if let Some(n) = &b.note {
+                if !(no_lpips && is_lpips_note(n)) {
+                    per_method.push((label, n));
+                }
+            }
+        }
     }
-    let notes = group_notes(&per_method);
+    let mut notes = Vec::new();
+    if !without_lpips.is_empty() {
+        notes.push(lpips_line(&without_lpips, lpips_off_by_choice));
+    }
+    notes.extend(group_notes(&per_method));
 
     // --- tables ----------------------------------------------------------------------------
     let tables = results_tables(evals, &labels);
@@ -252,6 +269,28 @@ fn viewer_section(
     out.push_str("<p class=\"note\">Each evaluated model (the checkpoint the tables measure), side by side on one camera, with degree-0 colour. Pick a camera, or drag in any pane: the panes move together.</p>");
     out.push_str(&viewer::viewer_section(&models, &cameras, [0.0; 3]));
     Ok(Some(out))
+}
+
+/// Whether an evaluation's note is about LPIPS being unavailable (or the average error and the
+/// best-step choice that depend on it).
+fn is_lpips_note(note: &str) -> bool {
+    note.starts_with("LPIPS") || note.contains("no LPIPS weights")
+}
+
+/// The one line that replaces the LPIPS notes of the evaluations in `labels`.
+fn lpips_line(labels: &[&str], by_choice: bool) -> String {
+    if by_choice {
+        format!(
+            "{}: LPIPS and the average error not computed (lpips: None); best steps chosen by PSNR",
+            labels.join(", ")
+        )
+    } else {
+        format!(
+            "{}: LPIPS and the average error need the LPIPS weights — {}; the ready pipelines then connect them (`Installed(\"lpips\")`), so rerun",
+            labels.join(", "),
+            crate::evaluate::LPIPS_INSTALL_HINT
+        )
+    }
 }
 
 /// The results tables: evaluated checkpoint; best curve step; at the baseline's best step.
