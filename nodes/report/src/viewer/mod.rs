@@ -1,7 +1,7 @@
 //! The interactive 3-D viewer: a self-contained WebGL2 splat renderer (no CDN, no server)
 //! that the `Report` page embeds and `augsplat view` writes as a page of its own.
 //!
-//! - [`pack`]: the models, quantised to 24 bytes per Gaussian (degree-0 colour);
+//! - [`pack`](mod@pack): the models, quantised to 24 bytes per Gaussian (degree-0 colour);
 //! - `viewer.js`: decoding, a back-to-front sort per frame, the splat shaders (the CPU
 //!   rasteriser's projection, cutoffs and clamps, in f32), orbit / pan / zoom / fly controls,
 //!   camera frusta (training blue, held-out orange; click one to jump to it), synchronised
