@@ -68,3 +68,107 @@ fn render_refuses_non_rigid_and_huge_cameras() {
     assert!(!ok);
     assert!(text.contains("largest supported side"), "{text}");
 }
+
+/// Runs `augsplat render` with `extra` arguments and the environment `env`.
+fn render_with(dir: &Path, extra: &[&str], env: &[(&str, &str)]) -> (bool, String) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_augsplat"));
+    cmd.args(["render", "--splats"])
+        .arg(dir.join("g.ply"))
+        .arg("--camera")
+        .arg(dir.join("cam.json"))
+        .args(extra);
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().unwrap();
+    (
+        out.status.success(),
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ),
+    )
+}
+
+#[test]
+fn render_on_the_gpu_writes_what_the_cpu_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let cam = augsplat_testkit::cameras::facing(48, 40, 4.0);
+    let g = augsplat_splat::Gaussians::random_cloud(800, 4.0 / cam.fx, 5);
+    augsplat_splat::write_ply(&dir.path().join("g.ply"), &g).unwrap();
+    std::fs::write(
+        dir.path().join("cam.json"),
+        serde_json::to_string(&cam).unwrap(),
+    )
+    .unwrap();
+    // Asking for the GPU where wgpu finds no adapter (here: only Metal allowed, on Linux) is
+    // an error that says so — never a silent CPU render.
+    if cfg!(target_os = "linux") {
+        let (ok, text) = render_with(
+            dir.path(),
+            &["--out", "x.png", "--backend", "gpu"],
+            &[("WGPU_BACKEND", "metal")],
+        );
+        assert!(!ok && text.contains("no GPU adapter was found"), "{text}");
+        assert!(!dir.path().join("x.png").exists());
+    }
+    let p = |name: &str| dir.path().join(name).display().to_string();
+    let (ok, text) = render_with(dir.path(), &["--out", &p("cpu.npy")], &[]);
+    assert!(ok, "{text}");
+    let (ok, text) = render_with(
+        dir.path(),
+        &[
+            "--out",
+            &p("gpu.npy"),
+            "--alpha-out",
+            &p("gpu_a.exr"),
+            "--depth-out",
+            &p("gpu_d.png"),
+            "--backend",
+            "gpu",
+        ],
+        &[],
+    );
+    if !ok && text.contains("no GPU adapter was found") {
+        augsplat_testkit::skip("render_on_the_gpu_writes_what_the_cpu_writes", &text);
+        return;
+    }
+    assert!(ok, "{text}");
+    assert!(text.contains("GPU: "), "{text}");
+    let a = augsplat_core::image::read_npy(&dir.path().join("cpu.npy")).unwrap();
+    let b = augsplat_core::image::read_npy(&dir.path().join("gpu.npy")).unwrap();
+    let worst = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst <= 1e-4, "GPU vs CPU: {worst}");
+    assert!(dir.path().join("gpu_a.exr").is_file() && dir.path().join("gpu_d.png").is_file());
+    // Gradients with the GPU backend: the image from the GPU, the gradients from the CPU.
+    let target = augsplat_core::ImageF32::from_vec(48, 40, 3, vec![0.25; 48 * 40 * 3]);
+    augsplat_core::image::write_npy(&dir.path().join("t.npy"), &target).unwrap();
+    let (ok, text) = render_with(
+        dir.path(),
+        &[
+            "--out",
+            &p("g2.png"),
+            "--loss-target",
+            &p("t.npy"),
+            "--grads-out",
+            &p("grads.ply"),
+            "--backend",
+            "gpu",
+        ],
+        &[],
+    );
+    assert!(ok, "{text}");
+    assert!(text.contains("loss "), "{text}");
+    assert_eq!(
+        augsplat_splat::read_ply(&dir.path().join("grads.ply"))
+            .unwrap()
+            .len(),
+        800
+    );
+}

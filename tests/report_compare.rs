@@ -28,6 +28,7 @@ fn eval_dir(dir: &Path, label: &str, psnr: f64, ssim: f64, lpips: Option<f64>, s
         train_seconds: Some(seconds),
         primitives: None,
         eval_seconds: Some(1.0),
+        device: None,
         notes: vec![],
     };
     write_json(&dir.join("metrics.json"), &m).unwrap();

@@ -46,6 +46,20 @@ pub struct Args {
     /// Where to write dL/d(each raw PLY field), in the input's PLY layout (needs `--loss-target`).
     #[arg(long, requires = "loss_target")]
     pub grads_out: Option<PathBuf>,
+    /// Where to render: `cpu` (default) or `gpu` (wgpu: Vulkan, Metal, DX12 or GL; an error
+    /// when the machine has no GPU adapter). The GPU backend renders the forward pass; the
+    /// gradients of `--grads-out` are computed on the CPU.
+    #[arg(long, value_enum, default_value_t = Backend::Cpu)]
+    pub backend: Backend,
+}
+
+/// Where `augsplat render` renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Backend {
+    /// The CPU kernels (all cores).
+    Cpu,
+    /// The GPU through wgpu.
+    Gpu,
 }
 
 pub(crate) fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
@@ -118,6 +132,14 @@ fn write_image(
     res.map_err(|e| e.to_string())
 }
 
+/// The image planes of a render, from either backend.
+struct Frame {
+    rgb: Vec<f32>,
+    alpha: Vec<f32>,
+    depth: Vec<f32>,
+    stats: augsplat_splat::RenderStats,
+}
+
 /// Runs `augsplat render`.
 pub fn run(args: Args) -> CmdResult {
     let g = read_ply(&args.splats).map_err(|e| e.to_string())?;
@@ -160,7 +182,27 @@ pub fn run(args: Args) -> CmdResult {
         }
         None => None,
     };
-    let out = render(&g, &cam, &s);
+    let cpu = (args.backend == Backend::Cpu || target.is_some()).then(|| render(&g, &cam, &s));
+    let out = match (&cpu, args.backend) {
+        (Some(out), Backend::Cpu) => Frame {
+            rgb: out.rgb.clone(),
+            alpha: out.alpha.clone(),
+            depth: out.depth.clone(),
+            stats: out.stats,
+        },
+        (_, _) => {
+            let ctx = augsplat_splat::gpu::GpuContext::new().map_err(|e| e.to_string())?;
+            eprintln!("GPU: {}", ctx.adapter());
+            let f =
+                augsplat_splat::gpu::render_gpu(&ctx, &g, &cam, &s).map_err(|e| e.to_string())?;
+            Frame {
+                rgb: f.rgb,
+                alpha: f.alpha,
+                depth: f.depth,
+                stats: f.stats,
+            }
+        }
+    };
     let (w, h) = (cam.width, cam.height);
     write_image(&args.out, w, h, out.rgb.clone(), &["R", "G", "B"])?;
     if let Some(p) = &args.alpha_out {
@@ -183,7 +225,8 @@ pub fn run(args: Args) -> CmdResult {
         "rendered {}×{}: {} Gaussians visible, {} culled, {} invalid; {} composited pairs",
         w, h, st.visible, st.culled, st.invalid, st.pairs
     );
-    if let (Some(t), Some(gpath)) = (target, &args.grads_out) {
+    if let (Some(t), Some(gpath), Some(cpu)) = (target, &args.grads_out, &cpu) {
+        let out = cpu;
         let n = out.rgb.len() as f64;
         let mut loss = 0.0f64;
         let d_rgb: Vec<f32> = out
@@ -197,7 +240,7 @@ pub fn run(args: Args) -> CmdResult {
             })
             .collect();
         loss /= n;
-        let gr = backward(&g, &cam, &s, &out, &d_rgb, None, None);
+        let gr = backward(&g, &cam, &s, out, &d_rgb, None, None);
         let gg = Gaussians {
             means: gr.means,
             log_scales: gr.log_scales,

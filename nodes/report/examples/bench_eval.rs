@@ -169,6 +169,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             lpips_note: None,
             primitives: Some(n as u64),
             record_wall_time: true,
+            device: None,
         };
         let t = Instant::now();
         let gg = &g;

@@ -358,6 +358,7 @@ mod tests {
                 train_seconds: Some(12.0),
                 primitives: None,
                 eval_seconds: Some(1.0),
+                device: None,
                 notes: vec![],
             },
             curve: None,

@@ -275,6 +275,9 @@ pub struct EvalMetrics {
     /// (`record_wall_time: true`; off by default so that outputs are byte-identical).
     #[serde(default)]
     pub eval_seconds: Option<f64>,
+    /// The GPU adapter that rendered the views (name, driver, backend); absent for the CPU.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device: Option<augsplat_splat::gpu::AdapterSummary>,
     /// Remarks for readers (missing LPIPS weights, fallbacks taken).
     #[serde(default)]
     pub notes: Vec<String>,
@@ -477,6 +480,7 @@ mod tests {
             train_seconds: None,
             primitives: Some(10),
             eval_seconds: Some(0.5),
+            device: None,
             notes: vec![],
         };
         let text = serde_json::to_string(&e).unwrap();

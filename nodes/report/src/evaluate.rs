@@ -70,6 +70,8 @@ pub struct EvaluateArgs {
     /// Write the evaluation's wall time into `metrics.json` (off by default: outputs must be
     /// byte-identical for identical args and inputs; the time is always logged).
     pub record_wall_time: bool,
+    /// Render on the CPU (default) or the GPU (the adapter is recorded in `metrics.json`).
+    pub backend: augsplat_splat::gpu::Backend,
 }
 
 impl Default for EvaluateArgs {
@@ -81,6 +83,7 @@ impl Default for EvaluateArgs {
             background: [0.0; 3],
             antialiased: false,
             record_wall_time: false,
+            backend: augsplat_splat::gpu::Backend::Cpu,
         }
     }
 }
@@ -164,9 +167,27 @@ impl Node for EvaluateNode {
         if let Some(n) = &lpips_note {
             ctx.log(n);
         }
+        let gpu = match args.backend {
+            augsplat_splat::gpu::Backend::Cpu => None,
+            augsplat_splat::gpu::Backend::Gpu => {
+                let c = augsplat_splat::gpu::GpuContext::new()
+                    .map_err(|e| NodeError::new(format!("backend: Gpu: {e}")))?;
+                ctx.log(format!("rendering on the GPU: {}", c.adapter()));
+                Some(c)
+            }
+        };
         let render = |cam: &Camera| -> Result<ImageF32, ReportError> {
-            let r = augsplat_splat::render(&gaussians, cam, &settings);
-            Ok(ImageF32::from_vec(r.width, r.height, 3, r.rgb))
+            match &gpu {
+                None => {
+                    let r = augsplat_splat::render(&gaussians, cam, &settings);
+                    Ok(ImageF32::from_vec(r.width, r.height, 3, r.rgb))
+                }
+                Some(c) => {
+                    let r = augsplat_splat::gpu::render_gpu(c, &gaussians, cam, &settings)
+                        .map_err(|e| ReportError::Message(e.to_string()))?;
+                    Ok(ImageF32::from_vec(r.width, r.height, 3, r.rgb))
+                }
+            }
         };
         let context = EvalContext {
             label: args.label.clone(),
@@ -178,6 +199,7 @@ impl Node for EvaluateNode {
             lpips_note,
             primitives: Some(gaussians.len() as u64),
             record_wall_time: args.record_wall_time,
+            device: gpu.as_ref().map(|c| c.adapter().clone()),
         };
         let started = Instant::now();
         let metrics = evaluate(&context, &test, &out, render, &|done, total| {
@@ -268,6 +290,8 @@ pub struct EvalContext<'a> {
     pub primitives: Option<u64>,
     /// Whether to write the evaluation's wall time into `metrics.json`.
     pub record_wall_time: bool,
+    /// The GPU adapter that rendered, if one did.
+    pub device: Option<augsplat_splat::gpu::AdapterSummary>,
 }
 
 fn read_curve(dir: &Path) -> Result<Option<TrainingCurve>, ReportError> {
@@ -469,6 +493,7 @@ where
         train_seconds,
         primitives: cx.primitives,
         eval_seconds: cx.record_wall_time.then(|| start.elapsed().as_secs_f64()),
+        device: cx.device.clone(),
         notes,
     };
     artifacts::write_json(&out.join(files::METRICS), &metrics)?;

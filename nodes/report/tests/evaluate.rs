@@ -23,6 +23,7 @@ fn context(model: &std::path::Path, baseline: Option<&std::path::Path>) -> EvalC
         lpips_note: Some("no LPIPS".into()),
         primitives: Some(7),
         record_wall_time: false,
+        device: None,
     }
 }
 

@@ -39,6 +39,7 @@ pub mod error;
 pub mod fit;
 pub mod forward;
 pub mod gaussians;
+pub mod gpu;
 pub mod init;
 mod lanes;
 pub mod loss;

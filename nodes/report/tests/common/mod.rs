@@ -201,6 +201,7 @@ pub fn make_evals(root: &Path) -> Vec<PathBuf> {
                 .then(|| "LPIPS weights absent in this test run".to_string()),
             primitives: Some(1234 + k as u64),
             record_wall_time: true,
+            device: None,
         };
         let render = degrading_renderer(gts.clone(), cams.clone(), *amp, k as u64 + 1);
         evaluate(&cx, &test, &eval_dir, render, &|_, _| {}).unwrap();

@@ -1,0 +1,182 @@
+// The forward rasteriser on the GPU: the WGSL twin of the CPU forward (forward/tile.rs and
+// tiles.rs): tile binning in (tile, depth, index) order and per-tile front-to-back compositing
+// with gsplat classic maths — α = min(max_alpha, opacity · exp(power)), skipped below 1/255,
+// a pixel stops before a Gaussian that would take its transmittance to 1e-4 or below. No
+// atomics: every sum runs in list order, so the same inputs give the same bytes.
+
+struct Params {
+    n: u32,
+    pairs: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    width: u32,
+    height: u32,
+    max_alpha: f32,
+    _pad: u32,
+    background: vec4<f32>,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> rects: array<vec4<u32>>;     // from project.wgsl
+@group(0) @binding(2) var<storage, read> order: array<u32>;          // rank → Gaussian
+@group(0) @binding(3) var<storage, read_write> counts: array<u32>;   // per rank: tiles, then offsets
+@group(0) @binding(4) var<storage, read_write> tile_keys: array<u32>;
+@group(0) @binding(5) var<storage, read_write> pair_vals: array<u32>;
+@group(0) @binding(6) var<storage, read_write> ranges: array<vec2<u32>>;
+@group(0) @binding(7) var<storage, read> splats: array<f32>;
+@group(0) @binding(8) var<storage, read_write> image: array<f32>;    // IMAGE_STRIDE per pixel
+@group(0) @binding(9) var<storage, read_write> pixel_info: array<vec2<u32>>; // last, pairs
+
+const SPLAT_STRIDE: u32 = 12u;
+const IMAGE_STRIDE: u32 = 6u;    // r, g, b, alpha, normalised depth, T
+const ALPHA_THRESHOLD: f32 = 0.003921568627450980;
+const TRANSMITTANCE_THRESHOLD: f32 = 1e-4;
+const DEPTH_ALPHA_EPS: f32 = 1e-6;
+
+fn linear(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
+    return gid.x + gid.y * nwg.x * 256u;
+}
+
+// counts[r] = tiles of the Gaussian of rank r (the host then scans them into offsets).
+@compute @workgroup_size(256)
+fn gather_counts(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let r = linear(gid, nwg);
+    if (r < p.n) {
+        counts[r] = rects[order[r]].z;
+    }
+}
+
+// The (tile, rank) pairs of rank r at its offset, tiles in row-major order.
+@compute @workgroup_size(256)
+fn emit_pairs(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let r = linear(gid, nwg);
+    if (r >= p.n) {
+        return;
+    }
+    let m = rects[order[r]];
+    if (m.z == 0u) {
+        return;
+    }
+    let x0 = m.x & 0xffffu;
+    let x1 = m.x >> 16u;
+    let y0 = m.y & 0xffffu;
+    let y1 = m.y >> 16u;
+    var o = counts[r];
+    for (var ty = y0; ty < y1; ty++) {
+        for (var tx = x0; tx < x1; tx++) {
+            tile_keys[o] = ty * p.tiles_x + tx;
+            pair_vals[o] = r;
+            o++;
+        }
+    }
+}
+
+// ranges[t] = [start, end) of tile t in the sorted pairs (zeroed by the host first).
+@compute @workgroup_size(256)
+fn tile_ranges(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear(gid, nwg);
+    if (i >= p.pairs) {
+        return;
+    }
+    let t = tile_keys[i];
+    if (i == 0u || tile_keys[i - 1u] != t) {
+        ranges[t].x = i;
+    }
+    if (i + 1u == p.pairs || tile_keys[i + 1u] != t) {
+        ranges[t].y = i + 1u;
+    }
+}
+
+var<workgroup> batch: array<array<f32, 10>, 256>;
+var<workgroup> flags: array<u32, 256>;
+var<workgroup> all_done: u32;
+
+@compute @workgroup_size(16, 16)
+fn rasterize(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
+             @builtin(local_invocation_index) li: u32) {
+    let tile = wid.y * p.tiles_x + wid.x;
+    let px = wid.x * 16u + lid.x;
+    let py = wid.y * 16u + lid.y;
+    let inside = px < p.width && py < p.height;
+    let range = ranges[tile];
+    let start = range.x;
+    let end = range.y;
+    let cx = f32(px) + 0.5;
+    let cy = f32(py) + 0.5;
+    var done = !inside;
+    var t = 1.0;
+    var c = vec3<f32>(0.0);
+    var d = 0.0;
+    var last = 0u;
+    var pairs = 0u;
+    var base = start;
+    loop {
+        if (base >= end) {
+            break;
+        }
+        flags[li] = select(0u, 1u, done);
+        workgroupBarrier();
+        if (li == 0u) {
+            var k = 0u;
+            for (var j = 0u; j < 256u; j++) {
+                k += flags[j];
+            }
+            all_done = k;
+        }
+        if (workgroupUniformLoad(&all_done) == 256u) {
+            break;
+        }
+        let idx = base + li;
+        if (idx < end) {
+            let o = order[pair_vals[idx]] * SPLAT_STRIDE;
+            for (var q = 0u; q < 10u; q++) {
+                batch[li][q] = splats[o + q];
+            }
+        }
+        workgroupBarrier();
+        let n = min(256u, end - base);
+        for (var j = 0u; j < n; j++) {
+            if (done) {
+                break;
+            }
+            let s = batch[j];
+            let dx = s[0] - cx;
+            let dy = s[1] - cy;
+            let power = -0.5 * (s[2] * dx * dx + s[4] * dy * dy) - s[3] * dx * dy;
+            if (power > 0.0) {
+                continue;
+            }
+            let alpha = min(p.max_alpha, s[5] * exp(power));
+            if (!(alpha >= ALPHA_THRESHOLD)) {
+                continue;
+            }
+            let next_t = t * (1.0 - alpha);
+            if (next_t <= TRANSMITTANCE_THRESHOLD) {
+                done = true;
+                break;
+            }
+            let w = alpha * t;
+            c += w * vec3<f32>(s[6], s[7], s[8]);
+            d += w * s[9];
+            t = next_t;
+            last = base - start + j + 1u;
+            pairs++;
+        }
+        workgroupBarrier();
+        base += 256u;
+    }
+    if (!inside) {
+        return;
+    }
+    let pix = py * p.width + px;
+    let o = pix * IMAGE_STRIDE;
+    let rgb = c + t * p.background.xyz;
+    let a = 1.0 - t;
+    image[o] = rgb.x;
+    image[o + 1u] = rgb.y;
+    image[o + 2u] = rgb.z;
+    image[o + 3u] = a;
+    image[o + 4u] = select(0.0, d / a, a >= DEPTH_ALPHA_EPS);
+    image[o + 5u] = t;
+    pixel_info[pix] = vec2<u32>(last, pairs);
+}

@@ -1,0 +1,386 @@
+//! The GPU backend (wgpu + WGSL; Vulkan, Metal, DX12 or GL, whichever the machine has):
+//! the same splatting maths as the CPU kernels, in f32, deterministic.
+//!
+//! - [`GpuContext`]: the adapter and device (limits raised to what the adapter reports), with
+//!   the adapter's name, driver and backend for the outputs' metadata; asking for a GPU where
+//!   there is none is a [`GpuError::NoAdapter`] that says what was found;
+//! - [`render_gpu`]: the forward pass — projection and SH colour (`project/project.wgsl`), a
+//!   stable radix sort of the visible Gaussians by depth (`gpu/sort.wgsl`, `gpu/scan.wgsl`),
+//!   tile binning in (tile, depth, index) order by a second stable sort on the tile, and
+//!   per-tile front-to-back compositing in shared-memory batches (`forward/forward.wgsl`).
+//!
+//! Determinism: every reduction runs in a fixed order — prefix sums by blocks in shared
+//! memory, radix sort ranks by counting, compositing in list order — and no float atomics
+//! (no atomics at all) are used, so the same inputs on the same adapter give the same bytes.
+
+mod forward;
+mod sort;
+
+pub use forward::{render_gpu, GpuFrame};
+
+use std::sync::mpsc;
+use wgpu::util::DeviceExt;
+
+/// Where a node computes its splatting: part of the node's args, hence of its key.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Backend {
+    /// The CPU kernels (all cores; identical bytes on every machine).
+    #[default]
+    Cpu,
+    /// The GPU through wgpu (identical bytes run to run on one adapter; an error when the
+    /// machine has no adapter, never a silent fall-back to the CPU).
+    Gpu,
+}
+
+/// What can go wrong on the GPU.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// No adapter was found (or none of the kind asked for).
+    #[error("the GPU backend was asked for, but no GPU adapter was found ({found}); install a Vulkan driver (on Linux without a GPU, Mesa's lavapipe: `apt-get install mesa-vulkan-drivers`) or use the CPU backend")]
+    NoAdapter {
+        /// What the search found, in words.
+        found: String,
+    },
+    /// The device could not be created, was lost, or reported an error.
+    #[error("GPU device error on {adapter}: {message}")]
+    Device {
+        /// The adapter.
+        adapter: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// The work needs a buffer larger than the adapter allows.
+    #[error("{what} needs {bytes} bytes in one GPU buffer; {adapter} allows {limit}")]
+    TooLarge {
+        /// Which buffer.
+        what: String,
+        /// Its size.
+        bytes: u64,
+        /// The adapter's limit.
+        limit: u64,
+        /// The adapter.
+        adapter: String,
+    },
+    /// The inputs are inconsistent.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// The adapter a result was computed on: name, driver and backend (for outputs' metadata).
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct AdapterSummary {
+    /// The adapter's name (e.g. "NVIDIA H100 80GB HBM3", "llvmpipe (LLVM 15.0.6, 256 bits)").
+    pub name: String,
+    /// The driver's name and version information.
+    pub driver: String,
+    /// The graphics API (Vulkan, Metal, Dx12, Gl).
+    pub backend: String,
+    /// Discrete, integrated, virtual GPU or CPU.
+    pub device_type: String,
+}
+
+impl std::fmt::Display for AdapterSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} ({}, {}, {})",
+            self.name, self.backend, self.driver, self.device_type
+        )
+    }
+}
+
+/// A GPU device with the compiled kernels.
+pub struct GpuContext {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    adapter: AdapterSummary,
+    limits: wgpu::Limits,
+    kernels: Kernels,
+}
+
+/// The compiled compute pipelines.
+struct Kernels {
+    project: wgpu::ComputePipeline,
+    scan_blocks: wgpu::ComputePipeline,
+    add_sums: wgpu::ComputePipeline,
+    sort_count: wgpu::ComputePipeline,
+    sort_scatter: wgpu::ComputePipeline,
+    gather_counts: wgpu::ComputePipeline,
+    emit_pairs: wgpu::ComputePipeline,
+    tile_ranges: wgpu::ComputePipeline,
+    rasterize: wgpu::ComputePipeline,
+}
+
+impl GpuContext {
+    /// Opens the first adapter wgpu finds (high-performance preferred; the `WGPU_BACKEND`
+    /// and `WGPU_ADAPTER_NAME` environment variables narrow the search, as in wgpu), with
+    /// the adapter's own limits, and compiles the kernels.
+    pub fn new() -> Result<GpuContext, GpuError> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| {
+            let all = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+            let found = if all.is_empty() {
+                format!("no adapter on any backend: {e}")
+            } else {
+                all.iter()
+                    .map(|a| {
+                        let i = a.get_info();
+                        format!("{} ({:?}) unusable", i.name, i.backend)
+                    })
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            GpuError::NoAdapter { found }
+        })?;
+        let info = adapter.get_info();
+        let summary = AdapterSummary {
+            name: info.name.clone(),
+            driver: format!("{} {}", info.driver, info.driver_info)
+                .trim()
+                .to_string(),
+            backend: format!("{:?}", info.backend),
+            device_type: format!("{:?}", info.device_type),
+        };
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("augsplat"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits.clone(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+        }))
+        .map_err(|e| GpuError::Device {
+            adapter: summary.to_string(),
+            message: format!("cannot open the device: {e}"),
+        })?;
+        // Compiling the kernels reports shader errors through an error scope, not a panic.
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let kernels = Kernels::new(&device);
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Device {
+                adapter: summary.to_string(),
+                message: format!("the kernels do not compile: {e}"),
+            });
+        }
+        Ok(GpuContext {
+            device,
+            queue,
+            adapter: summary,
+            limits,
+            kernels,
+        })
+    }
+
+    /// The adapter this context runs on.
+    pub fn adapter(&self) -> &AdapterSummary {
+        &self.adapter
+    }
+
+    /// A storage buffer of `bytes` bytes (at least 4), checked against the adapter's limits.
+    fn storage(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
+        let bytes = bytes.max(4).next_multiple_of(4);
+        let limit = self
+            .limits
+            .max_storage_buffer_binding_size
+            .min(self.limits.max_buffer_size);
+        if bytes > limit {
+            return Err(GpuError::TooLarge {
+                what: what.into(),
+                bytes,
+                limit,
+                adapter: self.adapter.to_string(),
+            });
+        }
+        Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(what),
+            size: bytes,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        }))
+    }
+
+    /// A storage buffer holding `data` (f32 or u32 words).
+    fn storage_init(&self, what: &str, data: &[u32]) -> Result<wgpu::Buffer, GpuError> {
+        let buf = self.storage(what, 4 * data.len() as u64)?;
+        if !data.is_empty() {
+            self.queue.write_buffer(&buf, 0, &words_to_bytes(data));
+        }
+        Ok(buf)
+    }
+
+    /// A uniform buffer holding `words`.
+    fn uniform(&self, what: &str, words: &[u32]) -> wgpu::Buffer {
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(what),
+                contents: &words_to_bytes(words),
+                usage: wgpu::BufferUsages::UNIFORM,
+            })
+    }
+
+    /// Records one dispatch of `pipeline` over `groups` workgroups (spread over two
+    /// dimensions past the per-dimension limit) with `buffers` at bindings 0, 1, ….
+    fn dispatch(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        bindings: &[(u32, &wgpu::Buffer)],
+        groups: [u32; 2],
+    ) {
+        let layout = pipeline.get_bind_group_layout(0);
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = bindings
+            .iter()
+            .map(|(b, buf)| wgpu::BindGroupEntry {
+                binding: *b,
+                resource: buf.as_entire_binding(),
+            })
+            .collect();
+        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &layout,
+            entries: &entries,
+        });
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        pass.dispatch_workgroups(groups[0], groups[1], 1);
+    }
+
+    /// Workgroups for `blocks` blocks: (x, y) with x ≤ the per-dimension limit.
+    fn groups(&self, blocks: u32) -> [u32; 2] {
+        let max = self.limits.max_compute_workgroups_per_dimension.max(1);
+        if blocks <= max {
+            [blocks.max(1), 1]
+        } else {
+            [max, blocks.div_ceil(max)]
+        }
+    }
+
+    /// Submits `enc` and waits for the device; reports validation errors, out-of-memory and
+    /// device loss as [`GpuError::Device`].
+    fn submit(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
+        self.queue.submit([enc.finish()]);
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| self.device_error(format!("waiting for the GPU: {e}")))?;
+        Ok(())
+    }
+
+    fn device_error(&self, message: String) -> GpuError {
+        GpuError::Device {
+            adapter: self.adapter.to_string(),
+            message,
+        }
+    }
+
+    /// Copies `words` u32 words of `buf` back to the host.
+    fn read_words(&self, buf: &wgpu::Buffer, words: usize) -> Result<Vec<u32>, GpuError> {
+        if words == 0 {
+            return Ok(Vec::new());
+        }
+        let bytes = 4 * words as u64;
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(buf, 0, &staging, 0, bytes);
+        self.submit(enc)?;
+        let slice = staging.slice(..);
+        let (tx, rx) = mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| self.device_error(format!("waiting for a read-back: {e}")))?;
+        rx.recv()
+            .map_err(|e| self.device_error(format!("read-back lost: {e}")))?
+            .map_err(|e| self.device_error(format!("read-back failed: {e}")))?;
+        let data = slice
+            .get_mapped_range()
+            .map_err(|e| self.device_error(format!("read-back mapping: {e}")))?;
+        let out = data
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        drop(data);
+        staging.unmap();
+        Ok(out)
+    }
+
+    /// Runs `f` inside an error scope: validation errors and out-of-memory become
+    /// [`GpuError::Device`] instead of a panic in wgpu's default handler.
+    fn scoped<T>(&self, f: impl FnOnce() -> Result<T, GpuError>) -> Result<T, GpuError> {
+        let oom_scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation_scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let out = f();
+        let validation = pollster::block_on(validation_scope.pop());
+        let oom = pollster::block_on(oom_scope.pop());
+        if let Some(e) = oom {
+            return Err(self.device_error(format!("out of GPU memory: {e}")));
+        }
+        if let Some(e) = validation {
+            return Err(self.device_error(format!("validation error: {e}")));
+        }
+        out
+    }
+}
+
+impl Kernels {
+    fn new(device: &wgpu::Device) -> Kernels {
+        let module = |label: &str, src: &str| {
+            device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(src.into()),
+            })
+        };
+        let project = module("project.wgsl", include_str!("../project/project.wgsl"));
+        let scan = module("scan.wgsl", include_str!("scan.wgsl"));
+        let sort = module("sort.wgsl", include_str!("sort.wgsl"));
+        let forward = module("forward.wgsl", include_str!("../forward/forward.wgsl"));
+        let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: None,
+                module: m,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        Kernels {
+            project: pipeline(&project, "project"),
+            scan_blocks: pipeline(&scan, "scan_blocks"),
+            add_sums: pipeline(&scan, "add_sums"),
+            sort_count: pipeline(&sort, "count"),
+            sort_scatter: pipeline(&sort, "scatter"),
+            gather_counts: pipeline(&forward, "gather_counts"),
+            emit_pairs: pipeline(&forward, "emit_pairs"),
+            tile_ranges: pipeline(&forward, "tile_ranges"),
+            rasterize: pipeline(&forward, "rasterize"),
+        }
+    }
+}
+
+/// Little-endian bytes of `words`.
+fn words_to_bytes(words: &[u32]) -> Vec<u8> {
+    words.iter().flat_map(|w| w.to_le_bytes()).collect()
+}
+
+/// The bits of f32 values, for buffers.
+fn f32_words(v: impl IntoIterator<Item = f32>) -> Vec<u32> {
+    v.into_iter().map(f32::to_bits).collect()
+}

@@ -1,0 +1,67 @@
+// One pass of a stable least-significant-digit radix sort of (u32 key, u32 value) pairs on
+// 4-bit digits, deterministic by construction (no atomics): `count` ranks each element among
+// the equal digits before it in its block of 256 and writes the block's digit histogram
+// (digit-major, so an exclusive scan of it gives every (digit, block) its output offset);
+// `scatter` moves each pair to offset + rank.
+
+struct Params {
+    n: u32,
+    blocks: u32,
+    shift: u32,
+    _a: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> keys_in: array<u32>;
+@group(0) @binding(2) var<storage, read> vals_in: array<u32>;
+@group(0) @binding(3) var<storage, read_write> ranks: array<u32>;
+@group(0) @binding(4) var<storage, read_write> hist: array<u32>;
+@group(0) @binding(5) var<storage, read_write> keys_out: array<u32>;
+@group(0) @binding(6) var<storage, read_write> vals_out: array<u32>;
+
+var<workgroup> digits: array<u32, 256>;
+
+@compute @workgroup_size(256)
+fn count(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+         @builtin(local_invocation_index) li: u32) {
+    let block = wid.x + wid.y * nwg.x;
+    let i = block * 256u + li;
+    var d = 16u;
+    if (block < p.blocks && i < p.n) {
+        d = (keys_in[i] >> p.shift) & 15u;
+    }
+    digits[li] = d;
+    workgroupBarrier();
+    if (block >= p.blocks) {
+        return;
+    }
+    if (i < p.n) {
+        var r = 0u;
+        for (var j = 0u; j < li; j++) {
+            r += select(0u, 1u, digits[j] == d);
+        }
+        ranks[i] = r;
+    }
+    if (li < 16u) {
+        var c = 0u;
+        for (var j = 0u; j < 256u; j++) {
+            c += select(0u, 1u, digits[j] == li);
+        }
+        hist[li * p.blocks + block] = c;
+    }
+}
+
+@compute @workgroup_size(256)
+fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+           @builtin(local_invocation_index) li: u32) {
+    let block = wid.x + wid.y * nwg.x;
+    let i = block * 256u + li;
+    if (block >= p.blocks || i >= p.n) {
+        return;
+    }
+    let k = keys_in[i];
+    let d = (k >> p.shift) & 15u;
+    let dst = hist[d * p.blocks + block] + ranks[i];
+    keys_out[dst] = k;
+    vals_out[dst] = vals_in[i];
+}
