@@ -1,0 +1,98 @@
+//! GPU forward pass against the CPU's: the median time of `render_gpu` (uploads, kernels and
+//! read-back of the image: a whole render as `augsplat render` or `Evaluate` does it) and of
+//! the CPU `render`, for the scene of `train_step_bench` (a box 4 units in front of the
+//! camera, footprints of 1–3 pixels' scale, SH degree 3).
+//!
+//! `cargo run --release -p augsplat-splat --example gpu_raster [-- N,N,... [WxH,...] [REPS]]`
+//! Defaults: 10000 at 256x256, 5 repetitions. `WGPU_BACKEND` picks the API.
+
+use augsplat_splat::gpu::{render_gpu, GpuContext};
+use augsplat_splat::{render, Gaussians, RenderSettings};
+use std::time::Instant;
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let counts: Vec<usize> = args.first().map_or(vec![10_000], |a| {
+        a.split(',').filter_map(|s| s.parse().ok()).collect()
+    });
+    let sizes: Vec<(u32, u32)> = args.get(1).map_or(vec![(256, 256)], |a| {
+        a.split(',')
+            .filter_map(|s| {
+                let (w, h) = s.split_once('x')?;
+                Some((w.parse().ok()?, h.parse().ok()?))
+            })
+            .collect()
+    });
+    let reps: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(5).max(1);
+    let ctx = match GpuContext::new() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("{e}");
+            std::process::exit(1);
+        }
+    };
+    println!("adapter: {}", ctx.adapter());
+    println!("CPU threads: {}", rayon::current_num_threads());
+    println!(
+        "{:>9} {:>10} {:>11} {:>11} {:>10} {:>12} {:>9}",
+        "N", "image", "GPU ms", "CPU ms", "pairs", "max |Δ| rgb", "> 1e-4"
+    );
+    let s = RenderSettings::default();
+    for &(w, h) in &sizes {
+        let cam = bench_camera(w, h);
+        for &n in &counts {
+            let g = Gaussians::random_cloud(n, 4.0 / cam.fx, 7);
+            let warm = render_gpu(&ctx, &g, &cam, &s).expect("GPU render");
+            let mut tg = Vec::new();
+            let mut tc = Vec::new();
+            let mut worst = 0.0f32;
+            let mut over = 0usize;
+            for _ in 0..reps {
+                let t = Instant::now();
+                let f = render_gpu(&ctx, &g, &cam, &s).expect("GPU render");
+                tg.push(t.elapsed().as_secs_f64() * 1e3);
+                let t = Instant::now();
+                let c = render(&g, &cam, &s);
+                tc.push(t.elapsed().as_secs_f64() * 1e3);
+                let d: Vec<f32> = f
+                    .rgb
+                    .iter()
+                    .zip(&c.rgb)
+                    .map(|(a, b)| (a - b).abs())
+                    .collect();
+                worst = d.iter().copied().fold(worst, f32::max);
+                over = d.iter().filter(|v| **v > 1e-4).count();
+            }
+            println!(
+                "{n:>9} {:>10} {:>11.2} {:>11.2} {:>10} {:>12.2e} {:>9}",
+                format!("{w}x{h}"),
+                median(tg),
+                median(tc),
+                warm.stats.pairs,
+                worst,
+                over
+            );
+        }
+    }
+}
+
+/// The camera of `train_step_bench`: 4 units behind the box, focal length 0.9·width.
+fn bench_camera(w: u32, h: u32) -> augsplat_core::Camera {
+    augsplat_core::Camera {
+        width: w,
+        height: h,
+        fx: w as f64 * 0.9,
+        fy: w as f64 * 0.9,
+        cx: w as f64 / 2.0,
+        cy: h as f64 / 2.0,
+        world_to_camera: augsplat_core::linalg::mat4_from_rt(
+            &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0, 0.0, 4.0],
+        ),
+    }
+}
