@@ -170,10 +170,14 @@ impl Node for EvaluateNode {
         let gpu = match args.backend {
             augsplat_splat::gpu::Backend::Cpu => None,
             augsplat_splat::gpu::Backend::Gpu => {
-                let c = augsplat_splat::gpu::GpuContext::new()
-                    .map_err(|e| NodeError::new(format!("backend: Gpu: {e}")))?;
+                let gpu_err =
+                    |e: augsplat_splat::gpu::GpuError| NodeError::new(format!("backend: Gpu: {e}"));
+                let c = augsplat_splat::gpu::GpuContext::new().map_err(gpu_err)?;
                 ctx.log(format!("rendering on the GPU: {}", c.adapter()));
-                Some(c)
+                // The model is uploaded once for every view.
+                let scene =
+                    augsplat_splat::gpu::GpuScene::upload(&c, &gaussians).map_err(gpu_err)?;
+                Some((c, scene))
             }
         };
         let render = |cam: &Camera| -> Result<ImageF32, ReportError> {
@@ -182,8 +186,8 @@ impl Node for EvaluateNode {
                     let r = augsplat_splat::render(&gaussians, cam, &settings);
                     Ok(ImageF32::from_vec(r.width, r.height, 3, r.rgb))
                 }
-                Some(c) => {
-                    let r = augsplat_splat::gpu::render_gpu(c, &gaussians, cam, &settings)
+                Some((c, scene)) => {
+                    let r = augsplat_splat::gpu::render_scene(c, scene, cam, &settings)
                         .map_err(|e| ReportError::Message(e.to_string()))?;
                     Ok(ImageF32::from_vec(r.width, r.height, 3, r.rgb))
                 }
@@ -199,7 +203,7 @@ impl Node for EvaluateNode {
             lpips_note,
             primitives: Some(gaussians.len() as u64),
             record_wall_time: args.record_wall_time,
-            device: gpu.as_ref().map(|c| c.adapter().clone()),
+            device: gpu.as_ref().map(|(c, _)| c.adapter().clone()),
         };
         let started = Instant::now();
         let metrics = evaluate(&context, &test, &out, render, &|done, total| {

@@ -36,8 +36,76 @@ pub struct GpuFrame {
     pub stats: RenderStats,
 }
 
+/// A set of Gaussians uploaded to the GPU once, to render from many cameras.
+pub struct GpuScene {
+    n: u32,
+    coeffs: u32,
+    sh_degree: u32,
+    means: wgpu::Buffer,
+    scales: wgpu::Buffer,
+    quats: wgpu::Buffer,
+    logits: wgpu::Buffer,
+    sh: wgpu::Buffer,
+}
+
+impl GpuScene {
+    /// Uploads `g` (checked for consistent array sizes and the adapter's buffer limits).
+    pub fn upload(ctx: &GpuContext, g: &Gaussians) -> Result<GpuScene, GpuError> {
+        let n = g.len();
+        let k = g.coeffs();
+        if g.log_scales.len() != n || g.quats.len() != n || g.opacity_logits.len() != n {
+            return Err(GpuError::Invalid(format!(
+                "inconsistent Gaussian arrays: {n} means, {} scales, {} quaternions, {} opacities",
+                g.log_scales.len(),
+                g.quats.len(),
+                g.opacity_logits.len()
+            )));
+        }
+        if g.sh.len() != n * k * 3 {
+            return Err(GpuError::Invalid(format!(
+                "{} SH values for {n} Gaussians of degree {}",
+                g.sh.len(),
+                g.sh_degree
+            )));
+        }
+        let n32 = u32::try_from(n)
+            .ok()
+            .filter(|&v| v < u32::MAX / 16)
+            .ok_or_else(|| {
+                GpuError::Invalid(format!("{n} Gaussians are too many for one render"))
+            })?;
+        ctx.scoped(|| {
+            Ok(GpuScene {
+                n: n32,
+                coeffs: k as u32,
+                sh_degree: g.sh_degree,
+                means: ctx.storage_init("means", &f32_words(g.means.iter().flatten().copied()))?,
+                scales: ctx.storage_init(
+                    "log-scales",
+                    &f32_words(g.log_scales.iter().flatten().copied()),
+                )?,
+                quats: ctx
+                    .storage_init("quaternions", &f32_words(g.quats.iter().flatten().copied()))?,
+                logits: ctx.storage_init(
+                    "opacity logits",
+                    &f32_words(g.opacity_logits.iter().copied()),
+                )?,
+                sh: ctx.storage_init("SH coefficients", &f32_words(g.sh.iter().copied()))?,
+            })
+        })
+    }
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.n as usize
+    }
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+}
+
 /// The camera uniform of `project.wgsl`.
-fn camera_words(g: &Gaussians, cam: &Camera, s: &RenderSettings, grid: TileGrid) -> Vec<u32> {
+fn camera_words(g: &GpuScene, cam: &Camera, s: &RenderSettings, grid: TileGrid) -> Vec<u32> {
     let (r, t) = augsplat_core::linalg::rt_from_mat4(&cam.world_to_camera);
     let centre = cam.center();
     let (wd, ht) = (f64::from(cam.width), f64::from(cam.height));
@@ -58,8 +126,8 @@ fn camera_words(g: &Gaussians, cam: &Camera, s: &RenderSettings, grid: TileGrid)
     w.extend([f(centre[0]), f(centre[1]), f(centre[2]), s.near.to_bits()]);
     w.extend([cam.width, cam.height, grid.tiles_x, grid.tiles_y]);
     w.extend([
-        g.len() as u32,
-        g.coeffs() as u32,
+        g.n,
+        g.coeffs,
         s.sh_degree.min(g.sh_degree),
         u32::from(s.antialiased),
     ]);
@@ -68,34 +136,26 @@ fn camera_words(g: &Gaussians, cam: &Camera, s: &RenderSettings, grid: TileGrid)
 }
 
 /// Renders `g` from `cam` on the GPU: the same projection, binning and compositing as
-/// [`crate::render()`], in f32 (the tests hold images to the CPU's within 1e-4; they agree to about 5e-7).
+/// [`crate::render()`], in f32 (the tests hold images to the CPU's within 1e-4; they agree to
+/// about 5e-7). Uploads `g` first; to render one set from many cameras, upload it once with
+/// [`GpuScene::upload`] and call [`render_scene`].
 pub fn render_gpu(
     ctx: &GpuContext,
     g: &Gaussians,
     cam: &Camera,
     s: &RenderSettings,
 ) -> Result<GpuFrame, GpuError> {
-    let n = g.len();
-    let k = g.coeffs();
-    if g.log_scales.len() != n || g.quats.len() != n || g.opacity_logits.len() != n {
-        return Err(GpuError::Invalid(format!(
-            "inconsistent Gaussian arrays: {n} means, {} scales, {} quaternions, {} opacities",
-            g.log_scales.len(),
-            g.quats.len(),
-            g.opacity_logits.len()
-        )));
-    }
-    if g.sh.len() != n * k * 3 {
-        return Err(GpuError::Invalid(format!(
-            "{} SH values for {n} Gaussians of degree {}",
-            g.sh.len(),
-            g.sh_degree
-        )));
-    }
-    let n32 = u32::try_from(n)
-        .ok()
-        .filter(|&v| v < u32::MAX / 16)
-        .ok_or_else(|| GpuError::Invalid(format!("{n} Gaussians are too many for one render")))?;
+    let scene = GpuScene::upload(ctx, g)?;
+    render_scene(ctx, &scene, cam, s)
+}
+
+/// Renders an uploaded set from `cam` (see [`render_gpu`]).
+pub fn render_scene(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+) -> Result<GpuFrame, GpuError> {
     cam.validate()
         .map_err(|e| GpuError::Invalid(format!("camera: {e}")))?;
     let grid = TileGrid::new(cam.width, cam.height);
@@ -105,31 +165,19 @@ pub fn render_gpu(
             grid.tiles_x, grid.tiles_y
         )));
     }
-    ctx.scoped(|| render_inner(ctx, g, cam, s, grid, n32))
+    ctx.scoped(|| render_inner(ctx, scene, cam, s, grid))
 }
 
 fn render_inner(
     ctx: &GpuContext,
-    g: &Gaussians,
+    g: &GpuScene,
     cam: &Camera,
     s: &RenderSettings,
     grid: TileGrid,
-    n: u32,
 ) -> Result<GpuFrame, GpuError> {
+    let n = g.n;
     let nn = u64::from(n);
     let kr = &ctx.kernels;
-    // Uploads.
-    let means = ctx.storage_init("means", &f32_words(g.means.iter().flatten().copied()))?;
-    let scales = ctx.storage_init(
-        "log-scales",
-        &f32_words(g.log_scales.iter().flatten().copied()),
-    )?;
-    let quats = ctx.storage_init("quaternions", &f32_words(g.quats.iter().flatten().copied()))?;
-    let logits = ctx.storage_init(
-        "opacity logits",
-        &f32_words(g.opacity_logits.iter().copied()),
-    )?;
-    let sh = ctx.storage_init("SH coefficients", &f32_words(g.sh.iter().copied()))?;
     let camera = ctx.uniform("camera", &camera_words(g, cam, s, grid));
     let splats = ctx.storage("splats", 4 * SPLAT_STRIDE * nn)?;
     let meta = ctx.storage("tile rectangles", 16 * nn)?;
@@ -147,11 +195,11 @@ fn render_inner(
         &kr.project,
         &[
             (0, &camera),
-            (1, &means),
-            (2, &scales),
-            (3, &quats),
-            (4, &logits),
-            (5, &sh),
+            (1, &g.means),
+            (2, &g.scales),
+            (3, &g.quats),
+            (4, &g.logits),
+            (5, &g.sh),
             (6, &splats),
             (7, &meta),
             (8, &keys),

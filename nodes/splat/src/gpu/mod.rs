@@ -16,7 +16,7 @@
 mod forward;
 mod sort;
 
-pub use forward::{render_gpu, GpuFrame};
+pub use forward::{render_gpu, render_scene, GpuFrame, GpuScene};
 
 use std::sync::mpsc;
 use wgpu::util::DeviceExt;

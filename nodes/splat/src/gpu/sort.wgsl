@@ -1,8 +1,9 @@
 // One pass of a stable least-significant-digit radix sort of (u32 key, u32 value) pairs on
 // 4-bit digits, deterministic by construction (no atomics): `count` ranks each element among
-// the equal digits before it in its block of 256 and writes the block's digit histogram
-// (digit-major, so an exclusive scan of it gives every (digit, block) its output offset);
-// `scatter` moves each pair to offset + rank.
+// the equal digits before it in its block of 256 — an exclusive prefix sum over the block of
+// one-hot digit counters, sixteen 16-bit fields in eight words per element — and writes the
+// block's digit histogram (digit-major, so an exclusive scan of it gives every (digit, block)
+// its output offset); `scatter` moves each pair to offset + rank.
 
 struct Params {
     n: u32,
@@ -19,7 +20,12 @@ struct Params {
 @group(0) @binding(5) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(6) var<storage, read_write> vals_out: array<u32>;
 
-var<workgroup> digits: array<u32, 256>;
+var<workgroup> counters: array<array<u32, 8>, 256>;
+
+// Field `d` (a 16-bit digit counter) of a thread's eight words.
+fn field(li: u32, d: u32) -> u32 {
+    return (counters[li][d / 2u] >> ((d % 2u) * 16u)) & 0xffffu;
+}
 
 @compute @workgroup_size(256)
 fn count(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -30,24 +36,35 @@ fn count(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
     if (block < p.blocks && i < p.n) {
         d = (keys_in[i] >> p.shift) & 15u;
     }
-    digits[li] = d;
+    for (var w = 0u; w < 8u; w++) {
+        counters[li][w] = 0u;
+    }
+    if (d < 16u) {
+        counters[li][d / 2u] = 1u << ((d % 2u) * 16u);
+    }
     workgroupBarrier();
+    // Inclusive prefix sums (Hillis–Steele); a field never exceeds 256, so no carry.
+    for (var off = 1u; off < 256u; off = off << 1u) {
+        var t: array<u32, 8>;
+        if (li >= off) {
+            t = counters[li - off];
+        }
+        workgroupBarrier();
+        if (li >= off) {
+            for (var w = 0u; w < 8u; w++) {
+                counters[li][w] = counters[li][w] + t[w];
+            }
+        }
+        workgroupBarrier();
+    }
     if (block >= p.blocks) {
         return;
     }
     if (i < p.n) {
-        var r = 0u;
-        for (var j = 0u; j < li; j++) {
-            r += select(0u, 1u, digits[j] == d);
-        }
-        ranks[i] = r;
+        ranks[i] = field(li, d) - 1u;
     }
     if (li < 16u) {
-        var c = 0u;
-        for (var j = 0u; j < 256u; j++) {
-            c += select(0u, 1u, digits[j] == li);
-        }
-        hist[li * p.blocks + block] = c;
+        hist[li * p.blocks + block] = field(255u, li);
     }
 }
 
