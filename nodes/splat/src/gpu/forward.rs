@@ -38,14 +38,14 @@ pub struct GpuFrame {
 
 /// A set of Gaussians uploaded to the GPU once, to render from many cameras.
 pub struct GpuScene {
-    n: u32,
-    coeffs: u32,
-    sh_degree: u32,
-    means: wgpu::Buffer,
-    scales: wgpu::Buffer,
-    quats: wgpu::Buffer,
-    logits: wgpu::Buffer,
-    sh: wgpu::Buffer,
+    pub(super) n: u32,
+    pub(super) coeffs: u32,
+    pub(super) sh_degree: u32,
+    pub(super) means: wgpu::Buffer,
+    pub(super) scales: wgpu::Buffer,
+    pub(super) quats: wgpu::Buffer,
+    pub(super) logits: wgpu::Buffer,
+    pub(super) sh: wgpu::Buffer,
 }
 
 impl GpuScene {
@@ -105,7 +105,12 @@ impl GpuScene {
 }
 
 /// The camera uniform of `project.wgsl`.
-fn camera_words(g: &GpuScene, cam: &Camera, s: &RenderSettings, grid: TileGrid) -> Vec<u32> {
+pub(super) fn camera_words(
+    g: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    grid: TileGrid,
+) -> Vec<u32> {
     let (r, t) = augsplat_core::linalg::rt_from_mat4(&cam.world_to_camera);
     let centre = cam.center();
     let (wd, ht) = (f64::from(cam.width), f64::from(cam.height));

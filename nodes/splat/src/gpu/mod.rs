@@ -4,6 +4,9 @@
 //! - [`GpuContext`]: the adapter and device (limits raised to what the adapter reports), with
 //!   the adapter's name, driver and backend for the outputs' metadata; asking for a GPU where
 //!   there is none is a [`GpuError::NoAdapter`] that says what was found;
+//! - [`project_vjp_gpu`]: the backward pass's per-Gaussian stage (projection and colour
+//!   backward, `project/project_vjp.wgsl`); the compositing backward and training on the GPU
+//!   are not written yet;
 //! - [`render_gpu`]: the forward pass — projection and SH colour (`project/project.wgsl`), a
 //!   stable radix sort of the visible Gaussians by depth (`gpu/sort.wgsl`, `gpu/scan.wgsl`),
 //!   tile binning in (tile, depth, index) order by a second stable sort on the tile, and
@@ -13,9 +16,11 @@
 //! memory, radix sort ranks by counting, compositing in list order — and no float atomics
 //! (no atomics at all) are used, so the same inputs on the same adapter give the same bytes.
 
+mod backward;
 mod forward;
 mod sort;
 
+pub use backward::{project_vjp_gpu, ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE};
 pub use forward::{render_gpu, render_scene, GpuFrame, GpuScene};
 
 use std::sync::mpsc;
@@ -109,6 +114,7 @@ struct Kernels {
     emit_pairs: wgpu::ComputePipeline,
     tile_ranges: wgpu::ComputePipeline,
     rasterize: wgpu::ComputePipeline,
+    project_vjp: wgpu::ComputePipeline,
 }
 
 impl GpuContext {
@@ -351,6 +357,10 @@ impl Kernels {
         let scan = module("scan.wgsl", include_str!("scan.wgsl"));
         let sort = module("sort.wgsl", include_str!("sort.wgsl"));
         let forward = module("forward.wgsl", include_str!("../forward/forward.wgsl"));
+        let vjp = module(
+            "project_vjp.wgsl",
+            include_str!("../project/project_vjp.wgsl"),
+        );
         let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry),
@@ -371,6 +381,7 @@ impl Kernels {
             emit_pairs: pipeline(&forward, "emit_pairs"),
             tile_ranges: pipeline(&forward, "tile_ranges"),
             rasterize: pipeline(&forward, "rasterize"),
+            project_vjp: pipeline(&vjp, "project_vjp"),
         }
     }
 }
