@@ -134,3 +134,76 @@ fn gpu_projection_backward_matches_the_cpu() {
         assert_eq!(bits(&gpu.sh), bits(&again.sh));
     }
 }
+
+/// The whole backward pass on the GPU against the CPU's [`augsplat_splat::backward`] for a
+/// loss on the colour: every group within 1e-3 of the CPU relative to its largest value.
+#[test]
+fn gpu_backward_matches_the_cpu() {
+    let Some(ctx) = context("gpu_backward_matches_the_cpu") else {
+        return;
+    };
+    let mut rng = Rng::new(5);
+    for (n, w, h, degree, antialiased, seed) in [
+        (1usize, 16u32, 16u32, 0u32, false, 1u64),
+        (400, 48, 40, 1, false, 2),
+        (1500, 64, 48, 3, true, 3),
+        (600, 37, 29, 2, false, 4),
+    ] {
+        let cam = augsplat_testkit::cameras::facing(w, h, 4.0);
+        let g = Gaussians::random_cloud(n, 4.0 / cam.fx, seed);
+        let s = RenderSettings {
+            sh_degree: degree,
+            antialiased,
+            background: [0.3, 0.2, 0.1],
+            ..Default::default()
+        };
+        let d_rgb: Vec<f32> = (0..w as usize * h as usize * 3)
+            .map(|_| rng.uniform(-1.0, 1.0) as f32)
+            .collect();
+        let out = augsplat_splat::render(&g, &cam, &s);
+        let cpu = augsplat_splat::backward(&g, &cam, &s, &out, &d_rgb, None, None);
+        let scene = GpuScene::upload(&ctx, &g).unwrap();
+        let gpu = augsplat_splat::gpu::backward_gpu(&ctx, &scene, &cam, &s, &d_rgb).unwrap();
+        let what = format!("{n} Gaussians at {w}×{h}, degree {degree}, antialiased {antialiased}");
+        let check = |name: &str, q: std::ops::Range<usize>, cpu_vals: Vec<f64>| {
+            let gv: Vec<f32> = (0..n)
+                .flat_map(|i| q.clone().map(move |k| i * PARAM_GRAD_STRIDE + k))
+                .map(|j| gpu.params[j])
+                .collect();
+            let (rel, scale) = relative(gv.into_iter(), cpu_vals.into_iter());
+            eprintln!("{what}: {name} {rel:.2e} (scale {scale:.2e})");
+            assert!(rel <= 1e-3, "{what}: {name} {rel} relative to {scale}");
+        };
+        check(
+            "means",
+            0..3,
+            cpu.means.iter().flatten().map(|v| f64::from(*v)).collect(),
+        );
+        check(
+            "log-scales",
+            3..6,
+            cpu.log_scales
+                .iter()
+                .flatten()
+                .map(|v| f64::from(*v))
+                .collect(),
+        );
+        check(
+            "quaternions",
+            6..10,
+            cpu.quats.iter().flatten().map(|v| f64::from(*v)).collect(),
+        );
+        check(
+            "opacity logits",
+            10..11,
+            cpu.opacity_logits.iter().map(|v| f64::from(*v)).collect(),
+        );
+        let (rel, scale) = relative(gpu.sh.iter().copied(), cpu.sh.iter().map(|v| f64::from(*v)));
+        eprintln!("{what}: SH {rel:.2e} (scale {scale:.2e})");
+        assert!(rel <= 1e-3, "{what}: SH {rel}");
+        let again = augsplat_splat::gpu::backward_gpu(&ctx, &scene, &cam, &s, &d_rgb).unwrap();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&gpu.params), bits(&again.params), "{what}: run to run");
+        assert_eq!(bits(&gpu.sh), bits(&again.sh), "{what}: run to run");
+    }
+}

@@ -26,9 +26,12 @@ struct Params {
 @group(0) @binding(7) var<storage, read> splats: array<f32>;
 @group(0) @binding(8) var<storage, read_write> image: array<f32>;    // IMAGE_STRIDE per pixel
 @group(0) @binding(9) var<storage, read_write> pixel_info: array<vec2<u32>>; // last, pairs
+// The rank of each pair, by emit position; the sorted pairs carry emit positions (so the
+// backward pass can give every pair its own gradient slot).
+@group(0) @binding(10) var<storage, read_write> pair_rank: array<u32>;
 
 const SPLAT_STRIDE: u32 = 12u;
-const IMAGE_STRIDE: u32 = 6u;    // r, g, b, alpha, normalised depth, T
+const IMAGE_STRIDE: u32 = 7u;    // r, g, b, alpha, normalised depth, T, bits of `last`
 const ALPHA_THRESHOLD: f32 = 0.003921568627450980;
 const TRANSMITTANCE_THRESHOLD: f32 = 1e-4;
 const DEPTH_ALPHA_EPS: f32 = 1e-6;
@@ -46,7 +49,7 @@ fn gather_counts(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     }
 }
 
-// The (tile, rank) pairs of rank r at its offset, tiles in row-major order.
+// The pairs of rank r at its offset, tiles in row-major order: tile, emit position, rank.
 @compute @workgroup_size(256)
 fn emit_pairs(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let r = linear(gid, nwg);
@@ -65,7 +68,8 @@ fn emit_pairs(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     for (var ty = y0; ty < y1; ty++) {
         for (var tx = x0; tx < x1; tx++) {
             tile_keys[o] = ty * p.tiles_x + tx;
-            pair_vals[o] = r;
+            pair_vals[o] = o;
+            pair_rank[o] = r;
             o++;
         }
     }
@@ -128,7 +132,7 @@ fn rasterize(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id
         }
         let idx = base + li;
         if (idx < end) {
-            let o = order[pair_vals[idx]] * SPLAT_STRIDE;
+            let o = order[pair_rank[pair_vals[idx]]] * SPLAT_STRIDE;
             for (var q = 0u; q < 10u; q++) {
                 batch[li][q] = splats[o + q];
             }
@@ -178,5 +182,6 @@ fn rasterize(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id
     image[o + 3u] = a;
     image[o + 4u] = select(0.0, d / a, a >= DEPTH_ALPHA_EPS);
     image[o + 5u] = t;
+    image[o + 6u] = bitcast<f32>(last);
     pixel_info[pix] = vec2<u32>(last, pairs);
 }

@@ -1,9 +1,8 @@
-//! Host side of the GPU backward pass, so far its second stage: the projection and colour
-//! backward (`project/project_vjp.wgsl`) from per-Gaussian screen-space gradients. The first
-//! stage (per-tile pair sums of the compositing backward) and the training loop on the GPU
-//! are not written yet.
+//! Host side of the GPU backward pass: the compositing backward (`backward/backward.wgsl`:
+//! per-tile pair sums, then per-Gaussian sums in a fixed order) and the projection and colour
+//! backward (`project/project_vjp.wgsl`). The training loop on the GPU is not written yet.
 
-use super::forward::{camera_words, GpuScene};
+use super::forward::{camera_words, forward_pass, GpuScene};
 use super::{f32_words, GpuContext, GpuError};
 use crate::render::RenderSettings;
 use crate::tiles::TileGrid;
@@ -45,36 +44,121 @@ pub fn project_vjp_gpu(
     }
     cam.validate()
         .map_err(|e| GpuError::Invalid(format!("camera: {e}")))?;
-    let grid = TileGrid::new(cam.width, cam.height);
-    let k = scene.coeffs as usize;
     ctx.scoped(|| {
-        let camera = ctx.uniform("camera", &camera_words(scene, cam, s, grid));
         let upstream =
             ctx.storage_init("screen-space gradients", &f32_words(screen.iter().copied()))?;
-        let grads = ctx.storage("parameter gradients", 4 * (PARAM_GRAD_STRIDE * n) as u64)?;
-        let sh = ctx.storage("SH gradients", 4 * (3 * k * n) as u64)?;
+        vjp_inner(ctx, scene, cam, s, &upstream)
+    })
+}
+
+/// Runs `project_vjp.wgsl` on the screen-space gradients in `upstream` and reads the
+/// parameter gradients back.
+fn vjp_inner(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    upstream: &wgpu::Buffer,
+) -> Result<ParamGradsGpu, GpuError> {
+    let n = scene.len();
+    let k = scene.coeffs as usize;
+    let grid = TileGrid::new(cam.width, cam.height);
+    let camera = ctx.uniform("camera", &camera_words(scene, cam, s, grid));
+    let grads = ctx.storage("parameter gradients", 4 * (PARAM_GRAD_STRIDE * n) as u64)?;
+    let sh = ctx.storage("SH gradients", 4 * (3 * k * n) as u64)?;
+    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    ctx.dispatch(
+        &mut enc,
+        &ctx.kernels.project_vjp,
+        &[
+            (0, &camera),
+            (1, &scene.means),
+            (2, &scene.scales),
+            (3, &scene.quats),
+            (4, &scene.logits),
+            (5, &scene.sh),
+            (6, upstream),
+            (7, &grads),
+            (8, &sh),
+        ],
+        ctx.groups((n as u32).div_ceil(256)),
+    );
+    ctx.submit(enc)?;
+    let to_f32 = |w: Vec<u32>| w.into_iter().map(f32::from_bits).collect();
+    Ok(ParamGradsGpu {
+        params: to_f32(ctx.read_words(&grads, PARAM_GRAD_STRIDE * n)?),
+        sh: to_f32(ctx.read_words(&sh, 3 * k * n)?),
+    })
+}
+
+/// The gradients of a loss on the colour image, on the GPU: renders `scene` from `cam` (the
+/// forward kernels), walks every tile back to front for the pair sums, sums each Gaussian's
+/// pairs in a fixed order and runs the projection and colour backward — the WGSL twin of
+/// [`crate::backward()`] with `d_alpha` and `d_depth` absent. `d_rgb` holds dL/d(rgb),
+/// `height·width·3` values. Deterministic: the same inputs give the same bytes on one
+/// adapter (no atomics).
+pub fn backward_gpu(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    d_rgb: &[f32],
+) -> Result<ParamGradsGpu, GpuError> {
+    cam.validate()
+        .map_err(|e| GpuError::Invalid(format!("camera: {e}")))?;
+    let pixels = cam.width as usize * cam.height as usize;
+    if d_rgb.len() != 3 * pixels {
+        return Err(GpuError::Invalid(format!(
+            "{} colour gradient values for a {}×{} image (need {})",
+            d_rgb.len(),
+            cam.width,
+            cam.height,
+            3 * pixels
+        )));
+    }
+    let grid = TileGrid::new(cam.width, cam.height);
+    ctx.scoped(|| {
+        let st = forward_pass(ctx, scene, cam, s, grid)?;
+        let n = scene.len() as u64;
+        let g_rgb = ctx.storage_init("colour gradients", &f32_words(d_rgb.iter().copied()))?;
+        let pair_grads = ctx.storage("pair gradients", 4 * PAIR_STRIDE * u64::from(st.pairs))?;
+        let screen = ctx.storage("screen-space gradients", 4 * SCREEN_GRAD_STRIDE as u64 * n)?;
+        let kr = &ctx.kernels;
         let mut enc = ctx.device.create_command_encoder(&Default::default());
         ctx.dispatch(
             &mut enc,
-            &ctx.kernels.project_vjp,
+            &kr.rasterize_backward,
             &[
-                (0, &camera),
-                (1, &scene.means),
-                (2, &scene.scales),
-                (3, &scene.quats),
-                (4, &scene.logits),
-                (5, &scene.sh),
-                (6, &upstream),
-                (7, &grads),
-                (8, &sh),
+                (0, &st.params),
+                (2, &st.order),
+                (4, &st.pair_rank),
+                (5, &st.sorted),
+                (6, &st.ranges),
+                (7, &st.splats),
+                (8, &st.image),
+                (9, &g_rgb),
+                (10, &pair_grads),
+            ],
+            [grid.tiles_x, grid.tiles_y],
+        );
+        ctx.dispatch(
+            &mut enc,
+            &kr.gaussian_sums,
+            &[
+                (0, &st.params),
+                (1, &st.rects),
+                (2, &st.order),
+                (3, &st.counts),
+                (7, &st.splats),
+                (10, &pair_grads),
+                (11, &screen),
             ],
             ctx.groups((n as u32).div_ceil(256)),
         );
         ctx.submit(enc)?;
-        let to_f32 = |w: Vec<u32>| w.into_iter().map(f32::from_bits).collect();
-        Ok(ParamGradsGpu {
-            params: to_f32(ctx.read_words(&grads, PARAM_GRAD_STRIDE * n)?),
-            sh: to_f32(ctx.read_words(&sh, 3 * k * n)?),
-        })
+        vjp_inner(ctx, scene, cam, s, &screen)
     })
 }
+
+/// f32 values per pair slot of `backward.wgsl`.
+const PAIR_STRIDE: u64 = 10;

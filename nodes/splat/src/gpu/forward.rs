@@ -9,8 +9,9 @@ use augsplat_core::Camera;
 
 /// f32 words per splat record (`project.wgsl`).
 const SPLAT_STRIDE: u64 = 12;
-/// f32 words per pixel of the image buffer (`forward.wgsl`): r, g, b, alpha, depth, T.
-const IMAGE_STRIDE: usize = 6;
+/// f32 words per pixel of the image buffer (`forward.wgsl`): r, g, b, alpha, depth, T, the
+/// bits of the last contributor's position.
+const IMAGE_STRIDE: usize = 7;
 /// Gaussians per projection workgroup.
 const GROUP: u32 = 256;
 
@@ -173,13 +174,40 @@ pub fn render_scene(
     ctx.scoped(|| render_inner(ctx, scene, cam, s, grid))
 }
 
-fn render_inner(
+/// The buffers of one forward pass that the backward pass reads again.
+pub(super) struct ForwardState {
+    /// Number of (tile, Gaussian) pairs.
+    pub pairs: u32,
+    /// The forward kernels' parameters (with `pairs`).
+    pub params: wgpu::Buffer,
+    /// Per Gaussian: tile rectangle, tile count, status.
+    pub rects: wgpu::Buffer,
+    /// Rank → Gaussian.
+    pub order: wgpu::Buffer,
+    /// Per rank: the offset of its pairs (exclusive scan of tile counts).
+    pub counts: wgpu::Buffer,
+    /// Per emit position: the pair's rank.
+    pub pair_rank: wgpu::Buffer,
+    /// Emit positions in (tile, rank) order.
+    pub sorted: wgpu::Buffer,
+    /// Per tile: [start, end) in `sorted`.
+    pub ranges: wgpu::Buffer,
+    /// Screen-space splats by Gaussian.
+    pub splats: wgpu::Buffer,
+    /// The image (`IMAGE_STRIDE` words per pixel).
+    pub image: wgpu::Buffer,
+    /// Per pixel: last contributor, composited pairs.
+    pub info: wgpu::Buffer,
+}
+
+/// Runs the forward kernels and keeps their buffers.
+pub(super) fn forward_pass(
     ctx: &GpuContext,
     g: &GpuScene,
     cam: &Camera,
     s: &RenderSettings,
     grid: TileGrid,
-) -> Result<GpuFrame, GpuError> {
+) -> Result<ForwardState, GpuError> {
     let n = g.n;
     let nn = u64::from(n);
     let kr = &ctx.kernels;
@@ -211,7 +239,9 @@ fn render_inner(
         ],
         ctx.groups(n.div_ceil(GROUP)),
     );
-    let (_, order) = ctx.record_sort(&mut enc, &keys, &vals, (&keys2, &vals2), n, 32)?;
+    let (_, sorted_order) = ctx.record_sort(&mut enc, &keys, &vals, (&keys2, &vals2), n, 32)?;
+    let order_in_vals = std::ptr::eq(sorted_order, &vals);
+    let order = if order_in_vals { vals } else { vals2 };
     let pixels = u64::from(cam.width) * u64::from(cam.height);
     let fwd_params = |pairs: u32| {
         let mut w = vec![
@@ -232,7 +262,7 @@ fn render_inner(
     ctx.dispatch(
         &mut enc,
         &kr.gather_counts,
-        &[(0, &params0), (1, &meta), (2, order), (3, &counts)],
+        &[(0, &params0), (1, &meta), (2, &order), (3, &counts)],
         ctx.groups(n.div_ceil(GROUP)),
     );
     ctx.record_scan(&mut enc, &counts, n + 1)?;
@@ -244,9 +274,10 @@ fn render_inner(
     // each tile's range and composite.
     let np = u64::from(pairs);
     let tile_keys = ctx.storage("pair tiles", 4 * np)?;
-    let pair_vals = ctx.storage("pair ranks", 4 * np)?;
+    let pair_vals = ctx.storage("pair emit positions", 4 * np)?;
+    let pair_rank = ctx.storage("pair ranks", 4 * np)?;
     let tile_keys2 = ctx.storage("pair tiles (scratch)", 4 * np)?;
-    let pair_vals2 = ctx.storage("pair ranks (scratch)", 4 * np)?;
+    let pair_vals2 = ctx.storage("pair emit positions (scratch)", 4 * np)?;
     let ranges = ctx.storage("tile ranges", 8 * grid.len() as u64)?;
     let image = ctx.storage("image", 4 * IMAGE_STRIDE as u64 * pixels)?;
     let info = ctx.storage("pixel info", 8 * pixels)?;
@@ -258,15 +289,16 @@ fn render_inner(
         &[
             (0, &params),
             (1, &meta),
-            (2, order),
+            (2, &order),
             (3, &counts),
             (4, &tile_keys),
             (5, &pair_vals),
+            (10, &pair_rank),
         ],
         ctx.groups(n.div_ceil(GROUP)),
     );
     let tile_bits = u32::BITS - (grid.len().max(2) as u32 - 1).leading_zeros();
-    let (sorted_tiles, sorted_ranks) = ctx.record_sort(
+    let (sorted_tiles, sorted_pairs) = ctx.record_sort(
         &mut enc,
         &tile_keys,
         &pair_vals,
@@ -286,22 +318,54 @@ fn render_inner(
         &kr.rasterize,
         &[
             (0, &params),
-            (2, order),
-            (5, sorted_ranks),
+            (2, &order),
+            (5, sorted_pairs),
             (6, &ranges),
             (7, &splats),
             (8, &image),
             (9, &info),
+            (10, &pair_rank),
         ],
         [grid.tiles_x, grid.tiles_y],
     );
     ctx.submit(enc)?;
+    let sorted_in_first = std::ptr::eq(sorted_pairs, &pair_vals);
+    let sorted = if sorted_in_first {
+        pair_vals
+    } else {
+        pair_vals2
+    };
+    Ok(ForwardState {
+        pairs,
+        params,
+        rects: meta,
+        order,
+        counts,
+        pair_rank,
+        sorted,
+        ranges,
+        splats,
+        image,
+        info,
+    })
+}
 
+fn render_inner(
+    ctx: &GpuContext,
+    g: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    grid: TileGrid,
+) -> Result<GpuFrame, GpuError> {
+    let n = g.n;
+    let st = forward_pass(ctx, g, cam, s, grid)?;
+    let (image, info, meta) = (&st.image, &st.info, &st.rects);
+    let pixels = u64::from(cam.width) * u64::from(cam.height);
     // Read back.
     let px = pixels as usize;
-    let img = ctx.read_words(&image, IMAGE_STRIDE * px)?;
-    let inf = ctx.read_words(&info, 2 * px)?;
-    let status = ctx.read_words(&meta, 4 * n as usize)?;
+    let img = ctx.read_words(image, IMAGE_STRIDE * px)?;
+    let inf = ctx.read_words(info, 2 * px)?;
+    let status = ctx.read_words(meta, 4 * n as usize)?;
     let mut frame = GpuFrame {
         width: cam.width,
         height: cam.height,

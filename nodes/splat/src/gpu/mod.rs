@@ -4,9 +4,11 @@
 //! - [`GpuContext`]: the adapter and device (limits raised to what the adapter reports), with
 //!   the adapter's name, driver and backend for the outputs' metadata; asking for a GPU where
 //!   there is none is a [`GpuError::NoAdapter`] that says what was found;
-//! - [`project_vjp_gpu`]: the backward pass's per-Gaussian stage (projection and colour
-//!   backward, `project/project_vjp.wgsl`); the compositing backward and training on the GPU
-//!   are not written yet;
+//! - [`backward_gpu`]: gradients of a loss on the colour — the compositing backward walks
+//!   each tile back to front and sums every (tile, Gaussian) pair by a fixed-order tree into
+//!   the pair's own slot, each Gaussian's slots are summed in tile order
+//!   (`backward/backward.wgsl`), and [`project_vjp_gpu`] (`project/project_vjp.wgsl`) turns
+//!   them into gradients of the raw parameters; training on the GPU is not written yet;
 //! - [`render_gpu`]: the forward pass — projection and SH colour (`project/project.wgsl`), a
 //!   stable radix sort of the visible Gaussians by depth (`gpu/sort.wgsl`, `gpu/scan.wgsl`),
 //!   tile binning in (tile, depth, index) order by a second stable sort on the tile, and
@@ -20,7 +22,9 @@ mod backward;
 mod forward;
 mod sort;
 
-pub use backward::{project_vjp_gpu, ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE};
+pub use backward::{
+    backward_gpu, project_vjp_gpu, ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
+};
 pub use forward::{render_gpu, render_scene, GpuFrame, GpuScene};
 
 use std::sync::mpsc;
@@ -115,6 +119,8 @@ struct Kernels {
     tile_ranges: wgpu::ComputePipeline,
     rasterize: wgpu::ComputePipeline,
     project_vjp: wgpu::ComputePipeline,
+    rasterize_backward: wgpu::ComputePipeline,
+    gaussian_sums: wgpu::ComputePipeline,
 }
 
 impl GpuContext {
@@ -361,6 +367,7 @@ impl Kernels {
             "project_vjp.wgsl",
             include_str!("../project/project_vjp.wgsl"),
         );
+        let bwd = module("backward.wgsl", include_str!("../backward/backward.wgsl"));
         let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry),
@@ -382,6 +389,8 @@ impl Kernels {
             tile_ranges: pipeline(&forward, "tile_ranges"),
             rasterize: pipeline(&forward, "rasterize"),
             project_vjp: pipeline(&vjp, "project_vjp"),
+            rasterize_backward: pipeline(&bwd, "rasterize_backward"),
+            gaussian_sums: pipeline(&bwd, "gaussian_sums"),
         }
     }
 }
