@@ -20,7 +20,7 @@ struct Params {
     width: u32,
     height: u32,
     max_alpha: f32,
-    _pad: u32,
+    cutoff: u32,
     background: vec4<f32>,
 }
 
@@ -109,8 +109,18 @@ fn rasterize_backward(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invo
                 if (power <= 0.0) {
                     let e = exp(power);
                     let a1 = batch[b][5] * e;
-                    let alpha = min(p.max_alpha, a1);
-                    if (alpha >= ALPHA_THRESHOLD) {
+                    let ac = min(p.max_alpha, a1);
+                    var alpha = ac;
+                    var da_da1 = 1.0;
+                    var kept = ac >= ALPHA_THRESHOLD;
+                    if (p.cutoff == 1u) {
+                        let x = clamp((ac - ALPHA_THRESHOLD) * (1.0 / ALPHA_THRESHOLD), 0.0, 1.0);
+                        let sm = x * x * (3.0 - 2.0 * x);
+                        alpha = ac * sm;
+                        da_da1 = sm + ac * (6.0 * x * (1.0 - x) / ALPHA_THRESHOLD);
+                        kept = ac > ALPHA_THRESHOLD;
+                    }
+                    if (kept) {
                         let before = t / (1.0 - alpha);
                         let col = vec3<f32>(batch[b][6], batch[b][7], batch[b][8]);
                         let gi = dot(g, col);
@@ -120,7 +130,7 @@ fn rasterize_backward(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invo
                         let w = alpha * before;
                         var q = 0.0;
                         if (a1 <= p.max_alpha) {
-                            q = d_alpha * e;
+                            q = d_alpha * da_da1 * e;
                         }
                         c[0] = q;
                         c[1] = q * dx;

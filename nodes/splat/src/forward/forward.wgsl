@@ -12,7 +12,7 @@ struct Params {
     width: u32,
     height: u32,
     max_alpha: f32,
-    _pad: u32,
+    cutoff: u32,             // 0: hard 1/255 step; 1: the tests' C¹ smoothstep (forward/mod.rs)
     background: vec4<f32>,
 }
 
@@ -150,8 +150,15 @@ fn rasterize(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id
             if (power > 0.0) {
                 continue;
             }
-            let alpha = min(p.max_alpha, s[5] * exp(power));
-            if (!(alpha >= ALPHA_THRESHOLD)) {
+            let a1 = min(p.max_alpha, s[5] * exp(power));
+            var alpha = a1;
+            if (p.cutoff == 1u) {
+                let x = clamp((a1 - ALPHA_THRESHOLD) * (1.0 / ALPHA_THRESHOLD), 0.0, 1.0);
+                alpha = a1 * (x * x * (3.0 - 2.0 * x));
+                if (!(a1 > ALPHA_THRESHOLD)) {
+                    continue;
+                }
+            } else if (!(alpha >= ALPHA_THRESHOLD)) {
                 continue;
             }
             let next_t = t * (1.0 - alpha);

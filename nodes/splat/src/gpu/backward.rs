@@ -4,7 +4,7 @@
 
 use super::forward::{camera_words, forward_pass, GpuScene};
 use super::{f32_words, GpuContext, GpuError};
-use crate::render::RenderSettings;
+use crate::render::{Cutoff, RenderSettings};
 use crate::tiles::TileGrid;
 use augsplat_core::Camera;
 
@@ -104,6 +104,20 @@ pub fn backward_gpu(
     s: &RenderSettings,
     d_rgb: &[f32],
 ) -> Result<ParamGradsGpu, GpuError> {
+    backward_gpu_with_cutoff(ctx, scene, cam, s, d_rgb, Cutoff::Hard)
+}
+
+/// [`backward_gpu`] with a choice of alpha cutoff; `Cutoff::Smooth` exists only for the
+/// finite-difference tests.
+#[doc(hidden)]
+pub fn backward_gpu_with_cutoff(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    d_rgb: &[f32],
+    cutoff: Cutoff,
+) -> Result<ParamGradsGpu, GpuError> {
     cam.validate()
         .map_err(|e| GpuError::Invalid(format!("camera: {e}")))?;
     let pixels = cam.width as usize * cam.height as usize;
@@ -118,7 +132,7 @@ pub fn backward_gpu(
     }
     let grid = TileGrid::new(cam.width, cam.height);
     ctx.scoped(|| {
-        let st = forward_pass(ctx, scene, cam, s, grid)?;
+        let st = forward_pass(ctx, scene, cam, s, grid, cutoff)?;
         let n = scene.len() as u64;
         let g_rgb = ctx.storage_init("colour gradients", &f32_words(d_rgb.iter().copied()))?;
         let pair_grads = ctx.storage("pair gradients", 4 * PAIR_STRIDE * u64::from(st.pairs))?;

@@ -2,7 +2,7 @@
 
 use super::{f32_words, GpuContext, GpuError};
 use crate::constants::{JACOBIAN_CLAMP_MARGIN, TILE};
-use crate::render::{RenderSettings, RenderStats};
+use crate::render::{Cutoff, RenderSettings, RenderStats};
 use crate::tiles::TileGrid;
 use crate::Gaussians;
 use augsplat_core::Camera;
@@ -162,6 +162,19 @@ pub fn render_scene(
     cam: &Camera,
     s: &RenderSettings,
 ) -> Result<GpuFrame, GpuError> {
+    render_scene_with_cutoff(ctx, scene, cam, s, Cutoff::Hard)
+}
+
+/// [`render_scene`] with a choice of alpha cutoff; `Cutoff::Smooth` exists only for the
+/// finite-difference tests (as [`crate::render_with_cutoff`]).
+#[doc(hidden)]
+pub fn render_scene_with_cutoff(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    cutoff: Cutoff,
+) -> Result<GpuFrame, GpuError> {
     cam.validate()
         .map_err(|e| GpuError::Invalid(format!("camera: {e}")))?;
     let grid = TileGrid::new(cam.width, cam.height);
@@ -171,7 +184,7 @@ pub fn render_scene(
             grid.tiles_x, grid.tiles_y
         )));
     }
-    ctx.scoped(|| render_inner(ctx, scene, cam, s, grid))
+    ctx.scoped(|| render_inner(ctx, scene, cam, s, grid, cutoff))
 }
 
 /// The buffers of one forward pass that the backward pass reads again.
@@ -207,6 +220,7 @@ pub(super) fn forward_pass(
     cam: &Camera,
     s: &RenderSettings,
     grid: TileGrid,
+    cutoff: Cutoff,
 ) -> Result<ForwardState, GpuError> {
     let n = g.n;
     let nn = u64::from(n);
@@ -251,8 +265,8 @@ pub(super) fn forward_pass(
             grid.tiles_y,
             cam.width,
             cam.height,
-            s.max_alpha.to_bits(),
-            0,
+            crate::forward::effective_max_alpha(s).to_bits(),
+            u32::from(cutoff == Cutoff::Smooth),
         ];
         w.extend(f32_words(s.background));
         w.push(0);
@@ -356,9 +370,10 @@ fn render_inner(
     cam: &Camera,
     s: &RenderSettings,
     grid: TileGrid,
+    cutoff: Cutoff,
 ) -> Result<GpuFrame, GpuError> {
     let n = g.n;
-    let st = forward_pass(ctx, g, cam, s, grid)?;
+    let st = forward_pass(ctx, g, cam, s, grid, cutoff)?;
     let (image, info, meta) = (&st.image, &st.info, &st.rects);
     let pixels = u64::from(cam.width) * u64::from(cam.height);
     // Read back.

@@ -23,9 +23,10 @@ mod forward;
 mod sort;
 
 pub use backward::{
-    backward_gpu, project_vjp_gpu, ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
+    backward_gpu, backward_gpu_with_cutoff, project_vjp_gpu, ParamGradsGpu, PARAM_GRAD_STRIDE,
+    SCREEN_GRAD_STRIDE,
 };
-pub use forward::{render_gpu, render_scene, GpuFrame, GpuScene};
+pub use forward::{render_gpu, render_scene, render_scene_with_cutoff, GpuFrame, GpuScene};
 
 use std::sync::mpsc;
 use wgpu::util::DeviceExt;
