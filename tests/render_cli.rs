@@ -146,29 +146,44 @@ fn render_on_the_gpu_writes_what_the_cpu_writes() {
         .fold(0.0f32, f32::max);
     assert!(worst <= 1e-4, "GPU vs CPU: {worst}");
     assert!(dir.path().join("gpu_a.exr").is_file() && dir.path().join("gpu_d.png").is_file());
-    // Gradients with the GPU backend: the image from the GPU, the gradients from the CPU.
+    // Gradients on each backend: the same PLY layout, values within 1e-3 of each group's
+    // largest.
     let target = augsplat_core::ImageF32::from_vec(48, 40, 3, vec![0.25; 48 * 40 * 3]);
     augsplat_core::image::write_npy(&dir.path().join("t.npy"), &target).unwrap();
-    let (ok, text) = render_with(
-        dir.path(),
-        &[
-            "--out",
-            &p("g2.png"),
-            "--loss-target",
-            &p("t.npy"),
-            "--grads-out",
-            &p("grads.ply"),
-            "--backend",
-            "gpu",
-        ],
-        &[],
-    );
-    assert!(ok, "{text}");
-    assert!(text.contains("loss "), "{text}");
-    assert_eq!(
-        augsplat_splat::read_ply(&dir.path().join("grads.ply"))
-            .unwrap()
-            .len(),
-        800
-    );
+    let mut grads = Vec::new();
+    for backend in ["cpu", "gpu"] {
+        let out = format!("grads_{backend}.ply");
+        let (ok, text) = render_with(
+            dir.path(),
+            &[
+                "--out",
+                &p("g2.png"),
+                "--loss-target",
+                &p("t.npy"),
+                "--grads-out",
+                &p(&out),
+                "--backend",
+                backend,
+            ],
+            &[],
+        );
+        assert!(ok, "{text}");
+        assert!(text.contains("loss "), "{text}");
+        grads.push(augsplat_splat::read_ply(&dir.path().join(&out)).unwrap());
+    }
+    assert_eq!(grads[1].len(), 800);
+    let group = |f: &dyn Fn(&augsplat_splat::Gaussians) -> Vec<f32>| {
+        let (a, b) = (f(&grads[0]), f(&grads[1]));
+        let scale = a.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let worst = a
+            .iter()
+            .zip(&b)
+            .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(worst <= 1e-3 * scale.max(1e-12), "{worst} of {scale}");
+    };
+    group(&|g| g.means.iter().flatten().copied().collect());
+    group(&|g| g.log_scales.iter().flatten().copied().collect());
+    group(&|g| g.quats.iter().flatten().copied().collect());
+    group(&|g| g.opacity_logits.clone());
+    group(&|g| g.sh.clone());
 }

@@ -46,9 +46,8 @@ pub struct Args {
     /// Where to write dL/d(each raw PLY field), in the input's PLY layout (needs `--loss-target`).
     #[arg(long, requires = "loss_target")]
     pub grads_out: Option<PathBuf>,
-    /// Where to render: `cpu` (default) or `gpu` (wgpu: Vulkan, Metal, DX12 or GL; an error
-    /// when the machine has no GPU adapter). The GPU backend renders the forward pass; the
-    /// gradients of `--grads-out` are computed on the CPU.
+    /// Where to render (and, with `--grads-out`, back-propagate): `cpu` (default) or `gpu`
+    /// (wgpu: Vulkan, Metal, DX12 or GL; an error when the machine has no GPU adapter).
     #[arg(long, value_enum, default_value_t = Backend::Cpu)]
     pub backend: Backend,
 }
@@ -182,19 +181,29 @@ pub fn run(args: Args) -> CmdResult {
         }
         None => None,
     };
-    let cpu = (args.backend == Backend::Cpu || target.is_some()).then(|| render(&g, &cam, &s));
-    let out = match (&cpu, args.backend) {
-        (Some(out), Backend::Cpu) => Frame {
-            rgb: out.rgb.clone(),
-            alpha: out.alpha.clone(),
-            depth: out.depth.clone(),
-            stats: out.stats,
-        },
-        (_, _) => {
+    let gpu = match args.backend {
+        Backend::Cpu => None,
+        Backend::Gpu => {
             let ctx = augsplat_splat::gpu::GpuContext::new().map_err(|e| e.to_string())?;
             eprintln!("GPU: {}", ctx.adapter());
-            let f =
-                augsplat_splat::gpu::render_gpu(&ctx, &g, &cam, &s).map_err(|e| e.to_string())?;
+            let scene =
+                augsplat_splat::gpu::GpuScene::upload(&ctx, &g).map_err(|e| e.to_string())?;
+            Some((ctx, scene))
+        }
+    };
+    let out = match &gpu {
+        None => {
+            let r = render(&g, &cam, &s);
+            Frame {
+                rgb: r.rgb,
+                alpha: r.alpha,
+                depth: r.depth,
+                stats: r.stats,
+            }
+        }
+        Some((ctx, scene)) => {
+            let f = augsplat_splat::gpu::render_scene(ctx, scene, &cam, &s)
+                .map_err(|e| e.to_string())?;
             Frame {
                 rgb: f.rgb,
                 alpha: f.alpha,
@@ -225,8 +234,7 @@ pub fn run(args: Args) -> CmdResult {
         "rendered {}×{}: {} Gaussians visible, {} culled, {} invalid; {} composited pairs",
         w, h, st.visible, st.culled, st.invalid, st.pairs
     );
-    if let (Some(t), Some(gpath), Some(cpu)) = (target, &args.grads_out, &cpu) {
-        let out = cpu;
+    if let (Some(t), Some(gpath)) = (target, &args.grads_out) {
         let n = out.rgb.len() as f64;
         let mut loss = 0.0f64;
         let d_rgb: Vec<f32> = out
@@ -240,14 +248,40 @@ pub fn run(args: Args) -> CmdResult {
             })
             .collect();
         loss /= n;
-        let gr = backward(&g, &cam, &s, out, &d_rgb, None, None);
-        let gg = Gaussians {
-            means: gr.means,
-            log_scales: gr.log_scales,
-            quats: gr.quats,
-            opacity_logits: gr.opacity_logits,
-            sh: gr.sh,
-            sh_degree: g.sh_degree,
+        let gg = match &gpu {
+            None => {
+                let cpu = render(&g, &cam, &s);
+                let gr = backward(&g, &cam, &s, &cpu, &d_rgb, None, None);
+                Gaussians {
+                    means: gr.means,
+                    log_scales: gr.log_scales,
+                    quats: gr.quats,
+                    opacity_logits: gr.opacity_logits,
+                    sh: gr.sh,
+                    sh_degree: g.sh_degree,
+                }
+            }
+            Some((ctx, scene)) => {
+                use augsplat_splat::gpu::PARAM_GRAD_STRIDE as K;
+                let gr = augsplat_splat::gpu::backward_gpu(ctx, scene, &cam, &s, &d_rgb)
+                    .map_err(|e| e.to_string())?;
+                let p = &gr.params;
+                let m = g.len();
+                Gaussians {
+                    means: (0..m)
+                        .map(|i| [p[i * K], p[i * K + 1], p[i * K + 2]])
+                        .collect(),
+                    log_scales: (0..m)
+                        .map(|i| [p[i * K + 3], p[i * K + 4], p[i * K + 5]])
+                        .collect(),
+                    quats: (0..m)
+                        .map(|i| [p[i * K + 6], p[i * K + 7], p[i * K + 8], p[i * K + 9]])
+                        .collect(),
+                    opacity_logits: (0..m).map(|i| p[i * K + 10]).collect(),
+                    sh: gr.sh,
+                    sh_degree: g.sh_degree,
+                }
+            }
         };
         write_ply(gpath, &gg).map_err(|e| e.to_string())?;
         println!("loss {loss:.9e}");
