@@ -258,8 +258,9 @@ fn point(step: u64, e: &Evaluation, g: &Gaussians, seconds: f64, loss: f64) -> C
 /// Trains from `g0` on `real` (and `synthetic`, as the schedule of `args` mixes them) for
 /// `args.steps` steps, evaluating on `test` (with `lpips` when given) every `args.eval_every`
 /// steps and after the last one, keeping the best checkpoint and stopping early per
-/// `args.early_stop_patience` (see the module documentation). `on_event` receives the log
-/// lines and progress. The curve's label is [`TrainArgs::method_label`].
+/// `args.early_stop_patience` (see the module documentation). With `gpu`, each view's render
+/// and backward pass run there (`backend: Gpu`). `on_event` receives the log lines and
+/// progress. The curve's label is [`TrainArgs::method_label`].
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     args: &TrainArgs,
@@ -269,6 +270,7 @@ pub fn fit(
     synthetic: Option<&SyntheticImages>,
     test: &[RealView],
     lpips: Option<&Lpips>,
+    gpu: Option<std::sync::Arc<crate::gpu::GpuContext>>,
     on_event: &mut dyn FnMut(FitEvent),
 ) -> Result<Fitted, EvalError> {
     let a = args;
@@ -285,6 +287,9 @@ pub fn fit(
         real,
         synthetic.map(|s| s as &dyn Supervision),
     );
+    if let Some(gpu) = gpu {
+        trainer.use_gpu(gpu);
+    }
     let mut curve = TrainingCurve {
         label: label.clone(),
         points: Vec::new(),

@@ -125,6 +125,11 @@ pub struct TrainArgs {
     /// Write wall-clock seconds into `curve.json` (off by default: with it the output bytes
     /// differ between runs; the node log always has the times).
     pub record_wall_time: bool,
+    /// Where each view's render and backward pass run: `Cpu` (default) or `Gpu` (wgpu; the
+    /// loss, Adam, densification and the held-out evaluations stay on the CPU). Left out of
+    /// the serialised args when `Cpu`, so CPU keys did not change when it was added.
+    #[serde(skip_serializing_if = "crate::gpu::Backend::is_cpu")]
+    pub backend: crate::gpu::Backend,
 }
 
 impl Default for TrainArgs {
@@ -149,6 +154,7 @@ impl Default for TrainArgs {
             seed: 0,
             label: String::new(),
             record_wall_time: false,
+            backend: crate::gpu::Backend::Cpu,
         }
     }
 }
@@ -175,6 +181,12 @@ impl TrainArgs {
             return Err(format!(
                 "real_loss.ssim_lambda = {} must be in [0, 1]",
                 self.real_loss.ssim_lambda
+            ));
+        }
+        if self.backend == crate::gpu::Backend::Gpu && self.synthetic.skip_below > 0.0 {
+            return Err(format!(
+                "synthetic.skip_below = {} needs pixel masks, which the GPU backend does not have yet: use backend: Cpu, or skip_below: 0",
+                self.synthetic.skip_below
             ));
         }
         if !(self.synthetic.skip_below.is_finite() && self.synthetic.skip_below >= 0.0) {
@@ -368,6 +380,9 @@ pub struct Trainer<'a> {
     epoch: u64,
     usable_synth: Vec<usize>,
     d_rgb: Vec<f32>,
+    /// The GPU (with `backend: Gpu`) and this step's upload of the Gaussians.
+    gpu: Option<std::sync::Arc<crate::gpu::GpuContext>>,
+    gpu_scene: Option<crate::gpu::GpuScene>,
 }
 
 impl<'a> Trainer<'a> {
@@ -397,10 +412,20 @@ impl<'a> Trainer<'a> {
             epoch: 0,
             usable_synth,
             d_rgb: Vec::new(),
+            gpu: None,
+            gpu_scene: None,
             adam,
             g,
             args,
         }
+    }
+
+    /// Renders and back-propagates each view on `gpu` from now on (the loss, Adam,
+    /// densification and evaluations stay on the CPU). A GPU failure in a later step ends
+    /// the training with the device's message (a panic the engine reports as the node's
+    /// failure).
+    pub fn use_gpu(&mut self, gpu: std::sync::Arc<crate::gpu::GpuContext>) {
+        self.gpu = Some(gpu);
     }
 
     /// The current Gaussians.
@@ -454,12 +479,66 @@ impl<'a> Trainer<'a> {
         settings: &RenderSettings,
     ) -> (f64, Gradients, u64) {
         let cam = src.camera(i);
+        if let (Some(gpu), Some(scene)) = (&self.gpu, &self.gpu_scene) {
+            return Self::render_and_backward_gpu(
+                gpu,
+                scene,
+                &self.g,
+                src,
+                i,
+                scale,
+                settings,
+                &mut self.d_rgb,
+            );
+        }
         let out: RenderOutput = crate::render_masked(&self.g, cam, settings, src.mask(i));
         self.d_rgb.clear();
         self.d_rgb.resize(out.rgb.len(), 0.0);
         let l = src.loss(i, &out.rgb, scale as f32, &mut self.d_rgb);
         let gr = crate::backward(&self.g, cam, settings, &out, &self.d_rgb, None, None);
         (l, gr, out.stats.pairs)
+    }
+
+    /// [`Self::render_and_backward`] on the GPU: the render and the backward pass there, the
+    /// loss here.
+    #[allow(clippy::too_many_arguments)]
+    fn render_and_backward_gpu(
+        gpu: &crate::gpu::GpuContext,
+        scene: &crate::gpu::GpuScene,
+        g: &Gaussians,
+        src: &dyn Supervision,
+        i: usize,
+        scale: f64,
+        settings: &RenderSettings,
+        d_rgb: &mut Vec<f32>,
+    ) -> (f64, Gradients, u64) {
+        use crate::gpu::PARAM_GRAD_STRIDE as K;
+        let cam = src.camera(i);
+        let fail = |e: crate::gpu::GpuError| -> ! { panic!("backend: Gpu: {e}") };
+        let frame = crate::gpu::render_scene(gpu, scene, cam, settings).unwrap_or_else(|e| fail(e));
+        d_rgb.clear();
+        d_rgb.resize(frame.rgb.len(), 0.0);
+        let l = src.loss(i, &frame.rgb, scale as f32, d_rgb);
+        let gr =
+            crate::gpu::backward_gpu(gpu, scene, cam, settings, d_rgb).unwrap_or_else(|e| fail(e));
+        let p = &gr.params;
+        let n = g.len();
+        let grads = Gradients {
+            means: (0..n)
+                .map(|j| [p[j * K], p[j * K + 1], p[j * K + 2]])
+                .collect(),
+            log_scales: (0..n)
+                .map(|j| [p[j * K + 3], p[j * K + 4], p[j * K + 5]])
+                .collect(),
+            quats: (0..n)
+                .map(|j| [p[j * K + 6], p[j * K + 7], p[j * K + 8], p[j * K + 9]])
+                .collect(),
+            opacity_logits: (0..n).map(|j| p[j * K + 10]).collect(),
+            sh: gr.sh,
+            means2d_abs: gr.means2d,
+            visible: gr.visible,
+        };
+        (l, grads, frame.stats.pairs)
     }
 
     /// Renders view `i` of `src`, adds `scale · dL/drgb`, back-propagates into `acc`.
@@ -498,6 +577,14 @@ impl<'a> Trainer<'a> {
             }
         }
         let settings = self.args.render_settings(step);
+        // With the GPU, this step's Gaussians are uploaded once for all its views.
+        self.gpu_scene = match &self.gpu {
+            Some(gpu) => Some(
+                crate::gpu::GpuScene::upload(gpu, &self.g)
+                    .unwrap_or_else(|e| panic!("backend: Gpu: {e}")),
+            ),
+            None => None,
+        };
         let n = self.g.len();
         let k3 = self.g.coeffs() * 3;
         let sh_active = 3 * crate::gaussians::sh_coeffs(settings.sh_degree.min(self.g.sh_degree));
@@ -537,11 +624,11 @@ impl<'a> Trainer<'a> {
                     let mut sum = 0.0;
                     let want_stat = densify_on && self.args.synthetic.densify_from_synthetic;
                     for &i in &ids {
-                        if want_stat {
+                        if want_stat || self.gpu.is_some() {
                             let (l, gr, pairs) = self.render_and_backward(src, i, scale, &settings);
                             sum += l;
                             rep.pairs += pairs;
-                            if gr.means2d_abs.len() == n && gr.visible.len() == n {
+                            if want_stat && gr.means2d_abs.len() == n && gr.visible.len() == n {
                                 self.densifier.accumulate_scaled(
                                     &gr.means2d_abs,
                                     &gr.visible,

@@ -300,9 +300,17 @@ fn fit_without_a_graph_matches_the_node() {
     let run = |a: &TrainArgs| {
         let mut events = Vec::new();
         let f = pool.install(|| {
-            fit::fit(a, g0(a), sscale, &real, None, &held_out, None, &mut |e| {
-                events.push(e)
-            })
+            fit::fit(
+                a,
+                g0(a),
+                sscale,
+                &real,
+                None,
+                &held_out,
+                None,
+                None,
+                &mut |e| events.push(e),
+            )
         });
         (f.unwrap(), events)
     };

@@ -22,6 +22,13 @@ pub struct ParamGradsGpu {
     pub params: Vec<f32>,
     /// dL/d(SH coefficients), the layout of `Gaussians::sh` (zero above the active degree).
     pub sh: Vec<f32>,
+    /// From [`backward_gpu`]: dL/d(mean2d) in NDC-normalised units (the pixel-space gradient
+    /// × (width/2, height/2)), the densification statistic of [`crate::Gradients`]; empty
+    /// from [`project_vjp_gpu`].
+    pub means2d: Vec<[f32; 2]>,
+    /// From [`backward_gpu`]: whether each Gaussian reached a tile; empty from
+    /// [`project_vjp_gpu`].
+    pub visible: Vec<bool>,
 }
 
 /// The projection and colour backward on the GPU: given each Gaussian's screen-space
@@ -88,6 +95,8 @@ fn vjp_inner(
     Ok(ParamGradsGpu {
         params: to_f32(ctx.read_words(&grads, PARAM_GRAD_STRIDE * n)?),
         sh: to_f32(ctx.read_words(&sh, 3 * k * n)?),
+        means2d: Vec::new(),
+        visible: Vec::new(),
     })
 }
 
@@ -170,7 +179,20 @@ pub fn backward_gpu_with_cutoff(
             ctx.groups((n as u32).div_ceil(256)),
         );
         ctx.submit(enc)?;
-        vjp_inner(ctx, scene, cam, s, &screen)
+        let mut out = vjp_inner(ctx, scene, cam, s, &screen)?;
+        let nn = n as usize;
+        let sg = ctx.read_words(&screen, SCREEN_GRAD_STRIDE * nn)?;
+        let (hw, hh) = (0.5 * cam.width as f32, 0.5 * cam.height as f32);
+        out.means2d = sg
+            .chunks_exact(SCREEN_GRAD_STRIDE)
+            .map(|c| [f32::from_bits(c[0]) * hw, f32::from_bits(c[1]) * hh])
+            .collect();
+        out.visible = ctx
+            .read_words(&st.rects, 4 * nn)?
+            .chunks_exact(4)
+            .map(|m| m[2] > 0)
+            .collect();
+        Ok(out)
     })
 }
 

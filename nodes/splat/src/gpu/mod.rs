@@ -42,6 +42,14 @@ pub enum Backend {
     Gpu,
 }
 
+impl Backend {
+    /// Whether this is the CPU (the default, left out of serialised args so that adding the
+    /// field kept every existing key).
+    pub fn is_cpu(&self) -> bool {
+        *self == Backend::Cpu
+    }
+}
+
 /// What can go wrong on the GPU.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
