@@ -5,25 +5,9 @@ use std::path::Path;
 use std::process::Command;
 
 fn render(dir: &Path, camera: &serde_json::Value) -> (bool, String) {
-    let cam = dir.join("cam.json");
-    std::fs::write(&cam, camera.to_string()).unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_augsplat"))
-        .args(["render", "--splats"])
-        .arg(dir.join("g.ply"))
-        .arg("--camera")
-        .arg(&cam)
-        .arg("--out")
-        .arg(dir.join("out.png"))
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        format!(
-            "{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        ),
-    )
+    std::fs::write(dir.join("cam.json"), camera.to_string()).unwrap();
+    let out = dir.join("out.png").display().to_string();
+    render_with(dir, &["--out", &out], &[])
 }
 
 #[test]

@@ -248,40 +248,22 @@ pub fn run(args: Args) -> CmdResult {
             })
             .collect();
         loss /= n;
-        let gg = match &gpu {
+        let gr = match &gpu {
             None => {
                 let cpu = render(&g, &cam, &s);
-                let gr = backward(&g, &cam, &s, &cpu, &d_rgb, None, None);
-                Gaussians {
-                    means: gr.means,
-                    log_scales: gr.log_scales,
-                    quats: gr.quats,
-                    opacity_logits: gr.opacity_logits,
-                    sh: gr.sh,
-                    sh_degree: g.sh_degree,
-                }
+                backward(&g, &cam, &s, &cpu, &d_rgb, None, None)
             }
-            Some((ctx, scene)) => {
-                use augsplat_splat::gpu::PARAM_GRAD_STRIDE as K;
-                let gr = augsplat_splat::gpu::backward_gpu(ctx, scene, &cam, &s, &d_rgb)
-                    .map_err(|e| e.to_string())?;
-                let p = &gr.params;
-                let m = g.len();
-                Gaussians {
-                    means: (0..m)
-                        .map(|i| [p[i * K], p[i * K + 1], p[i * K + 2]])
-                        .collect(),
-                    log_scales: (0..m)
-                        .map(|i| [p[i * K + 3], p[i * K + 4], p[i * K + 5]])
-                        .collect(),
-                    quats: (0..m)
-                        .map(|i| [p[i * K + 6], p[i * K + 7], p[i * K + 8], p[i * K + 9]])
-                        .collect(),
-                    opacity_logits: (0..m).map(|i| p[i * K + 10]).collect(),
-                    sh: gr.sh,
-                    sh_degree: g.sh_degree,
-                }
-            }
+            Some((ctx, scene)) => augsplat_splat::gpu::backward_gpu(ctx, scene, &cam, &s, &d_rgb)
+                .map_err(|e| e.to_string())?
+                .into_gradients(),
+        };
+        let gg = Gaussians {
+            means: gr.means,
+            log_scales: gr.log_scales,
+            quats: gr.quats,
+            opacity_logits: gr.opacity_logits,
+            sh: gr.sh,
+            sh_degree: g.sh_degree,
         };
         write_ply(gpath, &gg).map_err(|e| e.to_string())?;
         println!("loss {loss:.9e}");

@@ -483,7 +483,6 @@ impl<'a> Trainer<'a> {
             return Self::render_and_backward_gpu(
                 gpu,
                 scene,
-                &self.g,
                 src,
                 i,
                 scale,
@@ -505,14 +504,12 @@ impl<'a> Trainer<'a> {
     fn render_and_backward_gpu(
         gpu: &crate::gpu::GpuContext,
         scene: &crate::gpu::GpuScene,
-        g: &Gaussians,
         src: &dyn Supervision,
         i: usize,
         scale: f64,
         settings: &RenderSettings,
         d_rgb: &mut Vec<f32>,
     ) -> (f64, Gradients, u64) {
-        use crate::gpu::PARAM_GRAD_STRIDE as K;
         let cam = src.camera(i);
         let fail = |e: crate::gpu::GpuError| -> ! { panic!("backend: Gpu: {e}") };
         let frame = crate::gpu::render_scene(gpu, scene, cam, settings).unwrap_or_else(|e| fail(e));
@@ -521,23 +518,7 @@ impl<'a> Trainer<'a> {
         let l = src.loss(i, &frame.rgb, scale as f32, d_rgb);
         let gr =
             crate::gpu::backward_gpu(gpu, scene, cam, settings, d_rgb).unwrap_or_else(|e| fail(e));
-        let p = &gr.params;
-        let n = g.len();
-        let grads = Gradients {
-            means: (0..n)
-                .map(|j| [p[j * K], p[j * K + 1], p[j * K + 2]])
-                .collect(),
-            log_scales: (0..n)
-                .map(|j| [p[j * K + 3], p[j * K + 4], p[j * K + 5]])
-                .collect(),
-            quats: (0..n)
-                .map(|j| [p[j * K + 6], p[j * K + 7], p[j * K + 8], p[j * K + 9]])
-                .collect(),
-            opacity_logits: (0..n).map(|j| p[j * K + 10]).collect(),
-            sh: gr.sh,
-            means2d_abs: gr.means2d,
-            visible: gr.visible,
-        };
+        let grads = gr.into_gradients();
         (l, grads, frame.stats.pairs)
     }
 

@@ -31,6 +31,30 @@ pub struct ParamGradsGpu {
     pub visible: Vec<bool>,
 }
 
+impl ParamGradsGpu {
+    /// The gradients in the CPU backward's layout ([`crate::Gradients`]).
+    pub fn into_gradients(self) -> crate::Gradients {
+        const K: usize = PARAM_GRAD_STRIDE;
+        let p = &self.params;
+        let n = p.len() / K;
+        crate::Gradients {
+            means: (0..n)
+                .map(|j| [p[j * K], p[j * K + 1], p[j * K + 2]])
+                .collect(),
+            log_scales: (0..n)
+                .map(|j| [p[j * K + 3], p[j * K + 4], p[j * K + 5]])
+                .collect(),
+            quats: (0..n)
+                .map(|j| [p[j * K + 6], p[j * K + 7], p[j * K + 8], p[j * K + 9]])
+                .collect(),
+            opacity_logits: (0..n).map(|j| p[j * K + 10]).collect(),
+            sh: self.sh,
+            means2d_abs: self.means2d,
+            visible: self.visible,
+        }
+    }
+}
+
 /// The projection and colour backward on the GPU: given each Gaussian's screen-space
 /// gradient (`screen`, [`SCREEN_GRAD_STRIDE`] values per Gaussian), the gradients of its raw
 /// parameters, the SH view direction's dependence on the mean included — the WGSL twin of
@@ -49,8 +73,7 @@ pub fn project_vjp_gpu(
             screen.len()
         )));
     }
-    cam.validate()
-        .map_err(|e| GpuError::Invalid(format!("camera: {e}")))?;
+    super::forward::tile_grid(cam)?;
     ctx.scoped(|| {
         let upstream =
             ctx.storage_init("screen-space gradients", &f32_words(screen.iter().copied()))?;
@@ -127,8 +150,7 @@ pub fn backward_gpu_with_cutoff(
     d_rgb: &[f32],
     cutoff: Cutoff,
 ) -> Result<ParamGradsGpu, GpuError> {
-    cam.validate()
-        .map_err(|e| GpuError::Invalid(format!("camera: {e}")))?;
+    let grid = super::forward::tile_grid(cam)?;
     let pixels = cam.width as usize * cam.height as usize;
     if d_rgb.len() != 3 * pixels {
         return Err(GpuError::Invalid(format!(
@@ -139,7 +161,6 @@ pub fn backward_gpu_with_cutoff(
             3 * pixels
         )));
     }
-    let grid = TileGrid::new(cam.width, cam.height);
     ctx.scoped(|| {
         let st = forward_pass(ctx, scene, cam, s, grid, cutoff)?;
         let n = scene.len() as u64;

@@ -175,6 +175,13 @@ pub fn render_scene_with_cutoff(
     s: &RenderSettings,
     cutoff: Cutoff,
 ) -> Result<GpuFrame, GpuError> {
+    let grid = tile_grid(cam)?;
+    ctx.scoped(|| render_inner(ctx, scene, cam, s, grid, cutoff))
+}
+
+/// The tile grid of a valid camera, within the kernels' rectangle encoding (65535 tiles per
+/// axis); the one check every GPU entry point makes on its camera.
+pub(super) fn tile_grid(cam: &Camera) -> Result<TileGrid, GpuError> {
     cam.validate()
         .map_err(|e| GpuError::Invalid(format!("camera: {e}")))?;
     let grid = TileGrid::new(cam.width, cam.height);
@@ -184,7 +191,7 @@ pub fn render_scene_with_cutoff(
             grid.tiles_x, grid.tiles_y
         )));
     }
-    ctx.scoped(|| render_inner(ctx, scene, cam, s, grid, cutoff))
+    Ok(grid)
 }
 
 /// The buffers of one forward pass that the backward pass reads again.
