@@ -60,6 +60,11 @@ pub enum Command {
     Weights(commands::weights::Args),
     /// Compare the metrics of several runs (ablation points).
     Compare(commands::compare::Args),
+    /// Show the latest run's nodes: waiting, queued, running (where), done, failed (why).
+    Status(commands::status::Args),
+    /// Compute one node of a pipeline by key into the store (what a Slurm job runs).
+    #[command(hide = true)]
+    ComputeNode(commands::compute_node::Args),
 }
 
 /// Parses the command line and runs it with `registry`; errors are printed as readable
@@ -79,6 +84,8 @@ pub fn main_with(registry: Registry) -> ExitCode {
         Command::Metrics(a) => commands::metrics::run(a),
         Command::Weights(a) => commands::weights::run(a),
         Command::Compare(a) => commands::compare::run(a),
+        Command::Status(a) => commands::status::run(a, &registry),
+        Command::ComputeNode(a) => commands::compute_node::run(a, &registry),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -5,13 +5,15 @@
 //! - [`syntax`]: a RON reader that keeps positions; [`spec`]: `extends`, `--set`, params, sweeps.
 //! - [`resolve`]: typing against the registry, repeats, references, cycles, dedup → [`Plan`].
 //! - [`key`]: what identifies a computation (structural id) and addresses its outputs (key).
-//! - [`store`]: blobs, manifests, action cache, claims, records, GC.
+//! - [`store`]: blobs, manifests, action cache, records, GC; [`claim`]: claims on keys that
+//!   hold on shared filesystems.
 //! - [`exec`]: the local executor and its scheduler; [`explain`]: `plan` and `why`;
 //!   [`engine`]: the library API.
 //! - [`command`]: the `Command` node kind (external programs).
 //!
 //! See `graph/README.md` for the pipeline syntax and the engine's semantics.
 
+pub mod claim;
 pub mod command;
 pub mod engine;
 pub mod error;

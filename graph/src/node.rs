@@ -136,7 +136,23 @@ pub struct RunContext {
     pub(crate) threads: usize,
     pub(crate) sink: Arc<dyn ProgressSink>,
     pub(crate) node_name: String,
+    /// Where checkpoints go and how often (steps), when the engine keeps them.
+    pub(crate) checkpoints: Option<Checkpoints>,
 }
+
+/// A node run's checkpoint folder and cadence (see [`RunContext::save_checkpoint`]).
+#[derive(Clone, Debug)]
+pub struct Checkpoints {
+    /// The folder, tied to the computation's key; it outlives a killed run.
+    pub dir: PathBuf,
+    /// Save every this many steps (0: never).
+    pub every: u64,
+}
+
+/// The file a checkpoint is saved in, inside [`Checkpoints::dir`].
+const CHECKPOINT_FILE: &str = "state.ckpt";
+/// The first bytes of a checkpoint file.
+const CHECKPOINT_MAGIC: &[u8; 8] = b"AUGCKPT1";
 
 impl RunContext {
     /// Builds a context by hand, for running a node outside the engine (tests, benchmarks).
@@ -164,7 +180,72 @@ impl RunContext {
             threads: threads.max(1),
             sink: Arc::new(NullSink),
             node_name: "standalone".into(),
+            checkpoints: None,
         })
+    }
+
+    /// Keeps checkpoints in `dir` every `every` steps (a standalone context keeps none).
+    pub fn with_checkpoints(mut self, dir: PathBuf, every: u64) -> Self {
+        self.checkpoints = Some(Checkpoints { dir, every });
+        self
+    }
+
+    /// How often a long node should save its state, in its own steps (`None`: checkpoints are
+    /// off). The cadence is not part of any key: it changes when a node saves, never what it
+    /// computes.
+    pub fn checkpoint_every(&self) -> Option<u64> {
+        self.checkpoints
+            .as_ref()
+            .map(|c| c.every)
+            .filter(|&e| e > 0)
+    }
+
+    /// Saves a checkpoint: `bytes` replace the previous one atomically (written beside it,
+    /// then renamed), with a checksum. A node saves its whole state, enough to continue as if
+    /// it had never stopped; the engine keeps the folder while the key has no entry and
+    /// removes it once the outputs are stored. Does nothing when checkpoints are off.
+    pub fn save_checkpoint(&self, bytes: &[u8]) -> Result<(), NodeError> {
+        let Some(c) = &self.checkpoints else {
+            return Ok(());
+        };
+        let err = |what: &str, p: &Path, e: std::io::Error| {
+            NodeError::new(format!("{what} checkpoint {}: {e}", p.display()))
+        };
+        std::fs::create_dir_all(&c.dir).map_err(|e| err("creating", &c.dir, e))?;
+        let tmp = c.dir.join(format!(".{CHECKPOINT_FILE}.{}", std::process::id()));
+        let mut data = Vec::with_capacity(bytes.len() + 40);
+        data.extend_from_slice(CHECKPOINT_MAGIC);
+        data.extend_from_slice(blake3::hash(bytes).as_bytes());
+        data.extend_from_slice(bytes);
+        {
+            use std::io::Write;
+            let mut f = std::fs::File::create(&tmp).map_err(|e| err("writing", &tmp, e))?;
+            f.write_all(&data).map_err(|e| err("writing", &tmp, e))?;
+            // On disk before it replaces the previous checkpoint.
+            f.sync_all().map_err(|e| err("writing", &tmp, e))?;
+        }
+        let dest = c.dir.join(CHECKPOINT_FILE);
+        std::fs::rename(&tmp, &dest).map_err(|e| err("renaming", &dest, e))
+    }
+
+    /// The latest checkpoint saved by an earlier, interrupted run of this computation, if any
+    /// (a damaged one is reported in the log and ignored: the node starts afresh).
+    pub fn load_checkpoint(&self) -> Option<Vec<u8>> {
+        let c = self.checkpoints.as_ref()?;
+        let p = c.dir.join(CHECKPOINT_FILE);
+        let data = std::fs::read(&p).ok()?;
+        let ok = data.len() >= 40
+            && &data[..8] == CHECKPOINT_MAGIC
+            && blake3::hash(&data[40..]).as_bytes() == &data[8..40];
+        if ok {
+            Some(data[40..].to_vec())
+        } else {
+            self.log(format!(
+                "ignoring the damaged checkpoint {} (starting afresh)",
+                p.display()
+            ));
+            None
+        }
     }
 
     /// The folder of single input `name`.

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// The top-level fields a pipeline document may have.
-pub const TOP_FIELDS: &[&str] = &["extends", "params", "nodes", "sweep"];
+pub const TOP_FIELDS: &[&str] = &["extends", "params", "nodes", "sweep", "resources"];
 /// The fields a node may have.
 pub const NODE_FIELDS: &[&str] = &["kind", "args", "inputs", "repeat"];
 

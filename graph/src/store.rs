@@ -108,12 +108,7 @@ pub struct ActionEntry {
     pub log: Option<String>,
 }
 
-/// A held claim on a key; dropping it releases the OS lock.
-pub struct Claim {
-    _file: File,
-    /// Whether another process held it first (we waited).
-    pub waited: bool,
-}
+pub use crate::claim::Claim;
 
 /// What `gc` removed or would remove.
 #[derive(Clone, Debug, Default)]
@@ -153,7 +148,7 @@ pub struct Store {
 
 static COUNTER: AtomicU64 = AtomicU64::new(0);
 
-fn unique_suffix() -> String {
+pub(crate) fn unique_suffix() -> String {
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
     let t = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -189,9 +184,11 @@ impl Store {
             "outputs",
             "actions",
             "locks",
+            "checkpoints",
             "tmp",
             "runs/latest",
             "runs/records",
+            "runs/status",
             "pins",
             "extcache",
         ] {
@@ -268,33 +265,22 @@ impl Store {
     }
 
     /// Claims `key`: returns at once if no other process computes it, else waits until that
-    /// process finishes or dies (OS locks die with their process).
+    /// process finishes, dies or stops renewing its claim (see [`crate::claim`]: claim files,
+    /// not OS locks, so that a store on NFS or Lustre works).
     pub fn claim(&self, key: &Hash) -> Result<Claim, EngineError> {
-        let p = self.root.join("locks").join(format!("{}.lock", hex(key)));
-        let f = fs::OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(&p)
-            .map_err(io("opening claim", &p))?;
-        match f.try_lock() {
-            Ok(()) => Ok(Claim {
-                _file: f,
-                waited: false,
-            }),
-            Err(fs::TryLockError::WouldBlock) => {
-                f.lock().map_err(io("waiting for claim", &p))?;
-                Ok(Claim {
-                    _file: f,
-                    waited: true,
-                })
-            }
-            Err(fs::TryLockError::Error(e)) => Err(EngineError::Io {
-                what: "claiming",
-                path: p,
-                source: e,
-            }),
-        }
+        crate::claim::acquire(&self.claim_path(key), &crate::claim::ClaimPolicy::default())
+    }
+
+    /// The claim file of `key`.
+    pub fn claim_path(&self, key: &Hash) -> PathBuf {
+        crate::claim::claim_path(&self.root.join("locks"), &hex(key))
+    }
+
+    /// The folder a node run of `key` keeps its checkpoints in: it outlives a killed run, so
+    /// the next run of the same key resumes from it, and is removed when the key's entry is
+    /// written.
+    pub fn checkpoint_dir(&self, key: &Hash) -> PathBuf {
+        self.root.join("checkpoints").join(hex(key))
     }
 
     /// A fresh scratch folder for one node run.

@@ -1,6 +1,7 @@
 //! One module per subcommand. Each has `Args` (clap) and `run`, returning a readable error.
 
 pub mod compare;
+pub mod compute_node;
 pub mod expand;
 pub mod gc;
 pub mod inspect;
@@ -8,6 +9,7 @@ pub mod metrics;
 pub mod plan;
 pub mod render;
 pub mod run;
+pub mod status;
 pub mod verify;
 pub mod view;
 pub mod weights;

@@ -2,6 +2,7 @@
 //! subcommands (`plan`, `why`, `expand`, `gc`) share.
 
 use super::CmdResult;
+use augsplat_graph::exec::{slurm::SlurmOptions, Executor};
 use augsplat_graph::{default_cache_dir, Engine, Plan, Registry, RunOptions};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -33,6 +34,22 @@ pub struct Args {
     /// No progress bars and no final table.
     #[arg(long, short = 'q')]
     pub quiet: bool,
+    /// Where nodes run: `local` (this process) or `slurm` (one `sbatch` job per ready node,
+    /// one job array per repeat or sweep; the store must be on a filesystem the compute nodes
+    /// share). Resources come from the pipeline's `resources:` block.
+    #[arg(long, value_name = "local|slurm", default_value = "local")]
+    pub executor: String,
+    /// An option for every `sbatch` call, e.g. `--slurm-opt=--partition=gpu`. Repeatable.
+    #[arg(long = "slurm-opt", value_name = "OPT", allow_hyphen_values = true)]
+    pub slurm_opts: Vec<String>,
+    /// Submit Slurm jobs with `--requeue`: a preempted job is requeued and resumes from its
+    /// node's last checkpoint.
+    #[arg(long)]
+    pub requeue: bool,
+    /// Long nodes (field and splat training) save a checkpoint every N of their steps, which
+    /// an interrupted run resumes from (0: never). Not part of any key.
+    #[arg(long, value_name = "N", default_value_t = augsplat_graph::exec::DEFAULT_CHECKPOINT_EVERY)]
+    pub checkpoint_every: u64,
 }
 
 /// Runs `augsplat run`.
@@ -41,7 +58,22 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
     let mut opts = RunOptions {
         targets: args.targets.clone(),
         progress: !args.quiet && std::io::stderr().is_terminal(),
+        checkpoint_every: args.checkpoint_every,
         ..Default::default()
+    };
+    opts.executor = match args.executor.as_str() {
+        "local" => {
+            if !args.slurm_opts.is_empty() || args.requeue {
+                return Err("--slurm-opt and --requeue need --executor slurm".into());
+            }
+            Executor::Local
+        }
+        "slurm" => Executor::Slurm(slurm_options(&args, engine.store().root())?),
+        other => {
+            return Err(format!(
+                "--executor {other}: unknown executor (use `local` or `slurm`)"
+            ))
+        }
     };
     if let Some(j) = args.jobs {
         if j == 0 {
@@ -98,6 +130,32 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
         }
         Err(msg)
     }
+}
+
+/// The Slurm executor's options: its worker is this very program's hidden `compute-node`
+/// subcommand, with the same pipeline, overrides and (absolute) store.
+fn slurm_options(args: &Args, store_root: &std::path::Path) -> Result<SlurmOptions, String> {
+    let exe = std::env::current_exe().map_err(|e| format!("locating augsplat itself: {e}"))?;
+    let file = std::fs::canonicalize(&args.pipeline.file)
+        .map_err(|e| format!("{}: {e}", args.pipeline.file.display()))?;
+    let mut worker = vec![
+        exe.display().to_string(),
+        "compute-node".into(),
+        "--cache".into(),
+        store_root.display().to_string(),
+        "--checkpoint-every".into(),
+        args.checkpoint_every.to_string(),
+    ];
+    for s in &args.pipeline.sets {
+        worker.push(format!("--set={s}"));
+    }
+    worker.push(file.display().to_string());
+    Ok(SlurmOptions {
+        worker,
+        sbatch_opts: args.slurm_opts.clone(),
+        requeue: args.requeue,
+        ..Default::default()
+    })
 }
 
 /// Pipeline file, overrides and store location.

@@ -11,6 +11,8 @@
 mod report;
 mod run;
 mod schedule;
+pub mod slurm;
+pub mod status;
 
 pub use report::{arg_origin, flatten_args, instance_record};
 pub(crate) use run::{changed_input, input_snapshot};
@@ -33,7 +35,25 @@ pub struct RunOptions {
     pub targets: Vec<String>,
     /// Draw progress bars on stderr (only when it is a terminal).
     pub progress: bool,
+    /// Long nodes save a checkpoint every this many of their steps (0: never); a rerun of
+    /// an interrupted computation resumes from it. Not part of any key.
+    pub checkpoint_every: u64,
+    /// Where computations run.
+    pub executor: Executor,
 }
+
+/// Where a run's computations run.
+#[derive(Clone, Debug, Default)]
+pub enum Executor {
+    /// In this process, on worker threads (the default).
+    #[default]
+    Local,
+    /// Each as a Slurm job (see [`slurm`]).
+    Slurm(slurm::SlurmOptions),
+}
+
+/// The default checkpoint cadence, in a node's steps.
+pub const DEFAULT_CHECKPOINT_EVERY: u64 = 1000;
 
 impl Default for RunOptions {
     fn default() -> Self {
@@ -43,6 +63,8 @@ impl Default for RunOptions {
                 .unwrap_or(1),
             targets: Vec::new(),
             progress: false,
+            checkpoint_every: DEFAULT_CHECKPOINT_EVERY,
+            executor: Executor::Local,
         }
     }
 }
@@ -144,12 +166,40 @@ pub fn plan_keys(plan: &Plan, store: &Store) -> Result<PlannedKeys, EngineError>
 }
 
 /// Runs the plan. Returns a report even when nodes fail (check [`RunReport::success`]); errors
-/// are reserved for the store itself failing.
+/// are reserved for the store itself failing (and, with Slurm, for `sbatch` being absent).
 pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunReport, EngineError> {
     let t0 = Instant::now();
     let _shared = store.lock_shared()?;
     let need = plan.needed(&opts.targets)?;
+    let executor = match opts.executor {
+        Executor::Local => "local",
+        Executor::Slurm(_) => "slurm",
+    };
+    let mut status = status::StatusWriter::new(store, plan.file.display().to_string(), executor);
+    let results = match &opts.executor {
+        Executor::Local => run_local(plan, store, opts, need, &mut status)?,
+        Executor::Slurm(s) => slurm::run(plan, store, opts, s, need, &mut status)?,
+    };
+    let report = RunReport {
+        results,
+        seconds: t0.elapsed().as_secs_f64(),
+    };
+    report::write_records(plan, store, &report)?;
+    Ok(report)
+}
+
+/// The local executor's loop: worker threads within the thread budget.
+fn run_local(
+    plan: &Plan,
+    store: &Store,
+    opts: &RunOptions,
+    need: Vec<bool>,
+    status: &mut status::StatusWriter<'_>,
+) -> Result<Vec<Option<CompResult>>, EngineError> {
     let mut sched = Scheduler::new(plan, store, need, opts.jobs.max(1), opts.progress);
+    sched.checkpoint_every = opts.checkpoint_every;
+    let here = format!("pid {} on {}", std::process::id(), crate::store::hostname());
+    let place = |_c: usize| Some((here.clone(), false));
     let (tx, rx) = mpsc::channel::<Msg>();
     std::thread::scope(|scope| -> Result<(), EngineError> {
         loop {
@@ -160,6 +210,7 @@ pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunRepor
                     let _ = tx.send(Msg::Done(c, job.run(plan, store)));
                 });
             })?;
+            status.update(sched.node_states(&place), false);
             if sched.idle() {
                 break;
             }
@@ -170,10 +221,79 @@ pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunRepor
         }
         Ok(())
     })?;
-    let report = RunReport {
-        results: sched.into_results(),
-        seconds: t0.elapsed().as_secs_f64(),
+    let results = sched.into_results();
+    status.finish(status::states_of_results(plan, &results));
+    Ok(results)
+}
+
+/// Computes the one computation of `plan` whose key is `key_hex` (its inputs must be in the
+/// store), as a Slurm job's worker does: claims it, finds it cached or runs it with `threads`
+/// threads, stores its outputs and entry.
+pub fn compute_by_key(
+    plan: &Plan,
+    store: &Store,
+    key_hex: &str,
+    threads: usize,
+    checkpoint_every: u64,
+) -> Result<CompResult, EngineError> {
+    let _shared = store.lock_shared()?;
+    let want = unhex(key_hex)
+        .ok_or_else(|| EngineError::Other(format!("`{key_hex}` is not a key")))?;
+    let keys = plan_keys(plan, store)?;
+    let c = keys
+        .iter()
+        .position(|k| k.as_ref().is_some_and(|(k, _)| *k == want))
+        .ok_or_else(|| {
+            EngineError::Other(format!(
+                "no computation of {} has the key {key_hex} with its inputs in the store {} \
+                 (the pipeline or an input changed since the job was submitted, or an input's \
+                 entry is not visible on this machine yet)",
+                plan.file.display(),
+                store.root().display()
+            ))
+        })?;
+    let folders = input_folders(plan, store, &keys, c)?;
+    let job = run::Job {
+        comp: c,
+        name: plan.comps[c].display_name(plan).to_string(),
+        key: want,
+        inputs: folders,
+        threads: threads.max(1),
+        bar: None,
+        checkpoint_every,
     };
-    report::write_records(plan, store, &report)?;
-    Ok(report)
+    Ok(job.run(plan, store))
+}
+
+/// Computation `c`'s input folders, from its upstream computations' entries in `keys`.
+fn input_folders(
+    plan: &Plan,
+    store: &Store,
+    keys: &PlannedKeys,
+    c: usize,
+) -> Result<Vec<(String, Vec<std::path::PathBuf>)>, EngineError> {
+    let mut out = Vec::new();
+    for slot in &plan.comps[c].inputs {
+        let mut f = Vec::new();
+        for (s, _) in &slot.sources {
+            match s {
+                Source::External { path, .. } => f.push(path.clone()),
+                Source::Node { comp: up, output } => {
+                    let m = keys[*up]
+                        .as_ref()
+                        .and_then(|(_, e)| e.as_ref())
+                        .and_then(|e| e.outputs.get(output))
+                        .and_then(|m| unhex(m))
+                        .ok_or_else(|| {
+                            EngineError::Other(format!(
+                                "output `{output}` of an upstream node is not in the store"
+                            ))
+                        })?;
+                    f.push(store.output_dir(&m));
+                }
+            }
+        }
+        out.push((slot.name.clone(), f));
+    }
+    Ok(out)
 }

@@ -68,6 +68,8 @@ pub(super) struct Job {
     pub(super) threads: usize,
     /// Its progress bar, when bars are drawn.
     pub(super) bar: Option<ProgressBar>,
+    /// Checkpoint every this many steps (0: never).
+    pub(super) checkpoint_every: u64,
 }
 
 impl Job {
@@ -224,6 +226,7 @@ fn run_in_scratch(
         inputs,
         threads,
         bar,
+        checkpoint_every,
     } = job;
     let name = name.as_str();
     let comp = &plan.comps[c];
@@ -251,6 +254,10 @@ fn run_in_scratch(
         threads,
         sink: sink.clone(),
         node_name: name.to_string(),
+        checkpoints: Some(crate::node::Checkpoints {
+            dir: store.checkpoint_dir(&key),
+            every: checkpoint_every,
+        }),
     };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -327,6 +334,8 @@ fn run_in_scratch(
     store
         .write_action(&key, &entry)
         .map_err(|e| (e.to_string(), secs))?;
+    // The outputs are stored: an interrupted run's checkpoints are no longer needed.
+    remove_tree(&store.checkpoint_dir(&key));
     Ok(CompResult {
         status: Status::Ran,
         key: Some(key),

@@ -96,9 +96,13 @@ pub(super) struct Scheduler<'a> {
     ready: VecDeque<usize>,
     /// Running computations and the threads each holds.
     running: BTreeMap<usize, usize>,
+    /// Running computations' keys.
+    running_keys: BTreeMap<usize, Hash>,
     progress: Progress,
     /// Computations whose broken cache entry was already reported.
     warned_broken: BTreeSet<usize>,
+    /// The checkpoint cadence handed to each job.
+    pub(super) checkpoint_every: u64,
 }
 
 impl<'a> Scheduler<'a> {
@@ -147,8 +151,10 @@ impl<'a> Scheduler<'a> {
             waiting,
             ready,
             running: BTreeMap::new(),
+            running_keys: BTreeMap::new(),
             progress: Progress::new(show_progress, total),
             warned_broken: BTreeSet::new(),
+            checkpoint_every: super::DEFAULT_CHECKPOINT_EVERY,
         }
     }
 
@@ -213,6 +219,7 @@ impl<'a> Scheduler<'a> {
             self.ready.remove(i);
             self.free -= want;
             self.running.insert(c, want);
+            self.running_keys.insert(c, key);
             spawn(Job {
                 comp: c,
                 bar: self.progress.node_bar(self.plan, c),
@@ -220,6 +227,7 @@ impl<'a> Scheduler<'a> {
                 key,
                 inputs: folders,
                 threads: want,
+                checkpoint_every: self.checkpoint_every,
             });
         }
         Ok(())
@@ -230,6 +238,7 @@ impl<'a> Scheduler<'a> {
     pub(super) fn on_message(&mut self, msg: Msg) {
         let Msg::Done(c, r) = msg;
         self.free += self.running.remove(&c).unwrap_or(0);
+        self.running_keys.remove(&c);
         self.progress.overall.inc(1);
         if let Status::Failed(m) = &r.status {
             let _ = self.progress.multi.println(format!(
@@ -259,6 +268,51 @@ impl<'a> Scheduler<'a> {
             }
         }
         results
+    }
+
+    /// Every needed computation's state for the status file; `place` says where a running
+    /// (or submitted) one is and whether it is still queued there.
+    pub(super) fn node_states(
+        &self,
+        place: &dyn Fn(usize) -> Option<(String, bool)>,
+    ) -> Vec<super::status::NodeState> {
+        let mut out = Vec::new();
+        for (c, comp) in self.plan.comps.iter().enumerate() {
+            if !self.need[c] {
+                continue;
+            }
+            let mut st = super::status::NodeState {
+                name: comp.display_name(self.plan).to_string(),
+                kind: comp.node.kind().to_string(),
+                key: None,
+                state: "waiting".into(),
+                place: None,
+                seconds: None,
+                message: None,
+            };
+            if let Some(r) = &self.results[c] {
+                st.key = r.key.as_ref().map(hex);
+                st.state = r.status.as_str().into();
+                match &r.status {
+                    Status::Ran | Status::Cached => st.seconds = Some(r.computed_seconds),
+                    Status::Failed(m) => st.message = Some(m.clone()),
+                    Status::Skipped => {}
+                }
+            } else if self.running.contains_key(&c) {
+                st.state = "running".into();
+                st.key = self.running_keys.get(&c).map(hex);
+                if let Some((p, queued)) = place(c) {
+                    if queued {
+                        st.state = "queued".into();
+                    }
+                    st.place = Some(p);
+                }
+            } else if self.ready.contains(&c) {
+                st.state = "ready".into();
+            }
+            out.push(st);
+        }
+        out
     }
 
     /// Computation `c`'s input manifests (for its key) and folders (for its node), per slot.

@@ -138,6 +138,8 @@ pub struct Plan {
     /// Things that load but are probably not what the user meant (a declared param that no
     /// node uses), each with its location; `plan` and `run` print them.
     pub warnings: Vec<String>,
+    /// The `resources:` block: Slurm resources by node name or kind (never part of a key).
+    pub resources: BTreeMap<String, crate::exec::slurm::Resources>,
 }
 
 impl Plan {
@@ -217,8 +219,9 @@ pub fn load_plan(
         })
         .collect();
     let sweep = spec::sweep_of(&doc)?;
+    let resources = resources_of(&doc)?;
     if let ValueKind::Struct(_, f) = &mut doc.kind {
-        f.retain(|(n, _)| n != "sweep");
+        f.retain(|(n, _)| n != "sweep" && n != "resources");
     }
     let coords = spec::sweep_points(sweep.as_ref());
     let mut b = Builder::new(registry, store);
@@ -244,6 +247,24 @@ pub fn load_plan(
         instances,
         points,
         warnings,
+        resources,
+    })
+}
+
+/// The document's `resources:` block, typed.
+fn resources_of(
+    doc: &Value,
+) -> Result<BTreeMap<String, crate::exec::slurm::Resources>, PipelineError> {
+    let Some(v) = doc.field("resources") else {
+        return Ok(BTreeMap::new());
+    };
+    ron::from_str(&v.to_ron()).map_err(|e| {
+        Diagnostic::at(&v.origin, format!("`resources`: {e}"))
+            .hint(
+                "write `resources: { \"OptimizeSplats\": (cpus: 8, mem: \"16G\", time: \"04:00:00\", gpus: 1) }` \
+                 (keys: node names, kinds or `default`; fields: cpus, mem, time, gpus, partition, sbatch)",
+            )
+            .into()
     })
 }
 

@@ -19,6 +19,7 @@ pub mod linalg;
 pub mod rng;
 pub mod scene;
 pub mod simd;
+pub mod state;
 
 pub use camera::Camera;
 pub use error::CoreError;

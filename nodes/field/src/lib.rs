@@ -12,6 +12,7 @@
 // iterator zips over four or five slices would hide the maths.
 #![allow(clippy::needless_range_loop)]
 
+pub mod checkpoint;
 pub mod constants;
 pub mod contraction;
 pub mod error;

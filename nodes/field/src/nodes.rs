@@ -278,7 +278,28 @@ impl Node for TrainField {
                     );
                 }
             };
-            train::train(&field, &views, test.as_deref(), &opts, &mut on_step)?
+            let mut save = |bytes: Vec<u8>| {
+                ctx_ref
+                    .save_checkpoint(&bytes)
+                    .map_err(|e| e.message().to_string())
+            };
+            let mut log = |line: String| ctx_ref.log(line);
+            let checkpoints = ctx_ref
+                .checkpoint_every()
+                .map(|every| train::FieldCheckpoints {
+                    every,
+                    resume: ctx_ref.load_checkpoint(),
+                    save: &mut save,
+                    log: &mut log,
+                });
+            train::train_resumable(
+                &field,
+                &views,
+                test.as_deref(),
+                &opts,
+                checkpoints,
+                &mut on_step,
+            )?
         };
         for p in &curve.points {
             ctx.log(format!(

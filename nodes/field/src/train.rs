@@ -7,6 +7,8 @@
 //! runs in an order fixed by the chunk layout, so results are bit-identical for any number of
 //! threads.
 
+use crate::checkpoint::{read_field_checkpoint, write_field_checkpoint, FieldLoop};
+pub use crate::checkpoint::FieldCheckpoints;
 use crate::constants::*;
 use crate::contraction::{max_stretch, uncontract_radius};
 use crate::error::FieldError;
@@ -313,9 +315,9 @@ pub fn learning_rate(opts: &TrainOptions, step: u32) -> f32 {
 /// blocks; each element's update is independent, so the result does not depend on threads).
 #[derive(Clone, Debug)]
 pub struct Adam {
-    m: Vec<f32>,
-    v: Vec<f32>,
-    t: u32,
+    pub(crate) m: Vec<f32>,
+    pub(crate) v: Vec<f32>,
+    pub(crate) t: u32,
 }
 
 impl Adam {
@@ -716,6 +718,19 @@ pub fn train(
     opts: &TrainOptions,
     on_step: &mut dyn FnMut(StepReport<'_>),
 ) -> Result<(TrainState, augsplat_core::artifacts::TrainingCurve), FieldError> {
+    train_resumable(field, views, test, opts, None, on_step)
+}
+
+/// [`train`], saving its whole state every `checkpoints.every` steps and continuing from a
+/// saved one: the result is the same, bit for bit, as a run that never stopped.
+pub fn train_resumable(
+    field: &Field,
+    views: &[ViewData],
+    test: Option<&[ViewData]>,
+    opts: &TrainOptions,
+    checkpoints: Option<FieldCheckpoints<'_>>,
+    on_step: &mut dyn FnMut(StepReport<'_>),
+) -> Result<(TrainState, augsplat_core::artifacts::TrainingCurve), FieldError> {
     if views.is_empty() {
         return Err(FieldError::Data("no training views".into()));
     }
@@ -725,28 +740,50 @@ pub fn train(
         skipped_steps: 0,
         nonfinite_values: 0,
     };
-    let mut adam = Adam::new(field.n_params);
-    let mut grad = Vec::new();
-    let mut curve = augsplat_core::artifacts::TrainingCurve {
-        label: "field".into(),
-        points: Vec::new(),
+    let mut lp = FieldLoop {
+        step: 0,
+        adam: Adam::new(field.n_params),
+        curve: augsplat_core::artifacts::TrainingCurve {
+            label: "field".into(),
+            points: Vec::new(),
+        },
+        consecutive_bad: 0,
+        loss_acc: (0.0, 0),
     };
-    let mut consecutive_bad = 0u32;
-    let mut loss_acc = (0f64, 0u32);
-    for step in 0..opts.steps {
+    let mut ckpt = checkpoints;
+    if let Some(c) = ckpt.as_mut() {
+        if let Some(bytes) = c.resume.take() {
+            match read_field_checkpoint(
+                &bytes,
+                field.n_params,
+                field.config.occupancy_resolution,
+            ) {
+                Ok((s, l)) => {
+                    state = s;
+                    lp = l;
+                    (c.log)(format!("resumed from the checkpoint at step {}", lp.step));
+                }
+                Err(e) => (c.log)(format!(
+                    "cannot continue from the saved checkpoint ({e}); starting afresh"
+                )),
+            }
+        }
+    }
+    let mut grad = Vec::new();
+    for step in lp.step..opts.steps {
         if step >= opts.occupancy_warmup
             && (step - opts.occupancy_warmup).is_multiple_of(OCCUPANCY_UPDATE_EVERY)
         {
             update_occupancy(field, &state.params, &mut state.occupancy, opts.seed, step);
         }
-        let stats = train_step(field, &mut state, &mut adam, views, opts, step, &mut grad)?;
+        let stats = train_step(field, &mut state, &mut lp.adam, views, opts, step, &mut grad)?;
         if stats.applied {
-            consecutive_bad = 0;
-            loss_acc.0 += stats.rgb_loss;
-            loss_acc.1 += 1;
+            lp.consecutive_bad = 0;
+            lp.loss_acc.0 += stats.rgb_loss;
+            lp.loss_acc.1 += 1;
         } else {
-            consecutive_bad += 1;
-            check_divergence(consecutive_bad, step)?;
+            lp.consecutive_bad += 1;
+            check_divergence(lp.consecutive_bad, step)?;
         }
         on_step(StepReport {
             step: step + 1,
@@ -766,7 +803,7 @@ pub fn train(
                 ),
                 _ => (0.0, 0.0),
             };
-            curve.points.push(augsplat_core::artifacts::CurvePoint {
+            lp.curve.points.push(augsplat_core::artifacts::CurvePoint {
                 step: done as u64,
                 psnr: p,
                 ssim: 0.0,
@@ -775,15 +812,27 @@ pub fn train(
                 avg_error: None,
                 primitives: 0,
                 seconds: 0.0,
-                loss: if loss_acc.1 > 0 {
-                    loss_acc.0 / loss_acc.1 as f64
+                loss: if lp.loss_acc.1 > 0 {
+                    lp.loss_acc.0 / lp.loss_acc.1 as f64
                 } else {
                     0.0
                 },
             });
-            loss_acc = (0.0, 0);
+            lp.loss_acc = (0.0, 0);
+        }
+        if let Some(c) = ckpt.as_mut() {
+            if c.every > 0 && (done as u64).is_multiple_of(c.every) && done < opts.steps {
+                lp.step = done;
+                match (c.save)(write_field_checkpoint(&state, &lp)) {
+                    Ok(()) => (c.log)(format!("checkpoint at step {done}")),
+                    Err(e) => (c.log)(format!(
+                        "warning: could not save the checkpoint at step {done}: {e}"
+                    )),
+                }
+            }
         }
     }
+    let curve = lp.curve;
     release_buffers();
     if state.params.iter().any(|p| !p.is_finite()) {
         return Err(FieldError::Diverged("parameters became non-finite".into()));

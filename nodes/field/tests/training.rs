@@ -353,3 +353,79 @@ fn stress_inputs_stay_finite_or_fail_cleanly() {
     field.backward_chunk(&params, &rays, &mut st, &mut grad);
     assert!(grad.iter().all(|g| *g == 0.0));
 }
+
+/// Field training continued from any of its checkpoints ends with the same parameters,
+/// occupancy grid and curve, bit for bit, as the run that never stopped; through the node, a
+/// run finding a checkpoint in its folder continues from it with the same weights file.
+#[test]
+fn training_continued_from_a_checkpoint_is_bit_identical() {
+    use augsplat_field::field::Field;
+    use augsplat_field::train::{self, FieldCheckpoints};
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path();
+    common::split_scene(root, 8, 24, 18, 0.05);
+    let mut args = quick_args(5, 30);
+    args.occupancy_warmup = 4; // occupancy updates before and after the checkpoints
+    args.eval_every = 10;
+    let (scene, views) = train::load_views(&root.join("train"), args.downscale).unwrap();
+    let test = train::load_views(&root.join("test"), args.downscale).unwrap().1;
+    let field = Field::new(args.field_config(&scene, views.len()).unwrap()).unwrap();
+    let opts = args.options();
+    let run = |resume: Option<Vec<u8>>, saved: &mut Vec<Vec<u8>>, log: &mut Vec<String>| {
+        let mut save = |b: Vec<u8>| {
+            saved.push(b);
+            Ok(())
+        };
+        let mut log_line = |l: String| log.push(l);
+        train::train_resumable(
+            &field,
+            &views,
+            Some(&test),
+            &opts,
+            Some(FieldCheckpoints {
+                every: 8,
+                resume,
+                save: &mut save,
+                log: &mut log_line,
+            }),
+            &mut |_| {},
+        )
+        .unwrap()
+    };
+    let mut saved = Vec::new();
+    let (full, full_curve) = run(None, &mut saved, &mut Vec::new());
+    assert_eq!(saved.len(), 3, "checkpoints at steps 8, 16 and 24");
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    for (i, ckpt) in saved.clone().into_iter().enumerate() {
+        let (mut again, mut log) = (Vec::new(), Vec::new());
+        let (st, curve) = run(Some(ckpt), &mut again, &mut log);
+        assert_eq!(log[0], format!("resumed from the checkpoint at step {}", 8 * (i + 1)));
+        assert_eq!(bits(&st.params), bits(&full.params), "checkpoint {i}");
+        assert_eq!(bits(&st.occupancy.ema), bits(&full.occupancy.ema));
+        assert_eq!(st.occupancy.occupied, full.occupancy.occupied);
+        assert_eq!(curve, full_curve);
+        assert_eq!(again, saved[i + 1..].to_vec());
+    }
+    // Through the node and the engine's checkpoint folder.
+    let ckpt = root.join("ckpt");
+    let node = |out: &str| {
+        let mut ctx = RunContext::standalone(
+            vec![
+                ("train".into(), vec![root.join("train")]),
+                ("test".into(), vec![root.join("test")]),
+            ],
+            &["weights"],
+            &root.join(out),
+            args.seed,
+            2,
+        )
+        .unwrap()
+        .with_checkpoints(ckpt.clone(), 8);
+        TrainField::run(&args, &mut ctx).unwrap();
+        root.join(out).join("weights")
+    };
+    let a = node("a");
+    assert!(ckpt.join("state.ckpt").is_file());
+    let b = node("b");
+    assert_eq!(dir_bytes(&a), dir_bytes(&b));
+}

@@ -255,12 +255,80 @@ fn point(step: u64, e: &Evaluation, g: &Gaussians, seconds: f64, loss: f64) -> C
     }
 }
 
+/// Checkpoints of a [`fit`] run (the engine's `RunContext::save_checkpoint` /
+/// `load_checkpoint` for the `OptimizeSplats` node).
+pub struct FitCheckpoints<'a> {
+    /// Save every this many steps (0: never).
+    pub every: u64,
+    /// A checkpoint an interrupted run of the same arguments and inputs saved, to continue
+    /// from.
+    pub resume: Option<Vec<u8>>,
+    /// Stores one checkpoint (replacing the previous one).
+    pub save: &'a mut dyn FnMut(Vec<u8>) -> Result<(), String>,
+}
+
+/// The training loop's own state beside the [`Trainer`]'s.
+struct LoopState {
+    curve: TrainingCurve,
+    best: Option<(CurvePoint, Gaussians)>,
+    since_best: u32,
+    loss_acc: f64,
+    loss_n: u64,
+}
+
+fn write_checkpoint(trainer: &Trainer<'_>, st: &LoopState) -> Vec<u8> {
+    use augsplat_core::state::StateWriter;
+    let mut w = StateWriter::new();
+    w.tag("fit");
+    augsplat_core::state::write_curve(&mut w, &st.curve);
+    w.u64(st.since_best as u64);
+    w.f64(st.loss_acc);
+    w.u64(st.loss_n);
+    w.bool(st.best.is_some());
+    if let Some((p, g)) = &st.best {
+        augsplat_core::state::write_point(&mut w, p);
+        g.write_state(&mut w);
+    }
+    trainer.write_state(&mut w);
+    w.finish()
+}
+
+fn read_checkpoint(
+    bytes: &[u8],
+    trainer: &mut Trainer<'_>,
+) -> Result<LoopState, augsplat_core::state::StateError> {
+    use augsplat_core::state::{read_curve, read_point, StateReader};
+    let mut r = StateReader::new(bytes);
+    r.tag("fit")?;
+    let curve = read_curve(&mut r)?;
+    let since_best = r.u64()? as u32;
+    let loss_acc = r.f64()?;
+    let loss_n = r.u64()?;
+    let best = if r.bool()? {
+        let p = read_point(&mut r)?;
+        Some((p, Gaussians::read_state(&mut r)?))
+    } else {
+        None
+    };
+    trainer.restore_state(&mut r)?;
+    r.end()?;
+    Ok(LoopState {
+        curve,
+        best,
+        since_best,
+        loss_acc,
+        loss_n,
+    })
+}
+
 /// Trains from `g0` on `real` (and `synthetic`, as the schedule of `args` mixes them) for
 /// `args.steps` steps, evaluating on `test` (with `lpips` when given) every `args.eval_every`
 /// steps and after the last one, keeping the best checkpoint and stopping early per
 /// `args.early_stop_patience` (see the module documentation). With `gpu`, each view's render
 /// and backward pass run there (`backend: Gpu`). `on_event` receives the log lines and
-/// progress. The curve's label is [`TrainArgs::method_label`].
+/// progress. The curve's label is [`TrainArgs::method_label`]. With `checkpoints`, the whole
+/// state is saved every `every` steps and a given checkpoint is continued from: the result is
+/// the same, bit for bit, as a run that never stopped.
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     args: &TrainArgs,
@@ -271,6 +339,7 @@ pub fn fit(
     test: &[RealView],
     lpips: Option<&Lpips>,
     gpu: Option<std::sync::Arc<crate::gpu::GpuContext>>,
+    checkpoints: Option<FitCheckpoints<'_>>,
     on_event: &mut dyn FnMut(FitEvent),
 ) -> Result<Fitted, EvalError> {
     let a = args;
@@ -290,20 +359,42 @@ pub fn fit(
     if let Some(gpu) = gpu {
         trainer.use_gpu(gpu);
     }
-    let mut curve = TrainingCurve {
-        label: label.clone(),
-        points: Vec::new(),
+    let mut st = LoopState {
+        curve: TrainingCurve {
+            label: label.clone(),
+            points: Vec::new(),
+        },
+        best: None,
+        since_best: 0,
+        loss_acc: 0.0,
+        loss_n: 0,
     };
-    let mut best: Option<(CurvePoint, Gaussians)> = None;
-    let mut since_best = 0u32;
+    let (every, mut save) = match checkpoints {
+        Some(c) => {
+            if let Some(bytes) = c.resume {
+                match read_checkpoint(&bytes, &mut trainer) {
+                    Ok(s) => {
+                        st = s;
+                        on_event(FitEvent::Log(format!(
+                            "resumed from the checkpoint at step {}",
+                            trainer.steps_done()
+                        )));
+                    }
+                    Err(e) => on_event(FitEvent::Log(format!(
+                        "cannot continue from the saved checkpoint ({e}); starting afresh"
+                    ))),
+                }
+            }
+            (c.every, Some(c.save))
+        }
+        None => (0, None),
+    };
     let mut early = false;
     let t0 = std::time::Instant::now();
-    let mut loss_acc = 0.0;
-    let mut loss_n = 0u64;
     while trainer.steps_done() < a.steps {
         let rep = trainer.step();
-        loss_acc += rep.loss;
-        loss_n += 1;
+        st.loss_acc += rep.loss;
+        st.loss_n += 1;
         let done = trainer.steps_done();
         if rep.refine.cloned + rep.refine.split + rep.refine.pruned > 0 || rep.refine.reset {
             on_event(FitEvent::Log(format!(
@@ -328,10 +419,10 @@ pub fn fit(
                 &e,
                 trainer.gaussians(),
                 if a.record_wall_time { secs } else { 0.0 },
-                loss_acc / loss_n.max(1) as f64,
+                st.loss_acc / st.loss_n.max(1) as f64,
             );
-            loss_acc = 0.0;
-            loss_n = 0;
+            st.loss_acc = 0.0;
+            st.loss_n = 0;
             on_event(FitEvent::Log(format!(
                 "step {done}: PSNR {:.3} SSIM {:.4}{} loss {:.5} Gaussians {} ({secs:.1} s)",
                 p.psnr,
@@ -340,24 +431,34 @@ pub fn fit(
                 p.loss,
                 p.primitives
             )));
-            let better = match &best {
+            let better = match &st.best {
                 None => true,
                 Some((b, _)) => criterion.better(&p, b),
             };
             if better {
-                best = Some((p.clone(), trainer.gaussians().clone()));
-                since_best = 0;
+                st.best = Some((p.clone(), trainer.gaussians().clone()));
+                st.since_best = 0;
             } else {
-                since_best += 1;
+                st.since_best += 1;
             }
-            curve.points.push(p);
+            st.curve.points.push(p);
             if let Some(pat) = a.early_stop_patience {
-                if since_best >= pat && done < a.steps {
+                if st.since_best >= pat && done < a.steps {
                     on_event(FitEvent::Log(format!(
                         "early stop at step {done}: no improvement in {pat} evaluations"
                     )));
                     early = true;
                     break;
+                }
+            }
+        }
+        if let Some(save) = save.as_mut() {
+            if every > 0 && done.is_multiple_of(every) && done < a.steps {
+                match save(write_checkpoint(&trainer, &st)) {
+                    Ok(()) => on_event(FitEvent::Log(format!("checkpoint at step {done}"))),
+                    Err(e) => on_event(FitEvent::Log(format!(
+                        "warning: could not save the checkpoint at step {done}: {e}"
+                    ))),
                 }
             }
         }
@@ -368,6 +469,9 @@ pub fn fit(
         });
     }
     let steps_run = trainer.steps_done();
+    let LoopState {
+        mut curve, best, ..
+    } = st;
     let (best_point, best) = match best {
         Some(b) => b,
         None => {

@@ -26,6 +26,44 @@ pub struct Gaussians {
 }
 
 impl Gaussians {
+    /// Appends the Gaussians, bit for bit, to a checkpoint.
+    pub fn write_state(&self, w: &mut augsplat_core::state::StateWriter) {
+        use augsplat_core::state::flat;
+        w.tag("gaussians");
+        w.u32(self.sh_degree);
+        w.f32s(&flat(&self.means));
+        w.f32s(&flat(&self.log_scales));
+        w.f32s(&flat(&self.quats));
+        w.f32s(&self.opacity_logits);
+        w.f32s(&self.sh);
+    }
+
+    /// The Gaussians [`Gaussians::write_state`] wrote.
+    pub fn read_state(
+        r: &mut augsplat_core::state::StateReader<'_>,
+    ) -> Result<Gaussians, augsplat_core::state::StateError> {
+        use augsplat_core::state::{unflat, StateError};
+        r.tag("gaussians")?;
+        let sh_degree = r.u32()?;
+        let g = Gaussians {
+            sh_degree,
+            means: unflat(&r.f32s()?)?,
+            log_scales: unflat(&r.f32s()?)?,
+            quats: unflat(&r.f32s()?)?,
+            opacity_logits: r.f32s()?,
+            sh: r.f32s()?,
+        };
+        let n = g.means.len();
+        if sh_degree > 3
+            || g.log_scales.len() != n
+            || g.quats.len() != n
+            || g.opacity_logits.len() != n
+            || g.sh.len() != n * sh_coeffs(sh_degree) * 3
+        {
+            return Err(StateError("inconsistent Gaussians".into()));
+        }
+        Ok(g)
+    }
     /// A seeded random cloud for benchmarks and tests (what `train_step_bench` and
     /// `bench_raster` render): `n` Gaussians uniform in the box [−2, 2]² × [−1.5, 1.5] (for a
     /// camera 4 units away, the box's centre), scales of 0.7–3 × `pixel` (world units; mildly

@@ -110,6 +110,16 @@ impl Node for OptimizeSplats {
         };
         let device = gpu.as_ref().map(|g| g.adapter().clone());
         let ctx_ref: &RunContext = ctx;
+        let mut save = |bytes: Vec<u8>| {
+            ctx_ref
+                .save_checkpoint(&bytes)
+                .map_err(|e| e.message().to_string())
+        };
+        let checkpoints = ctx_ref.checkpoint_every().map(|every| fit::FitCheckpoints {
+            every,
+            resume: ctx_ref.load_checkpoint(),
+            save: &mut save,
+        });
         let fitted = fit::fit(
             a,
             init.gaussians,
@@ -119,6 +129,7 @@ impl Node for OptimizeSplats {
             &test,
             lpips.as_ref(),
             gpu,
+            checkpoints,
             &mut |e| match e {
                 FitEvent::Log(line) => ctx_ref.log(line),
                 FitEvent::Progress {

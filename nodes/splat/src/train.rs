@@ -453,6 +453,61 @@ impl<'a> Trainer<'a> {
         self.g
     }
 
+    /// Appends everything that the next steps depend on to a checkpoint: the Gaussians, the
+    /// optimiser's moments, the densification statistics, the step and the position in the
+    /// shuffled view order. (Every other random choice is drawn from a stream keyed by the
+    /// step, so nothing else carries over.)
+    pub fn write_state(&self, w: &mut augsplat_core::state::StateWriter) {
+        w.tag("trainer");
+        w.u64(self.step);
+        w.u64(self.epoch);
+        w.u64(self.real_pos as u64);
+        w.usizes(&self.real_order);
+        w.f64(self.scene_scale);
+        w.f32s(&self.densifier.grad2d);
+        w.u32s(&self.densifier.count);
+        self.adam.write_state(w);
+        self.g.write_state(w);
+    }
+
+    /// Continues from a state [`Trainer::write_state`] wrote for the same `args` and inputs.
+    pub fn restore_state(
+        &mut self,
+        r: &mut augsplat_core::state::StateReader<'_>,
+    ) -> Result<(), augsplat_core::state::StateError> {
+        use augsplat_core::state::StateError;
+        r.tag("trainer")?;
+        let step = r.u64()?;
+        let epoch = r.u64()?;
+        let real_pos = r.u64()? as usize;
+        let real_order = r.usizes()?;
+        let scene_scale = r.f64()?;
+        let grad2d = r.f32s()?;
+        let count = r.u32s()?;
+        let adam = Adam::read_state(r)?;
+        let g = Gaussians::read_state(r)?;
+        let n = g.len();
+        if grad2d.len() != n || count.len() != n || adam.len() != n {
+            return Err(StateError(format!(
+                "{n} Gaussians but statistics for {} and moments for {}",
+                grad2d.len(),
+                adam.len()
+            )));
+        }
+        if real_order.iter().any(|&i| i >= self.real.len()) || real_pos > real_order.len() {
+            return Err(StateError("the view order names views that do not exist".into()));
+        }
+        self.step = step;
+        self.epoch = epoch;
+        self.real_pos = real_pos;
+        self.real_order = real_order;
+        self.scene_scale = scene_scale;
+        self.densifier = Densifier { grad2d, count };
+        self.adam = adam;
+        self.g = g;
+        Ok(())
+    }
+
     fn next_real(&mut self) -> Option<usize> {
         let n = self.real.len();
         if n == 0 {

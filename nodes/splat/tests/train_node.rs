@@ -309,6 +309,7 @@ fn fit_without_a_graph_matches_the_node() {
                 &held_out,
                 None,
                 None,
+                None,
                 &mut |e| events.push(e),
             )
         });
@@ -345,4 +346,149 @@ fn fit_without_a_graph_matches_the_node() {
     assert_eq!((init_only.steps_run, init_only.curve.points.len()), (0, 1));
     assert_eq!(init_only.best_point.step, 0);
     assert_eq!(init_only.best.len(), init_only.last.len());
+}
+
+/// Dual AugSplat with densification on the tiny scene, for the checkpoint tests.
+fn resume_case(tmp: &Path) -> (PathBuf, PathBuf, PathBuf, TrainArgs) {
+    let (train, test) = train_util::make_scene(tmp, 48, 40, 9, 300);
+    let syn = tmp.join("syn");
+    make_synthetic(&train, &syn);
+    let mut args = small_args();
+    args.steps = 60;
+    // Refine at steps 10, 20, … 40 with a low threshold, so densification's statistics and
+    // the grown set are part of what a checkpoint must carry.
+    args.densify.scale_with_steps = false;
+    args.densify.start = 10;
+    args.densify.every = 10;
+    args.densify.stop = 45;
+    args.densify.reset_every = 30;
+    args.densify.grad_threshold = 1e-5;
+    args.schedule = Schedule::Dual {
+        w_nerf0: 2.0,
+        w_real: 1.0,
+        quarter_decay: 10.0,
+        off_below: Some(0.1),
+        synthetic_batch: 2,
+    };
+    (train, test, syn, args)
+}
+
+/// A run continued from any of its checkpoints ends with the same bytes as the run that
+/// never stopped: the Gaussians, the kept checkpoint, the curve and the record.
+#[test]
+fn fit_continued_from_a_checkpoint_is_bit_identical() {
+    use augsplat_splat::fit::{self, FitCheckpoints, FitEvent};
+    use augsplat_splat::init::initial_gaussians;
+    use augsplat_splat::train::{scene_scale, RealImages, RealView};
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, test, syn, args) = resume_case(tmp.path());
+    let real = RealImages {
+        views: fit::load_real_views(&train, "train").unwrap(),
+        loss: args.real_loss.clone(),
+    };
+    let synth = fit::load_synthetic(&syn, &args.synthetic).unwrap();
+    let held_out = fit::load_real_views(&test, "test").unwrap();
+    let scene = Scene::load(&train).unwrap();
+    let cloud = scene.load_points(&train).unwrap();
+    let cams: Vec<_> = real.views.iter().map(|v| &v.camera).collect();
+    let sscale = scene_scale(&cams);
+    let views: Vec<_> = real.views.iter().map(RealView::init_view).collect();
+    let g0 = initial_gaussians(&cloud, &scene, &views, 1, &args.init, sscale, args.seed).gaussians;
+    let run = |resume: Option<Vec<u8>>, saved: &mut Vec<Vec<u8>>| {
+        let mut log = Vec::new();
+        let mut save = |b: Vec<u8>| {
+            saved.push(b);
+            Ok(())
+        };
+        let f = fit::fit(
+            &args,
+            g0.clone(),
+            sscale,
+            &real,
+            Some(&synth),
+            &held_out,
+            None,
+            None,
+            Some(FitCheckpoints {
+                every: 15,
+                resume,
+                save: &mut save,
+            }),
+            &mut |e| {
+                if let FitEvent::Log(l) = e {
+                    log.push(l)
+                }
+            },
+        )
+        .unwrap();
+        (f, log)
+    };
+    let mut saved = Vec::new();
+    let (full, log) = run(None, &mut saved);
+    assert_eq!(saved.len(), 3, "checkpoints at steps 15, 30 and 45");
+    assert!(
+        log.iter().any(|l| l.contains("cloned") || l.contains("split")),
+        "densification ran, so its statistics are part of the state: {log:?}"
+    );
+    let ply = |g: &augsplat_splat::Gaussians, name: &str| {
+        let p = tmp.path().join(name);
+        augsplat_splat::write_ply(&p, g).unwrap();
+        std::fs::read(p).unwrap()
+    };
+    for (i, ckpt) in saved.clone().into_iter().enumerate() {
+        let mut again = Vec::new();
+        let (resumed, log) = run(Some(ckpt), &mut again);
+        let at = 15 * (i + 1);
+        assert!(
+            log.iter()
+                .any(|l| l == &format!("resumed from the checkpoint at step {at}")),
+            "{log:?}"
+        );
+        assert!(ply(&resumed.last, "a.ply") == ply(&full.last, "b.ply"), "step {at}");
+        assert!(ply(&resumed.best, "a.ply") == ply(&full.best, "b.ply"), "step {at}");
+        assert_eq!(resumed.curve, full.curve);
+        assert_eq!(resumed.best_record(), full.best_record());
+        // Its own later checkpoints are the uninterrupted run's.
+        assert_eq!(again, saved[i + 1..].to_vec());
+    }
+    // A checkpoint from other data is refused and the run starts afresh (same result).
+    let mut bad = saved[0].clone();
+    bad.truncate(bad.len() / 2);
+    let (fresh, log) = run(Some(bad), &mut Vec::new());
+    assert!(log.iter().any(|l| l.contains("starting afresh")), "{log:?}");
+    assert!(ply(&fresh.last, "a.ply") == ply(&full.last, "b.ply"));
+}
+
+/// Through the node: a run that finds a checkpoint in its folder continues from it with the
+/// same outputs; a damaged checkpoint is ignored.
+#[test]
+fn node_resumes_from_its_checkpoint_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, test, syn, args) = resume_case(tmp.path());
+    let ckpt = tmp.path().join("ckpt");
+    let run = |out: &str| {
+        let inputs = [("train", &train), ("test", &test), ("synthetic", &syn)]
+            .into_iter()
+            .map(|(n, p)| (n.to_string(), vec![p.to_path_buf()]))
+            .collect();
+        let mut ctx = RunContext::standalone(inputs, &["model"], &tmp.path().join(out), 0, 1)
+            .unwrap()
+            .with_checkpoints(ckpt.clone(), 15);
+        OptimizeSplats::run(&args, &mut ctx).unwrap();
+        tmp.path().join(out).join("model")
+    };
+    let a = run("a");
+    let state = ckpt.join("state.ckpt");
+    assert!(state.is_file(), "the last checkpoint (step 45) is kept by a standalone run");
+    let b = run("b");
+    let mut bytes = std::fs::read(&state).unwrap();
+    let n = bytes.len();
+    bytes[n - 5] ^= 0x40;
+    std::fs::write(&state, bytes).unwrap();
+    let c = run("c");
+    for f in ["final.ply", "best.ply", "curve.json", "best.json"] {
+        let x = std::fs::read(a.join(f)).unwrap();
+        assert!(x == std::fs::read(b.join(f)).unwrap(), "{f} after resuming");
+        assert!(x == std::fs::read(c.join(f)).unwrap(), "{f} after a damaged checkpoint");
+    }
 }

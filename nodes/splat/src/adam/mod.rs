@@ -434,6 +434,60 @@ impl Adam {
         ]
     }
 
+    /// Appends the whole state to a checkpoint.
+    pub fn write_state(&self, w: &mut augsplat_core::state::StateWriter) {
+        w.tag("adam");
+        w.u64(self.n as u64);
+        w.u64(self.sh_touched as u64);
+        for s in self.steps {
+            w.u64(s);
+        }
+        for g in [&self.means, &self.scales, &self.quats, &self.opacities, &self.sh] {
+            w.u64(g.width as u64);
+            w.f32s(&g.m);
+            w.f32s(&g.v);
+        }
+    }
+
+    /// The state [`Adam::write_state`] wrote.
+    pub fn read_state(
+        r: &mut augsplat_core::state::StateReader<'_>,
+    ) -> Result<Adam, augsplat_core::state::StateError> {
+        use augsplat_core::state::StateError;
+        r.tag("adam")?;
+        let n = r.u64()? as usize;
+        let sh_touched = r.u64()? as usize;
+        let mut steps = [0u64; 5];
+        for s in &mut steps {
+            *s = r.u64()?;
+        }
+        let mut groups = Vec::with_capacity(5);
+        for _ in 0..5 {
+            let width = r.u64()? as usize;
+            let m = r.f32s()?;
+            let v = r.f32s()?;
+            if m.len() != n * width || v.len() != n * width {
+                return Err(StateError(format!(
+                    "Adam moments of {} values for {n} Gaussians of width {width}",
+                    m.len()
+                )));
+            }
+            groups.push(Moments { m, v, width });
+        }
+        let mut it = groups.into_iter();
+        let mut next = || it.next().expect("five groups");
+        Ok(Adam {
+            means: next(),
+            scales: next(),
+            quats: next(),
+            opacities: next(),
+            sh: next(),
+            steps,
+            n,
+            sh_touched,
+        })
+    }
+
     /// Keeps the moments of the Gaussians with `keep[i]`, in order (densification pruning).
     pub fn retain(&mut self, keep: &[bool]) {
         assert_eq!(
