@@ -517,3 +517,45 @@ fn a_command_that_writes_to_its_inputs_fails_and_changes_nothing() {
     let v = env.run(&["verify"]);
     assert!(v.status.success(), "{}", text(&v));
 }
+
+/// A claim whose holder stopped renewing it (a frozen driver: SIGSTOP) is taken over after
+/// the stale bound by a second driver, which computes the node and finishes.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_claim_whose_holder_stopped_renewing_is_taken_over() {
+    let env = Env::new();
+    let f = chain(&env, "sleep 1");
+    let mut frozen = env
+        .cmd(&["run", f.to_str().unwrap(), "-q"])
+        .env("AUGSPLAT_CLAIM_STALE_SECS", "2")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    wait_for(&env, "slow", Duration::from_secs(60));
+    let pid = frozen.id().to_string();
+    assert!(Command::new("kill")
+        .args(["-STOP", &pid])
+        .status()
+        .unwrap()
+        .success());
+    let t = Instant::now();
+    let out = env
+        .cmd(&["run", f.to_str().unwrap()])
+        .env("AUGSPLAT_CLAIM_STALE_SECS", "2")
+        .output()
+        .unwrap();
+    let took = t.elapsed();
+    frozen.kill().unwrap();
+    frozen.wait().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(
+        took >= Duration::from_millis(1500),
+        "{took:?}: it waited for the bound"
+    );
+    assert_eq!(
+        env.log(),
+        ["a", "c", "slow", "slow"],
+        "the stale node ran again"
+    );
+}

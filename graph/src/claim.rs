@@ -295,7 +295,7 @@ pub fn acquire(path: &Path, policy: &ClaimPolicy) -> Result<Claim, EngineError> 
                 if stop.load(Ordering::Relaxed) {
                     return;
                 }
-                if !read_holder(&path).is_some_and(|h| h.token == token) {
+                if read_holder(&path).is_none_or(|h| h.token != token) {
                     return; // taken over (we were judged stale): stop renewing someone else's
                 }
                 if let Ok(f) = fs::OpenOptions::new().append(true).open(&path) {
@@ -346,7 +346,10 @@ mod tests {
         let t = std::thread::spawn(move || acquire(&p2, &policy(60_000)).unwrap().waited);
         std::thread::sleep(Duration::from_millis(300));
         drop(c);
-        assert!(t.join().unwrap(), "the second claimant waited for the first");
+        assert!(
+            t.join().unwrap(),
+            "the second claimant waited for the first"
+        );
         assert!(!p.exists(), "released");
         // No temporary files are left behind.
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
@@ -359,7 +362,10 @@ mod tests {
         let pol = policy(600);
         let _c = acquire(&p, &pol).unwrap();
         std::thread::sleep(Duration::from_millis(1500));
-        assert!(stale_reason(&p, &pol).is_none(), "the heartbeat keeps it fresh");
+        assert!(
+            stale_reason(&p, &pol).is_none(),
+            "the heartbeat keeps it fresh"
+        );
     }
 
     #[test]

@@ -212,7 +212,9 @@ impl RunContext {
             NodeError::new(format!("{what} checkpoint {}: {e}", p.display()))
         };
         std::fs::create_dir_all(&c.dir).map_err(|e| err("creating", &c.dir, e))?;
-        let tmp = c.dir.join(format!(".{CHECKPOINT_FILE}.{}", std::process::id()));
+        let tmp = c
+            .dir
+            .join(format!(".{CHECKPOINT_FILE}.{}", std::process::id()));
         let mut data = Vec::with_capacity(bytes.len() + 40);
         data.extend_from_slice(CHECKPOINT_MAGIC);
         data.extend_from_slice(blake3::hash(bytes).as_bytes());

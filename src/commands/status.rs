@@ -73,9 +73,24 @@ pub fn format_status(st: &RunStatus, alive: Option<bool>) -> String {
     }
     let summary: Vec<String> = counts.iter().map(|(k, v)| format!("{v} {k}")).collect();
     out.push_str(&format!("{}\n\n", summary.join(", ")));
-    let w = st.nodes.iter().map(|n| n.name.len()).max().unwrap_or(4).max(4);
-    let kw = st.nodes.iter().map(|n| n.kind.len()).max().unwrap_or(4).max(4);
-    out.push_str(&format!("{:w$}  {:kw$}  {:8}  where / seconds\n", "node", "kind", "state"));
+    let w = st
+        .nodes
+        .iter()
+        .map(|n| n.name.len())
+        .max()
+        .unwrap_or(4)
+        .max(4);
+    let kw = st
+        .nodes
+        .iter()
+        .map(|n| n.kind.len())
+        .max()
+        .unwrap_or(4)
+        .max(4);
+    out.push_str(&format!(
+        "{:w$}  {:kw$}  {:8}  where / seconds\n",
+        "node", "kind", "state"
+    ));
     for n in &st.nodes {
         let detail = match (&n.place, n.seconds) {
             (Some(p), _) => p.clone(),

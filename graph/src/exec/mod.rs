@@ -210,7 +210,8 @@ fn run_local(
                     let _ = tx.send(Msg::Done(c, job.run(plan, store)));
                 });
             })?;
-            status.update(sched.node_states(&place), false);
+            // One write per start or finish: cheap beside any node.
+            status.update(sched.node_states(&place), true);
             if sched.idle() {
                 break;
             }
@@ -237,8 +238,8 @@ pub fn compute_by_key(
     checkpoint_every: u64,
 ) -> Result<CompResult, EngineError> {
     let _shared = store.lock_shared()?;
-    let want = unhex(key_hex)
-        .ok_or_else(|| EngineError::Other(format!("`{key_hex}` is not a key")))?;
+    let want =
+        unhex(key_hex).ok_or_else(|| EngineError::Other(format!("`{key_hex}` is not a key")))?;
     let keys = plan_keys(plan, store)?;
     let c = keys
         .iter()

@@ -135,7 +135,11 @@ pub(super) fn run(
     // Every ready computation is submitted at once: the cluster does the scheduling.
     let mut sched = Scheduler::new(plan, store, need, usize::MAX / 2, opts.progress);
     sched.checkpoint_every = opts.checkpoint_every;
-    let run_dir = store.root().join("runs").join("slurm").join(status.run_id());
+    let run_dir = store
+        .root()
+        .join("runs")
+        .join("slurm")
+        .join(status.run_id());
     std::fs::create_dir_all(&run_dir).map_err(crate::error::io("creating", &run_dir))?;
     let job_name = format!("augsplat-{}", status.run_id());
     let accounting = accounting_enabled();
@@ -231,7 +235,11 @@ pub(super) fn run(
             let seen = listing
                 .get(&s.job)
                 .map(|(st, node)| (st.clone(), node.clone()))
-                .or_else(|| final_states.get(&s.job).map(|st| (st.clone(), String::new())));
+                .or_else(|| {
+                    final_states
+                        .get(&s.job)
+                        .map(|st| (st.clone(), String::new()))
+                });
             if let Some((st, node)) = &seen {
                 if *st != s.state || (!node.is_empty() && *node != s.node) {
                     changed = true;
@@ -336,7 +344,7 @@ fn sh_quote(s: &str) -> String {
 }
 
 /// The resources of computation `c`: its node name's entry, else its kind's, else `default`.
-pub fn resources_of<'a>(plan: &'a Plan, c: usize) -> Option<&'a Resources> {
+pub fn resources_of(plan: &Plan, c: usize) -> Option<&Resources> {
     let comp = &plan.comps[c];
     let base = comp.instances.first().map(|&i| &plan.instances[i].base);
     base.and_then(|b| plan.resources.get(b))
@@ -369,7 +377,8 @@ fn submit(
         .iter()
         .map(|j| format!("{} {cpus}\n", hex(&j.key)))
         .collect();
-    std::fs::write(&keys_file, lines).map_err(|e| format!("writing {}: {e}", keys_file.display()))?;
+    std::fs::write(&keys_file, lines)
+        .map_err(|e| format!("writing {}: {e}", keys_file.display()))?;
     let mut cmd_line: Vec<String> = slurm.worker.iter().map(|a| sh_quote(a)).collect();
     cmd_line.push("--keys-file".into());
     cmd_line.push(sh_quote(&keys_file.display().to_string()));
@@ -443,10 +452,7 @@ fn submit(
     Ok((0..jobs.len())
         .map(|i| {
             if array {
-                (
-                    format!("{jid}_{i}"),
-                    run_dir.join(format!("{id}_{i}.out")),
-                )
+                (format!("{jid}_{i}"), run_dir.join(format!("{id}_{i}.out")))
             } else {
                 (jid.clone(), run_dir.join(format!("{id}.out")))
             }

@@ -97,7 +97,11 @@ impl<'a> StatusWriter<'a> {
     /// write. A failure to write is reported once on stderr and never fails the run.
     pub(super) fn update(&mut self, nodes: Vec<NodeState>, force: bool) {
         self.status.nodes = nodes;
-        if !force && self.last.is_some_and(|t| t.elapsed() < Duration::from_secs(1)) {
+        if !force
+            && self
+                .last
+                .is_some_and(|t| t.elapsed() < Duration::from_secs(1))
+        {
             return;
         }
         let first = self.last.is_none();

@@ -242,7 +242,10 @@ pub fn flat<const K: usize>(v: &[[f32; K]]) -> Vec<f32> {
 /// Regroups values into `[f32; K]`s (the length must be a multiple of `K`).
 pub fn unflat<const K: usize>(v: &[f32]) -> Result<Vec<[f32; K]>, StateError> {
     if !v.len().is_multiple_of(K) {
-        return Err(StateError(format!("{} values are not groups of {K}", v.len())));
+        return Err(StateError(format!(
+            "{} values are not groups of {K}",
+            v.len()
+        )));
     }
     Ok(v.chunks_exact(K)
         .map(|c| c.try_into().expect("K"))

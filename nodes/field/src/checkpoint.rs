@@ -84,11 +84,7 @@ pub(crate) fn read_field_checkpoint(
     Ok((
         TrainState {
             params,
-            occupancy: OccupancyGrid {
-                res,
-                ema,
-                occupied,
-            },
+            occupancy: OccupancyGrid { res, ema, occupied },
             skipped_steps,
             nonfinite_values,
         },
@@ -101,4 +97,3 @@ pub(crate) fn read_field_checkpoint(
         },
     ))
 }
-

@@ -7,8 +7,8 @@
 //! runs in an order fixed by the chunk layout, so results are bit-identical for any number of
 //! threads.
 
-use crate::checkpoint::{read_field_checkpoint, write_field_checkpoint, FieldLoop};
 pub use crate::checkpoint::FieldCheckpoints;
+use crate::checkpoint::{read_field_checkpoint, write_field_checkpoint, FieldLoop};
 use crate::constants::*;
 use crate::contraction::{max_stretch, uncontract_radius};
 use crate::error::FieldError;
@@ -753,11 +753,7 @@ pub fn train_resumable(
     let mut ckpt = checkpoints;
     if let Some(c) = ckpt.as_mut() {
         if let Some(bytes) = c.resume.take() {
-            match read_field_checkpoint(
-                &bytes,
-                field.n_params,
-                field.config.occupancy_resolution,
-            ) {
+            match read_field_checkpoint(&bytes, field.n_params, field.config.occupancy_resolution) {
                 Ok((s, l)) => {
                     state = s;
                     lp = l;
@@ -776,7 +772,15 @@ pub fn train_resumable(
         {
             update_occupancy(field, &state.params, &mut state.occupancy, opts.seed, step);
         }
-        let stats = train_step(field, &mut state, &mut lp.adam, views, opts, step, &mut grad)?;
+        let stats = train_step(
+            field,
+            &mut state,
+            &mut lp.adam,
+            views,
+            opts,
+            step,
+            &mut grad,
+        )?;
         if stats.applied {
             lp.consecutive_bad = 0;
             lp.loss_acc.0 += stats.rgb_loss;

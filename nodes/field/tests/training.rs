@@ -368,7 +368,9 @@ fn training_continued_from_a_checkpoint_is_bit_identical() {
     args.occupancy_warmup = 4; // occupancy updates before and after the checkpoints
     args.eval_every = 10;
     let (scene, views) = train::load_views(&root.join("train"), args.downscale).unwrap();
-    let test = train::load_views(&root.join("test"), args.downscale).unwrap().1;
+    let test = train::load_views(&root.join("test"), args.downscale)
+        .unwrap()
+        .1;
     let field = Field::new(args.field_config(&scene, views.len()).unwrap()).unwrap();
     let opts = args.options();
     let run = |resume: Option<Vec<u8>>, saved: &mut Vec<Vec<u8>>, log: &mut Vec<String>| {
@@ -399,7 +401,10 @@ fn training_continued_from_a_checkpoint_is_bit_identical() {
     for (i, ckpt) in saved.clone().into_iter().enumerate() {
         let (mut again, mut log) = (Vec::new(), Vec::new());
         let (st, curve) = run(Some(ckpt), &mut again, &mut log);
-        assert_eq!(log[0], format!("resumed from the checkpoint at step {}", 8 * (i + 1)));
+        assert_eq!(
+            log[0],
+            format!("resumed from the checkpoint at step {}", 8 * (i + 1))
+        );
         assert_eq!(bits(&st.params), bits(&full.params), "checkpoint {i}");
         assert_eq!(bits(&st.occupancy.ema), bits(&full.occupancy.ema));
         assert_eq!(st.occupancy.occupied, full.occupancy.occupied);

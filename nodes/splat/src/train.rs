@@ -495,7 +495,9 @@ impl<'a> Trainer<'a> {
             )));
         }
         if real_order.iter().any(|&i| i >= self.real.len()) || real_pos > real_order.len() {
-            return Err(StateError("the view order names views that do not exist".into()));
+            return Err(StateError(
+                "the view order names views that do not exist".into(),
+            ));
         }
         self.step = step;
         self.epoch = epoch;

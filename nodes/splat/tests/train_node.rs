@@ -427,7 +427,8 @@ fn fit_continued_from_a_checkpoint_is_bit_identical() {
     let (full, log) = run(None, &mut saved);
     assert_eq!(saved.len(), 3, "checkpoints at steps 15, 30 and 45");
     assert!(
-        log.iter().any(|l| l.contains("cloned") || l.contains("split")),
+        log.iter()
+            .any(|l| l.contains("cloned") || l.contains("split")),
         "densification ran, so its statistics are part of the state: {log:?}"
     );
     let ply = |g: &augsplat_splat::Gaussians, name: &str| {
@@ -444,8 +445,14 @@ fn fit_continued_from_a_checkpoint_is_bit_identical() {
                 .any(|l| l == &format!("resumed from the checkpoint at step {at}")),
             "{log:?}"
         );
-        assert!(ply(&resumed.last, "a.ply") == ply(&full.last, "b.ply"), "step {at}");
-        assert!(ply(&resumed.best, "a.ply") == ply(&full.best, "b.ply"), "step {at}");
+        assert!(
+            ply(&resumed.last, "a.ply") == ply(&full.last, "b.ply"),
+            "step {at}"
+        );
+        assert!(
+            ply(&resumed.best, "a.ply") == ply(&full.best, "b.ply"),
+            "step {at}"
+        );
         assert_eq!(resumed.curve, full.curve);
         assert_eq!(resumed.best_record(), full.best_record());
         // Its own later checkpoints are the uninterrupted run's.
@@ -479,7 +486,10 @@ fn node_resumes_from_its_checkpoint_folder() {
     };
     let a = run("a");
     let state = ckpt.join("state.ckpt");
-    assert!(state.is_file(), "the last checkpoint (step 45) is kept by a standalone run");
+    assert!(
+        state.is_file(),
+        "the last checkpoint (step 45) is kept by a standalone run"
+    );
     let b = run("b");
     let mut bytes = std::fs::read(&state).unwrap();
     let n = bytes.len();
@@ -489,6 +499,9 @@ fn node_resumes_from_its_checkpoint_folder() {
     for f in ["final.ply", "best.ply", "curve.json", "best.json"] {
         let x = std::fs::read(a.join(f)).unwrap();
         assert!(x == std::fs::read(b.join(f)).unwrap(), "{f} after resuming");
-        assert!(x == std::fs::read(c.join(f)).unwrap(), "{f} after a damaged checkpoint");
+        assert!(
+            x == std::fs::read(c.join(f)).unwrap(),
+            "{f} after a damaged checkpoint"
+        );
     }
 }

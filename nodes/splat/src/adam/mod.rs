@@ -442,7 +442,13 @@ impl Adam {
         for s in self.steps {
             w.u64(s);
         }
-        for g in [&self.means, &self.scales, &self.quats, &self.opacities, &self.sh] {
+        for g in [
+            &self.means,
+            &self.scales,
+            &self.quats,
+            &self.opacities,
+            &self.sh,
+        ] {
             w.u64(g.width as u64);
             w.f32s(&g.m);
             w.f32s(&g.v);
