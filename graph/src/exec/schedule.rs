@@ -103,6 +103,9 @@ pub(super) struct Scheduler<'a> {
     warned_broken: BTreeSet<usize>,
     /// The checkpoint cadence handed to each job.
     pub(super) checkpoint_every: u64,
+    /// Start every ready computation, whatever the thread budget (the Slurm executor: the
+    /// cluster schedules; the budget only sizes each job).
+    pub(super) unbounded: bool,
 }
 
 impl<'a> Scheduler<'a> {
@@ -155,6 +158,7 @@ impl<'a> Scheduler<'a> {
             progress: Progress::new(show_progress, total),
             warned_broken: BTreeSet::new(),
             checkpoint_every: super::DEFAULT_CHECKPOINT_EVERY,
+            unbounded: false,
         }
     }
 
@@ -209,7 +213,7 @@ impl<'a> Scheduler<'a> {
                 Threads::All => self.jobs,
                 Threads::Exactly(k) => k.clamp(1, self.jobs),
             };
-            if want > self.free {
+            if want > self.free && !self.unbounded {
                 if threads == Threads::All {
                     break; // reserve the machine for it: start nothing after it
                 }
@@ -217,7 +221,9 @@ impl<'a> Scheduler<'a> {
                 continue;
             }
             self.ready.remove(i);
-            self.free -= want;
+            if !self.unbounded {
+                self.free -= want;
+            }
             self.running.insert(c, want);
             self.running_keys.insert(c, key);
             spawn(Job {
@@ -237,7 +243,10 @@ impl<'a> Scheduler<'a> {
     /// the result and readies the dependents.
     pub(super) fn on_message(&mut self, msg: Msg) {
         let Msg::Done(c, r) = msg;
-        self.free += self.running.remove(&c).unwrap_or(0);
+        let held = self.running.remove(&c).unwrap_or(0);
+        if !self.unbounded {
+            self.free += held;
+        }
         self.running_keys.remove(&c);
         self.progress.overall.inc(1);
         if let Status::Failed(m) = &r.status {

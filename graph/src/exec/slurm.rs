@@ -132,9 +132,11 @@ pub(super) fn run(
             "the Slurm executor needs a worker command".into(),
         ));
     }
-    // Every ready computation is submitted at once: the cluster does the scheduling.
-    let mut sched = Scheduler::new(plan, store, need, usize::MAX / 2, opts.progress);
+    // Every ready computation is submitted at once: the cluster does the scheduling, and the
+    // thread budget (`--jobs`) only sizes each job.
+    let mut sched = Scheduler::new(plan, store, need, opts.jobs.max(1), opts.progress);
     sched.checkpoint_every = opts.checkpoint_every;
+    sched.unbounded = true;
     let run_dir = store
         .root()
         .join("runs")
@@ -370,7 +372,7 @@ fn submit(
     let cpus = res.cpus.map(|c| c as usize).unwrap_or(match first.threads {
         Threads::One => 1,
         Threads::Exactly(k) => k,
-        Threads::All => opts.jobs,
+        Threads::All => opts.jobs.max(1),
     });
     let keys_file = run_dir.join(format!("{id}.keys"));
     let lines: String = jobs
@@ -405,6 +407,8 @@ fn submit(
         format!("--output={}", out_pattern.display()),
         format!("--cpus-per-task={cpus}"),
         "--ntasks=1".into(),
+        // A requeued job appends to its output instead of truncating the first attempt's.
+        "--open-mode=append".into(),
         if slurm.requeue {
             "--requeue".into()
         } else {
