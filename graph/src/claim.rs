@@ -161,6 +161,17 @@ pub fn read_holder(path: &Path) -> Option<ClaimHolder> {
 
 /// Why the claim at `path` is stale (`None`: it is live, or gone).
 pub fn stale_reason(path: &Path, policy: &ClaimPolicy) -> Option<(ClaimHolder, String)> {
+    stale_reason_in_job(path, policy, slurm_job_id().as_deref())
+}
+
+/// [`stale_reason`] for a claimant running in Slurm job `own_job`: a claim held by an earlier
+/// attempt of the same job (a requeued or preempted job keeps its id, and may restart on
+/// another node) is stale at once.
+pub fn stale_reason_in_job(
+    path: &Path,
+    policy: &ClaimPolicy,
+    own_job: Option<&str>,
+) -> Option<(ClaimHolder, String)> {
     let meta = fs::metadata(path).ok()?;
     let holder = read_holder(path);
     let age = meta
@@ -185,6 +196,17 @@ pub fn stale_reason(path: &Path, policy: &ClaimPolicy) -> Option<(ClaimHolder, S
                 format!("unreadable, last touched {:.0} s ago", age.as_secs_f64()),
             )
         }),
+        Some(h)
+            if own_job.is_some()
+                && h.slurm_job.as_deref() == own_job
+                && (h.pid != std::process::id() || h.host != crate::store::hostname()) =>
+        {
+            let why = format!(
+                "its holder, {}, was an earlier attempt of this Slurm job",
+                h.describe()
+            );
+            Some((h, why))
+        }
         Some(h) if holder_dead_here(&h) => {
             let why = format!("its holder, {}, is no longer running", h.describe());
             Some((h, why))
@@ -415,6 +437,23 @@ mod tests {
         assert!(try_create(&p, &fresh).unwrap());
         assert!(!take_over(&p, &old), "the file is not the stale one");
         assert_eq!(read_holder(&p).unwrap().token, fresh.token);
+    }
+
+    #[test]
+    fn an_earlier_attempt_of_the_same_slurm_job_is_stale_at_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = claim_path(dir.path(), "67");
+        let h = ClaimHolder {
+            host: "node-a".into(),
+            slurm_job: Some("99".into()),
+            ..ClaimHolder::this_process()
+        };
+        assert!(try_create(&p, &h).unwrap());
+        let pol = policy(3_600_000);
+        assert!(stale_reason_in_job(&p, &pol, None).is_none());
+        assert!(stale_reason_in_job(&p, &pol, Some("98")).is_none());
+        let why = stale_reason_in_job(&p, &pol, Some("99")).unwrap().1;
+        assert!(why.contains("earlier attempt"), "{why}");
     }
 
     #[test]

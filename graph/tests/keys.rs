@@ -111,3 +111,77 @@ fn keys_of_a_fixed_pipeline_are_pinned() {
         .collect();
     assert_eq!(got, want);
 }
+
+/// A `resources:` block (Slurm resources) is typed, looked up by node name, then kind, then
+/// `default`, and changes no key and no structural id.
+#[test]
+fn a_resources_block_changes_no_key() {
+    use augsplat_graph::exec::slurm::{resources_of, Resources};
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("data")).unwrap();
+    std::fs::write(dir.path().join("data/value.txt"), "external").unwrap();
+    let engine = Engine::new(
+        common::registry(common::Recorder::new()),
+        dir.path().join("cache"),
+    )
+    .unwrap();
+    let with = PIPELINE.replacen(
+        "(\n    nodes:",
+        r#"(
+    resources: {
+        "default": (cpus: 2),
+        "Len": (mem: "1G", time: "00:10:00"),
+        "ext": (gpus: 1, partition: "gpu", sbatch: ["--constraint=a100"]),
+    },
+    nodes:"#,
+        1,
+    );
+    let (plain, res) = (dir.path().join("plain.ron"), dir.path().join("res.ron"));
+    std::fs::write(&plain, PIPELINE).unwrap();
+    std::fs::write(&res, &with).unwrap();
+    let a = engine.load(&plain, &[]).unwrap();
+    let b = engine.load(&res, &[]).unwrap();
+    let sids = |p: &augsplat_graph::Plan| p.comps.iter().map(|c| c.sid).collect::<Vec<_>>();
+    assert_eq!(sids(&a), sids(&b));
+    assert!(a.resources.is_empty());
+    let comp = |name: &str| {
+        b.instances
+            .iter()
+            .find(|i| i.name == name)
+            .map(|i| i.comp)
+            .unwrap()
+    };
+    assert_eq!(
+        resources_of(&b, comp("ext")),
+        Some(&Resources {
+            gpus: Some(1),
+            partition: Some("gpu".into()),
+            sbatch: vec!["--constraint=a100".into()],
+            ..Default::default()
+        }),
+        "the node's name wins"
+    );
+    assert_eq!(
+        resources_of(&b, comp("len")).and_then(|r| r.mem.clone()),
+        Some("1G".into()),
+        "then its kind"
+    );
+    assert_eq!(resources_of(&b, comp("src")).and_then(|r| r.cpus), Some(2));
+    let one = RunOptions {
+        jobs: 1,
+        ..Default::default()
+    };
+    let ra = engine.run(&a, &one).unwrap();
+    let rb = engine.run(&b, &one).unwrap();
+    let keys = |r: &augsplat_graph::RunReport| {
+        r.results
+            .iter()
+            .map(|x| x.as_ref().and_then(|x| x.key))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(keys(&ra), keys(&rb));
+    // A typo is an error at the block, with the fields in the hint.
+    std::fs::write(&res, with.replace("cpus: 2", "cpu: 2")).unwrap();
+    let err = engine.load(&res, &[]).err().unwrap().to_string();
+    assert!(err.contains("resources") && err.contains("cpu"), "{err}");
+}

@@ -258,7 +258,10 @@ fn resources_of(
     let Some(v) = doc.field("resources") else {
         return Ok(BTreeMap::new());
     };
-    ron::from_str(&v.to_ron()).map_err(|e| {
+    // `cpus: 2` as well as `cpus: Some(2)`, as in node args.
+    let opts =
+        ron::Options::default().with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME);
+    opts.from_str(&v.to_ron()).map_err(|e| {
         Diagnostic::at(&v.origin, format!("`resources`: {e}"))
             .hint(
                 "write `resources: { \"OptimizeSplats\": (cpus: 8, mem: \"16G\", time: \"04:00:00\", gpus: 1) }` \
