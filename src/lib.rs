@@ -60,6 +60,8 @@ pub enum Command {
     Weights(commands::weights::Args),
     /// Compare the metrics of several runs (ablation points).
     Compare(commands::compare::Args),
+    /// Run time against error over a grid of settings: Pareto front and knee per method.
+    Bench(commands::bench::Args),
     /// Show the latest run's nodes: waiting, queued, running (where), done, failed (why).
     Status(commands::status::Args),
     /// Compute one node of a pipeline by key into the store (what a Slurm job runs).
@@ -85,6 +87,7 @@ pub fn main_with(registry: Registry) -> ExitCode {
         Command::Weights(a) => commands::weights::run(a),
         Command::Compare(a) => commands::compare::run(a),
         Command::Status(a) => commands::status::run(a, &registry),
+        Command::Bench(a) => commands::bench::run(a, &registry),
         Command::ComputeNode(a) => commands::compute_node::run(a, &registry),
     };
     match result {

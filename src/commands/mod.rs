@@ -1,5 +1,6 @@
 //! One module per subcommand. Each has `Args` (clap) and `run`, returning a readable error.
 
+pub mod bench;
 pub mod compare;
 pub mod compute_node;
 pub mod expand;

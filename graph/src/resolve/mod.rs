@@ -154,6 +154,23 @@ impl Plan {
             })
             .collect()
     }
+    /// Computation `c` and every computation it needs (transitively), in plan order.
+    pub fn closure(&self, c: usize) -> Vec<usize> {
+        let mut need = vec![false; self.comps.len()];
+        need[c] = true;
+        for i in (0..=c).rev() {
+            if need[i] {
+                for slot in &self.comps[i].inputs {
+                    for (s, _) in &slot.sources {
+                        if let Source::Node { comp, .. } = s {
+                            need[*comp] = true;
+                        }
+                    }
+                }
+            }
+        }
+        (0..self.comps.len()).filter(|&i| need[i]).collect()
+    }
     /// Computations needed for `targets` (all when empty), as a mask.
     pub fn needed(&self, targets: &[String]) -> Result<Vec<bool>, PipelineError> {
         let mut need = vec![targets.is_empty(); self.comps.len()];

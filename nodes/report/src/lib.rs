@@ -14,6 +14,7 @@
 //! - [`compare`]: metric deltas across runs (ablation points);
 //! - [`viewer`]: the interactive WebGL2 splat viewer of the report and `augsplat view`.
 
+pub mod bench;
 pub mod compare;
 pub mod ensemble;
 pub mod error;

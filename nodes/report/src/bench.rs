@@ -1,0 +1,378 @@
+//! Run time against error (`augsplat bench`): per configuration of a grid and per method, the
+//! compute seconds of every node the method's evaluation needs and its held-out error; per
+//! method the Pareto front (no configuration both cheaper and better) and its knee; written as
+//! a Markdown table, a JSON record and an HTML page with one scatter plot per method.
+
+use crate::svg::{self, escape, Chart, LabeledPoint};
+use serde::{Deserialize, Serialize};
+
+/// One (configuration, method) measurement.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BenchPoint {
+    /// The configuration (`steps=100,members=3`).
+    pub config: String,
+    /// The method's label (`3DGS`, `Dual`, `Ensemble median`).
+    pub method: String,
+    /// Compute seconds of every node the method's evaluation needs, upstream included, each
+    /// as its cache record says (shared nodes count in every configuration that needs them).
+    pub seconds: f64,
+    /// Held-out error at the evaluated checkpoint: the average error when LPIPS weights were
+    /// connected, else the MSE (see [`BenchTable::error_name`]).
+    pub error: f64,
+    /// Held-out PSNR, dB.
+    pub psnr: f64,
+    /// Nodes counted in `seconds`.
+    pub nodes: usize,
+}
+
+/// Where and when the bench ran.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Machine {
+    /// CPU model name.
+    pub cpu: String,
+    /// Logical cores.
+    pub cores: usize,
+    /// Vector instruction sets found (`avx2`, `fma`, `avx512f`, `neon`).
+    pub isa: Vec<String>,
+    /// UTC date (`YYYY-MM-DD`).
+    pub date: String,
+}
+
+impl Machine {
+    /// This machine, now.
+    pub fn this() -> Machine {
+        let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+        let cpu = info
+            .lines()
+            .find(|l| l.starts_with("model name"))
+            .and_then(|l| l.split_once(':'))
+            .map(|(_, v)| v.trim().to_string())
+            .unwrap_or_else(|| std::env::consts::ARCH.to_string());
+        let flags: Vec<&str> = info
+            .lines()
+            .find(|l| l.starts_with("flags") || l.starts_with("Features"))
+            .and_then(|l| l.split_once(':'))
+            .map(|(_, v)| v.split_whitespace().collect())
+            .unwrap_or_default();
+        let isa = ["avx2", "fma", "avx512f", "neon", "asimd"]
+            .iter()
+            .filter(|f| flags.contains(f))
+            .map(|f| f.to_string())
+            .collect();
+        let days = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs() / 86_400)
+            .unwrap_or(0) as i64;
+        Machine {
+            cpu,
+            cores: std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1),
+            isa,
+            date: civil_date(days),
+        }
+    }
+}
+
+/// `YYYY-MM-DD` of a day number since 1970-01-01 (proleptic Gregorian).
+pub fn civil_date(days: i64) -> String {
+    // Howard Hinnant's days-to-civil algorithm.
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!("{y:04}-{m:02}-{d:02}")
+}
+
+/// Seconds to three significant digits or whole seconds.
+fn seconds(s: f64) -> String {
+    if s < 10.0 {
+        format!("{s:.2}")
+    } else if s < 100.0 {
+        format!("{s:.1}")
+    } else {
+        format!("{s:.0}")
+    }
+}
+
+/// A whole bench.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BenchTable {
+    /// The pipeline benched.
+    pub pipeline: String,
+    /// The grid, as given (`field.steps=[100,200]`).
+    pub grid: Vec<String>,
+    /// `average error` or `MSE`.
+    pub error_name: String,
+    /// The machine and date.
+    pub machine: Machine,
+    /// Every measurement, in configuration order, then method order.
+    pub points: Vec<BenchPoint>,
+}
+
+/// One method's Pareto front (indices into [`BenchTable::points`], by rising cost) and its
+/// knee.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Front {
+    /// The method.
+    pub method: String,
+    /// The optimal points.
+    pub front: Vec<usize>,
+    /// The knee (an element of `front`).
+    pub knee: Option<usize>,
+}
+
+/// The knee of a front given as (cost, error) points by rising cost: the point farthest below
+/// the straight line from the cheapest to the most accurate point, both axes scaled to the
+/// front's range (a front of one or two points: its most accurate point).
+pub fn knee(front: &[(f64, f64)]) -> Option<usize> {
+    let n = front.len();
+    if n == 0 {
+        return None;
+    }
+    if n <= 2 {
+        return Some(n - 1);
+    }
+    let (x0, y0) = front[0];
+    let (x1, y1) = front[n - 1];
+    let (sx, sy) = (
+        (x1 - x0).max(f64::MIN_POSITIVE),
+        (y0 - y1).max(f64::MIN_POSITIVE),
+    );
+    let mut best = (n - 1, 0.0);
+    for (i, &(x, y)) in front.iter().enumerate() {
+        let u = (x - x0) / sx; // 0 → 1
+        let v = (y0 - y) / sy; // 0 → 1: error reduction
+        let gain = v - u; // above the diagonal: more reduction than cost
+        if gain > best.1 {
+            best = (i, gain);
+        }
+    }
+    Some(best.0)
+}
+
+impl BenchTable {
+    /// The methods, in first-seen order.
+    pub fn methods(&self) -> Vec<String> {
+        let mut m: Vec<String> = Vec::new();
+        for p in &self.points {
+            if !m.contains(&p.method) {
+                m.push(p.method.clone());
+            }
+        }
+        m
+    }
+
+    /// Per method, its Pareto front over the configurations and the knee.
+    pub fn fronts(&self) -> Vec<Front> {
+        self.methods()
+            .into_iter()
+            .map(|method| {
+                let idx: Vec<usize> = (0..self.points.len())
+                    .filter(|&i| self.points[i].method == method)
+                    .collect();
+                let xy: Vec<(f64, f64)> = idx
+                    .iter()
+                    .map(|&i| (self.points[i].seconds, self.points[i].error))
+                    .collect();
+                let front: Vec<usize> = svg::pareto_front(&xy).iter().map(|&k| idx[k]).collect();
+                let fxy: Vec<(f64, f64)> = front
+                    .iter()
+                    .map(|&i| (self.points[i].seconds, self.points[i].error))
+                    .collect();
+                let knee = knee(&fxy).map(|k| front[k]);
+                Front {
+                    method,
+                    front,
+                    knee,
+                }
+            })
+            .collect()
+    }
+
+    /// The Markdown table: per method and configuration, seconds, error and PSNR, with the
+    /// front (`*`) and the knee (`knee`) marked.
+    pub fn markdown(&self) -> String {
+        let fronts = self.fronts();
+        let mut out = format!(
+            "Bench of `{}` over {} — {} ({} cores{}), {}.\n\nCost: compute seconds of every node a method's evaluation needs, from the cache records. Error: held-out {} at the evaluated checkpoint. `*`: on the method's Pareto front; `knee`: the front's knee.\n\n",
+            self.pipeline,
+            self.grid.iter().map(|g| format!("`{g}`")).collect::<Vec<_>>().join(", "),
+            self.machine.cpu,
+            self.machine.cores,
+            if self.machine.isa.is_empty() {
+                String::new()
+            } else {
+                format!(", {}", self.machine.isa.join("+"))
+            },
+            self.machine.date,
+            self.error_name
+        );
+        out.push_str(&format!(
+            "| method | configuration | seconds | {} | PSNR | nodes | front |\n|---|---|---:|---:|---:|---:|---|\n",
+            self.error_name
+        ));
+        for f in &fronts {
+            for (i, p) in self.points.iter().enumerate() {
+                if p.method != f.method {
+                    continue;
+                }
+                let mark = if f.knee == Some(i) {
+                    "* knee"
+                } else if f.front.contains(&i) {
+                    "*"
+                } else {
+                    ""
+                };
+                out.push_str(&format!(
+                    "| {} | {} | {} | {:.4} | {:.2} | {} | {mark} |\n",
+                    p.method,
+                    p.config,
+                    seconds(p.seconds),
+                    p.error,
+                    p.psnr,
+                    p.nodes
+                ));
+            }
+        }
+        out
+    }
+
+    /// A self-contained HTML page: the table and one scatter plot (seconds against error,
+    /// front dashed) per method.
+    pub fn html(&self) -> String {
+        let mut charts = String::new();
+        for (g, method) in self.methods().iter().enumerate() {
+            let pts: Vec<LabeledPoint> = self
+                .points
+                .iter()
+                .filter(|p| &p.method == method)
+                .map(|p| LabeledPoint {
+                    label: p.config.clone(),
+                    group: g,
+                    x: p.seconds,
+                    y: p.error,
+                })
+                .collect();
+            let chart = Chart::new(method, "compute seconds", &self.error_name);
+            charts.push_str(&svg::scatter_chart(
+                &chart,
+                &pts,
+                std::slice::from_ref(method),
+                true,
+            ));
+        }
+        let table: String = self
+            .markdown()
+            .lines()
+            .filter(|l| l.starts_with('|') && !l.starts_with("|---"))
+            .enumerate()
+            .map(|(i, l)| {
+                let cells: Vec<&str> = l.trim_matches('|').split('|').map(str::trim).collect();
+                let tag = if i == 0 { "th" } else { "td" };
+                format!(
+                    "<tr>{}</tr>\n",
+                    cells
+                        .iter()
+                        .map(|c| format!("<{tag}>{}</{tag}>", escape(c)))
+                        .collect::<String>()
+                )
+            })
+            .collect();
+        format!(
+            "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>augsplat bench: {p}</title>\n<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}svg{{margin:1em 1em 0 0}}</style></head><body>\n<h1>Run time against error: {p}</h1>\n<p>{cpu} ({cores} cores{isa}), {date}. Grid: {grid}. Cost: compute seconds of every node a method's evaluation needs (cache records). Error: held-out {err}.</p>\n<div>{charts}</div>\n<table>\n{table}</table>\n</body></html>\n",
+            p = escape(&self.pipeline),
+            cpu = escape(&self.machine.cpu),
+            cores = self.machine.cores,
+            isa = if self.machine.isa.is_empty() {
+                String::new()
+            } else {
+                format!(", {}", self.machine.isa.join("+"))
+            },
+            date = self.machine.date,
+            grid = escape(&self.grid.join(", ")),
+            err = escape(&self.error_name),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table(points: &[(&str, &str, f64, f64)]) -> BenchTable {
+        BenchTable {
+            pipeline: "p.ron".into(),
+            grid: vec!["a=[1,2]".into()],
+            error_name: "MSE".into(),
+            machine: Machine {
+                cpu: "cpu".into(),
+                cores: 2,
+                isa: vec!["avx2".into()],
+                date: "2026-11-25".into(),
+            },
+            points: points
+                .iter()
+                .map(|&(c, m, s, e)| BenchPoint {
+                    config: c.into(),
+                    method: m.into(),
+                    seconds: s,
+                    error: e,
+                    psnr: 20.0,
+                    nodes: 3,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn fronts_and_knees_on_a_constructed_set() {
+        // Method A: (10, 0.5) (20, 0.2) (40, 0.15) (30, 0.3) dominated by (20, 0.2);
+        // (15, 0.5) dominated by (10, 0.5).
+        let t = table(&[
+            ("c1", "A", 10.0, 0.5),
+            ("c2", "A", 20.0, 0.2),
+            ("c3", "A", 30.0, 0.3),
+            ("c4", "A", 40.0, 0.15),
+            ("c5", "A", 15.0, 0.5),
+            ("c1", "B", 5.0, 1.0),
+            ("c2", "B", 5.0, 0.9),
+        ]);
+        let f = t.fronts();
+        assert_eq!(f[0].method, "A");
+        assert_eq!(f[0].front, vec![0, 1, 3]);
+        assert_eq!(f[0].knee, Some(1), "most of the gain for half the cost");
+        assert_eq!(f[1].front, vec![6], "equal cost: the lower error only");
+        assert_eq!(f[1].knee, Some(6));
+        let md = t.markdown();
+        assert!(
+            md.contains("| A | c2 | 20.0 | 0.2000 | 20.00 | 3 | * knee |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| A | c3 | 30.0 | 0.3000 | 20.00 | 3 |  |"),
+            "{md}"
+        );
+        assert!(md.contains("| B | c2 | 5.00 | 0.9000 |"), "{md}");
+        let html = t.html();
+        assert_eq!(html.matches("<svg").count(), 2);
+        assert!(html.contains("class=\"pareto\""));
+    }
+
+    #[test]
+    fn knee_of_short_fronts_and_dates() {
+        assert_eq!(knee(&[]), None);
+        assert_eq!(knee(&[(1.0, 2.0)]), Some(0));
+        assert_eq!(knee(&[(1.0, 2.0), (2.0, 1.0)]), Some(1));
+        // A straight line has no point above the diagonal: the most accurate one.
+        assert_eq!(knee(&[(0.0, 2.0), (1.0, 1.0), (2.0, 0.0)]), Some(2));
+        assert_eq!(civil_date(0), "1970-01-01");
+        assert_eq!(civil_date(20_417), "2025-11-25");
+        assert_eq!(civil_date(11_016), "2000-02-29");
+    }
+}
