@@ -100,6 +100,9 @@ const LIVE_STATES: &[&str] = &[
     "RESV_DEL_HOLD",
 ];
 
+/// The most tasks in one job array.
+const MAX_ARRAY: usize = 1000;
+
 /// One submitted computation.
 struct Submitted {
     /// The Slurm job id (`123`, or `123_4` for an array task).
@@ -111,8 +114,10 @@ struct Submitted {
     node: String,
     /// When it was first seen ended without an entry.
     ended_at: Option<Instant>,
-    /// The key (hex).
+    /// The key.
     key: crate::store::Hash,
+    /// Its spinner, when bars are drawn (cleared when it ends).
+    bar: Option<indicatif::ProgressBar>,
 }
 
 /// `squeue`'s view of the run's jobs: job id → (state, node list).
@@ -168,8 +173,21 @@ pub(super) fn run(
             groups.entry(g).or_default().push(job);
         }
         let mut changed = !order.is_empty();
-        for g in order {
-            let jobs = groups.remove(&g).unwrap_or_default();
+        // Slurm's default `MaxArraySize` is 1001: larger groups go as several arrays.
+        let batches: Vec<Vec<super::run::Job>> = order
+            .iter()
+            .flat_map(|g| {
+                let mut jobs = groups.remove(g).unwrap_or_default();
+                let mut out = Vec::new();
+                while jobs.len() > MAX_ARRAY {
+                    let rest = jobs.split_off(MAX_ARRAY);
+                    out.push(std::mem::replace(&mut jobs, rest));
+                }
+                out.push(jobs);
+                out
+            })
+            .collect();
+        for jobs in batches {
             let id = n_submissions;
             n_submissions += 1;
             match submit(plan, slurm, opts, &run_dir, &job_name, id, &jobs) {
@@ -184,12 +202,16 @@ pub(super) fn run(
                                 node: String::new(),
                                 ended_at: None,
                                 key: job.key,
+                                bar: job.bar.clone(),
                             },
                         );
                     }
                 }
                 Err(m) => {
                     for job in &jobs {
+                        if let Some(b) = &job.bar {
+                            b.finish_and_clear();
+                        }
                         sched.on_message(super::schedule::Msg::Done(
                             job.comp,
                             failed(job.key, m.clone()),
@@ -250,6 +272,9 @@ pub(super) fn run(
                 if !node.is_empty() {
                     s.node = node.clone();
                 }
+                if let Some(b) = &s.bar {
+                    b.set_message(format!("Slurm job {} {st}", s.job));
+                }
                 if LIVE_STATES.contains(&st.as_str()) {
                     s.ended_at = None;
                     continue;
@@ -286,7 +311,9 @@ pub(super) fn run(
             }
         }
         for (c, r) in done {
-            submitted.remove(&c);
+            if let Some(b) = submitted.remove(&c).and_then(|s| s.bar) {
+                b.finish_and_clear();
+            }
             changed = true;
             sched.on_message(super::schedule::Msg::Done(c, r));
         }
