@@ -412,8 +412,7 @@ fn training_continued_from_a_checkpoint_is_bit_identical() {
         assert_eq!(again, saved[i + 1..].to_vec());
     }
     // Through the node and the engine's checkpoint folder.
-    let ckpt = root.join("ckpt");
-    let node = |out: &str| {
+    let node = |args: &TrainFieldArgs, ckpt: &Path, out: &str| {
         let mut ctx = RunContext::standalone(
             vec![
                 ("train".into(), vec![root.join("train")]),
@@ -425,12 +424,25 @@ fn training_continued_from_a_checkpoint_is_bit_identical() {
             2,
         )
         .unwrap()
-        .with_checkpoints(ckpt.clone(), 8);
-        TrainField::run(&args, &mut ctx).unwrap();
+        .with_checkpoints(ckpt.to_path_buf(), 8);
+        TrainField::run(args, &mut ctx).unwrap();
         root.join(out).join("weights")
     };
-    let a = node("a");
+    let ckpt = root.join("ckpt");
+    let a = node(&args, &ckpt, "a");
     assert!(ckpt.join("state.ckpt").is_file());
-    let b = node("b");
+    let b = node(&args, &ckpt, "b");
     assert_eq!(dir_bytes(&a), dir_bytes(&b));
+    // Another seed's checkpoint is read (the weights change), so the first was not ignored.
+    let mut other = args.clone();
+    other.seed = 6;
+    let other_ckpt = root.join("other");
+    node(&other, &other_ckpt, "o");
+    std::fs::copy(other_ckpt.join("state.ckpt"), ckpt.join("state.ckpt")).unwrap();
+    let d = node(&args, &ckpt, "d");
+    assert_ne!(
+        dir_bytes(&a),
+        dir_bytes(&d),
+        "the planted checkpoint was not read"
+    );
 }

@@ -39,6 +39,16 @@ pub struct Machine {
 }
 
 impl Machine {
+    /// `CPU (N cores, avx2+fma)`.
+    pub fn describe(&self) -> String {
+        let isa = if self.isa.is_empty() {
+            String::new()
+        } else {
+            format!(", {}", self.isa.join("+"))
+        };
+        format!("{} ({} cores{isa})", self.cpu, self.cores)
+    }
+
     /// This machine, now.
     pub fn this() -> Machine {
         let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
@@ -195,29 +205,26 @@ impl BenchTable {
             .collect()
     }
 
-    /// The Markdown table: per method and configuration, seconds, error and PSNR, with the
-    /// front (`*`) and the knee (`knee`) marked.
-    pub fn markdown(&self) -> String {
-        let fronts = self.fronts();
-        let mut out = format!(
-            "Bench of `{}` over {} — {} ({} cores{}), {}.\n\nCost: compute seconds of every node a method's evaluation needs, from the cache records. Error: held-out {} at the evaluated checkpoint. `*`: on the method's Pareto front; `knee`: the front's knee.\n\n",
-            self.pipeline,
-            self.grid.iter().map(|g| format!("`{g}`")).collect::<Vec<_>>().join(", "),
-            self.machine.cpu,
-            self.machine.cores,
-            if self.machine.isa.is_empty() {
-                String::new()
-            } else {
-                format!(", {}", self.machine.isa.join("+"))
-            },
-            self.machine.date,
-            self.error_name
-        );
-        out.push_str(&format!(
-            "| method | configuration | seconds | {} | PSNR | nodes | front |\n|---|---|---:|---:|---:|---:|---|\n",
-            self.error_name
-        ));
-        for f in &fronts {
+    /// The table's column names.
+    fn header(&self) -> Vec<String> {
+        [
+            "method",
+            "configuration",
+            "seconds",
+            &self.error_name,
+            "PSNR",
+            "nodes",
+            "front",
+        ]
+        .map(String::from)
+        .to_vec()
+    }
+
+    /// The table's rows, method by method: seconds, error and PSNR per configuration, with
+    /// the front (`*`) and the knee (`* knee`) marked.
+    fn rows(&self) -> Vec<Vec<String>> {
+        let mut rows = Vec::new();
+        for f in self.fronts() {
             for (i, p) in self.points.iter().enumerate() {
                 if p.method != f.method {
                     continue;
@@ -229,16 +236,36 @@ impl BenchTable {
                 } else {
                     ""
                 };
-                out.push_str(&format!(
-                    "| {} | {} | {} | {:.4} | {:.2} | {} | {mark} |\n",
-                    p.method,
-                    p.config,
+                rows.push(vec![
+                    p.method.clone(),
+                    p.config.clone(),
                     seconds(p.seconds),
-                    p.error,
-                    p.psnr,
-                    p.nodes
-                ));
+                    format!("{:.4}", p.error),
+                    format!("{:.2}", p.psnr),
+                    p.nodes.to_string(),
+                    mark.to_string(),
+                ]);
             }
+        }
+        rows
+    }
+
+    /// The Markdown table (see [`BenchTable::rows`]) after a paragraph naming the pipeline,
+    /// the grid, the machine and the definitions.
+    pub fn markdown(&self) -> String {
+        let mut out = format!(
+            "Bench of `{}` over {} — {}, {}.\n\nCost: compute seconds of every node a method's evaluation needs, from the cache records. Error: held-out {} at the evaluated checkpoint. `*`: on the method's Pareto front; `knee`: the front's knee.\n\n",
+            self.pipeline,
+            self.grid.iter().map(|g| format!("`{g}`")).collect::<Vec<_>>().join(", "),
+            self.machine.describe(),
+            self.machine.date,
+            self.error_name
+        );
+        let line = |cells: &[String]| format!("| {} |\n", cells.join(" | "));
+        out.push_str(&line(&self.header()));
+        out.push_str("|---|---|---:|---:|---:|---:|---|\n");
+        for r in self.rows() {
+            out.push_str(&line(&r));
         }
         out
     }
@@ -267,33 +294,21 @@ impl BenchTable {
                 true,
             ));
         }
-        let table: String = self
-            .markdown()
-            .lines()
-            .filter(|l| l.starts_with('|') && !l.starts_with("|---"))
-            .enumerate()
-            .map(|(i, l)| {
-                let cells: Vec<&str> = l.trim_matches('|').split('|').map(str::trim).collect();
-                let tag = if i == 0 { "th" } else { "td" };
-                format!(
-                    "<tr>{}</tr>\n",
-                    cells
-                        .iter()
-                        .map(|c| format!("<{tag}>{}</{tag}>", escape(c)))
-                        .collect::<String>()
-                )
-            })
-            .collect();
+        let cells = |tag: &str, r: &[String]| {
+            let c: String = r
+                .iter()
+                .map(|c| format!("<{tag}>{}</{tag}>", escape(c)))
+                .collect();
+            format!("<tr>{c}</tr>\n")
+        };
+        let mut table = cells("th", &self.header());
+        for r in self.rows() {
+            table.push_str(&cells("td", &r));
+        }
         format!(
-            "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>augsplat bench: {p}</title>\n<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}svg{{margin:1em 1em 0 0}}</style></head><body>\n<h1>Run time against error: {p}</h1>\n<p>{cpu} ({cores} cores{isa}), {date}. Grid: {grid}. Cost: compute seconds of every node a method's evaluation needs (cache records). Error: held-out {err}.</p>\n<div>{charts}</div>\n<table>\n{table}</table>\n</body></html>\n",
+            "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>augsplat bench: {p}</title>\n<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}svg{{margin:1em 1em 0 0}}</style></head><body>\n<h1>Run time against error: {p}</h1>\n<p>{machine}, {date}. Grid: {grid}. Cost: compute seconds of every node a method's evaluation needs (cache records). Error: held-out {err}.</p>\n<div>{charts}</div>\n<table>\n{table}</table>\n</body></html>\n",
             p = escape(&self.pipeline),
-            cpu = escape(&self.machine.cpu),
-            cores = self.machine.cores,
-            isa = if self.machine.isa.is_empty() {
-                String::new()
-            } else {
-                format!(", {}", self.machine.isa.join("+"))
-            },
+            machine = escape(&self.machine.describe()),
             date = self.machine.date,
             grid = escape(&self.grid.join(", ")),
             err = escape(&self.error_name),
@@ -362,6 +377,11 @@ mod tests {
         let html = t.html();
         assert_eq!(html.matches("<svg").count(), 2);
         assert!(html.contains("class=\"pareto\""));
+        assert!(
+            html.contains("<td>c2</td><td>20.0</td><td>0.2000</td>"),
+            "{html}"
+        );
+        assert_eq!(html.matches("<td>* knee</td>").count(), 2);
     }
 
     #[test]

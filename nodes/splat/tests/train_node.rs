@@ -44,6 +44,17 @@ fn small_args() -> TrainArgs {
     }
 }
 
+/// The Dual schedule of the tiny tests (D = 10 steps, off below 0.1, 2 synthetic views).
+fn small_dual() -> Schedule {
+    Schedule::Dual {
+        w_nerf0: 2.0,
+        w_real: 1.0,
+        quarter_decay: 10.0,
+        off_below: Some(0.1),
+        synthetic_batch: 2,
+    }
+}
+
 /// A SyntheticSet made from the training views at half resolution, weights from a ramp.
 fn make_synthetic(train: &Path, dir: &Path) {
     SyntheticSet::create_folders(dir).unwrap();
@@ -130,13 +141,7 @@ fn node_runs_dual_with_synthetic_input_and_rejects_missing_synthetic() {
     assert!(err.contains("synthetic"), "{err}");
     let syn = tmp.path().join("syn");
     make_synthetic(&train, &syn);
-    args.schedule = Schedule::Dual {
-        w_nerf0: 2.0,
-        w_real: 1.0,
-        quarter_decay: 10.0,
-        off_below: Some(0.1),
-        synthetic_batch: 2,
-    };
+    args.schedule = small_dual();
     args.synthetic.skip_below = 0.25;
     args.label = "dual-test".into();
     let m = run_node(
@@ -363,13 +368,7 @@ fn resume_case(tmp: &Path) -> (PathBuf, PathBuf, PathBuf, TrainArgs) {
     args.densify.stop = 45;
     args.densify.reset_every = 30;
     args.densify.grad_threshold = 1e-5;
-    args.schedule = Schedule::Dual {
-        w_nerf0: 2.0,
-        w_real: 1.0,
-        quarter_decay: 10.0,
-        off_below: Some(0.1),
-        synthetic_batch: 2,
-    };
+    args.schedule = small_dual();
     (train, test, syn, args)
 }
 
@@ -467,35 +466,48 @@ fn fit_continued_from_a_checkpoint_is_bit_identical() {
 }
 
 /// Through the node: a run that finds a checkpoint in its folder continues from it with the
-/// same outputs; a damaged checkpoint is ignored.
+/// same outputs; a checkpoint of other data is read (the outputs change, so it was not
+/// ignored); a damaged checkpoint is ignored.
 #[test]
 fn node_resumes_from_its_checkpoint_folder() {
     let tmp = tempfile::tempdir().unwrap();
     let (train, test, syn, args) = resume_case(tmp.path());
-    let ckpt = tmp.path().join("ckpt");
-    let run = |out: &str| {
+    let run = |args: &TrainArgs, ckpt: &Path, out: &str| {
         let inputs = [("train", &train), ("test", &test), ("synthetic", &syn)]
             .into_iter()
             .map(|(n, p)| (n.to_string(), vec![p.to_path_buf()]))
             .collect();
         let mut ctx = RunContext::standalone(inputs, &["model"], &tmp.path().join(out), 0, 1)
             .unwrap()
-            .with_checkpoints(ckpt.clone(), 15);
-        OptimizeSplats::run(&args, &mut ctx).unwrap();
+            .with_checkpoints(ckpt.to_path_buf(), 15);
+        OptimizeSplats::run(args, &mut ctx).unwrap();
         tmp.path().join(out).join("model")
     };
-    let a = run("a");
+    let ckpt = tmp.path().join("ckpt");
+    let a = run(&args, &ckpt, "a");
     let state = ckpt.join("state.ckpt");
     assert!(
         state.is_file(),
         "the last checkpoint (step 45) is kept by a standalone run"
     );
-    let b = run("b");
-    let mut bytes = std::fs::read(&state).unwrap();
+    let b = run(&args, &ckpt, "b");
+    // Another seed's checkpoint at step 45: the run continues from it, so its outputs differ.
+    let mut other = args.clone();
+    other.seed += 1;
+    let other_ckpt = tmp.path().join("other");
+    run(&other, &other_ckpt, "o");
+    let saved = std::fs::read(&state).unwrap();
+    std::fs::copy(other_ckpt.join("state.ckpt"), &state).unwrap();
+    let d = run(&args, &ckpt, "d");
+    assert!(
+        std::fs::read(a.join("final.ply")).unwrap() != std::fs::read(d.join("final.ply")).unwrap(),
+        "the planted checkpoint was not read"
+    );
+    let mut bytes = saved;
     let n = bytes.len();
     bytes[n - 5] ^= 0x40;
     std::fs::write(&state, bytes).unwrap();
-    let c = run("c");
+    let c = run(&args, &ckpt, "c");
     for f in ["final.ply", "best.ply", "curve.json", "best.json"] {
         let x = std::fs::read(a.join(f)).unwrap();
         assert!(x == std::fs::read(b.join(f)).unwrap(), "{f} after resuming");
