@@ -250,8 +250,8 @@ impl BenchTable {
         rows
     }
 
-    /// The Markdown table (see [`BenchTable::rows`]) after a paragraph naming the pipeline,
-    /// the grid, the machine and the definitions.
+    /// The Markdown table (one row per method and configuration) after a paragraph naming
+    /// the pipeline, the grid, the machine and the definitions.
     pub fn markdown(&self) -> String {
         let mut out = format!(
             "Bench of `{}` over {} — {}, {}.\n\nCost: compute seconds of every node a method's evaluation needs, from the cache records. Error: held-out {} at the evaluated checkpoint. `*`: on the method's Pareto front; `knee`: the front's knee.\n\n",
