@@ -393,6 +393,7 @@ impl Node for RenderField {
         let bg = a.background.unwrap_or(loaded.meta.background);
         let mut set = RenderSet::default();
         let total = poses.views.len() as u64;
+        let (mut rays, mut stats) = (0u64, train::RenderStats::default());
         for (i, pv) in poses.views.iter().enumerate() {
             pv.camera.validate().map_err(|e| {
                 NodeError::new(format!("{}: pose {}: {e}", poses_path.display(), pv.name))
@@ -413,6 +414,8 @@ impl Node for RenderField {
                 bg,
                 a.chunk_rays as usize,
             );
+            rays += cam.width as u64 * cam.height as u64;
+            stats.add(&img.stats);
             let file = format!("view_{i:04}.exr");
             let plane = |c: usize| {
                 img.rgb
@@ -443,6 +446,14 @@ impl Node for RenderField {
             ctx.progress(i as u64 + 1, total, &pv.name);
         }
         artifacts::write_json(&out.join(files::RENDERS), &set)?;
+        let per_ray = |v: u64| v as f64 / rays.max(1) as f64;
+        ctx.log(format!(
+            "{total} views, {rays} rays; per ray: {:.1} marching steps, {:.1} samples in occupied cells, {:.1} through the density network (early termination), {:.1} through the colour network",
+            per_ray(stats.steps),
+            per_ray(stats.marched),
+            per_ray(stats.density),
+            per_ray(stats.color)
+        ));
         Ok(())
     }
 }

@@ -581,12 +581,24 @@ pub struct RenderedImage {
     pub depth: Vec<f32>,
     /// Accumulated opacity.
     pub acc: Vec<f32>,
-    /// Field samples evaluated.
-    pub samples: u64,
+    /// What the render evaluated.
+    pub stats: RenderStats,
 }
 
-/// Colour, depth, opacity and sample count of one render chunk.
-type RenderPart = (Vec<f32>, Vec<f32>, Vec<f32>, u64);
+/// Sample counts of a render (summed over its rays).
+pub type RenderStats = crate::field::SampleCounters;
+
+/// Rays per parallel chunk of [`render_camera`] when a caller has no reason to choose.
+pub const RENDER_CHUNK_RAYS: usize = 256;
+
+/// Rays per forward pass inside a render chunk: small enough that the pass's per-sample
+/// buffers (≈ 100 samples per ray of a fog-like field × encoding, activations) stay in the
+/// core's L2 cache. Measured on bonsai members (200 views at 100×67, 2-core EPYC): 16 rays
+/// 41.7 s, 256 rays 47.3 s; 8 and 32 within 3 % of 16. Does not change any result.
+pub const RENDER_PASS_RAYS: usize = 16;
+
+/// Colour, depth, opacity and sample counts of one render chunk.
+type RenderPart = (Vec<f32>, Vec<f32>, Vec<f32>, RenderStats);
 
 /// Renders a camera in fixed chunks of `chunk_rays` pixels (parallel, deterministic).
 pub fn render_camera(
@@ -620,20 +632,27 @@ pub fn render_camera(
                         background,
                     });
                 }
-                field.forward_chunk(params, occ, &rays, &|_| 0.5, &mean_emb, st);
                 let mut rgb = Vec::with_capacity(3 * (hi - lo));
                 let mut depth = Vec::with_capacity(hi - lo);
                 let mut acc = Vec::with_capacity(hi - lo);
-                for (r, o) in st.out.iter().enumerate() {
-                    rgb.extend_from_slice(&o.rgb);
-                    depth.push(if o.acc > 1e-6 {
-                        o.depth / o.acc * cos[r]
-                    } else {
-                        0.0
-                    });
-                    acc.push(o.acc);
+                let mut counters = RenderStats::default();
+                // Each ray's result is independent of the rays beside it: passes of
+                // [`RENDER_PASS_RAYS`] keep every per-sample buffer in the core's cache.
+                for (b, batch) in rays.chunks(RENDER_PASS_RAYS).enumerate() {
+                    field.forward_chunk(params, occ, batch, &|_| 0.5, &mean_emb, st);
+                    counters.add(&st.counters);
+                    let cos = &cos[b * RENDER_PASS_RAYS..];
+                    for (r, o) in st.out.iter().enumerate() {
+                        rgb.extend_from_slice(&o.rgb);
+                        depth.push(if o.acc > 1e-6 {
+                            o.depth / o.acc * cos[r]
+                        } else {
+                            0.0
+                        });
+                        acc.push(o.acc);
+                    }
                 }
-                (rgb, depth, acc, st.n() as u64)
+                (rgb, depth, acc, counters)
             })
         })
         .collect();
@@ -643,13 +662,13 @@ pub fn render_camera(
         rgb: Vec::with_capacity(3 * n),
         depth: Vec::with_capacity(n),
         acc: Vec::with_capacity(n),
-        samples: 0,
+        stats: RenderStats::default(),
     };
     for (rgb, depth, acc, s) in parts {
         out.rgb.extend(rgb);
         out.depth.extend(depth);
         out.acc.extend(acc);
-        out.samples += s;
+        out.stats.add(&s);
     }
     out
 }

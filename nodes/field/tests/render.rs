@@ -1,5 +1,7 @@
 //! Rendering with density evaluation stopped at early termination matches the full evaluation.
 
+mod common;
+
 use augsplat_core::Rng;
 use augsplat_field::field::{ChunkState, Field, FieldConfig, RayInput};
 use augsplat_field::hashgrid::HashGridConfig;
@@ -94,4 +96,33 @@ fn stopping_at_termination_keeps_colour_weights_and_cut() {
         assert!((o.depth - p.depth).abs() <= 1e-4 * 6.0, "ray {r}");
     }
     assert!(terminated > 10, "only {terminated} rays terminated early");
+}
+
+/// `render_camera` gives the same bits for any parallel chunk size (its inner passes of
+/// `RENDER_PASS_RAYS` rays included) and counts what it evaluated consistently: every marched
+/// sample, fewer through the density network once rays terminate, fewer still with a colour.
+#[test]
+fn render_camera_is_independent_of_chunking_and_counts_samples() {
+    use augsplat_field::train::{render_camera, RENDER_PASS_RAYS};
+    let f = field();
+    let mut params = f.init_params(5);
+    let mut rng = Rng::new(9);
+    for p in params[..f.density_offset].iter_mut() {
+        *p = rng.uniform(-1.0, 1.0) as f32;
+    }
+    let l0 = f.density.layers[0];
+    let bias0 = f.density_offset + l0.params() + f.density.layers[1].inp * f.density.layers[1].out;
+    params[bias0] = 1.5;
+    let occ = OccupancyGrid::full(8);
+    let cam = common::look_at([0.3, -0.2, -2.5], 23, 17);
+    let reference = render_camera(&f, &params, &occ, &cam, [0.2, 0.4, 0.6], 1);
+    for chunk in [RENDER_PASS_RAYS - 1, RENDER_PASS_RAYS + 3, 256, 10_000] {
+        let img = render_camera(&f, &params, &occ, &cam, [0.2, 0.4, 0.6], chunk);
+        assert_eq!(img, reference, "chunk of {chunk} rays");
+    }
+    let s = reference.stats;
+    let rays = 23 * 17;
+    assert!(s.steps >= s.marched && s.marched >= rays, "{s:?}");
+    assert!(s.density < s.marched, "no ray stopped early: {s:?}");
+    assert!(s.color <= s.density && s.color > 0, "{s:?}");
 }

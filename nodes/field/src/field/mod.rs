@@ -220,6 +220,31 @@ pub struct ChunkState {
     ray_keep: Vec<usize>,
     ray_trans: Vec<f32>,
     active: Vec<u32>,
+    /// Sample counts of the last forward pass (see [`SampleCounters`]).
+    pub counters: SampleCounters,
+}
+
+/// What one forward pass evaluated, summed over its rays: the cost model of rendering.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SampleCounters {
+    /// Marching steps taken (occupied or not).
+    pub steps: u64,
+    /// Samples in occupied cells (what a renderer without early termination evaluates).
+    pub marched: u64,
+    /// Samples evaluated by the density network.
+    pub density: u64,
+    /// Samples evaluated by the colour network.
+    pub color: u64,
+}
+
+impl SampleCounters {
+    /// Adds another pass's counts.
+    pub fn add(&mut self, o: &SampleCounters) {
+        self.steps += o.steps;
+        self.marched += o.marched;
+        self.density += o.density;
+        self.color += o.color;
+    }
 }
 
 impl ChunkState {
@@ -353,6 +378,7 @@ impl Field {
             t += dt;
             k += 1;
         }
+        st.counters.steps += k as u64;
     }
 
     /// Density of points given in `[0, 1]³` hash coordinates (for occupancy updates).
@@ -424,6 +450,7 @@ impl Field {
                 st.seg_ids.extend(a as u32..b as u32);
             }
             let nb = st.seg_ids.len();
+            st.counters.density += nb as u64;
             let ldb = padded(nb);
             for (dst, src) in [
                 (&mut st.seg_px, &st.px),
@@ -534,11 +561,13 @@ impl Field {
             v.clear();
         }
         st.ray_start.clear();
+        st.counters = SampleCounters::default();
         for (r, ray) in rays.iter().enumerate() {
             st.ray_start.push(st.t.len());
             self.march(ray, occ, jitter(r), st);
         }
         st.ray_start.push(st.t.len());
+        st.counters.marched = st.t.len() as u64;
         if st.stop_at_termination {
             self.densities_until_termination(params, st);
         } else {
@@ -559,6 +588,7 @@ impl Field {
             );
             let dp = &params[self.density_offset..self.color_offset];
             self.density.forward(dp, &st.enc, ld, &mut st.dens_acts);
+            st.counters.density = n as u64;
         }
         let n = st.n();
         let ld = st.ld;
@@ -584,6 +614,7 @@ impl Field {
         }
         // Colour network on the surviving samples.
         let nc = st.alive.len();
+        st.counters.color = nc as u64;
         let ldc = padded(nc);
         st.ldc = ldc;
         let e = self.config.appearance_dim as usize;
