@@ -10,8 +10,9 @@
 //!
 //! **Near/far**: with sparse points, from the depths of all observations: near = 0.8 × the
 //! 0.5th percentile, far = 1.2 × the 99.5th percentile; else from per-view bounds the source
-//! gives (LLFF: min near, max far); else [`DEFAULT_NEAR`] and [`DEFAULT_FAR`]. Always in
-//! normalised units.
+//! gives (LLFF: min near, max far); else from the cameras where their optical axes converge
+//! ([`crate::bounds`]); else [`DEFAULT_NEAR`] and [`DEFAULT_FAR`], with a warning on the
+//! terminal. Always in normalised units.
 
 use crate::error::{Result, SceneError};
 use crate::intrinsics::{downscale_camera, downscale_image, Intrinsics, UndistortMap};
@@ -24,9 +25,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// Near bound used when the source has neither points nor bounds (normalised units).
+/// Near bound used when neither points, bounds nor the cameras give one (normalised units).
 pub const DEFAULT_NEAR: f64 = 0.05;
-/// Far bound used when the source has neither points nor bounds (normalised units).
+/// Far bound used when neither points, bounds nor the cameras give one (normalised units).
 pub const DEFAULT_FAR: f64 = 100.0;
 
 /// How to normalise the scene on import.
@@ -178,7 +179,11 @@ pub fn build_scene(raw: &RawScene, opts: &ImportOptions) -> Result<(Scene, Point
             .fold(0.0, f64::max);
         (near * norm.scale, far * norm.scale)
     } else {
-        (DEFAULT_NEAR, DEFAULT_FAR)
+        let cams: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
+        match crate::bounds::from_cameras(&cams) {
+            Ok(b) => (b.near, b.far),
+            Err(_) => (DEFAULT_NEAR, DEFAULT_FAR),
+        }
     };
     let has_points = !cloud.is_empty();
     Ok((
@@ -213,6 +218,36 @@ pub fn import_scene(
         log(&format!("warning: {w}"));
     }
     let (scene, cloud) = build_scene(raw, opts)?;
+    if cloud.is_empty() && !raw.views.iter().all(|v| v.bounds.is_some()) {
+        let cams: Vec<Camera> = scene.views.iter().map(|v| v.camera.clone()).collect();
+        match crate::bounds::from_cameras(&cams) {
+            Ok(b) => log(&format!(
+                "no sparse points or per-view bounds: near/far {:.3}–{:.3} from the cameras \
+                 (their optical axes converge at ({:.3}, {:.3}, {:.3}), depth {:.3}–{:.3}; \
+                 the views share a ball of radius {:.3} around it)",
+                b.near,
+                b.far,
+                b.focus[0],
+                b.focus[1],
+                b.focus[2],
+                b.focus_depths.0,
+                b.focus_depths.1,
+                b.radius
+            )),
+            Err(why) => {
+                let msg = format!(
+                    "warning: ImportScene: {} has no sparse points and no per-view bounds, and \
+                     the cameras do not determine any: {why}. Using the defaults {DEFAULT_NEAR}–{DEFAULT_FAR}: \
+                     random Gaussians and field samples will mostly miss the scene. Give \
+                     bounds (LLFF poses_bounds.npy) or a model with points",
+                    raw.source
+                );
+                // On the terminal as well as in the log: the results will be poor.
+                eprintln!("{msg}");
+                log(&msg);
+            }
+        }
+    }
     let images = out.join("images");
     std::fs::create_dir_all(&images).map_err(|e| SceneError::io(&images, e))?;
     // One undistortion map per distinct distorted intrinsics.

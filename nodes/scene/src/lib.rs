@@ -7,6 +7,7 @@
 //!   integer downscaling;
 //! - [`import`]: normalisation, near/far bounds and writing the scene artifact
 //!   ([`augsplat_core::scene`]);
+//! - [`bounds`]: near/far from the cameras alone (where the optical axes converge);
 //! - [`split`]: the paper's sparse-view split;
 //! - [`depth`]: DS-NeRF-style sparse depth and dense depth maps;
 //! - [`synthetic`]: the exactly ray-traced default scene;
@@ -15,6 +16,7 @@
 //! - [`node`]: the node kinds (`ImportScene`, `SyntheticScene`, `SplitScene`, `SparseDepth`,
 //!   `ExportScene`) and [`register`].
 
+pub mod bounds;
 pub mod colmap;
 pub mod depth;
 pub mod error;

@@ -197,7 +197,8 @@ pub struct ImportScene;
 
 impl Node for ImportScene {
     const KIND: &'static str = "ImportScene";
-    const VERSION: u32 = 2;
+    // 3: scenes without points or bounds take near/far from the cameras.
+    const VERSION: u32 = 3;
     type Args = ImportSceneArgs;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {

@@ -297,3 +297,100 @@ fn bonsai_split_keeps_only_points_seen_by_two_train_views() {
             .all(|&t| (t as usize) < train.views.len()));
     }
 }
+
+/// Scenes without points or bounds take near/far from where the cameras' axes converge.
+/// - dtu_scan24 without its points: the estimate brackets the median depth of the SfM
+///   points (mostly on the object), instead of the defaults 0.05–100.
+/// - bonsai (360° inward, most points on the room behind the subject): the estimate covers
+///   the subject, within the points' range (with a more cautious near bound).
+/// - fern (forward-facing, but its cameras turn towards the subject enough; LLFF bounds
+///   removed): near within 25 % of the LLFF near bound, far inside the LLFF far bound.
+#[test]
+fn scenes_without_points_take_bounds_from_the_cameras() {
+    let Some(d) = data_dir("scenes_without_points_take_bounds_from_the_cameras") else {
+        return;
+    };
+    let check = |raw: augsplat_scene::source::RawScene, what: &str, object_centric: bool| {
+        let (with, cloud) = build_scene(&raw, &ImportOptions::default()).unwrap();
+        assert!(!cloud.is_empty());
+        // The points' median depth over all their observations.
+        let mut depths = Vec::new();
+        for i in 0..cloud.len() {
+            let p = cloud.positions[i].map(|v| v as f64);
+            for &t in cloud.track(i) {
+                depths.push(with.views[t as usize].camera.to_camera(p)[2]);
+            }
+        }
+        depths.sort_by(f64::total_cmp);
+        let median = depths[depths.len() / 2];
+        let mut bare = raw;
+        bare.points = Default::default();
+        let (without, cloud) = build_scene(&bare, &ImportOptions::default()).unwrap();
+        assert!(cloud.is_empty());
+        println!(
+            "{what}: with points {:.3}–{:.3}, from the cameras {:.3}–{:.3}, median point depth {median:.3}",
+            with.near, with.far, without.near, without.far
+        );
+        assert!(
+            without.near > 0.4 * with.near && without.far < with.far,
+            "{what}: {:.3}–{:.3} is not within the points' range",
+            without.near,
+            without.far
+        );
+        if !object_centric {
+            return;
+        }
+        assert!(
+            without.near < median && median < without.far,
+            "{what}: {:.3}–{:.3} misses the median point depth {median:.3}",
+            without.near,
+            without.far
+        );
+        assert!(
+            without.near > 0.2 * median && without.far < 5.0 * median,
+            "{what}"
+        );
+    };
+    let dtu = ImportSceneArgs {
+        format: SourceFormat::Colmap,
+        model: Some("sparse/0".into()),
+        images: Some("images".into()),
+        ..Default::default()
+    };
+    check(
+        read_source(&d.join("dtu_scan24"), &dtu).unwrap(),
+        "dtu_scan24",
+        true,
+    );
+    check(
+        read_source(&d.join("bonsai"), &bonsai_args("colmap30/sparse/0")).unwrap(),
+        "bonsai",
+        false,
+    );
+    let fern = ImportSceneArgs {
+        format: SourceFormat::Llff,
+        images: Some("images_8".into()),
+        ..Default::default()
+    };
+    let raw = read_source(&d.join("fern"), &fern).unwrap();
+    let (with_bounds, _) = build_scene(&raw, &ImportOptions::default()).unwrap();
+    let mut raw = raw;
+    for v in &mut raw.views {
+        v.bounds = None;
+    }
+    let (scene, _) = build_scene(&raw, &ImportOptions::default()).unwrap();
+    println!(
+        "fern: LLFF bounds {:.3}–{:.3}, from the cameras {:.3}–{:.3}",
+        with_bounds.near, with_bounds.far, scene.near, scene.far
+    );
+    assert!(
+        (scene.near / with_bounds.near - 1.0).abs() < 0.25
+            && scene.far < with_bounds.far
+            && scene.far > 2.0 * scene.near,
+        "fern: {:.3}–{:.3} against the LLFF bounds {:.3}–{:.3}",
+        scene.near,
+        scene.far,
+        with_bounds.near,
+        with_bounds.far
+    );
+}
