@@ -62,7 +62,7 @@ pub fn from_cameras(cams: &[Camera]) -> Result<CameraBounds, String> {
     let n = cams.len() as f64;
     let spread = symmetric_min_eigenvalue(&a_sum) / n;
     let min_spread = MIN_AXIS_SPREAD_DEGREES.to_radians().sin().powi(2);
-    if !(spread >= min_spread) {
+    if spread.is_nan() || spread < min_spread {
         return Err(format!(
             "the optical axes are nearly parallel (spread {:.1}°, under {MIN_AXIS_SPREAD_DEGREES}°): \
              a forward-facing capture, whose axes converge nowhere",
@@ -77,7 +77,7 @@ pub fn from_cameras(cams: &[Camera]) -> Result<CameraBounds, String> {
     let mut radii = Vec::with_capacity(cams.len());
     for (i, cam) in cams.iter().enumerate() {
         let d = cam.to_camera(focus)[2];
-        if !(d > 0.0) {
+        if d.is_nan() || d <= 0.0 {
             return Err(format!(
                 "the axes meet behind camera {i} (depth {d:.3}): the cameras do not look at a common subject"
             ));
@@ -186,8 +186,8 @@ mod tests {
             })
             .collect();
         let b = from_cameras(&cams).unwrap();
-        for k in 0..3 {
-            assert!((b.focus[k] - subject[k]).abs() < 1e-9, "{b:?}");
+        for (f, s) in b.focus.iter().zip(subject) {
+            assert!((f - s).abs() < 1e-9, "{b:?}");
         }
         // Half field of view: atan(150/400) ⇒ sin = 0.351; depths 2.06–2.46.
         let (dmin, dmax) = b.focus_depths;
