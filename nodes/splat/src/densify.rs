@@ -9,12 +9,20 @@
 //!    (identical copy appended) when their largest scale ≤ `grow_scale3d · scene_scale`, and
 //!    *split* otherwise: replaced by two children at positions drawn from the Gaussian
 //!    (`μ + R·(s ⊙ n)`, n ~ N(0, I)) with scales divided by `split_factor` (1.6);
-//! 2. **prune**: opacity < `prune_opacity`, and (once a first opacity reset has happened)
-//!    largest scale > `prune_scale3d · scene_scale`;
+//! 2. **prune**: opacity < `prune_opacity`, and (after `reset_every` steps) largest scale >
+//!    `prune_scale3d · scene_scale`;
 //! 3. the statistics are cleared.
 //!
-//! Every `reset_every` steps (while `step < stop`), opacities are clamped to
-//! `2 · prune_opacity` (0.01) and the opacity moments cleared.
+//! **Opacity reset** ([`OpacityReset`]): with `Periodic` (3DGS, gsplat ≤ 1.5.2, the default),
+//! every `reset_every` steps (while `step < stop`) opacities are clamped to
+//! `2 · prune_opacity` (0.01) and the opacity moments cleared. `Never` is gsplat 1.5.3 (whose
+//! reset condition `step % reset_every == 0 & step > 0` is never true in Python).
+//! `KeepVisible` resets on the same schedule but never below the opacity at which a
+//! Gaussian's most visible pixel in the training views keeps an alpha of
+//! [`KEEP_VISIBLE_ALPHA`] (twice the 1/255 cutoff): a full reset can push every pixel of a
+//! small Gaussian under the cutoff, where its opacity gradient is exactly zero and it can
+//! never recover. In every mode, pruning of oversized Gaussians starts after `reset_every`
+//! steps (as gsplat, whether or not resets happen).
 //!
 //! Adam state stays aligned: clones and children get zero moments, survivors keep theirs.
 //! The sample noise comes from a seeded [`Rng`] stream per refinement step, drawn in index
@@ -55,8 +63,12 @@ pub struct DensifyArgs {
     pub stop: u64,
     /// Refine every this many steps.
     pub every: u64,
-    /// Reset opacities every this many steps (0 = never).
+    /// Reset opacities every this many steps (0 = never, and no pruning of large Gaussians).
     pub reset_every: u64,
+    /// How opacities are reset (see [`OpacityReset`]). Left out of the key when `Periodic`,
+    /// so pipelines written before it existed keep their keys.
+    #[serde(skip_serializing_if = "OpacityReset::is_periodic")]
+    pub reset: OpacityReset,
     /// Scale `start`, `stop`, `every`, `reset_every` for runs shorter than `reference_steps`.
     pub scale_with_steps: bool,
     /// The run length the iteration counts are given for.
@@ -78,12 +90,38 @@ impl Default for DensifyArgs {
             stop: 15_000,
             every: 100,
             reset_every: 3000,
+            reset: OpacityReset::Periodic,
             scale_with_steps: true,
             reference_steps: 30_000,
             max_gaussians: 0,
         }
     }
 }
+
+/// How [`Densifier::step_post_update`] resets opacities every `reset_every` steps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum OpacityReset {
+    /// Clamp every opacity to `2 · prune_opacity` (3DGS; gsplat 1.5.2 and earlier).
+    #[default]
+    Periodic,
+    /// No resets (gsplat 1.5.3's behaviour). Large Gaussians are still pruned after
+    /// `reset_every` steps.
+    Never,
+    /// As `Periodic`, but no Gaussian goes below the opacity that keeps its most visible
+    /// training-view pixel at alpha [`KEEP_VISIBLE_ALPHA`], so none loses its gradient.
+    KeepVisible,
+}
+
+impl OpacityReset {
+    /// Whether this is the default (serde's `skip_serializing_if`).
+    pub fn is_periodic(&self) -> bool {
+        *self == OpacityReset::Periodic
+    }
+}
+
+/// The alpha `KeepVisible` keeps at each Gaussian's most visible pixel: twice the
+/// rasteriser's 1/255 cutoff.
+pub const KEEP_VISIBLE_ALPHA: f64 = 2.0 / 255.0;
 
 /// The iteration schedule actually used for a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -227,7 +265,9 @@ impl Densifier {
 
     /// Runs the strategy after the optimiser update of step `step` (the 0-based index of the
     /// step just taken, gsplat's `step`): refine when due, reset opacities when due (never at
-    /// step 0).
+    /// step 0). `visibility` gives, for a `KeepVisible` reset, each Gaussian's largest ratio
+    /// of pixel alpha to opacity over the training views ([`peak_alpha_ratios`]); it is
+    /// called only then.
     #[allow(clippy::too_many_arguments)]
     pub fn step_post_update(
         &mut self,
@@ -238,6 +278,7 @@ impl Densifier {
         adam: &mut Adam,
         scene_scale: f64,
         seed: u64,
+        visibility: &mut dyn FnMut(&Gaussians) -> Vec<f64>,
     ) -> RefineReport {
         let mut rep = RefineReport::default();
         if !args.enabled || step >= sched.stop {
@@ -252,8 +293,18 @@ impl Densifier {
             self.clear();
         }
         if sched.reset_every > 0 && step > 0 && step.is_multiple_of(sched.reset_every) {
-            reset_opacities(g, adam, 2.0 * args.prune_opacity);
-            rep.reset = true;
+            match args.reset {
+                OpacityReset::Periodic => {
+                    reset_opacities(g, adam, 2.0 * args.prune_opacity);
+                    rep.reset = true;
+                }
+                OpacityReset::KeepVisible => {
+                    let ratios = visibility(g);
+                    reset_opacities_keep_visible(g, adam, 2.0 * args.prune_opacity, &ratios);
+                    rep.reset = true;
+                }
+                OpacityReset::Never => {}
+            }
         }
         rep
     }
@@ -411,6 +462,79 @@ pub fn reset_opacities(g: &mut Gaussians, adam: &mut Adam, value: f64) {
         *o = o.min(cap);
     }
     adam.clear_group(Group::Opacities);
+}
+
+/// [`reset_opacities`] that lowers Gaussian `i` to no less than the opacity at which its
+/// most visible pixel keeps alpha [`KEEP_VISIBLE_ALPHA`]: `max(value, KEEP_VISIBLE_ALPHA /
+/// ratios[i])`, where `ratios[i]` is its largest pixel alpha per unit opacity
+/// ([`peak_alpha_ratios`]; 0 when it reaches no pixel). Opacities already below stay.
+pub fn reset_opacities_keep_visible(
+    g: &mut Gaussians,
+    adam: &mut Adam,
+    value: f64,
+    ratios: &[f64],
+) {
+    assert_eq!(ratios.len(), g.len(), "one visibility ratio per Gaussian");
+    for (o, &r) in g.opacity_logits.iter_mut().zip(ratios) {
+        let floor = if r > 0.0 {
+            (KEEP_VISIBLE_ALPHA / r).min(0.99)
+        } else {
+            0.0
+        };
+        let cap = crate::init::logit(value.max(floor)) as f32;
+        *o = o.min(cap);
+    }
+    adam.clear_group(Group::Opacities);
+}
+
+/// For each Gaussian, the largest over `cams` of its alpha at the pixel centre nearest its
+/// projected centre, per unit opacity: the antialiasing compensation times the Gaussian
+/// falloff there (0 when it is culled in every view). Parallel over Gaussians; the result does
+/// not depend on the thread count.
+pub fn peak_alpha_ratios(
+    g: &Gaussians,
+    cams: &[&augsplat_core::Camera],
+    antialiased: bool,
+    near: f64,
+) -> Vec<f64> {
+    use crate::project::{project, CameraModel, Outcome};
+    use rayon::prelude::*;
+    let models: Vec<(CameraModel, u32, u32)> = cams
+        .iter()
+        .map(|c| (CameraModel::new(c), c.width, c.height))
+        .collect();
+    // Opacity 1 − 2⁻²⁴ (logit 16.6): the projection's opacity is then the compensation.
+    let unit_logit = 16.6f32;
+    (0..g.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut best = 0f64;
+            for (cam, w, h) in &models {
+                let p = match project(
+                    cam,
+                    g.means[i],
+                    g.log_scales[i],
+                    g.quats[i],
+                    unit_logit,
+                    antialiased,
+                    near,
+                ) {
+                    Outcome::Visible(p) => p,
+                    _ => continue,
+                };
+                let px = (p.mean2d[0].floor().clamp(0.0, *w as f64 - 1.0)) + 0.5;
+                let py = (p.mean2d[1].floor().clamp(0.0, *h as f64 - 1.0)) + 0.5;
+                let (dx, dy) = (p.mean2d[0] - px, p.mean2d[1] - py);
+                let power =
+                    0.5 * (p.conic[0] * dx * dx + p.conic[2] * dy * dy) + p.conic[1] * dx * dy;
+                let ratio = p.opacity * (-power.max(0.0)).exp();
+                if ratio.is_finite() {
+                    best = best.max(ratio);
+                }
+            }
+            best
+        })
+        .collect()
 }
 
 /// Keeps the Gaussians with `keep[i]`, in order.

@@ -711,6 +711,12 @@ impl<'a> Trainer<'a> {
         self.adam
             .step(&mut self.g, &acc, &self.args.learning_rates, lr);
         if self.args.densify.enabled {
+            // For a `KeepVisible` reset: each Gaussian's visibility in the real views.
+            let real = self.real;
+            let mut visibility = |g: &Gaussians| {
+                let cams: Vec<&Camera> = (0..real.len()).map(|i| real.camera(i)).collect();
+                densify::peak_alpha_ratios(g, &cams, settings.antialiased, settings.near as f64)
+            };
             rep.refine = self.densifier.step_post_update(
                 step,
                 &self.dsched,
@@ -719,6 +725,7 @@ impl<'a> Trainer<'a> {
                 &mut self.adam,
                 self.scene_scale,
                 self.args.seed ^ 0xDE45,
+                &mut visibility,
             );
         }
         self.step += 1;

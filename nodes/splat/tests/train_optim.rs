@@ -518,15 +518,42 @@ fn schedule_scaling_and_opacity_reset() {
     let mut d = Densifier::new(3);
     // Not at step 0, and not on a non-multiple.
     let sched = args.scaled(3000);
-    let r = d.step_post_update(0, &sched, &args, &mut g, &mut adam, 1.0, 0);
+    let r = d.step_post_update(
+        0,
+        &sched,
+        &args,
+        &mut g,
+        &mut adam,
+        1.0,
+        0,
+        &mut |_| unreachable!(),
+    );
     assert!(!r.reset);
     // Refinement at 700 prunes the transparent one, no reset there.
-    let r = d.step_post_update(700, &sched, &args, &mut g, &mut adam, 1.0, 0);
+    let r = d.step_post_update(
+        700,
+        &sched,
+        &args,
+        &mut g,
+        &mut adam,
+        1.0,
+        0,
+        &mut |_| unreachable!(),
+    );
     assert!(!r.reset);
     assert_eq!(r.pruned, 1);
     assert_eq!(g.len(), 2);
     // Reset at 750 (not a refinement step): the others clamped to 0.01.
-    let r = d.step_post_update(750, &sched, &args, &mut g, &mut adam, 1.0, 0);
+    let r = d.step_post_update(
+        750,
+        &sched,
+        &args,
+        &mut g,
+        &mut adam,
+        1.0,
+        0,
+        &mut |_| unreachable!(),
+    );
     assert!(r.reset);
     assert_eq!(r.pruned + r.cloned + r.split, 0);
     for &o in &g.opacity_logits {
@@ -540,7 +567,16 @@ fn schedule_scaling_and_opacity_reset() {
     );
     // Past stop nothing happens.
     let before = g.clone();
-    let r = d.step_post_update(1500, &sched, &args, &mut g, &mut adam, 1.0, 0);
+    let r = d.step_post_update(
+        1500,
+        &sched,
+        &args,
+        &mut g,
+        &mut adam,
+        1.0,
+        0,
+        &mut |_| unreachable!(),
+    );
     assert_eq!(r, Default::default());
     assert_eq!(g, before);
     let off = DensifyArgs {
@@ -548,7 +584,16 @@ fn schedule_scaling_and_opacity_reset() {
         ..Default::default()
     };
     assert_eq!(
-        d.step_post_update(300, &sched, &off, &mut g, &mut adam, 1.0, 0),
+        d.step_post_update(
+            300,
+            &sched,
+            &off,
+            &mut g,
+            &mut adam,
+            1.0,
+            0,
+            &mut |_| unreachable!()
+        ),
         Default::default()
     );
     densify::reset_opacities(&mut g, &mut adam, 0.5);
