@@ -126,3 +126,43 @@ fn render_camera_is_independent_of_chunking_and_counts_samples() {
     assert!(s.density < s.marched, "no ray stopped early: {s:?}");
     assert!(s.color <= s.density && s.color > 0, "{s:?}");
 }
+
+/// A transparent field (no ray reaches the termination threshold): the render path, which
+/// then hands its segment outputs over without compaction, gives exactly the full
+/// evaluation's bits.
+#[test]
+fn render_without_termination_equals_the_full_evaluation() {
+    let f = field();
+    let mut params = f.init_params(4);
+    let l0 = f.density.layers[0];
+    let bias0 = f.density_offset + l0.params() + f.density.layers[1].inp * f.density.layers[1].out;
+    params[bias0] = -4.0;
+    let occ = OccupancyGrid::full(8);
+    let rays: Vec<RayInput> = (0..24)
+        .map(|r| RayInput {
+            origin: [0.04 * r as f32 - 0.5, -0.1, -2.5],
+            dir: augsplat_core::linalg::normalize([0.05 * (r % 5) as f64, 0.1, 1.0])
+                .map(|v| v as f32),
+            image: u32::MAX,
+            background: [0.3, 0.6, 0.9],
+        })
+        .collect();
+    let mean = f.mean_embedding(&params);
+    let run = |stop: bool| {
+        let mut st = ChunkState::default();
+        st.min_color_weight = 1e-5;
+        st.stop_at_termination = stop;
+        f.forward_chunk(&params, &occ, &rays, &|_| 0.25, &mean, &mut st);
+        st
+    };
+    let (full, stop) = (run(false), run(true));
+    assert!(full.n() > 24 * 20, "{} samples", full.n());
+    assert_eq!(
+        stop.n(),
+        full.n(),
+        "a ray terminated: the test needs a thinner field"
+    );
+    assert_eq!(stop.out, full.out);
+    assert_eq!(stop.w, full.w);
+    assert!(stop.out.iter().all(|o| o.acc < 0.9 && o.acc > 0.0));
+}

@@ -426,8 +426,11 @@ impl Field {
         let lf = self.grid.output_dim();
         let table = &params[..self.density_offset];
         let dp = &params[self.density_offset..self.color_offset];
-        // Outputs by original sample index (row stride n); only evaluated samples are read.
-        st.seg_out.resize(rows * n, 0.0);
+        // Outputs by original sample index (row stride `ld`, the padded count, so that when no
+        // ray terminates the buffer is already the network-output layout and is swapped in);
+        // only evaluated samples are read.
+        let ld_all = padded(n);
+        st.seg_out.resize(rows * ld_all, 0.0);
         st.ray_cursor.clear();
         st.ray_cursor.extend_from_slice(&st.ray_start[..nr]);
         st.ray_keep.clear();
@@ -473,8 +476,9 @@ impl Field {
             self.density.forward(dp, &st.enc, ldb, &mut st.dens_acts);
             let out = &st.dens_acts[st.dens_acts.len() - 1];
             for k in 0..rows {
+                let dst = &mut st.seg_out[k * ld_all..(k + 1) * ld_all];
                 for (j, &i) in st.seg_ids.iter().enumerate() {
-                    st.seg_out[k * n + i as usize] = out[k * ldb + j];
+                    dst[i as usize] = out[k * ldb + j];
                 }
             }
             // Transmittance along each active ray's new samples (as `weights_forward`).
@@ -504,6 +508,13 @@ impl Field {
                 }
             }
             st.active.truncate(still);
+        }
+        if st.ray_keep[..nr] == st.ray_start[1..] {
+            // No ray stopped early: every sample is kept and `seg_out` already holds every
+            // row at stride `ld` (padding columns are never read).
+            st.ld = ld_all;
+            std::mem::swap(&mut st.render_out, &mut st.seg_out);
+            return;
         }
         // Compact the samples to the kept ones (in place: kept indices never run ahead).
         let mut o = 0;
@@ -535,7 +546,7 @@ impl Field {
         for r in 0..nr {
             for i in st.ray_start[r]..st.ray_keep[r] {
                 for k in 0..rows {
-                    st.render_out[k * ld + o] = st.seg_out[k * n + i];
+                    st.render_out[k * ld + o] = st.seg_out[k * ld_all + i];
                 }
                 o += 1;
             }
