@@ -29,18 +29,27 @@ fn field() -> Field {
     .unwrap()
 }
 
+/// Seeded parameters with the hash table drawn uniform in ±1 when `table_seed` is given (a
+/// textured density) and the density network's output bias set to `bias` (positive: a mix
+/// of opaque and semi-transparent regions along the rays; very negative: transparent).
+fn params_with_density_bias(f: &Field, seed: u64, table_seed: Option<u64>, bias: f32) -> Vec<f32> {
+    let mut params = f.init_params(seed);
+    if let Some(t) = table_seed {
+        let mut rng = Rng::new(t);
+        for p in params[..f.density_offset].iter_mut() {
+            *p = rng.uniform(-1.0, 1.0) as f32;
+        }
+    }
+    let l0 = f.density.layers[0];
+    let bias0 = f.density_offset + l0.params() + f.density.layers[1].inp * f.density.layers[1].out;
+    params[bias0] = bias;
+    params
+}
+
 #[test]
 fn stopping_at_termination_keeps_colour_weights_and_cut() {
     let f = field();
-    let mut params = f.init_params(3);
-    let mut rng = Rng::new(8);
-    for p in params[..f.density_offset].iter_mut() {
-        *p = rng.uniform(-1.0, 1.0) as f32;
-    }
-    // Density bias: a mix of opaque and semi-transparent regions along the rays.
-    let l0 = f.density.layers[0];
-    let bias0 = f.density_offset + l0.params() + f.density.layers[1].inp * f.density.layers[1].out;
-    params[bias0] = 1.5;
+    let params = params_with_density_bias(&f, 3, Some(8), 1.5);
     let occ = OccupancyGrid::full(8);
     let rays: Vec<RayInput> = (0..40)
         .map(|r| {
@@ -105,14 +114,7 @@ fn stopping_at_termination_keeps_colour_weights_and_cut() {
 fn render_camera_is_independent_of_chunking_and_counts_samples() {
     use augsplat_field::train::{render_camera, RENDER_PASS_RAYS};
     let f = field();
-    let mut params = f.init_params(5);
-    let mut rng = Rng::new(9);
-    for p in params[..f.density_offset].iter_mut() {
-        *p = rng.uniform(-1.0, 1.0) as f32;
-    }
-    let l0 = f.density.layers[0];
-    let bias0 = f.density_offset + l0.params() + f.density.layers[1].inp * f.density.layers[1].out;
-    params[bias0] = 1.5;
+    let params = params_with_density_bias(&f, 5, Some(9), 1.5);
     let occ = OccupancyGrid::full(8);
     let cam = common::look_at([0.3, -0.2, -2.5], 23, 17);
     let reference = render_camera(&f, &params, &occ, &cam, [0.2, 0.4, 0.6], 1);
@@ -133,10 +135,7 @@ fn render_camera_is_independent_of_chunking_and_counts_samples() {
 #[test]
 fn render_without_termination_equals_the_full_evaluation() {
     let f = field();
-    let mut params = f.init_params(4);
-    let l0 = f.density.layers[0];
-    let bias0 = f.density_offset + l0.params() + f.density.layers[1].inp * f.density.layers[1].out;
-    params[bias0] = -4.0;
+    let params = params_with_density_bias(&f, 4, None, -4.0);
     let occ = OccupancyGrid::full(8);
     let rays: Vec<RayInput> = (0..24)
         .map(|r| RayInput {
