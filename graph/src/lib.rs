@@ -9,7 +9,8 @@
 //!   hold on shared filesystems.
 //! - [`exec`]: the local executor and its scheduler; [`explain`]: `plan` and `why`;
 //!   [`engine`]: the library API.
-//! - [`command`]: the `Command` node kind (external programs).
+//! - [`command`]: the `Command` node kind (external programs); [`gate`]: nodes that end at
+//!   once when another node's decision says so.
 //!
 //! See `graph/README.md` for the pipeline syntax and the engine's semantics.
 
@@ -19,6 +20,7 @@ pub mod engine;
 pub mod error;
 pub mod exec;
 pub mod explain;
+pub mod gate;
 pub mod gc;
 pub mod key;
 pub mod node;

@@ -29,6 +29,9 @@ pub struct InputDecl {
     pub optional: bool,
     /// Whether it takes a list of references (e.g. every member of an ensemble).
     pub many: bool,
+    /// Whether the node runs when this input is a gated output (see [`crate::gate`]) and
+    /// handles it itself; otherwise such an input gates the node too.
+    pub accepts_gated: bool,
 }
 
 impl InputDecl {
@@ -38,6 +41,7 @@ impl InputDecl {
             name: name.into(),
             optional: false,
             many: false,
+            accepts_gated: false,
         }
     }
     /// An optional single input.
@@ -46,6 +50,7 @@ impl InputDecl {
             name: name.into(),
             optional: true,
             many: false,
+            accepts_gated: false,
         }
     }
     /// A required list input (one or more references).
@@ -54,7 +59,14 @@ impl InputDecl {
             name: name.into(),
             optional: false,
             many: true,
+            accepts_gated: false,
         }
+    }
+    /// The same input, read even when it is a gated output: the node runs and finds the
+    /// marker with [`crate::gate::gated_reason`] (a report that says a method was skipped).
+    pub fn accepting_gated(mut self) -> Self {
+        self.accepts_gated = true;
+        self
     }
 }
 

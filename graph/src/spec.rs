@@ -2,10 +2,11 @@
 //! substitution and sweep expansion. Everything here works on [`Value`] trees that keep the
 //! origin of every value; typing against node kinds happens in [`crate::resolve`].
 //!
-//! Merge rules for `extends: "base.ron"` (the child is the file that says `extends`):
+//! Merge rules for `extends: "base.ron"` (the child is the file that says `extends`; with a
+//! list, `extends: ["a.ron", "b.ron"]`, b is merged onto a by the same rules, then the child):
 //! - `params`: merged by name; the child's value wins.
 //! - `nodes`: merged by node name. A node only in one file is kept. A node in both is merged
-//!   field by field: `kind` and `repeat` are replaced; `inputs` are merged by input name (the
+//!   field by field: `kind`, `repeat` and `gate` are replaced; `inputs` are merged by input name (the
 //!   child's reference wins); `args` are merged recursively: struct fields and map entries are
 //!   merged, every other value (numbers, strings, lists, enum variants) is replaced whole. If the
 //!   child gives a different `kind`, the child's node replaces the base's entirely. Writing
@@ -22,7 +23,7 @@ use std::sync::Arc;
 /// The top-level fields a pipeline document may have.
 pub const TOP_FIELDS: &[&str] = &["extends", "params", "nodes", "sweep", "resources"];
 /// The fields a node may have.
-pub const NODE_FIELDS: &[&str] = &["kind", "args", "inputs", "repeat"];
+pub const NODE_FIELDS: &[&str] = &["kind", "args", "inputs", "repeat", "gate"];
 
 /// Reads a pipeline file and everything it extends, merged.
 pub fn load_document(path: &Path) -> Result<Value, Diagnostic> {
@@ -51,24 +52,40 @@ fn load_rec(path: &Path, chain: &mut Vec<PathBuf>) -> Result<Value, Diagnostic> 
     let result = match doc.field("extends") {
         None => Ok(strip_extends(doc)),
         Some(ext) => {
-            let rel = ext.as_str().ok_or_else(|| {
-                Diagnostic::at(
-                    &ext.origin,
-                    format!("`extends` must be a string path, found {}", ext.describe()),
-                )
-            })?;
-            let base_path = ext.origin.base_dir().join(rel);
-            if !base_path.exists() {
-                return Err(Diagnostic::at(
-                    &ext.origin,
-                    format!(
-                        "`extends` names {}, which does not exist",
-                        base_path.display()
-                    ),
-                )
-                .hint("the path is relative to the file that writes it"));
+            // One file, or a list merged left to right (later files win), then this one.
+            let items: Vec<&Value> = match &ext.kind {
+                ValueKind::List(items) if !items.is_empty() => items.iter().collect(),
+                _ => vec![ext],
+            };
+            let mut base: Option<Value> = None;
+            for item in items {
+                let rel = item.as_str().ok_or_else(|| {
+                    Diagnostic::at(
+                        &item.origin,
+                        format!(
+                            "`extends` must be a string path or a list of them, found {}",
+                            item.describe()
+                        ),
+                    )
+                })?;
+                let base_path = item.origin.base_dir().join(rel);
+                if !base_path.exists() {
+                    return Err(Diagnostic::at(
+                        &item.origin,
+                        format!(
+                            "`extends` names {}, which does not exist",
+                            base_path.display()
+                        ),
+                    )
+                    .hint("the path is relative to the file that writes it"));
+                }
+                let doc_i = load_rec(&base_path, chain)?;
+                base = Some(match base {
+                    None => doc_i,
+                    Some(b) => merge_documents(b, doc_i),
+                });
             }
-            let base = load_rec(&base_path, chain)?;
+            let base = base.expect("at least one base");
             Ok(merge_documents(base, strip_extends(doc)))
         }
     };

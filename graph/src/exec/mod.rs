@@ -110,6 +110,9 @@ pub struct CompResult {
     pub outputs: BTreeMap<String, Hash>,
     /// Whether it waited for another process computing the same key.
     pub waited: bool,
+    /// When a gate ended it without running (see [`crate::gate`]), the gate's reason; its
+    /// outputs hold only the marker.
+    pub gated: Option<String>,
 }
 
 /// The result of a run.

@@ -96,7 +96,8 @@ impl RunReport {
     }
     /// `{"nodes":[{"name","kind","key","status","seconds"}..]}`: one entry per needed instance;
     /// `status` is `ran`, `cached` or `failed` (a node not run because an input failed is
-    /// `failed` too); failed entries add `"error"` with the reason.
+    /// `failed` too); failed entries add `"error"` with the reason, gated ones (see
+    /// [`crate::gate`]) `"gated"` with the gate's reason.
     pub fn summary_json(&self, plan: &Plan) -> serde_json::Value {
         let mut nodes = Vec::new();
         for inst in &plan.instances {
@@ -120,6 +121,9 @@ impl RunReport {
             if let Some(e) = error {
                 entry["error"] = serde_json::Value::String(e);
             }
+            if let Some(g) = &r.gated {
+                entry["gated"] = serde_json::Value::String(g.clone());
+            }
             nodes.push(entry);
         }
         serde_json::json!({ "nodes": nodes })
@@ -142,6 +146,11 @@ impl RunReport {
                 "cached (waited)".into()
             } else {
                 r.status.as_str().to_string()
+            };
+            let status = match (&r.gated, r.status == Status::Cached) {
+                (Some(_), true) => "gated (cached)".to_string(),
+                (Some(_), false) => "gated".to_string(),
+                (None, _) => status,
             };
             let computed = match r.status {
                 Status::Ran | Status::Cached => format!("{:.2}", r.computed_seconds),

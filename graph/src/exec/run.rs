@@ -84,6 +84,14 @@ impl Job {
     }
 }
 
+/// The reason a stored computation was gated (its outputs hold the marker), if it was.
+pub(super) fn gated_outputs(store: &Store, outputs: &BTreeMap<String, Hash>) -> Option<String> {
+    outputs
+        .values()
+        .next()
+        .and_then(|m| crate::gate::gated_reason(&store.output_dir(m)))
+}
+
 /// Claims the job's key, finds it cached if another process finished it meanwhile, and
 /// otherwise runs it in a fresh scratch folder (removed afterwards).
 fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
@@ -95,6 +103,7 @@ fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
         computed_seconds: secs,
         outputs: BTreeMap::new(),
         waited: false,
+        gated: None,
     };
     let claim = match store.claim(&key) {
         Ok(c) => c,
@@ -109,6 +118,7 @@ fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
                     key: Some(key),
                     seconds: 0.0,
                     computed_seconds: entry.seconds,
+                    gated: gated_outputs(store, &outputs),
                     outputs,
                     waited: claim.waited,
                 },
@@ -263,12 +273,26 @@ fn run_in_scratch(
         .num_threads(threads)
         .build()
         .map_err(|e| (format!("building a thread pool: {e}"), 0.0))?;
+    // A gate that says no, or a gated input the node does not accept: the node ends at once
+    // with the marker in each output folder (see `crate::gate`).
+    let gated = crate::gate::skip_reason(&comp.node.inputs(&comp.args), &ctx.inputs)
+        .map_err(|m| (format!("node `{name}` ({}): {m}", comp.node.kind()), 0.0))?;
+    ctx.inputs.retain(|(n, _)| n != crate::gate::GATE_SLOT);
     let t = Instant::now();
-    let res = pool.install(|| {
-        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            comp.node.run(&comp.args, &mut ctx)
-        }))
-    });
+    let res = match &gated {
+        Some(reason) => {
+            ctx.log(format!("gated: {reason}"));
+            Ok(outputs
+                .iter()
+                .try_for_each(|(_, p)| crate::gate::write_marker(p, reason))
+                .map_err(|e| NodeError::new(format!("writing the gated marker: {e}"))))
+        }
+        None => pool.install(|| {
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                comp.node.run(&comp.args, &mut ctx)
+            }))
+        }),
+    };
     let secs = t.elapsed().as_secs_f64();
     let log_text = sink.lines.lock().map(|l| l.join("\n")).unwrap_or_default();
     if let Some(m) = failure_of(res) {
@@ -343,6 +367,7 @@ fn run_in_scratch(
         computed_seconds: secs,
         outputs: manifests,
         waited: false,
+        gated,
     })
 }
 

@@ -199,6 +199,7 @@ impl<'a> Scheduler<'a> {
                         key: Some(key),
                         seconds: 0.0,
                         computed_seconds: entry.seconds,
+                        gated: super::run::gated_outputs(self.store, &outputs),
                         outputs,
                         waited: false,
                     },
@@ -273,6 +274,7 @@ impl<'a> Scheduler<'a> {
                     computed_seconds: 0.0,
                     outputs: BTreeMap::new(),
                     waited: false,
+                    gated: None,
                 });
             }
         }
@@ -303,7 +305,10 @@ impl<'a> Scheduler<'a> {
                 st.key = r.key.as_ref().map(hex);
                 st.state = r.status.as_str().into();
                 match &r.status {
-                    Status::Ran | Status::Cached => st.seconds = Some(r.computed_seconds),
+                    Status::Ran | Status::Cached => {
+                        st.seconds = Some(r.computed_seconds);
+                        st.message = r.gated.as_ref().map(|g| format!("gated: {g}"));
+                    }
                     Status::Failed(m) => st.message = Some(m.clone()),
                     Status::Skipped => {}
                 }

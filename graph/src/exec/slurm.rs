@@ -282,6 +282,7 @@ pub(super) fn run(
             }
             // Ended (or no longer listed): the store says whether it succeeded.
             if let Some(entry) = store.action(&s.key)? {
+                let outputs = super::run::outputs_of(&entry)?;
                 done.push((
                     c,
                     CompResult {
@@ -289,7 +290,8 @@ pub(super) fn run(
                         key: Some(s.key),
                         seconds: entry.seconds,
                         computed_seconds: entry.seconds,
-                        outputs: super::run::outputs_of(&entry)?,
+                        gated: super::run::gated_outputs(store, &outputs),
+                        outputs,
                         waited: false,
                     },
                 ));
@@ -336,6 +338,7 @@ fn failed(key: crate::store::Hash, m: String) -> CompResult {
         computed_seconds: 0.0,
         outputs: BTreeMap::new(),
         waited: false,
+        gated: None,
     }
 }
 

@@ -167,7 +167,7 @@ pub(super) fn states_of_results(
                     .then_some(r.computed_seconds),
                 message: match &r.status {
                     Status::Failed(m) => Some(m.clone()),
-                    _ => None,
+                    _ => r.gated.as_ref().map(|g| format!("gated: {g}")),
                 },
             })
         })

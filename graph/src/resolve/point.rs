@@ -49,6 +49,8 @@ pub(super) struct Local {
     pub(super) outputs: Vec<String>,
     decls: Vec<InputDecl>,
     inputs_value: Option<Value>,
+    /// The node's `gate:` reference, if any (see [`crate::gate`]).
+    gate_value: Option<Value>,
     node_origin: Origin,
 }
 
@@ -200,6 +202,7 @@ impl Builder<'_> {
                 args_value: a,
                 salt,
                 inputs_value: v.field("inputs").cloned(),
+                gate_value: v.field("gate").cloned(),
                 node_origin: k.origin.clone(),
             });
             ids.push(locals.len() - 1);
@@ -359,6 +362,25 @@ impl Builder<'_> {
                 );
             }
             slots.push((iname.to_string(), sources));
+        }
+        if let Some(g) = &l.gate_value {
+            // The gate is a hidden input slot: its decision is part of the key.
+            let decl = InputDecl::one(crate::gate::GATE_SLOT);
+            match self.resolve_ref(l, g, &decl, by_node, locals, all_names) {
+                Ok(s) if s.len() == 1 => slots.push((crate::gate::GATE_SLOT.to_string(), s)),
+                Ok(s) => errors.push(
+                    Diagnostic::at(
+                        &g.origin,
+                        format!(
+                            "`gate` of `{}` takes one reference, found {}",
+                            l.name,
+                            s.len()
+                        ),
+                    )
+                    .hint("write `gate: \"node.output\"` naming one decision"),
+                ),
+                Err(d) => errors.push(d),
+            }
         }
         for d in &l.decls {
             if !d.optional && !slots.iter().any(|(n, _)| *n == d.name) {

@@ -254,6 +254,66 @@ impl Node for Concat {
 
 #[derive(Clone, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
+pub struct DecideArgs {
+    /// Whether the decision says run.
+    pub run: bool,
+    /// Write something that is not a decision.
+    pub garbled: bool,
+}
+
+/// Writes a gate decision (`gate.json`) into output `decision`.
+pub struct Decide;
+impl Node for Decide {
+    const KIND: &'static str = "Decide";
+    const VERSION: u32 = 1;
+    type Args = DecideArgs;
+    fn inputs(_: &DecideArgs) -> Vec<InputDecl> {
+        vec![InputDecl::optional("a")]
+    }
+    fn outputs(_: &DecideArgs) -> Vec<String> {
+        vec!["decision".into()]
+    }
+    fn run(args: &DecideArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let text = if args.garbled {
+            "{\"run\": 1}".to_string()
+        } else {
+            format!(
+                "{{\"run\": {}, \"reason\": \"toy decision {}\", \"evidence\": 7}}",
+                args.run, args.run
+            )
+        };
+        std::fs::write(ctx.output("decision")?.join("gate.json"), text)?;
+        Ok(())
+    }
+}
+
+/// Lists its `items`, writing `gated(REASON)` for a gated one (it accepts them).
+pub struct Collect;
+impl Node for Collect {
+    const KIND: &'static str = "Collect";
+    const VERSION: u32 = 1;
+    type Args = ConcatArgs;
+    fn inputs(_: &ConcatArgs) -> Vec<InputDecl> {
+        vec![InputDecl::many("items").accepting_gated()]
+    }
+    fn outputs(_: &ConcatArgs) -> Vec<String> {
+        vec!["out".into()]
+    }
+    fn run(args: &ConcatArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let mut parts = Vec::new();
+        for p in ctx.input_list("items")? {
+            match augsplat_graph::gate::gated_reason(p) {
+                Some(r) => parts.push(format!("gated({r})")),
+                None => parts.push(std::fs::read_to_string(p.join("value.txt"))?),
+            }
+        }
+        std::fs::write(ctx.output("out")?.join("value.txt"), parts.join(&args.sep))?;
+        Ok(())
+    }
+}
+
+#[derive(Clone, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SeededArgs {
     pub seed: u64,
 }
@@ -359,6 +419,7 @@ pub fn registry(rec: Arc<Recorder>) -> Registry {
     toys.register::<Seeded>()
         .register::<Fail>()
         .register::<Heavy>();
+    toys.register::<Decide>().register::<Collect>();
     let mut r = Registry::with_engine_kinds();
     for name in toys.names() {
         let inner = toys.get(name).expect("listed").clone();
