@@ -47,7 +47,9 @@ fn a_gate_that_says_no_ends_its_branch_and_the_report_sees_it() {
     );
     let table = report.table(&plan);
     assert!(
-        table.lines().any(|l| l.starts_with("costly") && l.contains("gated")),
+        table
+            .lines()
+            .any(|l| l.starts_with("costly") && l.contains("gated")),
         "{table}"
     );
     // A gated output holds only the marker.
@@ -96,7 +98,10 @@ fn an_unreadable_decision_fails_the_gated_node_and_stores_nothing_for_it() {
         .clone();
     assert_eq!(costly["status"], "failed");
     let err = costly["error"].as_str().unwrap();
-    assert!(err.contains("gate.json") && err.contains("not a gate decision"), "{err}");
+    assert!(
+        err.contains("gate.json") && err.contains("not a gate decision"),
+        "{err}"
+    );
     assert!(report
         .output_dir(&plan, env.engine.store(), "costly", "out")
         .is_none());
@@ -111,4 +116,36 @@ fn a_gate_must_name_one_existing_output() {
         &GATED.replace(r#"gate: "decide.decision""#, r#"gate: "decidr.decision""#),
     );
     assert!(e.contains("decidr") && e.contains("decide"), "{e}");
+}
+
+#[test]
+fn a_gate_mixes_into_a_pipeline_through_a_list_of_extends() {
+    let env = Env::new();
+    env.write(
+        "base.ron",
+        r#"(nodes: {
+            "src": (kind: "Source", args: (value: "ab")),
+            "costly": (kind: "Append", args: (suffix: "!"), inputs: { "a": "src" }),
+        })"#,
+    );
+    // A fragment: adds the decision and gates a node it does not define.
+    env.write(
+        "gate.ron",
+        r#"(nodes: {
+            "decide": (kind: "Decide", args: (run: false)),
+            "costly": (gate: "decide.decision", args: (suffix: "?")),
+        })"#,
+    );
+    let f = env.write(
+        "p.ron",
+        r#"(extends: ["base.ron", "gate.ron"], nodes: { "costly": (args: (suffix: "%")) })"#,
+    );
+    let (plan, report) = env.run(&f, &[]);
+    assert!(report.success());
+    assert_eq!(env.take(), ["decide", "src"]);
+    let text = augsplat_graph::expand_text(&plan);
+    assert!(text.contains(r#"suffix: "%""#), "{text}");
+    assert!(report.results.iter().flatten().any(|r| r.gated.is_some()));
+    let e = common::env::load_err(&env, "q.ron", r#"(extends: ["base.ron", 3])"#);
+    assert!(e.contains("list of them"), "{e}");
 }

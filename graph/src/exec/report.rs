@@ -171,14 +171,20 @@ impl RunReport {
         for (a, b, c, d, e) in rows {
             s.push_str(&format!("{a:w0$}  {b:w1$}  {c:w2$}  {d:>8}  {e:>10}\n"));
         }
-        let (mut ran, mut cached, mut failed) = (0, 0, 0);
+        let (mut ran, mut cached, mut failed, mut gated) = (0, 0, 0, 0);
         for r in self.results.iter().flatten() {
             match r.status {
+                Status::Ran | Status::Cached if r.gated.is_some() => gated += 1,
                 Status::Ran => ran += 1,
                 Status::Cached => cached += 1,
                 _ => failed += 1,
             }
         }
+        let gated = if gated > 0 {
+            format!("{gated} gated, ")
+        } else {
+            String::new()
+        };
         // Computations shared by several instances count once.
         let computed: f64 = self
             .results
@@ -188,7 +194,7 @@ impl RunReport {
             .map(|r| r.computed_seconds)
             .sum();
         s.push_str(&format!(
-            "{ran} ran, {cached} cached, {failed} failed or skipped, {:.2} s \
+            "{ran} ran, {gated}{cached} cached, {failed} failed or skipped, {:.2} s \
              (sum of the needed nodes' compute times: {computed:.2} s)\n",
             self.seconds
         ));

@@ -11,6 +11,8 @@
 //! - [`ensemble`]: the `EvaluateEnsemble` node (each radiance-field member and their per-pixel
 //!   median on the held-out views);
 //! - [`report`], [`report_node`]: the report builder and the `Report` node;
+//! - [`gate`]: the `Gate` node (is a scene worth the ensemble and Staged/Dual? decided from
+//!   training views only);
 //! - [`compare`]: metric deltas across runs (ablation points);
 //! - [`viewer`]: the interactive WebGL2 splat viewer of the report and `augsplat view`.
 
@@ -20,6 +22,7 @@ pub mod ensemble;
 pub mod error;
 pub mod evalset;
 pub mod evaluate;
+pub mod gate;
 pub mod html;
 pub mod report;
 pub mod report_node;
@@ -30,14 +33,16 @@ pub mod viewer;
 pub use ensemble::EvaluateEnsembleNode;
 pub use error::ReportError;
 pub use evaluate::EvaluateNode;
+pub use gate::GateNode;
 pub use report_node::ReportNode;
 
-/// Registers this family's node kinds (`Report`; `Evaluate`; `EvaluateEnsemble`) and the
+/// Registers this family's node kinds (`Report`; `Evaluate`; `EvaluateEnsemble`; `Gate`) and the
 /// installed resource `lpips` (pipelines connect it with `Installed("lpips")`).
 pub fn register(registry: &mut augsplat_graph::Registry) {
     registry.register::<EvaluateNode>();
     registry.register::<EvaluateEnsembleNode>();
     registry.register::<ReportNode>();
+    registry.register::<GateNode>();
     registry.register_resource("lpips", installed_lpips, evaluate::LPIPS_INSTALL_HINT);
 }
 

@@ -38,6 +38,10 @@ pub struct ReportOptions {
     pub viewer_max_gaussians: usize,
     /// The training scene folder, whose cameras the viewer draws.
     pub train_scene: Option<std::path::PathBuf>,
+    /// The scene gate's decision and evidence, when the pipeline has one.
+    pub gate: Option<crate::gate::GateReport>,
+    /// Why each evaluation that a gate skipped was skipped (one entry per such evaluation).
+    pub gated_evals: Vec<String>,
 }
 
 impl Default for ReportOptions {
@@ -51,6 +55,8 @@ impl Default for ReportOptions {
             viewer: true,
             viewer_max_gaussians: crate::viewer::DEFAULT_MAX_GAUSSIANS,
             train_scene: None,
+            gate: None,
+            gated_evals: Vec::new(),
         }
     }
 }
@@ -140,6 +146,7 @@ pub fn build_report(
         md.push('\n');
     }
     body.push_str(&per_view_table(evals, &labels));
+    gate_section(opts, &mut body, &mut md);
 
     // --- viewer ----------------------------------------------------------------------------
     let viewer = if opts.viewer {
@@ -275,6 +282,56 @@ fn viewer_section(
 /// best-step choice that depend on it).
 fn is_lpips_note(note: &str) -> bool {
     note.starts_with("LPIPS") || note.contains("no LPIPS weights")
+}
+
+/// The scene gate's section: which evaluations it skipped, its decision and its evidence.
+fn gate_section(opts: &ReportOptions, body: &mut String, md: &mut String) {
+    if opts.gate.is_none() && opts.gated_evals.is_empty() {
+        return;
+    }
+    body.push_str("<h2 id=\"gate\">Scene gate</h2>");
+    if !opts.gated_evals.is_empty() {
+        let mut reasons = opts.gated_evals.clone();
+        reasons.dedup();
+        let line = format!(
+            "{} evaluation(s) skipped by the gate: {}",
+            opts.gated_evals.len(),
+            reasons.join("; ")
+        );
+        let _ = write!(body, "<p class=\"note\">{}</p>", escape(&line));
+        let _ = writeln!(md, "{line}\n");
+    }
+    if let Some(g) = &opts.gate {
+        let gmd = g.to_markdown();
+        md.push_str(&gmd);
+        md.push('\n');
+        let _ = write!(
+            body,
+            "<p><b>Decision: {}.</b> {}</p><table class=\"metrics\"><thead><tr><th>rehearsal</th><th>{}</th><th>vs baseline</th><th>PSNR</th><th>SSIM</th></tr></thead><tbody>",
+            if g.run { "run" } else { "skip" },
+            escape(&g.reason),
+            escape(&g.metric)
+        );
+        for e in [Some(&g.baseline), g.method.as_ref(), g.prior.as_ref()]
+            .into_iter()
+            .flatten()
+        {
+            let _ = write!(
+                body,
+                "<tr><th scope=\"row\">{}</th><td>{:.4}</td><td>{:+.1} %</td><td>{:.2}</td><td>{:.3}</td></tr>",
+                escape(&e.label),
+                e.error,
+                100.0 * e.relative,
+                e.metrics.psnr,
+                e.metrics.ssim
+            );
+        }
+        let _ = write!(
+            body,
+            "</tbody></table><p class=\"note\">Measured on training views {} left out of the rehearsals; no held-out view is read.</p>",
+            escape(&g.views.join(", "))
+        );
+    }
 }
 
 /// The one line that replaces the LPIPS notes of the evaluations in `labels`.

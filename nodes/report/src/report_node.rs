@@ -2,7 +2,9 @@
 //! evaluations (see [`crate::report`]).
 
 use crate::evalset::EvalDir;
+use crate::gate::GateReport;
 use crate::report::{build_report, ReportOptions};
+use augsplat_graph::gate::gated_reason;
 use augsplat_graph::{InputDecl, Node, NodeError, RunContext};
 use serde::{Deserialize, Serialize};
 
@@ -40,8 +42,9 @@ impl Default for ReportArgs {
 
 /// `Report`: inputs `evals` (a list of `Evaluate` outputs, in display order; the first one
 /// places the zoomed crops), optional `synthetic` (a synthetic set for example views with
-/// confidence maps) and optional `train` (the training scene, whose cameras the 3-D viewer
-/// draws); output `report` with `index.html` (self-contained: no external files, the one
+/// confidence maps), optional `train` (the training scene, whose cameras the 3-D viewer
+/// draws) and optional `gate` (a `Gate` decision, shown with its evidence); evaluations and a
+/// synthetic set that a gate skipped are listed as skipped; output `report` with `index.html` (self-contained: no external files, the one
 /// script is the viewer's) and `summary.md`.
 pub struct ReportNode;
 
@@ -55,15 +58,17 @@ pub mod files {
 
 impl Node for ReportNode {
     const KIND: &'static str = "Report";
-    // 3: the page embeds the 3-D viewer.
-    const VERSION: u32 = 3;
+    // 3: the page embeds the 3-D viewer; 4: gated evaluations and the scene gate's section.
+    const VERSION: u32 = 4;
     type Args = ReportArgs;
 
     fn inputs(_args: &ReportArgs) -> Vec<InputDecl> {
         vec![
-            InputDecl::many("evals"),
-            InputDecl::optional("synthetic"),
+            // A gate may skip methods (and the ensemble): the report still runs and says so.
+            InputDecl::many("evals").accepting_gated(),
+            InputDecl::optional("synthetic").accepting_gated(),
             InputDecl::optional("train"),
+            InputDecl::optional("gate"),
         ]
     }
     fn outputs(_args: &ReportArgs) -> Vec<String> {
@@ -83,9 +88,19 @@ impl Node for ReportNode {
     }
     fn run(args: &ReportArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
         let mut evals = Vec::new();
+        let mut gated_evals = Vec::new();
         for dir in ctx.input_list("evals")? {
-            evals.push(EvalDir::load(dir)?);
+            match gated_reason(dir) {
+                Some(reason) => gated_evals.push(reason),
+                None => evals.push(EvalDir::load(dir)?),
+            }
         }
+        let gate = match ctx.optional_input("gate") {
+            Some(d) => Some(augsplat_core::artifacts::read_json::<GateReport>(
+                &d.join(crate::gate::files::JSON),
+            )?),
+            None => None,
+        };
         let opts = ReportOptions {
             title: args.title.clone(),
             max_views: args.max_views,
@@ -94,9 +109,14 @@ impl Node for ReportNode {
             viewer: args.viewer,
             viewer_max_gaussians: args.viewer_max_gaussians,
             train_scene: ctx.optional_input("train").map(|p| p.to_path_buf()),
+            gate,
+            gated_evals,
             ..ReportOptions::default()
         };
-        let synthetic = ctx.optional_input("synthetic").map(|p| p.to_path_buf());
+        let synthetic = ctx
+            .optional_input("synthetic")
+            .filter(|p| gated_reason(p).is_none())
+            .map(|p| p.to_path_buf());
         let built = build_report(&opts, &evals, synthetic.as_deref())?;
         let out = ctx.output("report")?;
         let index = out.join(files::INDEX);
