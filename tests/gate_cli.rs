@@ -1,4 +1,4 @@
-//! The scene gate end to end (`pipelines/gate.ron` mixed into the demo): its decision never
+//! The scene gate end to end (`pipelines/fragments/gate.ron` mixed into the demo): its decision never
 //! depends on a held-out view, a "skip" decision ends the ensemble and both methods at once
 //! (marked gated) while the baseline and the report run, and the report shows the decision.
 

@@ -44,3 +44,34 @@ fn every_ready_pipeline_loads_and_plans_without_warnings() {
     }
     assert!(loaded >= 10, "only {loaded} pipelines loaded");
 }
+
+/// Each fragment of `pipelines/fragments/` (not a pipeline alone) mixes into the demo, and a
+/// fragment alone does not load: its nodes only add fields to the pipeline's.
+#[test]
+fn every_fragment_mixes_into_the_demo() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines");
+    let cache = tempfile::tempdir().unwrap();
+    let engine = Engine::new(augsplat::builtin_registry(), cache.path()).unwrap();
+    let mut n = 0;
+    for e in std::fs::read_dir(root.join("fragments")).unwrap().flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        let mixed = cache.path().join(format!("demo_{name}"));
+        std::fs::write(
+            &mixed,
+            format!(
+                "(extends: [{:?}, {:?}])",
+                root.join("demo.ron").display().to_string(),
+                e.path().display().to_string()
+            ),
+        )
+        .unwrap();
+        let plan = engine
+            .load(&mixed, &[])
+            .unwrap_or_else(|err| panic!("demo + {name} does not load:\n{err}"));
+        assert!(plan.warnings.is_empty(), "{name}: {:?}", plan.warnings);
+        engine.plan_text(&plan, &[]).unwrap();
+        assert!(engine.load(&e.path(), &[]).is_err(), "{name} loads alone");
+        n += 1;
+    }
+    assert!(n >= 1);
+}

@@ -66,6 +66,8 @@ pub struct GateReport {
     pub margin: f64,
     /// Whether `force` decided.
     pub forced: bool,
+    /// What the evidence alone says (equal to `run` unless forced).
+    pub evidence_run: bool,
     /// The rehearsed baseline's error and metrics.
     pub baseline: GateEvidence,
     /// The rehearsed method's, when connected.
@@ -179,6 +181,7 @@ pub fn decide(
         metric: metric.into(),
         margin: args.margin,
         forced: args.force.is_some(),
+        evidence_run: helps,
         baseline: evidence(baseline),
         method: method.map(evidence),
         prior: prior.map(evidence),
@@ -362,6 +365,7 @@ mod tests {
         )
         .unwrap();
         assert!(r.run && r.forced && r.reason.contains("forced"));
+        assert!(!r.evidence_run, "the evidence alone says skip");
         let md = r.to_markdown();
         assert!(md.contains("| Dual | 0.2000 | +100.0 % |"), "{md}");
         // Unusable errors are an error, not a decision.
