@@ -1,0 +1,133 @@
+//! The paper's protocol pipelines (`pipelines/paper_<scene>.ron`): each plans on its real
+//! files, its three seed points share the scene, the ensemble and its renders, and its draw
+//! (26 / 4 views; 17 / 3 on fern) is reproducible and leak-free — no view is both trained on
+//! and held out, and the test scene carries no SfM point. Real captures need the shared data
+//! folder (skipped without it outside CI).
+
+use augsplat_graph::store::unhex;
+use augsplat_graph::{Engine, Store};
+use serde_json::Value;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const SCENES: &[(&str, usize, usize)] = &[
+    ("paper_generated", 26, 4),
+    ("paper_bonsai", 26, 4),
+    ("paper_fern", 17, 3),
+    ("paper_horns", 26, 4),
+    ("paper_dtu_scan24", 26, 4),
+];
+
+fn pipeline(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("pipelines")
+        .join(format!("{name}.ron"))
+}
+
+/// Skips (None) when the shared data folder is absent.
+fn data_present(name: &str) -> bool {
+    augsplat_testkit::data::shared_data(&format!("paper pipeline {name}"), "lpips").is_some()
+}
+
+#[test]
+fn each_paper_pipeline_plans_and_its_seeds_share_the_upstream() {
+    let cache = tempfile::tempdir().unwrap();
+    let engine = Engine::new(augsplat::builtin_registry(), cache.path()).unwrap();
+    for (name, _, _) in SCENES {
+        if !data_present(name) {
+            continue;
+        }
+        let plan = engine
+            .load(&pipeline(name), &[])
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(plan.points.len(), 3, "{name}: three seeds");
+        let count = |kind: &str| plan.comps.iter().filter(|c| c.node.kind() == kind).count();
+        // One scene, one ensemble of 5 and its renders for the three points …
+        assert_eq!(count("ImportScene") + count("SyntheticScene"), 1, "{name}");
+        assert_eq!(count("TrainField"), 5, "{name}");
+        assert_eq!(count("RenderField"), 10, "{name}");
+        assert_eq!(count("AggregateEnsemble"), 1, "{name}");
+        // … and each point's own three trainings.
+        assert_eq!(count("OptimizeSplats"), 9, "{name}");
+        engine.plan_text(&plan, &[]).unwrap();
+    }
+}
+
+/// Runs `--target split` and returns (train view names, test view names, the split's key,
+/// whether the test scene has points).
+fn draw(name: &str, cache: &Path) -> (Vec<String>, Vec<String>, String, bool) {
+    let summary = cache.with_extension("json");
+    let out = Command::new(env!("CARGO_BIN_EXE_augsplat"))
+        .arg("run")
+        .arg(pipeline(name))
+        .args(["-q", "--target", "split", "--cache"])
+        .arg(cache)
+        .arg("--summary-json")
+        .arg(&summary)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{name}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s: Value = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+    let key = s["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["name"].as_str().unwrap().starts_with("split"))
+        .unwrap()["key"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let store = Store::open(cache).unwrap();
+    let entry = store.action(&unhex(&key).unwrap()).unwrap().unwrap();
+    let views = |output: &str| -> (Vec<String>, bool) {
+        let dir = store.output_dir(&unhex(&entry.outputs[output]).unwrap());
+        let scene: Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("scene.json")).unwrap())
+                .unwrap();
+        let names = scene["views"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v["name"].as_str().unwrap().to_string())
+            .collect();
+        (names, dir.join("points.safetensors").is_file())
+    };
+    let (train, _) = views("train");
+    let (test, test_points) = views("test");
+    (train, test, key, test_points)
+}
+
+#[test]
+fn each_paper_draw_is_reproducible_and_leak_free() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (i, (name, n_train, n_test)) in SCENES.iter().enumerate() {
+        if !data_present(name) {
+            continue;
+        }
+        let (train, test, key, test_points) = draw(name, &tmp.path().join(format!("a{i}")));
+        assert_eq!((train.len(), test.len()), (*n_train, *n_test), "{name}");
+        let a: BTreeSet<_> = train.iter().collect();
+        let b: BTreeSet<_> = test.iter().collect();
+        assert!(
+            a.is_disjoint(&b),
+            "{name}: a view is both trained on and held out"
+        );
+        assert_eq!(
+            a.len() + b.len(),
+            n_train + n_test,
+            "{name}: duplicate views"
+        );
+        assert!(
+            !test_points,
+            "{name}: the test scene must carry no SfM point"
+        );
+        // The same draw, bit for bit, from a fresh store.
+        let again = draw(name, &tmp.path().join(format!("b{i}")));
+        assert_eq!((train, test, key), (again.0, again.1, again.2), "{name}");
+    }
+}
