@@ -71,6 +71,12 @@ pub struct ImportSceneArgs {
     /// missing photo is an error. (Not serialised when off, so keys of earlier runs stand.)
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub allow_missing_images: bool,
+    /// Choose the downscale from the photos: the smallest factor (at least `downscale`) that
+    /// brings the longest side of every view to at most this many pixels, so one pipeline fits
+    /// any capture (`pipelines/capture.ron` uses 512). `None`: `downscale` alone. (Not
+    /// serialised when `None`, so keys of earlier runs stand.)
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_side: Option<u32>,
 }
 
 impl Default for ImportSceneArgs {
@@ -84,7 +90,17 @@ impl Default for ImportSceneArgs {
             undistort: true,
             normalize: NormalizeMode::Cameras,
             allow_missing_images: false,
+            max_side: None,
         }
+    }
+}
+
+/// The downscale factor for views whose longest side is `longest` pixels: the smallest factor
+/// of at least `downscale` that brings it to at most `max_side` (capped at 64).
+pub fn auto_downscale(longest: u32, downscale: u32, max_side: Option<u32>) -> u32 {
+    match max_side {
+        None => downscale,
+        Some(m) => downscale.max(longest.div_ceil(m.max(1))).min(64),
     }
 }
 
@@ -214,6 +230,12 @@ impl Node for ImportScene {
         if a.downscale == 0 || a.downscale > 64 {
             return Err(format!("downscale = {} must be within 1..=64", a.downscale));
         }
+        if a.max_side.is_some_and(|m| m < 16) {
+            return Err(format!(
+                "max_side = {} must be at least 16 pixels (or None)",
+                a.max_side.unwrap_or(0)
+            ));
+        }
         if let Some(m) = &a.model {
             relative("model", m)?;
         }
@@ -245,8 +267,21 @@ impl Node for ImportScene {
                 list.join(", ")
             );
         }
+        let longest = raw
+            .views
+            .iter()
+            .map(|v| v.intrinsics.width.max(v.intrinsics.height))
+            .max()
+            .unwrap_or(1);
+        let downscale = auto_downscale(longest, a.downscale, a.max_side);
+        if downscale != a.downscale {
+            ctx.log(format!(
+                "downscale {downscale}: the longest side, {longest} px, to at most {} px",
+                a.max_side.unwrap_or(0)
+            ));
+        }
         let opts = ImportOptions {
-            downscale: a.downscale,
+            downscale,
             undistort: a.undistort,
             normalize: a.normalize,
         };
@@ -506,5 +541,27 @@ impl Node for ExportScene {
         let src = ctx.input("scene")?.to_path_buf();
         export_scene(&src, ctx.output("export")?, a.format)?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::auto_downscale;
+
+    #[test]
+    fn auto_downscale_brings_the_longest_side_within_the_bound() {
+        assert_eq!(auto_downscale(4032, 1, None), 1);
+        assert_eq!(auto_downscale(4032, 2, None), 2);
+        assert_eq!(auto_downscale(504, 1, Some(512)), 1);
+        assert_eq!(auto_downscale(800, 1, Some(512)), 2);
+        assert_eq!(auto_downscale(4032, 1, Some(512)), 8);
+        assert_eq!(auto_downscale(4033, 1, Some(512)), 8);
+        assert_eq!(auto_downscale(4097, 1, Some(512)), 9);
+        assert_eq!(
+            auto_downscale(800, 4, Some(512)),
+            4,
+            "never below `downscale`"
+        );
+        assert_eq!(auto_downscale(100_000, 1, Some(16)), 64, "capped");
     }
 }

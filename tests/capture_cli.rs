@@ -1,0 +1,176 @@
+//! `pipelines/capture.ron` on a user's own folder, through the documented two-line pipeline
+//! (`extends` capture.ron, `source` pointed at the folder): end to end at a tiny size on a
+//! generated COLMAP export, a generated transforms.json export and an LLFF folder (a copy of
+//! the shared fern, skipped without the shared data folder outside CI). The format is
+//! detected, the photos are downscaled to `max_side`, and the gate decides for the ensemble.
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const BIN: &str = env!("CARGO_BIN_EXE_augsplat");
+
+/// Tiny sizes: fields, rehearsal and Gaussians of the test suite, photos at most 48 px.
+const SETS: &[&str] = &[
+    "scene.max_side=Some(48)",
+    "field.steps=10",
+    "field.rays_per_step=64",
+    "field.chunk_rays=32",
+    "field.levels=4",
+    "field.log2_table_size=10",
+    "field.max_resolution=64",
+    "field.march_steps=16",
+    "field.occupancy_resolution=16",
+    "field.occupancy_warmup=4",
+    "poses.count=6",
+    "poses.downscale=2",
+    "params.members=2",
+    "params.gs_steps=20",
+    "params.eval_every=10",
+    "params.warmup=10",
+    "params.synthetic_batch=2",
+    "params.lpips=None",
+    "params.gate_field_steps=10",
+    "params.gate_gs_steps=20",
+    "params.gate_eval_every=10",
+    "params.gate_synthetic=4",
+    "gate_field.rays_per_step=64",
+    "gate_field.chunk_rays=32",
+    "gate_field.levels=4",
+    "gate_field.log2_table_size=10",
+    "gate_field.max_resolution=64",
+    "gate_field.march_steps=16",
+    "gate_field.occupancy_resolution=16",
+    "gate_field.occupancy_warmup=4",
+];
+
+fn run(dir: &Path, pipeline: &Path, extra: &[&str]) -> (bool, String) {
+    let mut cmd = Command::new(BIN);
+    cmd.arg("run")
+        .arg(pipeline)
+        .arg("-q")
+        .env("AUGSPLAT_CACHE", dir.join("cache"))
+        .current_dir(dir);
+    for s in SETS {
+        cmd.arg("--set").arg(s);
+    }
+    cmd.args(extra);
+    let out = cmd.output().unwrap();
+    (
+        out.status.success(),
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ),
+    )
+}
+
+/// A generated 12-view 64×48 scene exported as `format` into `dir/src`.
+fn generated_export(dir: &Path, format: &str) {
+    let p = dir.join("export.ron");
+    std::fs::write(
+        &p,
+        format!(
+            r#"(nodes: {{
+        "syn": (kind: "SyntheticScene", args: (width: 64, height: 48, views: 12, points: 400, supersample: 1)),
+        "export": (kind: "ExportScene", args: (format: {format}), inputs: {{ "scene": "syn" }}),
+    }})"#
+        ),
+    )
+    .unwrap();
+    let out = Command::new(BIN)
+        .args(["run", p.to_str().unwrap(), "-q", "--out"])
+        .arg(dir.join("exported"))
+        .env("AUGSPLAT_CACHE", dir.join("cache"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{out:?}");
+    augsplat_testkit::copy_dir(&dir.join("exported/export/export"), &dir.join("src"));
+}
+
+/// Runs the user's two-line pipeline on `dir/src`; returns the summary's nodes.
+fn run_capture(dir: &Path) -> Vec<Value> {
+    let capture = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/capture.ron");
+    let mine = dir.join("my_capture.ron");
+    std::fs::write(
+        &mine,
+        format!(
+            "(extends: {:?},\n nodes: {{ \"scene\": (inputs: {{ \"source\": Path(\"src\") }}) }})\n",
+            capture.display().to_string()
+        ),
+    )
+    .unwrap();
+    let summary = dir.join("summary.json");
+    let (ok, out) = run(
+        dir,
+        &mine,
+        &["--summary-json", summary.to_str().unwrap(), "--out", "res"],
+    );
+    assert!(ok, "{out}");
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(summary).unwrap()).unwrap();
+    let nodes = v["nodes"].as_array().unwrap().clone();
+    for n in &nodes {
+        assert_ne!(n["status"], "failed", "{n}");
+    }
+    let gate = nodes
+        .iter()
+        .find(|n| n["name"] == "gate")
+        .expect("the gate");
+    assert_eq!(gate["gated"], Value::Null);
+    // Whatever the gate said, the ensemble and the methods follow it.
+    let gated = nodes.iter().find(|n| n["name"] == "dual").unwrap()["gated"].is_string();
+    let report = std::fs::read_to_string(dir.join("res/report/report/summary.md")).unwrap();
+    assert!(report.contains("## Gate: "), "{report}");
+    assert_eq!(report.contains("## Gate: skip"), gated, "{report}");
+    nodes
+}
+
+/// The imported scene's image width: any scene folder in the store that the generated scene
+/// did not write (the import and its splits share the size).
+fn imported_width(dir: &Path) -> u64 {
+    let mut folders: Vec<PathBuf> = std::fs::read_dir(dir.join("cache/outputs"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.path().join("scene.json"))
+        .filter(|p| p.is_file())
+        .collect();
+    folders.sort();
+    let scene = folders
+        .iter()
+        .map(|p| std::fs::read_to_string(p).unwrap())
+        .find(|t| !t.contains("SyntheticScene"))
+        .expect("an imported scene");
+    let v: Value = serde_json::from_str(&scene).unwrap();
+    v["views"][0]["camera"]["width"].as_u64().unwrap()
+}
+
+#[test]
+fn capture_runs_on_a_generated_colmap_export() {
+    let tmp = tempfile::tempdir().unwrap();
+    generated_export(tmp.path(), "ColmapText");
+    run_capture(tmp.path());
+    // 64 px wide photos, at most 48 px: downscaled by 2.
+    assert_eq!(imported_width(tmp.path()), 32);
+}
+
+#[test]
+fn capture_runs_on_a_generated_transforms_json_export() {
+    let tmp = tempfile::tempdir().unwrap();
+    generated_export(tmp.path(), "Transforms");
+    assert!(tmp.path().join("src/transforms.json").is_file());
+    run_capture(tmp.path());
+    assert_eq!(imported_width(tmp.path()), 32);
+}
+
+#[test]
+fn capture_runs_on_an_llff_folder() {
+    let Some(data) = augsplat_testkit::data::shared_data("capture on LLFF", "fern") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    augsplat_testkit::copy_dir(&data.join("fern"), &tmp.path().join("src"));
+    run_capture(tmp.path());
+    // 504×378 photos, at most 48 px: downscaled by 11 → 45 px wide.
+    assert_eq!(imported_width(tmp.path()), 504 / 11);
+}
