@@ -5,6 +5,11 @@
 //! scene's near and far bounds ([`RandomInit::Frusta`]), or uniformly in a cube around the
 //! cameras as gsplat's `init_type = "random"` ([`RandomInit::Cube`]).
 //!
+//! A pipeline with a radiance-field prior may connect the prior's depth at the training views
+//! (`init_depth`): a scene without sparse points then starts from points back-projected from
+//! that depth ([`from_prior_depth`]) instead of random ones — an augsplat option, not the
+//! paper's.
+//!
 //! The nearest neighbours come from a uniform grid (cell ≈ bounding-box volume / N, searched
 //! in growing shells) so initialisation is O(N) for well-spread clouds, not O(N²).
 
@@ -338,6 +343,94 @@ fn build(
     g
 }
 
+/// The radiance-field prior's depth at one training view, for [`from_prior_depth`]: depth
+/// along the optical axis (`RenderField`'s D: expected depth, 0 where nothing was hit) and
+/// accumulated opacity, row-major at `width × height` — the view's camera scaled by any
+/// factor (a render at 1/4 of the training size samples the same view).
+pub struct PriorDepth<'a> {
+    /// Index of the training view in the `views` given with it.
+    pub view: usize,
+    /// Width of the maps.
+    pub width: u32,
+    /// Height of the maps.
+    pub height: u32,
+    /// Expected depth (not divided by the opacity).
+    pub depth: &'a [f32],
+    /// Accumulated opacity.
+    pub alpha: &'a [f32],
+}
+
+/// Opacity a prior pixel needs before its depth is trusted.
+pub const PRIOR_MIN_ALPHA: f32 = 0.5;
+
+/// Gaussians at up to `args.random_points` points back-projected from the prior's depth:
+/// each draws a map uniformly, then a pixel uniformly within it; a pixel with opacity below
+/// [`PRIOR_MIN_ALPHA`] or no finite positive depth is drawn again (at most 20 draws per
+/// point). The point lies on the training camera's ray through that pixel at depth D / A
+/// along the optical axis, coloured by the training photo there.
+pub fn from_prior_depth(
+    views: &[InitView<'_>],
+    prior: &[PriorDepth<'_>],
+    sh_degree: u32,
+    args: &InitArgs,
+    scene_scale: f64,
+    seed: u64,
+) -> Gaussians {
+    let mut rng = Rng::stream(seed, 0xde97);
+    let mut positions = Vec::with_capacity(args.random_points);
+    let mut colors = Vec::with_capacity(args.random_points);
+    let usable: Vec<&PriorDepth<'_>> = prior
+        .iter()
+        .filter(|p| {
+            p.view < views.len()
+                && p.width > 0
+                && p.height > 0
+                && p.depth.len() == (p.width * p.height) as usize
+                && p.alpha.len() == p.depth.len()
+        })
+        .collect();
+    if !usable.is_empty() {
+        let mut draws = 0usize;
+        while positions.len() < args.random_points && draws < 20 * args.random_points {
+            draws += 1;
+            let p = usable[((rng.next_f64() * usable.len() as f64) as usize).min(usable.len() - 1)];
+            let (fu, fw) = (
+                rng.next_f64() * p.width as f64,
+                rng.next_f64() * p.height as f64,
+            );
+            let i = (fw as usize).min(p.height as usize - 1) * p.width as usize
+                + (fu as usize).min(p.width as usize - 1);
+            let (d, a) = (p.depth[i], p.alpha[i]);
+            if !(a >= PRIOR_MIN_ALPHA && d.is_finite() && d > 0.0) {
+                continue;
+            }
+            let z = (d / a) as f64;
+            let v = &views[p.view];
+            let cam = v.camera;
+            // The same continuous image position in the training camera.
+            let u = fu * cam.width as f64 / p.width as f64;
+            let w = fw * cam.height as f64 / p.height as f64;
+            let (origin, dir) = cam.ray(u, w);
+            let (x, y) = ((u - cam.cx) / cam.fx, (w - cam.cy) / cam.fy);
+            let dist = z * (x * x + y * y + 1.0).sqrt();
+            positions.push(std::array::from_fn(|k| (origin[k] + dir[k] * dist) as f32));
+            let (px, py) = (
+                (u as usize).min(cam.width as usize - 1),
+                (w as usize).min(cam.height as usize - 1),
+            );
+            let idx = (py * cam.width as usize + px) * 3;
+            colors.push(
+                if v.image.len() == cam.width as usize * cam.height as usize * 3 {
+                    [v.image[idx], v.image[idx + 1], v.image[idx + 2]]
+                } else {
+                    [0.5; 3]
+                },
+            );
+        }
+    }
+    build(positions, colors, sh_degree, args, scene_scale, seed)
+}
+
 /// The initial Gaussians [`initial_gaussians`] chose, and why.
 #[derive(Clone, Debug)]
 pub struct Initial {
@@ -346,17 +439,24 @@ pub struct Initial {
     /// What was chosen, in words, when the scene had no sparse points (`None` when the
     /// Gaussians come from the points).
     pub note: Option<String>,
+    /// Whether the choice is a poor last resort the user must hear about (no points, no
+    /// prior depth and no usable bounds: a cube around the cameras).
+    pub warn: bool,
 }
 
 /// The initialisation policy of a training run: the scene's sparse points when it has any
-/// ([`from_points`]); otherwise `args.random_points` random Gaussians, on the training views'
+/// ([`from_points`]); otherwise the prior's depth when given and it yields at least 1 % of
+/// `args.random_points` points ([`from_prior_depth`]); otherwise `args.random_points` random
+/// Gaussians, on the training views'
 /// rays between the scene's `near` and `far` bounds ([`random_in_frusta`]) when
 /// `args.random_in` is [`RandomInit::Frusta`] and those bounds are usable (finite,
 /// 0 < near < far), else in a cube around the training cameras' mean ([`random`]).
+#[allow(clippy::too_many_arguments)]
 pub fn initial_gaussians(
     cloud: &PointCloud,
     scene: &Scene,
     views: &[InitView<'_>],
+    prior: &[PriorDepth<'_>],
     sh_degree: u32,
     args: &InitArgs,
     scene_scale: f64,
@@ -366,7 +466,22 @@ pub fn initial_gaussians(
         return Initial {
             gaussians: from_points(cloud, sh_degree, args, scene_scale, seed),
             note: None,
+            warn: false,
         };
+    }
+    if !prior.is_empty() {
+        let g = from_prior_depth(views, prior, sh_degree, args, scene_scale, seed);
+        if g.len() * 100 >= args.random_points.max(1) {
+            return Initial {
+                note: Some(format!(
+                    "no sparse points: {} Gaussians back-projected from the radiance field's depth at {} training view(s)",
+                    g.len(),
+                    prior.len()
+                )),
+                gaussians: g,
+                warn: false,
+            };
+        }
     }
     let (near, far) = (scene.near, scene.far);
     let bounds_ok = near.is_finite() && far.is_finite() && near > 0.0 && far > near;
@@ -377,6 +492,7 @@ pub fn initial_gaussians(
                 args.random_points
             )),
             gaussians: random_in_frusta(views, near, far, sh_degree, args, scene_scale, seed),
+            warn: false,
         },
         mode => {
             let cs: Vec<[f64; 3]> = views.iter().map(|v| v.camera.center()).collect();
@@ -394,6 +510,7 @@ pub fn initial_gaussians(
                     }
                 )),
                 gaussians: random(center, sh_degree, args, scene_scale, seed),
+                warn: mode == RandomInit::Frusta,
             }
         }
     }

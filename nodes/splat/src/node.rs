@@ -44,6 +44,7 @@ impl Node for OptimizeSplats {
             InputDecl::one("test"),
             InputDecl::optional("synthetic"),
             InputDecl::optional("lpips"),
+            InputDecl::optional("init_depth"),
         ]
     }
     fn outputs(_args: &TrainArgs) -> Vec<String> {
@@ -83,10 +84,41 @@ impl Node for OptimizeSplats {
         let scene = Scene::load(&train_dir)?;
         let cloud = scene.load_points(&train_dir)?;
         let views: Vec<InitView<'_>> = real.views.iter().map(RealView::init_view).collect();
-        let init =
-            init::initial_gaussians(&cloud, &scene, &views, a.sh_degree, &a.init, sscale, a.seed);
+        // The prior's depth at the training views, read only when it can matter.
+        let prior_maps = match ctx.optional_input("init_depth") {
+            Some(d) if cloud.is_empty() => read_prior_depth(d, &real.views)?,
+            _ => Vec::new(),
+        };
+        let prior: Vec<init::PriorDepth<'_>> = prior_maps
+            .iter()
+            .map(|(view, img)| init::PriorDepth {
+                view: *view,
+                width: img.width,
+                height: img.height,
+                depth: img.channel("D").unwrap_or(&[]),
+                alpha: img.channel("A").unwrap_or(&[]),
+            })
+            .collect();
+        let init = init::initial_gaussians(
+            &cloud,
+            &scene,
+            &views,
+            &prior,
+            a.sh_degree,
+            &a.init,
+            sscale,
+            a.seed,
+        );
         if let Some(note) = &init.note {
             ctx.log(note);
+            if init.warn {
+                // On the terminal too: such a start can silently ruin the run.
+                eprintln!(
+                    "warning: {}: {note}; connect `init_depth` (a radiance field's renders at the \
+                     training views) or give the scene SfM points or near/far bounds",
+                    ctx.node_name()
+                );
+            }
         }
         ctx.log(format!(
             "{}: {} train views, {} test views, {} synthetic views, {} initial Gaussians, scene scale {sscale:.4}",
@@ -154,4 +186,39 @@ impl Node for OptimizeSplats {
         ));
         Ok(())
     }
+}
+
+/// The prior's depth maps (`RenderField` output at the training views, e.g. through
+/// `ScenePoses` of the training scene): per training view found by name, its index and EXR.
+fn read_prior_depth(
+    dir: &std::path::Path,
+    views: &[RealView],
+) -> Result<Vec<(usize, augsplat_core::image::ExrImage)>, NodeError> {
+    let set: augsplat_core::artifacts::RenderSet =
+        augsplat_core::artifacts::read_json(&dir.join("renders.json"))
+            .map_err(|e| NodeError::from(e).context("input `init_depth`"))?;
+    let mut out = Vec::new();
+    for r in &set.views {
+        let Some(i) = views.iter().position(|v| v.name == r.name) else {
+            continue;
+        };
+        let img = augsplat_core::image::read_exr(&dir.join(&r.file))
+            .map_err(|e| NodeError::from(e).context("input `init_depth`"))?;
+        if img.channel("D").is_none() || img.channel("A").is_none() {
+            return Err(NodeError::new(format!(
+                "input `init_depth`: {} has no D and A channels (connect a RenderField output)",
+                dir.join(&r.file).display()
+            )));
+        }
+        out.push((i, img));
+    }
+    if out.is_empty() {
+        return Err(NodeError::new(format!(
+            "input `init_depth` ({}): none of its {} render(s) is a training view (render the \
+             training scene's poses: ScenePoses of the `train` scene)",
+            dir.display(),
+            set.views.len()
+        )));
+    }
+    Ok(out)
 }

@@ -296,7 +296,17 @@ fn fit_without_a_graph_matches_the_node() {
     let sscale = scene_scale(&cams);
     let views: Vec<_> = real.views.iter().map(RealView::init_view).collect();
     let g0 = |a: &TrainArgs| {
-        initial_gaussians(&cloud, &scene, &views, a.sh_degree, &a.init, sscale, a.seed).gaussians
+        initial_gaussians(
+            &cloud,
+            &scene,
+            &views,
+            &[],
+            a.sh_degree,
+            &a.init,
+            sscale,
+            a.seed,
+        )
+        .gaussians
     };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(2)
@@ -392,7 +402,17 @@ fn fit_continued_from_a_checkpoint_is_bit_identical() {
     let cams: Vec<_> = real.views.iter().map(|v| &v.camera).collect();
     let sscale = scene_scale(&cams);
     let views: Vec<_> = real.views.iter().map(RealView::init_view).collect();
-    let g0 = initial_gaussians(&cloud, &scene, &views, 1, &args.init, sscale, args.seed).gaussians;
+    let g0 = initial_gaussians(
+        &cloud,
+        &scene,
+        &views,
+        &[],
+        1,
+        &args.init,
+        sscale,
+        args.seed,
+    )
+    .gaussians;
     let run = |resume: Option<Vec<u8>>, saved: &mut Vec<Vec<u8>>| {
         let mut log = Vec::new();
         let mut save = |b: Vec<u8>| {
