@@ -236,4 +236,19 @@ fn the_gate_reads_no_held_out_view_and_a_skip_ends_the_ensemble() {
     assert!(summary.contains("| 3DGS ("), "{summary}");
     let html = String::from_utf8(f.output(&report.2, "index.html")).unwrap();
     assert!(html.contains("Scene gate") && html.contains("Decision: skip"));
+
+    // The decision the engine reads holds no measured number: a rehearsal that changes but
+    // still says run leaves the ensemble's keys (and entries) as they were.
+    let open = f.summary(&["--set", "gate.force=Some(true)"]);
+    let moved = f.summary(&[
+        "--set",
+        "gate.force=Some(true)",
+        "--set",
+        "params.gate_gs_steps=30",
+    ]);
+    assert_ne!(find(&open, "gate").2, find(&moved, "gate").2);
+    for node in ["field[0]", "staged", "dual", "eval_dual"] {
+        assert_eq!(find(&open, node).2, find(&moved, node).2, "{node}");
+        assert_eq!(find(&moved, node).1, "cached", "{node}");
+    }
 }

@@ -34,7 +34,12 @@ def main():
     for s in scenes:
         with open(os.path.join(out, s + ".summary.json")) as f:
             nodes = {n["name"]: n for n in json.load(f)["nodes"]}
-        with open(os.path.join(output(nodes["gate"]["key"], "decision"), "gate.json")) as f:
+        outs = entry(nodes["gate"]["key"])["outputs"]
+        if "evidence" in outs:
+            path = os.path.join(CACHE, "outputs", outs["evidence"], "gate_evidence.json")
+        else:  # before the decision and its evidence were split
+            path = os.path.join(CACHE, "outputs", outs["decision"], "gate.json")
+        with open(path) as f:
             g = json.load(f)
         errs = {}
         for m in ("baseline", "staged", "dual"):

@@ -51,7 +51,10 @@ impl Default for GateArgs {
     }
 }
 
-/// The gate's `gate.json`: the decision the engine reads (`run`, `reason`) and its evidence.
+/// The gate's evidence (`evidence/gate_evidence.json`): the decision with the measured reason,
+/// the numbers behind it. The engine reads only [`GateReport::decision`] (`decision/gate.json`),
+/// whose reason holds no measured number: a rehearsal that moves but decides the same leaves
+/// every gated node's key unchanged.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct GateReport {
     /// Whether the gated nodes run.
@@ -93,16 +96,19 @@ pub struct GateEvidence {
 
 /// `Gate`: inputs `baseline` (an `Evaluate` output of the rehearsed 3DGS baseline), optional
 /// `method` (an `Evaluate` output of the rehearsed method) and optional `prior` (an
-/// `EvaluateEnsemble` output of the rehearsal's field renders); output `decision` with
-/// `gate.json` ([`GateReport`]) and `gate.md`. Connect `gate: "gate.decision"` on the nodes
-/// it decides for.
+/// `EvaluateEnsemble` output of the rehearsal's field renders); outputs `decision` (`gate.json`,
+/// what the engine reads: connect `gate: "gate.decision"` on the nodes it decides for) and
+/// `evidence` (`gate_evidence.json`, [`GateReport`], and `gate.md`; connect it to the report's
+/// `gate` input).
 pub struct GateNode;
 
-/// File names of the `decision` output.
+/// File names of the outputs.
 pub mod files {
-    /// The decision and its evidence (read by the engine and the report).
-    pub const JSON: &str = "gate.json";
-    /// The same in words.
+    /// `decision`: what the engine reads (`augsplat_graph::gate::GATE_FILE`).
+    pub const DECISION: &str = augsplat_graph::gate::GATE_FILE;
+    /// `evidence`: the decision with its numbers ([`super::GateReport`]), read by the report.
+    pub const EVIDENCE: &str = "gate_evidence.json";
+    /// `evidence`: the same in words.
     pub const MARKDOWN: &str = "gate.md";
 }
 
@@ -190,6 +196,31 @@ pub fn decide(
 }
 
 impl GateReport {
+    /// What the engine reads: `run` and a reason without measured numbers, the same for every
+    /// "run" (forced or measured), so that gated nodes keep their keys while the decision
+    /// stands.
+    pub fn decision(&self, args: &GateArgs) -> augsplat_graph::gate::GateDecision {
+        let what = match self.criterion {
+            GateCriterion::Method => "method",
+            GateCriterion::Prior => "prior",
+        };
+        let reason = if self.run {
+            "the scene gate says run".to_string()
+        } else if self.forced {
+            "forced to skip by the pipeline's scene gate".to_string()
+        } else {
+            format!(
+                "skipped by the scene gate: the rehearsed {what} did not lower the error by {} % \
+                 on training views held out of the rehearsal (evidence in the report)",
+                100.0 * args.margin
+            )
+        };
+        augsplat_graph::gate::GateDecision {
+            run: self.run,
+            reason,
+        }
+    }
+
     /// The decision and its evidence as Markdown (a heading, a sentence and a table).
     pub fn to_markdown(&self) -> String {
         let mut md = format!(
@@ -236,7 +267,7 @@ impl Node for GateNode {
         ]
     }
     fn outputs(_: &GateArgs) -> Vec<String> {
-        vec!["decision".into()]
+        vec!["decision".into(), "evidence".into()]
     }
     fn validate(a: &GateArgs) -> Result<(), String> {
         if !(0.0..1.0).contains(&a.margin) {
@@ -275,9 +306,11 @@ impl Node for GateNode {
         )
         .map_err(NodeError::new)?;
         ctx.log(&report.reason);
-        let out = ctx.output("decision")?;
-        artifacts::write_json(&out.join(files::JSON), &report)?;
-        std::fs::write(out.join(files::MARKDOWN), report.to_markdown())?;
+        let decision = ctx.output("decision")?;
+        artifacts::write_json(&decision.join(files::DECISION), &report.decision(args))?;
+        let evidence = ctx.output("evidence")?;
+        artifacts::write_json(&evidence.join(files::EVIDENCE), &report)?;
+        std::fs::write(evidence.join(files::MARKDOWN), report.to_markdown())?;
         Ok(())
     }
 }
@@ -366,6 +399,7 @@ mod tests {
         .unwrap();
         assert!(r.run && r.forced && r.reason.contains("forced"));
         assert!(!r.evidence_run, "the evidence alone says skip");
+        assert_eq!(r.decision(&f).reason, "the scene gate says run");
         let md = r.to_markdown();
         assert!(md.contains("| Dual | 0.2000 | +100.0 % |"), "{md}");
         // Unusable errors are an error, not a decision.
