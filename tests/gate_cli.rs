@@ -31,6 +31,7 @@ const SETS: &[&str] = &[
     "params.gate_gs_steps=20",
     "params.gate_eval_every=10",
     "params.gate_synthetic=4",
+    "params.gate_synthetic_batch=2",
     "gate_field.rays_per_step=64",
     "gate_field.chunk_rays=32",
     "gate_field.levels=4",
