@@ -271,3 +271,29 @@ fn a_node_that_writes_to_its_input_fails_and_nothing_is_cached() {
     );
     assert_eq!(v.actions, 1, "only `src` has an entry");
 }
+
+#[test]
+fn a_gated_node_that_writes_to_its_input_fails_too() {
+    // The gate's hidden slot must not hide the input check.
+    let dir = tempfile::tempdir().unwrap();
+    let mut reg = common::registry(common::Recorder::new());
+    reg.register::<Vandal>();
+    let engine = augsplat_graph::Engine::new(reg, dir.path().join("cache")).unwrap();
+    let f = dir.path().join("p.ron");
+    fs::write(
+        &f,
+        r#"(nodes: {
+            "decide": (kind: "Decide", args: (run: true)),
+            "src": (kind: "Source", args: (value: "ab", count: 1)),
+            "bad": (kind: "Vandal", gate: "decide.decision", inputs: { "a": "src" }),
+        })"#,
+    )
+    .unwrap();
+    let plan = engine.load(&f, &[]).unwrap();
+    let report = engine
+        .run(&plan, &augsplat_graph::RunOptions::default())
+        .unwrap();
+    assert!(!report.success());
+    let s = report.summary_json(&plan).to_string();
+    assert!(s.contains("changed its input `a`"), "{s}");
+}

@@ -204,7 +204,9 @@ pub(crate) fn input_snapshot(inputs: &[(String, Vec<PathBuf>)]) -> InputSnapshot
 /// were).
 pub(crate) fn changed_input(before: &InputSnapshot, after: &InputSnapshot) -> Option<String> {
     for (name, b) in before {
-        let a = after.get(name)?;
+        let Some(a) = after.get(name) else {
+            return Some(format!("`{name}` was disconnected"));
+        };
         for (p, st) in b {
             match a.get(p) {
                 None => return Some(format!("`{name}`: {} was removed", p.display())),
@@ -254,6 +256,13 @@ fn run_in_scratch(
         bar,
     });
     let seed = u64::from_le_bytes(key[..8].try_into().expect("8 bytes"));
+    // A gate that says no, or a gated input the node does not accept: the node ends at once
+    // with the marker in each output folder (see `crate::gate`). The node never sees the
+    // gate's slot.
+    let gated = crate::gate::skip_reason(&comp.node.inputs(&comp.args), &inputs)
+        .map_err(|m| (format!("node `{name}` ({}): {m}", comp.node.kind()), 0.0))?;
+    let mut inputs = inputs;
+    inputs.retain(|(n, _)| n != crate::gate::GATE_SLOT);
     // What the node's inputs look like now; a node that changes them fails (below).
     let before = input_snapshot(&inputs);
     let mut ctx = RunContext {
@@ -273,11 +282,6 @@ fn run_in_scratch(
         .num_threads(threads)
         .build()
         .map_err(|e| (format!("building a thread pool: {e}"), 0.0))?;
-    // A gate that says no, or a gated input the node does not accept: the node ends at once
-    // with the marker in each output folder (see `crate::gate`).
-    let gated = crate::gate::skip_reason(&comp.node.inputs(&comp.args), &ctx.inputs)
-        .map_err(|m| (format!("node `{name}` ({}): {m}", comp.node.kind()), 0.0))?;
-    ctx.inputs.retain(|(n, _)| n != crate::gate::GATE_SLOT);
     let t = Instant::now();
     let res = match &gated {
         Some(reason) => {
