@@ -133,3 +133,53 @@ fn bench_costs_are_the_recorded_seconds_of_what_each_configuration_needs() {
         "{err}"
     );
 }
+
+#[test]
+fn bench_lists_what_a_gate_skipped_and_measures_the_rest() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (cache, out) = (tmp.path().join("cache"), tmp.path().join("out"));
+    // The tiny demo with the gate, forced either way.
+    let p = tmp.path().join("gated.ron");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    std::fs::write(
+        &p,
+        format!(
+            "(extends: [{:?}, {:?}], params: {{ \"gate_field_steps\": 10, \"gate_gs_steps\": 20, \"gate_eval_every\": 10, \"gate_synthetic\": 4, \"gate_synthetic_batch\": 2 }}, nodes: {{ \"gate_field\": (args: (rays_per_step: 64, chunk_rays: 32, levels: 4, log2_table_size: 10, max_resolution: 64, march_steps: 16, occupancy_resolution: 16, occupancy_warmup: 4)) }})",
+            root.join("tests/tiny.ron").display().to_string(),
+            root.join("pipelines/fragments/gate.ron").display().to_string()
+        ),
+    )
+    .unwrap();
+    let o = Command::new(BIN)
+        .arg("bench")
+        .arg(&p)
+        .arg("--cache")
+        .arg(&cache)
+        .arg("--out")
+        .arg(&out)
+        .arg("-q")
+        .args(["--grid", "gate.force=[Some(true), Some(false)]"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table: Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
+    // Open: 3 methods + the ensemble; closed: the baseline only.
+    assert_eq!(table["points"].as_array().unwrap().len(), 4 + 1);
+    let gated: Vec<&str> = table["gated"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|g| g[1].as_str().unwrap())
+        .collect();
+    assert_eq!(gated.len(), 3, "{gated:?}");
+    for g in table["gated"].as_array().unwrap() {
+        assert!(g[0].as_str().unwrap().contains("false"), "{g}");
+        assert!(
+            g[2].as_f64().unwrap() > 0.0,
+            "the gate's own cost counts: {g}"
+        );
+    }
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    assert!(md.contains("Skipped by the scene gate"), "{md}");
+}

@@ -104,16 +104,46 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
     let mut points = Vec::new();
     let mut all_avg = true;
     let mut raw = Vec::new();
+    let mut gated = Vec::new();
+    // A scene gate's rehearsal evaluations measure the gate, not a method: left out.
+    let feeds_gate: std::collections::BTreeSet<usize> = plan
+        .comps
+        .iter()
+        .filter(|c| c.node.kind() == "Gate")
+        .flat_map(|c| c.inputs.iter().flat_map(|s| s.sources.iter()))
+        .filter_map(|(s, _)| match s {
+            augsplat_graph::resolve::Source::Node { comp, .. } => Some(*comp),
+            _ => None,
+        })
+        .collect();
     for point in &plan.points {
         for &i in &point.instances {
             let c = plan.instances[i].comp;
             let kind = plan.comps[c].node.kind();
-            if kind != "Evaluate" && kind != "EvaluateEnsemble" {
+            if (kind != "Evaluate" && kind != "EvaluateEnsemble") || feeds_gate.contains(&c) {
                 continue;
             }
             let r = report.results[c]
                 .as_ref()
                 .ok_or("internal: an evaluation did not run")?;
+            let closure_seconds = |c: usize| -> f64 {
+                plan.closure(c)
+                    .iter()
+                    .map(|&k| {
+                        report.results[k]
+                            .as_ref()
+                            .map_or(0.0, |r| r.computed_seconds)
+                    })
+                    .sum()
+            };
+            if r.gated.is_some() {
+                gated.push((
+                    point.label.clone(),
+                    plan.instances[i].name.clone(),
+                    closure_seconds(c),
+                ));
+                continue;
+            }
             let manifest = r
                 .outputs
                 .get("eval")
@@ -130,14 +160,7 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
             };
             let label = m["label"].as_str().unwrap_or(kind).to_string();
             let closure = plan.closure(c);
-            let seconds: f64 = closure
-                .iter()
-                .map(|&k| {
-                    report.results[k]
-                        .as_ref()
-                        .map_or(0.0, |r| r.computed_seconds)
-                })
-                .sum();
+            let seconds = closure_seconds(c);
             let avg = mean["avg_error"].as_f64();
             all_avg &= avg.is_some();
             raw.push((
@@ -177,6 +200,7 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
         },
         machine: Machine::this(),
         points,
+        gated,
     };
     let write = |name: &str, text: String| {
         let p = out.join(name);

@@ -123,6 +123,10 @@ pub struct BenchTable {
     pub machine: Machine,
     /// Every measurement, in configuration order, then method order.
     pub points: Vec<BenchPoint>,
+    /// Evaluations a scene gate skipped: (configuration, evaluation node, compute seconds of
+    /// what it needed, the gate included). They have no error, so no point.
+    #[serde(default)]
+    pub gated: Vec<(String, String, f64)>,
 }
 
 /// One method's Pareto front (indices into [`BenchTable::points`], by rising cost) and its
@@ -267,6 +271,12 @@ impl BenchTable {
         for r in self.rows() {
             out.push_str(&line(&r));
         }
+        if !self.gated.is_empty() {
+            out.push_str("\nSkipped by the scene gate (no error to measure; cost of what ran for it, the gate included):\n\n");
+            for (config, node, secs) in &self.gated {
+                out.push_str(&format!("- `{config}`: `{node}` ({})\n", seconds(*secs)));
+            }
+        }
         out
     }
 
@@ -342,6 +352,7 @@ mod tests {
                     nodes: 3,
                 })
                 .collect(),
+            gated: Vec::new(),
         }
     }
 
