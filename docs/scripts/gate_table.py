@@ -34,7 +34,15 @@ def main():
     for s in scenes:
         with open(os.path.join(out, s + ".summary.json")) as f:
             nodes = {n["name"]: n for n in json.load(f)["nodes"]}
-        outs = entry(nodes["gate"]["key"])["outputs"]
+        # A later gate-only run (`--target gate`, e.g. after the rehearsal changed) wins.
+        gate_node = nodes["gate"]
+        later = os.path.join(out, s + "_gate.summary.json")
+        if os.path.exists(later):
+            with open(later) as f:
+                gate_nodes = {n["name"]: n for n in json.load(f)["nodes"]}
+            gate_node = gate_nodes["gate"]
+            nodes.update({k: v for k, v in gate_nodes.items() if k.startswith("gate")})
+        outs = entry(gate_node["key"])["outputs"]
         if "evidence" in outs:
             path = os.path.join(CACHE, "outputs", outs["evidence"], "gate_evidence.json")
         else:  # before the decision and its evidence were split
