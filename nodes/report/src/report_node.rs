@@ -43,9 +43,10 @@ impl Default for ReportArgs {
 /// `Report`: inputs `evals` (a list of `Evaluate` outputs, in display order; the first one
 /// places the zoomed crops), optional `synthetic` (a synthetic set for example views with
 /// confidence maps), optional `train` (the training scene, whose cameras the 3-D viewer
-/// draws) and optional `gate` (a `Gate`'s `evidence` output, shown with the decision); evaluations and a
-/// synthetic set that a gate skipped are listed as skipped; output `report` with `index.html` (self-contained: no external files, the one
-/// script is the viewer's) and `summary.md`.
+/// draws) and optional `gate` (a `Gate`'s `evidence` output, shown with the decision);
+/// evaluations and a synthetic set that a gate skipped are listed as skipped. Output `report`
+/// with `index.html` (self-contained: no external files, the one script is the viewer's) and
+/// `summary.md`.
 pub struct ReportNode;
 
 /// File names of the `report` output.
