@@ -144,9 +144,11 @@ fn bench_lists_what_a_gate_skipped_and_measures_the_rest() {
     std::fs::write(
         &p,
         format!(
-            "(extends: [{:?}, {:?}], params: {{ \"gate_field_steps\": 10, \"gate_gs_steps\": 20, \"gate_eval_every\": 10, \"gate_synthetic\": 4, \"gate_synthetic_batch\": 2 }}, nodes: {{ \"gate_field\": (args: (rays_per_step: 64, chunk_rays: 32, levels: 4, log2_table_size: 10, max_resolution: 64, march_steps: 16, occupancy_resolution: 16, occupancy_warmup: 4)) }})",
+            "(extends: [{:?}, {:?}])",
             root.join("tests/tiny.ron").display().to_string(),
-            root.join("pipelines/fragments/gate.ron").display().to_string()
+            root.join("pipelines/fragments/gate.ron")
+                .display()
+                .to_string()
         ),
     )
     .unwrap();
@@ -159,6 +161,11 @@ fn bench_lists_what_a_gate_skipped_and_measures_the_rest() {
         .arg(&out)
         .arg("-q")
         .args(["--grid", "gate.force=[Some(true), Some(false)]"])
+        .args(
+            augsplat_testkit::tiny::GATE_SETS
+                .iter()
+                .flat_map(|s| ["--set", s]),
+        )
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

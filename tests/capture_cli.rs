@@ -10,39 +10,12 @@ use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_augsplat");
 
-/// Tiny sizes: fields, rehearsal and Gaussians of the test suite, photos at most 48 px.
+/// Beside the test suite's tiny sizes (less the generated scene's) and the gate's: photos at
+/// most 48 px, 2 members.
 const SETS: &[&str] = &[
     "scene.max_side=Some(48)",
-    "field.steps=10",
-    "field.rays_per_step=64",
-    "field.chunk_rays=32",
-    "field.levels=4",
-    "field.log2_table_size=10",
-    "field.max_resolution=64",
-    "field.march_steps=16",
-    "field.occupancy_resolution=16",
-    "field.occupancy_warmup=4",
-    "poses.count=6",
-    "poses.downscale=2",
     "params.members=2",
-    "params.gs_steps=20",
-    "params.eval_every=10",
-    "params.warmup=10",
-    "params.synthetic_batch=2",
-    "params.lpips=None",
-    "params.gate_field_steps=10",
-    "params.gate_gs_steps=20",
-    "params.gate_eval_every=10",
-    "params.gate_synthetic=4",
-    "params.gate_synthetic_batch=2",
-    "gate_field.rays_per_step=64",
-    "gate_field.chunk_rays=32",
-    "gate_field.levels=4",
-    "gate_field.log2_table_size=10",
-    "gate_field.max_resolution=64",
-    "gate_field.march_steps=16",
-    "gate_field.occupancy_resolution=16",
-    "gate_field.occupancy_warmup=4",
+    "field.occupancy_warmup=4",
 ];
 
 fn run(dir: &Path, pipeline: &Path, extra: &[&str]) -> (bool, String) {
@@ -52,7 +25,13 @@ fn run(dir: &Path, pipeline: &Path, extra: &[&str]) -> (bool, String) {
         .arg("-q")
         .env("AUGSPLAT_CACHE", dir.join("cache"))
         .current_dir(dir);
-    for s in SETS {
+    let tiny = augsplat_testkit::tiny::sets_without_scene();
+    for s in SETS
+        .iter()
+        .copied()
+        .chain(tiny)
+        .chain(augsplat_testkit::tiny::GATE_SETS.iter().copied())
+    {
         cmd.arg("--set").arg(s);
     }
     cmd.args(extra);

@@ -2,11 +2,10 @@
 //! from the radiance field's depth at the training views while the baseline starts from
 //! random points; with points, every method starts from the points.
 
-use augsplat_graph::store::unhex;
-use augsplat_graph::Store;
-use serde_json::Value;
+mod common;
+
+use common::{augsplat, log_of, run_with_summary};
 use std::path::Path;
-use std::process::Command;
 
 /// Runs the tiny demo with the fragment (`points` SfM points) and returns each training
 /// node's log.
@@ -25,33 +24,15 @@ fn logs(dir: &Path, points: u32) -> Vec<(String, String)> {
     )
     .unwrap();
     let cache = dir.join("cache");
-    let summary = dir.join("summary.json");
-    let out = Command::new(env!("CARGO_BIN_EXE_augsplat"))
-        .args(["run", p.to_str().unwrap(), "-q", "--cache"])
-        .arg(&cache)
-        .arg("--summary-json")
-        .arg(&summary)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let s: Value = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
-    let store = Store::open(&cache).unwrap();
-    s["nodes"]
-        .as_array()
-        .unwrap()
+    let mut cmd = augsplat();
+    cmd.args(["run", p.to_str().unwrap(), "-q", "--cache"])
+        .arg(&cache);
+    run_with_summary(cmd, &dir.join("summary.json"))
         .iter()
         .filter(|n| n["kind"] == "OptimizeSplats")
         .map(|n| {
-            let e = store
-                .action(&unhex(n["key"].as_str().unwrap()).unwrap())
-                .unwrap()
-                .unwrap();
-            let log = std::fs::read_to_string(store.blob(&e.log.unwrap()).unwrap()).unwrap();
-            (n["name"].as_str().unwrap().to_string(), log)
+            let name = n["name"].as_str().unwrap().to_string();
+            (name, log_of(&cache, n["key"].as_str().unwrap()))
         })
         .collect()
 }

@@ -2,45 +2,12 @@
 //! depends on a held-out view, a "skip" decision ends the ensemble and both methods at once
 //! (marked gated) while the baseline and the report run, and the report shows the decision.
 
+mod common;
+
+use augsplat_testkit::tiny;
+use common::{augsplat, output_dir, run_with_summary};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-const BIN: &str = env!("CARGO_BIN_EXE_augsplat");
-
-/// Tiny sizes for the imported scene's pipeline (the demo's tiny sizes, less the generated
-/// scene's, plus the gate's rehearsal).
-const SETS: &[&str] = &[
-    "split.count=None",
-    "field.steps=10",
-    "field.rays_per_step=64",
-    "field.chunk_rays=32",
-    "field.levels=4",
-    "field.log2_table_size=10",
-    "field.max_resolution=64",
-    "field.march_steps=16",
-    "field.occupancy_resolution=16",
-    "poses.count=6",
-    "poses.downscale=2",
-    "params.gs_steps=20",
-    "params.eval_every=10",
-    "params.warmup=10",
-    "params.synthetic_batch=2",
-    "params.lpips=None",
-    "params.gate_field_steps=10",
-    "params.gate_gs_steps=20",
-    "params.gate_eval_every=10",
-    "params.gate_synthetic=4",
-    "params.gate_synthetic_batch=2",
-    "gate_field.rays_per_step=64",
-    "gate_field.chunk_rays=32",
-    "gate_field.levels=4",
-    "gate_field.log2_table_size=10",
-    "gate_field.max_resolution=64",
-    "gate_field.march_steps=16",
-    "gate_field.occupancy_resolution=16",
-    "gate_field.occupancy_warmup=4",
-];
 
 struct Fixture {
     _tmp: tempfile::TempDir,
@@ -79,8 +46,8 @@ impl Fixture {
             pipeline,
             _tmp: tmp,
         };
-        let (ok, out) = f.run(&["--target", "export"]);
-        assert!(ok, "{out}");
+        let out = f.command(&["--target", "export"]).output().unwrap();
+        assert!(out.status.success(), "{out:?}");
         let export = std::fs::read_dir(f.cache.join("outputs"))
             .unwrap()
             .map(|e| e.unwrap().path())
@@ -90,40 +57,25 @@ impl Fixture {
         f
     }
 
-    /// `augsplat run p.ron --set …` plus `extra`; (success, stdout + stderr).
-    fn run(&self, extra: &[&str]) -> (bool, String) {
-        let mut cmd = Command::new(BIN);
+    /// `augsplat run p.ron` at the tiny sizes (the demo's, less the generated scene's, and
+    /// the gate's rehearsal), plus `extra`.
+    fn command(&self, extra: &[&str]) -> std::process::Command {
+        let mut cmd = augsplat();
         cmd.arg("run")
             .arg(&self.pipeline)
             .arg("-q")
             .env("AUGSPLAT_CACHE", &self.cache)
             .current_dir(&self.dir);
-        for s in SETS {
+        for s in tiny::sets_without_scene().chain(tiny::GATE_SETS.iter().copied()) {
             cmd.arg("--set").arg(s);
         }
         cmd.args(extra);
-        let out = cmd.output().unwrap();
-        (
-            out.status.success(),
-            format!(
-                "{}{}",
-                String::from_utf8_lossy(&out.stdout),
-                String::from_utf8_lossy(&out.stderr)
-            ),
-        )
+        cmd
     }
 
-    /// A full run with a summary: per instance (status, key, gated reason).
+    /// A full run with a summary: per instance (name, status, key, gated reason).
     fn summary(&self, extra: &[&str]) -> Vec<(String, String, String, Option<String>)> {
-        let path = self.dir.join("summary.json");
-        let mut args = vec!["--summary-json", path.to_str().unwrap()];
-        args.extend_from_slice(extra);
-        let (ok, out) = self.run(&args);
-        assert!(ok, "{out}");
-        let v: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
-        v["nodes"]
-            .as_array()
-            .unwrap()
+        run_with_summary(self.command(extra), &self.dir.join("summary.json"))
             .iter()
             .map(|n| {
                 (
@@ -136,15 +88,9 @@ impl Fixture {
             .collect()
     }
 
+    /// File `file` of the first output of the computation whose key is `key`.
     fn output(&self, key: &str, file: &str) -> Vec<u8> {
-        let store = augsplat_graph::Store::open(&self.cache).unwrap();
-        let entry = store
-            .action(&augsplat_graph::store::unhex(key).unwrap())
-            .unwrap()
-            .expect("an action entry");
-        let m = entry.outputs.values().next().unwrap();
-        let dir = store.output_dir(&augsplat_graph::store::unhex(m).unwrap());
-        std::fs::read(dir.join(file)).unwrap()
+        std::fs::read(output_dir(&self.cache, key, None).join(file)).unwrap()
     }
 }
 

@@ -4,12 +4,13 @@
 //! and held out, and the test scene carries no SfM point. Real captures need the shared data
 //! folder (skipped without it outside CI).
 
-use augsplat_graph::store::unhex;
-use augsplat_graph::{Engine, Store};
+mod common;
+
+use augsplat_graph::Engine;
+use common::{augsplat, output_dir, run_with_summary};
 use serde_json::Value;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 const SCENES: &[(&str, usize, usize)] = &[
     ("paper_generated", 26, 4),
@@ -25,7 +26,7 @@ fn pipeline(name: &str) -> PathBuf {
         .join(format!("{name}.ron"))
 }
 
-/// Skips (None) when the shared data folder is absent.
+/// Whether the shared data folder is there (its absence is reported as a skip).
 fn data_present(name: &str) -> bool {
     augsplat_testkit::data::shared_data(&format!("paper pipeline {name}"), "lpips").is_some()
 }
@@ -57,35 +58,21 @@ fn each_paper_pipeline_plans_and_its_seeds_share_the_upstream() {
 /// Runs `--target split` and returns (train view names, test view names, the split's key,
 /// whether the test scene has points).
 fn draw(name: &str, cache: &Path) -> (Vec<String>, Vec<String>, String, bool) {
-    let summary = cache.with_extension("json");
-    let out = Command::new(env!("CARGO_BIN_EXE_augsplat"))
-        .arg("run")
+    let mut cmd = augsplat();
+    cmd.arg("run")
         .arg(pipeline(name))
         .args(["-q", "--target", "split", "--cache"])
-        .arg(cache)
-        .arg("--summary-json")
-        .arg(&summary)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{name}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let s: Value = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
-    let key = s["nodes"]
-        .as_array()
-        .unwrap()
+        .arg(cache);
+    let nodes = run_with_summary(cmd, &cache.with_extension("json"));
+    let key = nodes
         .iter()
         .find(|n| n["name"].as_str().unwrap().starts_with("split"))
         .unwrap()["key"]
         .as_str()
         .unwrap()
         .to_string();
-    let store = Store::open(cache).unwrap();
-    let entry = store.action(&unhex(&key).unwrap()).unwrap().unwrap();
     let views = |output: &str| -> (Vec<String>, bool) {
-        let dir = store.output_dir(&unhex(&entry.outputs[output]).unwrap());
+        let dir = output_dir(cache, &key, Some(output));
         let scene: Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join("scene.json")).unwrap())
                 .unwrap();

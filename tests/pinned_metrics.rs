@@ -9,11 +9,11 @@
 //! kernels give identical bytes for any thread count there); on another tier the SIMD
 //! kernels round differently, so they are compared to 1e-4 relative.
 
-use augsplat_graph::store::unhex;
-use augsplat_graph::Store;
+mod common;
+
+use common::{augsplat, output_dir, run_with_summary};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 const PINNED: &str = "tests/pinned/tiny_demo_metrics.json";
 
@@ -23,35 +23,19 @@ fn root() -> PathBuf {
 
 /// Runs the tiny demo into `cache` and returns, per evaluation node, its mean metrics.
 fn measure(cache: &Path) -> Value {
-    let summary = cache.with_extension("summary.json");
-    let out = Command::new(env!("CARGO_BIN_EXE_augsplat"))
-        .arg("run")
+    let mut cmd = augsplat();
+    cmd.arg("run")
         .arg(augsplat_testkit::tiny::pipeline())
-        .arg("-q")
-        .arg("--cache")
-        .arg(cache)
-        .arg("--summary-json")
-        .arg(&summary)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let s: Value = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
-    let store = Store::open(cache).unwrap();
+        .args(["-q", "--cache"])
+        .arg(cache);
+    let nodes = run_with_summary(cmd, &cache.with_extension("summary.json"));
     let mut metrics = serde_json::Map::new();
-    for n in s["nodes"].as_array().unwrap() {
+    for n in &nodes {
         let name = n["name"].as_str().unwrap();
         if !name.starts_with("eval_") {
             continue;
         }
-        let entry = store
-            .action(&unhex(n["key"].as_str().unwrap()).unwrap())
-            .unwrap()
-            .unwrap();
-        let dir = store.output_dir(&unhex(&entry.outputs["eval"]).unwrap());
+        let dir = output_dir(cache, n["key"].as_str().unwrap(), Some("eval"));
         let m: Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap())
                 .unwrap();

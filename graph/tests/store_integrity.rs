@@ -235,27 +235,33 @@ impl augsplat_graph::Node for Vandal {
     }
 }
 
-#[test]
-fn a_node_that_writes_to_its_input_fails_and_nothing_is_cached() {
-    let dir = tempfile::tempdir().unwrap();
+/// Runs pipeline `text` with the `Vandal` kind registered, in a fresh store; returns the
+/// engine (for its store) and the run's summary, which must report a failure.
+fn run_vandal(dir: &std::path::Path, text: &str) -> (augsplat_graph::Engine, String) {
     let mut reg = common::registry(common::Recorder::new());
     reg.register::<Vandal>();
-    let engine = augsplat_graph::Engine::new(reg, dir.path().join("cache")).unwrap();
-    let f = dir.path().join("p.ron");
-    fs::write(
-        &f,
-        r#"(nodes: {
-            "src": (kind: "Source", args: (value: "ab", count: 1)),
-            "bad": (kind: "Vandal", inputs: { "a": "src" }),
-        })"#,
-    )
-    .unwrap();
+    let engine = augsplat_graph::Engine::new(reg, dir.join("cache")).unwrap();
+    let f = dir.join("p.ron");
+    fs::write(&f, text).unwrap();
     let plan = engine.load(&f, &[]).unwrap();
     let report = engine
         .run(&plan, &augsplat_graph::RunOptions::default())
         .unwrap();
     assert!(!report.success());
     let s = report.summary_json(&plan).to_string();
+    (engine, s)
+}
+
+#[test]
+fn a_node_that_writes_to_its_input_fails_and_nothing_is_cached() {
+    let dir = tempfile::tempdir().unwrap();
+    let (engine, s) = run_vandal(
+        dir.path(),
+        r#"(nodes: {
+            "src": (kind: "Source", args: (value: "ab", count: 1)),
+            "bad": (kind: "Vandal", inputs: { "a": "src" }),
+        })"#,
+    );
     assert!(
         s.contains("changed its input `a`") && s.contains("value.txt"),
         "{s}"
@@ -276,24 +282,13 @@ fn a_node_that_writes_to_its_input_fails_and_nothing_is_cached() {
 fn a_gated_node_that_writes_to_its_input_fails_too() {
     // The gate's hidden slot must not hide the input check.
     let dir = tempfile::tempdir().unwrap();
-    let mut reg = common::registry(common::Recorder::new());
-    reg.register::<Vandal>();
-    let engine = augsplat_graph::Engine::new(reg, dir.path().join("cache")).unwrap();
-    let f = dir.path().join("p.ron");
-    fs::write(
-        &f,
+    let (_, s) = run_vandal(
+        dir.path(),
         r#"(nodes: {
             "decide": (kind: "Decide", args: (run: true)),
             "src": (kind: "Source", args: (value: "ab", count: 1)),
             "bad": (kind: "Vandal", gate: "decide.decision", inputs: { "a": "src" }),
         })"#,
-    )
-    .unwrap();
-    let plan = engine.load(&f, &[]).unwrap();
-    let report = engine
-        .run(&plan, &augsplat_graph::RunOptions::default())
-        .unwrap();
-    assert!(!report.success());
-    let s = report.summary_json(&plan).to_string();
+    );
     assert!(s.contains("changed its input `a`"), "{s}");
 }

@@ -294,24 +294,36 @@ pub fn random_in_frusta(
         let w = rng.next_f64() * cam.height as f64;
         let disparity = d_far + (d_near - d_far) * rng.next_f64();
         let z = 1.0 / disparity;
-        let (origin, dir) = cam.ray(u, w);
-        // `dir` is unit; the camera-space direction with z = 1 is |(x, y, 1)| long.
-        let (x, y) = ((u - cam.cx) / cam.fx, (w - cam.cy) / cam.fy);
-        let dist = z * (x * x + y * y + 1.0).sqrt();
-        positions.push(std::array::from_fn(|a| (origin[a] + dir[a] * dist) as f32));
-        let (px, py) = (
-            (u as usize).min(cam.width as usize - 1),
-            (w as usize).min(cam.height as usize - 1),
-        );
-        let idx = (py * cam.width as usize + px) * 3;
-        let col = if v.image.len() == cam.width as usize * cam.height as usize * 3 {
-            [v.image[idx], v.image[idx + 1], v.image[idx + 2]]
-        } else {
-            [0.5; 3]
-        };
-        colors.push(col);
+        positions.push(point_at_depth(cam, u, w, z));
+        colors.push(colour_at(v, u, w));
     }
     build(positions, colors, sh_degree, args, scene_scale, seed)
+}
+
+/// The point at depth `z` along the optical axis on `cam`'s ray through image position
+/// (`u`, `w`).
+fn point_at_depth(cam: &Camera, u: f64, w: f64, z: f64) -> [f32; 3] {
+    let (origin, dir) = cam.ray(u, w);
+    // `dir` is unit; the camera-space direction with z = 1 is |(x, y, 1)| long.
+    let (x, y) = ((u - cam.cx) / cam.fx, (w - cam.cy) / cam.fy);
+    let dist = z * (x * x + y * y + 1.0).sqrt();
+    std::array::from_fn(|a| (origin[a] + dir[a] * dist) as f32)
+}
+
+/// The photo's colour at image position (`u`, `w`); grey when the image does not match its
+/// camera's size.
+fn colour_at(v: &InitView<'_>, u: f64, w: f64) -> [f32; 3] {
+    let cam = v.camera;
+    let (px, py) = (
+        (u as usize).min(cam.width as usize - 1),
+        (w as usize).min(cam.height as usize - 1),
+    );
+    let idx = (py * cam.width as usize + px) * 3;
+    if v.image.len() == cam.width as usize * cam.height as usize * 3 {
+        [v.image[idx], v.image[idx + 1], v.image[idx + 2]]
+    } else {
+        [0.5; 3]
+    }
 }
 
 fn build(
@@ -406,26 +418,11 @@ pub fn from_prior_depth(
             }
             let z = (d / a) as f64;
             let v = &views[p.view];
-            let cam = v.camera;
             // The same continuous image position in the training camera.
-            let u = fu * cam.width as f64 / p.width as f64;
-            let w = fw * cam.height as f64 / p.height as f64;
-            let (origin, dir) = cam.ray(u, w);
-            let (x, y) = ((u - cam.cx) / cam.fx, (w - cam.cy) / cam.fy);
-            let dist = z * (x * x + y * y + 1.0).sqrt();
-            positions.push(std::array::from_fn(|k| (origin[k] + dir[k] * dist) as f32));
-            let (px, py) = (
-                (u as usize).min(cam.width as usize - 1),
-                (w as usize).min(cam.height as usize - 1),
-            );
-            let idx = (py * cam.width as usize + px) * 3;
-            colors.push(
-                if v.image.len() == cam.width as usize * cam.height as usize * 3 {
-                    [v.image[idx], v.image[idx + 1], v.image[idx + 2]]
-                } else {
-                    [0.5; 3]
-                },
-            );
+            let u = fu * v.camera.width as f64 / p.width as f64;
+            let w = fw * v.camera.height as f64 / p.height as f64;
+            positions.push(point_at_depth(v.camera, u, w, z));
+            colors.push(colour_at(v, u, w));
         }
     }
     build(positions, colors, sh_degree, args, scene_scale, seed)

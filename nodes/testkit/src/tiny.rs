@@ -34,3 +34,25 @@ pub const SETS: &[&str] = &[
 pub fn pipeline() -> std::path::PathBuf {
     crate::workspace_root().join("tests/tiny.ron")
 }
+
+/// The scene gate's rehearsal (`pipelines/fragments/gate.ron`) at the same tiny sizes.
+pub const GATE_SETS: &[&str] = &[
+    "params.gate_field_steps=10",
+    "params.gate_gs_steps=20",
+    "params.gate_eval_every=10",
+    "params.gate_synthetic=4",
+    "params.gate_synthetic_batch=2",
+    "gate_field.rays_per_step=64",
+    "gate_field.chunk_rays=32",
+    "gate_field.levels=4",
+    "gate_field.log2_table_size=10",
+    "gate_field.max_resolution=64",
+    "gate_field.march_steps=16",
+    "gate_field.occupancy_resolution=16",
+    "gate_field.occupancy_warmup=4",
+];
+
+/// [`SETS`] without the generated scene's sizes, for pipelines that import a scene instead.
+pub fn sets_without_scene() -> impl Iterator<Item = &'static str> {
+    SETS.iter().copied().filter(|s| !s.starts_with("scene."))
+}

@@ -1,0 +1,58 @@
+//! Helpers shared by the CLI tests of this folder: run `augsplat` with a run summary, and
+//! find a computation's output folder in the store by its key.
+#![allow(dead_code)]
+
+use augsplat_graph::store::unhex;
+use augsplat_graph::Store;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// `augsplat` with `args`, plus `--summary-json SUMMARY`; asserts success and returns the
+/// summary's nodes (`name`, `kind`, `key`, `status`, optional `gated`).
+pub fn run_with_summary(mut cmd: Command, summary: &Path) -> Vec<Value> {
+    let out = cmd.arg("--summary-json").arg(summary).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{cmd:?} failed:\n{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(summary).unwrap()).unwrap();
+    v["nodes"].as_array().unwrap().clone()
+}
+
+/// The `augsplat` binary as a command.
+pub fn augsplat() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_augsplat"))
+}
+
+/// The folder of output `output` (`None`: the first, by name) of the computation whose key
+/// (hex) is `key`, in the store at `cache`.
+pub fn output_dir(cache: &Path, key: &str, output: Option<&str>) -> PathBuf {
+    let store = Store::open(cache).unwrap();
+    let entry = store
+        .action(&unhex(key).expect("a hex key"))
+        .unwrap()
+        .unwrap_or_else(|| panic!("no action entry for {key}"));
+    let manifest = match output {
+        Some(o) => &entry.outputs[o],
+        None => entry.outputs.values().next().expect("an output"),
+    };
+    store.output_dir(&unhex(manifest).expect("a hex manifest"))
+}
+
+/// The log the computation whose key is `key` left in the store.
+pub fn log_of(cache: &Path, key: &str) -> String {
+    let store = Store::open(cache).unwrap();
+    let entry = store.action(&unhex(key).unwrap()).unwrap().unwrap();
+    std::fs::read_to_string(store.blob(&entry.log.expect("a log")).unwrap()).unwrap()
+}
+
+/// The summary node called `name`.
+pub fn node<'a>(nodes: &'a [Value], name: &str) -> &'a Value {
+    nodes
+        .iter()
+        .find(|n| n["name"] == name)
+        .unwrap_or_else(|| panic!("no node {name}"))
+}
