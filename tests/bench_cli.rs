@@ -190,3 +190,115 @@ fn bench_lists_what_a_gate_skipped_and_measures_the_rest() {
     let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
     assert!(md.contains("Skipped by the scene gate"), "{md}");
 }
+
+#[test]
+fn bench_estimates_what_the_branch_off_and_the_early_stop_saved() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (cache, out) = (tmp.path().join("cache"), tmp.path().join("out"));
+    let o = Command::new(BIN)
+        .arg("bench")
+        .arg(augsplat_testkit::tiny::pipeline())
+        .arg("--cache")
+        .arg(&cache)
+        .arg("--out")
+        .arg(&out)
+        .args(["-q", "--grid", "params.quarter_decay=[3.0, 100.0]"])
+        .args([
+            "--set",
+            "params.gs_steps=40",
+            "--set",
+            "params.patience=Some(1)",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table: Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
+    let points = table["points"].as_array().unwrap();
+
+    // Each training's measures, from the store, independently of the bench.
+    let registry = augsplat::builtin_registry();
+    let engine = augsplat_graph::Engine::new(registry, &cache).unwrap();
+    let sets = [
+        "params.gs_steps=40".to_string(),
+        "params.patience=Some(1)".into(),
+    ];
+    let plan = engine.load(&out.join("bench.ron"), &sets).unwrap();
+    let keys = augsplat_graph::exec::plan_keys(&plan, engine.store()).unwrap();
+    let mut early_stops = 0;
+    for point in &plan.points {
+        for &i in &point.instances {
+            let inst = &plan.instances[i];
+            if plan.comps[inst.comp].node.kind() != "OptimizeSplats" {
+                continue;
+            }
+            let entry = keys[inst.comp].as_ref().unwrap().1.as_ref().unwrap();
+            let m = &entry.measures;
+            let label = match inst.base.as_str() {
+                "baseline" => "3DGS",
+                "staged" => "Staged",
+                "dual" => "Dual",
+                _ => continue,
+            };
+            let row = points
+                .iter()
+                .find(|p| p["config"] == point.label.as_str() && p["method"] == label)
+                .unwrap_or_else(|| panic!("no {label} row for {}", point.label));
+            let saved = &row["saved"];
+            let (req, run) = (m["steps_requested"], m["steps_run"]);
+            assert_eq!(req, 40.0);
+            assert_eq!(
+                m["synthetic_steps"] + m["real_only_steps"],
+                run,
+                "{label}: every step run is timed"
+            );
+            let mean = |t: &str, n: &str| m[t] / m[n];
+            if run < req {
+                early_stops += 1;
+                let rate = if m["last_step_synthetic"] == 1.0 {
+                    mean("synthetic_step_seconds", "synthetic_steps")
+                } else {
+                    mean("real_only_step_seconds", "real_only_steps")
+                };
+                let want = (req - run) * rate;
+                let got = saved["early_stop"].as_f64().expect("an early-stop saving");
+                assert!(
+                    (got - want).abs() <= 1e-9 * want.max(1.0),
+                    "{got} vs {want}"
+                );
+            } else {
+                assert!(saved.get("early_stop").is_none(), "{label}: {saved}");
+            }
+            let qd = if point.label.contains("3.0") {
+                3.0
+            } else {
+                100.0
+            };
+            if label == "Dual" && qd == 3.0 {
+                // Off at the first step whose raw weight is below `off_below` (0.1).
+                let off = (0u64..)
+                    .find(|&t| augsplat_splat::train::dual_raw_weight(2.0, qd, t) < 0.1)
+                    .unwrap();
+                assert_eq!(m["synthetic_off_step"], off as f64);
+                let want = (run - off as f64)
+                    * (mean("synthetic_step_seconds", "synthetic_steps")
+                        - mean("real_only_step_seconds", "real_only_steps"));
+                let got = saved["branch_off"].as_f64().expect("a branch-off saving");
+                assert!(
+                    got > 0.0 && (got - want.max(0.0)).abs() <= 1e-9,
+                    "{got} vs {want}"
+                );
+            } else {
+                // Staged's switch is its method, and Dual with D = 100 stays on for 40 steps.
+                assert!(!m.contains_key("synthetic_off_step"), "{label} {qd}: {m:?}");
+                assert!(saved.get("branch_off").is_none(), "{label}: {saved}");
+            }
+        }
+    }
+    assert!(early_stops > 0, "patience 1 stops some training early");
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    assert!(
+        md.contains("branch off") && md.contains("saved (est.)"),
+        "{md}"
+    );
+}

@@ -6,6 +6,7 @@
 //! the store only when `run` returns `Ok`.
 
 use serde::{de::DeserializeOwned, Serialize};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -150,6 +151,8 @@ pub struct RunContext {
     pub(crate) node_name: String,
     /// Where checkpoints go and how often (steps), when the engine keeps them.
     pub(crate) checkpoints: Option<Checkpoints>,
+    /// What the node measured about its run (see [`RunContext::measure`]).
+    pub(crate) measures: BTreeMap<String, f64>,
 }
 
 /// A node run's checkpoint folder and cadence (see [`RunContext::save_checkpoint`]).
@@ -193,6 +196,7 @@ impl RunContext {
             sink: Arc::new(NullSink),
             node_name: "standalone".into(),
             checkpoints: None,
+            measures: BTreeMap::new(),
         })
     }
 
@@ -321,6 +325,16 @@ impl RunContext {
     /// Writes a line to the node's log.
     pub fn log(&self, line: impl AsRef<str>) {
         self.sink.log(line.as_ref());
+    }
+    /// Records a measurement of this run (seconds of a phase, a count) under `name`; the
+    /// engine keeps it in the computation's cache record (`measures`), not in an output, so
+    /// wall-clock figures never reach a key. A later value for the same name replaces it.
+    pub fn measure(&mut self, name: impl Into<String>, value: f64) {
+        self.measures.insert(name.into(), value);
+    }
+    /// The measurements recorded so far.
+    pub fn measures(&self) -> &BTreeMap<String, f64> {
+        &self.measures
     }
 }
 

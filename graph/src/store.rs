@@ -106,6 +106,11 @@ pub struct ActionEntry {
     pub threads: usize,
     /// Blob hash (hex) of the node's log, if it logged anything.
     pub log: Option<String>,
+    /// What the node measured about its own run ([`crate::RunContext::measure`]): seconds
+    /// of its phases, counts. Kept here, never in an output or a key, so a benchmark can read
+    /// them without breaking the outputs' byte identity.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub measures: BTreeMap<String, f64>,
 }
 
 pub use crate::claim::Claim;

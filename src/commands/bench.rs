@@ -5,12 +5,14 @@
 //! evaluated method (every `Evaluate` and `EvaluateEnsemble` instance), the cost is the sum of
 //! the compute seconds its cache records give for every node the evaluation needs, upstream
 //! included, and the error is the held-out average error (the MSE without LPIPS weights).
+//! The seconds a training skipped (an early stop, Dual's synthetic branch switching off) are
+//! estimated from the step times its node measured (its cache record's `measures`).
 //! Writes `bench.md`, `bench.json` and `bench.html` (Pareto front and knee per method).
 
 use super::run::open_engine;
 use super::CmdResult;
 use augsplat_graph::{Registry, RunOptions};
-use augsplat_report::bench::{BenchPoint, BenchTable, Machine};
+use augsplat_report::bench::{BenchPoint, BenchTable, Machine, Savings};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
@@ -163,6 +165,20 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
             let seconds = closure_seconds(c);
             let avg = mean["avg_error"].as_f64();
             all_avg &= avg.is_some();
+            // What the evaluated training skipped, from its cache record's measures.
+            let saved = plan.comps[c]
+                .inputs
+                .iter()
+                .filter(|s| s.name == "model")
+                .flat_map(|s| s.sources.iter())
+                .find_map(|(s, _)| match s {
+                    augsplat_graph::resolve::Source::Node { comp, .. } => Some(*comp),
+                    _ => None,
+                })
+                .and_then(|m| report.results[m].as_ref()?.key)
+                .and_then(|k| store.action(&k).ok().flatten())
+                .map(|entry| Savings::from_measures(&entry.measures))
+                .unwrap_or_default();
             raw.push((
                 point.label.clone(),
                 label,
@@ -171,10 +187,11 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
                 mean["mse"].as_f64().unwrap_or(f64::NAN),
                 mean["psnr"].as_f64().unwrap_or(f64::NAN),
                 closure.len(),
+                saved,
             ));
         }
     }
-    for (config, method, seconds, avg, mse, psnr, nodes) in raw {
+    for (config, method, seconds, avg, mse, psnr, nodes, saved) in raw {
         points.push(BenchPoint {
             config,
             method,
@@ -182,6 +199,7 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
             error: if all_avg { avg.unwrap_or(mse) } else { mse },
             psnr,
             nodes,
+            saved,
         });
     }
     if points.is_empty() {

@@ -277,6 +277,7 @@ fn run_in_scratch(
             dir: store.checkpoint_dir(&key),
             every: checkpoint_every,
         }),
+        measures: BTreeMap::new(),
     };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -358,6 +359,7 @@ fn run_in_scratch(
         seed,
         threads,
         log,
+        measures: std::mem::take(&mut ctx.measures),
     };
     store
         .write_action(&key, &entry)

@@ -23,6 +23,81 @@ pub struct BenchPoint {
     pub psnr: f64,
     /// Nodes counted in `seconds`.
     pub nodes: usize,
+    /// What skipping saved, estimated from the training's own step times (see [`Savings`]).
+    #[serde(default, skip_serializing_if = "Savings::is_empty")]
+    pub saved: Savings,
+}
+
+/// Seconds a method's training did not spend because it skipped work, estimated from the
+/// step times its node measured (its cache record's `measures`), not included in
+/// [`BenchPoint::seconds`]. Each is `None` when the skip did not happen.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Savings {
+    /// The early stop: the steps not run × the mean time of the kind of step (with or
+    /// without synthetic views) the run ended on. Evaluations it would have run are not
+    /// counted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub early_stop: Option<f64>,
+    /// Dual's synthetic branch switching off (`off_below`): the steps run after the switch ×
+    /// (mean step time with synthetic views − mean step time without).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub branch_off: Option<f64>,
+}
+
+impl Savings {
+    /// Whether nothing was skipped (serde's `skip_serializing_if`).
+    pub fn is_empty(&self) -> bool {
+        self.early_stop.is_none() && self.branch_off.is_none()
+    }
+
+    /// From a training node's measures (`steps_requested`, `steps_run`, `synthetic_steps`,
+    /// `synthetic_step_seconds`, `real_only_steps`, `real_only_step_seconds`, optional
+    /// `synthetic_off_step` and `last_step_synthetic`); empty when they are missing.
+    pub fn from_measures(m: &std::collections::BTreeMap<String, f64>) -> Savings {
+        let get = |k: &str| m.get(k).copied();
+        let (Some(req), Some(run), Some(ns), Some(ts), Some(nr), Some(tr)) = (
+            get("steps_requested"),
+            get("steps_run"),
+            get("synthetic_steps"),
+            get("synthetic_step_seconds"),
+            get("real_only_steps"),
+            get("real_only_step_seconds"),
+        ) else {
+            return Savings::default();
+        };
+        let mean = |t: f64, n: f64| (n > 0.0).then(|| t / n);
+        let (synth, real) = (mean(ts, ns), mean(tr, nr));
+        let early_stop = (run < req)
+            .then(|| {
+                let rate = if get("last_step_synthetic") == Some(1.0) {
+                    synth
+                } else {
+                    real.or(synth)
+                };
+                rate.map(|r| (req - run) * r)
+            })
+            .flatten();
+        let branch_off = get("synthetic_off_step").and_then(|off| {
+            let (s, r) = (synth?, real?);
+            Some(((run - off).max(0.0) * (s - r)).max(0.0))
+        });
+        Savings {
+            early_stop,
+            branch_off,
+        }
+    }
+
+    /// `early stop 12.3 s; branch off 4.50 s`, or empty.
+    pub fn describe(&self) -> String {
+        let mut parts = Vec::new();
+        if let Some(s) = self.early_stop {
+            parts.push(format!("early stop {} s", seconds(s)));
+        }
+        if let Some(s) = self.branch_off {
+            parts.push(format!("branch off {} s", seconds(s)));
+        }
+        parts.join("; ")
+    }
 }
 
 /// Where and when the bench ran.
@@ -218,6 +293,7 @@ impl BenchTable {
             &self.error_name,
             "PSNR",
             "nodes",
+            "saved (est.)",
             "front",
         ]
         .map(String::from)
@@ -247,6 +323,7 @@ impl BenchTable {
                     format!("{:.4}", p.error),
                     format!("{:.2}", p.psnr),
                     p.nodes.to_string(),
+                    p.saved.describe(),
                     mark.to_string(),
                 ]);
             }
@@ -258,7 +335,7 @@ impl BenchTable {
     /// the pipeline, the grid, the machine and the definitions.
     pub fn markdown(&self) -> String {
         let mut out = format!(
-            "Bench of `{}` over {} — {}, {}.\n\nCost: compute seconds of every node a method's evaluation needs, from the cache records. Error: held-out {} at the evaluated checkpoint. `*`: on the method's Pareto front; `knee`: the front's knee.\n\n",
+            "Bench of `{}` over {} — {}, {}.\n\nCost: compute seconds of every node a method's evaluation needs, from the cache records. Error: held-out {} at the evaluated checkpoint. Saved (est.): seconds the training skipped — an early stop's steps not run, Dual's steps after its synthetic branch switched off — at the run's own mean step times, not part of the cost. `*`: on the method's Pareto front; `knee`: the front's knee.\n\n",
             self.pipeline,
             self.grid.iter().map(|g| format!("`{g}`")).collect::<Vec<_>>().join(", "),
             self.machine.describe(),
@@ -267,7 +344,7 @@ impl BenchTable {
         );
         let line = |cells: &[String]| format!("| {} |\n", cells.join(" | "));
         out.push_str(&line(&self.header()));
-        out.push_str("|---|---|---:|---:|---:|---:|---|\n");
+        out.push_str("|---|---|---:|---:|---:|---:|---|---|\n");
         for r in self.rows() {
             out.push_str(&line(&r));
         }
@@ -330,6 +407,45 @@ impl BenchTable {
 mod tests {
     use super::*;
 
+    fn measures(pairs: &[(&str, f64)]) -> std::collections::BTreeMap<String, f64> {
+        pairs.iter().map(|&(k, v)| (k.to_string(), v)).collect()
+    }
+
+    #[test]
+    fn savings_come_from_the_measured_step_times() {
+        // Dual: 100 synthetic steps at 0.5 s, then 300 real-only at 0.1 s, off after step 100.
+        let m = measures(&[
+            ("steps_requested", 400.0),
+            ("steps_run", 400.0),
+            ("synthetic_steps", 100.0),
+            ("synthetic_step_seconds", 50.0),
+            ("real_only_steps", 300.0),
+            ("real_only_step_seconds", 30.0),
+            ("synthetic_off_step", 100.0),
+        ]);
+        let s = Savings::from_measures(&m);
+        assert_eq!(s.early_stop, None);
+        assert!((s.branch_off.unwrap() - 300.0 * 0.4).abs() < 1e-9, "{s:?}");
+        // The same, stopped early at step 250 (last step real-only): 150 steps × 0.1 s.
+        let mut m2 = m.clone();
+        m2.insert("steps_run".into(), 250.0);
+        m2.insert("real_only_steps".into(), 150.0);
+        m2.insert("real_only_step_seconds".into(), 15.0);
+        let s = Savings::from_measures(&m2);
+        assert!((s.early_stop.unwrap() - 15.0).abs() < 1e-9, "{s:?}");
+        assert!((s.branch_off.unwrap() - 150.0 * 0.4).abs() < 1e-9, "{s:?}");
+        // Stopped while still rendering synthetic views: at the synthetic rate.
+        let mut m3 = m2.clone();
+        m3.remove("synthetic_off_step");
+        m3.insert("last_step_synthetic".into(), 1.0);
+        let s = Savings::from_measures(&m3);
+        assert!((s.early_stop.unwrap() - 150.0 * 0.5).abs() < 1e-9, "{s:?}");
+        assert_eq!(s.branch_off, None);
+        // No measures (an older cache record): nothing claimed.
+        assert!(Savings::from_measures(&measures(&[])).is_empty());
+        assert_eq!(s.describe(), "early stop 75.0 s");
+    }
+
     fn table(points: &[(&str, &str, f64, f64)]) -> BenchTable {
         BenchTable {
             pipeline: "p.ron".into(),
@@ -350,6 +466,7 @@ mod tests {
                     error: e,
                     psnr: 20.0,
                     nodes: 3,
+                    saved: Savings::default(),
                 })
                 .collect(),
             gated: Vec::new(),

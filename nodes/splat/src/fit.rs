@@ -205,6 +205,54 @@ pub struct Fitted {
     pub scene_scale: f64,
     /// Wall-clock seconds of the run.
     pub seconds: f64,
+    /// What this process timed of the steps it ran, for the node's cache record (never an
+    /// output: wall-clock figures would break the outputs' byte identity).
+    pub timing: StepTiming,
+}
+
+/// Wall-clock seconds of the training steps one process ran, split by whether a step rendered
+/// synthetic views, and where Dual's synthetic branch switched off. `augsplat bench` turns
+/// them into the seconds the switch-off saved: the steps after it, each at the difference of
+/// the two kinds' mean step times.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StepTiming {
+    /// Steps requested.
+    pub steps_requested: u64,
+    /// Steps timed that rendered synthetic views (with or without real ones).
+    pub synthetic_steps: u64,
+    /// Their seconds.
+    pub synthetic_seconds: f64,
+    /// Steps timed on real views alone.
+    pub real_only_steps: u64,
+    /// Their seconds.
+    pub real_only_seconds: f64,
+    /// Dual only: the steps done when its synthetic branch switched off (`off_below`) for the
+    /// rest of the run, as this process saw it.
+    pub synthetic_off_step: Option<u64>,
+    /// Whether the last step timed rendered synthetic views.
+    pub last_step_synthetic: bool,
+}
+
+impl StepTiming {
+    /// `(name, value)` pairs for [`augsplat_graph::RunContext::measure`].
+    pub fn measures(&self, steps_run: u64) -> Vec<(&'static str, f64)> {
+        let mut m = vec![
+            ("steps_requested", self.steps_requested as f64),
+            ("steps_run", steps_run as f64),
+            ("synthetic_steps", self.synthetic_steps as f64),
+            ("synthetic_step_seconds", self.synthetic_seconds),
+            ("real_only_steps", self.real_only_steps as f64),
+            ("real_only_step_seconds", self.real_only_seconds),
+        ];
+        if let Some(s) = self.synthetic_off_step {
+            m.push(("synthetic_off_step", s as f64));
+        }
+        m.push((
+            "last_step_synthetic",
+            if self.last_step_synthetic { 1.0 } else { 0.0 },
+        ));
+        m
+    }
 }
 
 /// `best.json`: the selected checkpoint.
@@ -391,8 +439,30 @@ pub fn fit(
     };
     let mut early = false;
     let t0 = std::time::Instant::now();
+    let mut timing = StepTiming {
+        steps_requested: a.steps,
+        ..StepTiming::default()
+    };
+    let mut had_synthetic = false;
+    // Only Dual switches a branch off to save time; Staged's switch is its method.
+    let dual = matches!(a.schedule, crate::train::Schedule::Dual { .. });
     while trainer.steps_done() < a.steps {
+        let ts = std::time::Instant::now();
         let rep = trainer.step();
+        let dt = ts.elapsed().as_secs_f64();
+        timing.last_step_synthetic = rep.synthetic_loss.is_some();
+        if rep.synthetic_loss.is_some() {
+            timing.synthetic_steps += 1;
+            timing.synthetic_seconds += dt;
+            had_synthetic = true;
+            timing.synthetic_off_step = None;
+        } else {
+            timing.real_only_steps += 1;
+            timing.real_only_seconds += dt;
+            if dual && had_synthetic && timing.synthetic_off_step.is_none() {
+                timing.synthetic_off_step = Some(trainer.steps_done() - 1);
+            }
+        }
         st.loss_acc += rep.loss;
         st.loss_n += 1;
         let done = trainer.steps_done();
@@ -492,5 +562,6 @@ pub fn fit(
         early_stopped: early,
         scene_scale,
         seconds: t0.elapsed().as_secs_f64(),
+        timing,
     })
 }

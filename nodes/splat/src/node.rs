@@ -172,6 +172,9 @@ impl Node for OptimizeSplats {
             },
         )?;
         let out = ctx.output("model")?.to_path_buf();
+        for (name, value) in fitted.timing.measures(fitted.steps_run) {
+            ctx.measure(name, value);
+        }
         crate::write_ply(&out.join("final.ply"), &fitted.last)?;
         crate::write_ply(&out.join("best.ply"), &fitted.best)?;
         artifacts::write_json(&out.join(artifacts::files::CURVE), &fitted.curve)?;
