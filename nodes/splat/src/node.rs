@@ -35,7 +35,9 @@ impl Node for OptimizeSplats {
     // `Evaluate`), which can change the best checkpoint. 4: the projection's own exp/ln
     // (eight Gaussians per vector) change renders in the last bits. 5: the kernels' base-2
     // exponential (σ in bits, a degree-5 polynomial) changes renders in the last bits.
-    const VERSION: u32 = 5;
+    // 6: Adam updates every Gaussian by default (`adam: Dense`, gsplat's default), where
+    // version 5 and earlier updated only the visible ones (now `adam: Selective`).
+    const VERSION: u32 = 6;
     type Args = TrainArgs;
 
     fn inputs(_args: &TrainArgs) -> Vec<InputDecl> {

@@ -14,8 +14,9 @@
 //!    only their visible Gaussians and the SH coefficients of the active degree — synthetic
 //!    views straight into the sum with [`crate::backward_add`] unless their densification
 //!    statistic is wanted);
-//! 4. takes one Adam step (only Gaussians visible in some render of the step move; the means
-//!    rate follows [`LearningRates::means_at`]);
+//! 4. takes one Adam step over every Gaussian (`adam: Dense`, the default) or only those
+//!    visible in some render of the step (`adam: Selective`); the means rate follows
+//!    [`LearningRates::means_at`];
 //! 5. feeds the densification statistic of the *real* renders (and of the synthetic ones when
 //!    `densify_from_synthetic`) to the [`Densifier`] and runs its refinement schedule.
 //!
@@ -130,6 +131,11 @@ pub struct TrainArgs {
     /// the serialised args when `Cpu`, so CPU keys did not change when it was added.
     #[serde(skip_serializing_if = "crate::gpu::Backend::is_cpu")]
     pub backend: crate::gpu::Backend,
+    /// Which Gaussians each Adam step updates: `Dense` (all of them, gsplat
+    /// `simple_trainer`'s default, and ours) or `Selective` (the visible ones). Left out of
+    /// the serialised args when `Dense`.
+    #[serde(skip_serializing_if = "crate::adam::AdamUpdates::is_dense")]
+    pub adam: crate::adam::AdamUpdates,
 }
 
 impl Default for TrainArgs {
@@ -155,6 +161,7 @@ impl Default for TrainArgs {
             label: String::new(),
             record_wall_time: false,
             backend: crate::gpu::Backend::Cpu,
+            adam: crate::adam::AdamUpdates::Dense,
         }
     }
 }
@@ -704,10 +711,14 @@ impl<'a> Trainer<'a> {
             .args
             .learning_rates
             .means_at(step, self.args.steps, self.scene_scale);
-        let acc = acc.unwrap_or_else(|| ParamGrads {
+        let mut acc = acc.unwrap_or_else(|| ParamGrads {
             sh_active,
             ..ParamGrads::zeros(n, self.g.coeffs())
         });
+        if self.args.adam == crate::adam::AdamUpdates::Dense {
+            // The densification statistics were gathered above; Adam now sees every Gaussian.
+            acc.visible.fill(true);
+        }
         self.adam
             .step(&mut self.g, &acc, &self.args.learning_rates, lr);
         if self.args.densify.enabled {
