@@ -191,6 +191,15 @@ fn bench_lists_what_a_gate_skipped_and_measures_the_rest() {
     assert!(md.contains("Skipped by the scene gate"), "{md}");
 }
 
+/// 40 steps, patience 1, and a baseline that cannot improve (no learning, no densification):
+/// it stops at its second evaluation, step 20, whatever the other results.
+const SAVING_SETS: &[&str] = &[
+    "params.gs_steps=40",
+    "params.patience=Some(1)",
+    "baseline.learning_rates=(means: 0.0, scales: 0.0, quats: 0.0, opacities: 0.0, sh0: 0.0, shn: 0.0)",
+    "baseline.densify.enabled=false",
+];
+
 #[test]
 fn bench_estimates_what_the_branch_off_and_the_early_stop_saved() {
     let tmp = tempfile::tempdir().unwrap();
@@ -203,12 +212,7 @@ fn bench_estimates_what_the_branch_off_and_the_early_stop_saved() {
         .arg("--out")
         .arg(&out)
         .args(["-q", "--grid", "params.quarter_decay=[3.0, 100.0]"])
-        .args([
-            "--set",
-            "params.gs_steps=40",
-            "--set",
-            "params.patience=Some(1)",
-        ])
+        .args(SAVING_SETS.iter().flat_map(|s| ["--set", s]))
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -219,10 +223,7 @@ fn bench_estimates_what_the_branch_off_and_the_early_stop_saved() {
     // Each training's measures, from the store, independently of the bench.
     let registry = augsplat::builtin_registry();
     let engine = augsplat_graph::Engine::new(registry, &cache).unwrap();
-    let sets = [
-        "params.gs_steps=40".to_string(),
-        "params.patience=Some(1)".into(),
-    ];
+    let sets: Vec<String> = SAVING_SETS.iter().map(|s| s.to_string()).collect();
     let plan = engine.load(&out.join("bench.ron"), &sets).unwrap();
     let keys = augsplat_graph::exec::plan_keys(&plan, engine.store()).unwrap();
     let mut early_stops = 0;
@@ -253,6 +254,12 @@ fn bench_estimates_what_the_branch_off_and_the_early_stop_saved() {
                 "{label}: every step run is timed"
             );
             let mean = |t: &str, n: &str| m[t] / m[n];
+            if label == "3DGS" {
+                assert_eq!(
+                    run, 20.0,
+                    "the frozen baseline stops at its second evaluation"
+                );
+            }
             if run < req {
                 early_stops += 1;
                 let rate = if m["last_step_synthetic"] == 1.0 {
@@ -295,7 +302,10 @@ fn bench_estimates_what_the_branch_off_and_the_early_stop_saved() {
             }
         }
     }
-    assert!(early_stops > 0, "patience 1 stops some training early");
+    assert!(
+        early_stops >= 2,
+        "the frozen baseline stops early in both configurations"
+    );
     let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
     assert!(
         md.contains("branch off") && md.contains("saved (est.)"),
