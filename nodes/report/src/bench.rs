@@ -494,11 +494,11 @@ mod tests {
         assert_eq!(f[1].knee, Some(6));
         let md = t.markdown();
         assert!(
-            md.contains("| A | c2 | 20.0 | 0.2000 | 20.00 | 3 | * knee |"),
+            md.contains("| A | c2 | 20.0 | 0.2000 | 20.00 | 3 |  | * knee |"),
             "{md}"
         );
         assert!(
-            md.contains("| A | c3 | 30.0 | 0.3000 | 20.00 | 3 |  |"),
+            md.contains("| A | c3 | 30.0 | 0.3000 | 20.00 | 3 |  |  |"),
             "{md}"
         );
         assert!(md.contains("| B | c2 | 5.00 | 0.9000 |"), "{md}");
