@@ -24,7 +24,9 @@ pub struct SynthesizePoses;
 
 impl Node for SynthesizePoses {
     const KIND: &'static str = "SynthesizePoses";
-    const VERSION: u32 = 1;
+    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
+    // versions parsed some one ulp off, which could change outputs in the last bits.
+    const VERSION: u32 = 2;
     type Args = PoseParams;
 
     fn inputs(_: &PoseParams) -> Vec<InputDecl> {
@@ -113,7 +115,9 @@ pub struct ScenePoses;
 
 impl Node for ScenePoses {
     const KIND: &'static str = "ScenePoses";
-    const VERSION: u32 = 1;
+    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
+    // versions parsed some one ulp off, which could change outputs in the last bits.
+    const VERSION: u32 = 2;
     type Args = ScenePosesArgs;
 
     fn inputs(_: &ScenePosesArgs) -> Vec<InputDecl> {
@@ -185,7 +189,9 @@ pub struct AggregateEnsemble;
 
 impl Node for AggregateEnsemble {
     const KIND: &'static str = "AggregateEnsemble";
-    const VERSION: u32 = 1;
+    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
+    // versions parsed some one ulp off, which could change outputs in the last bits.
+    const VERSION: u32 = 2;
     type Args = AggregateParams;
 
     fn inputs(_: &AggregateParams) -> Vec<InputDecl> {

@@ -214,7 +214,9 @@ pub struct ImportScene;
 impl Node for ImportScene {
     const KIND: &'static str = "ImportScene";
     // 3: scenes without points or bounds take near/far from the cameras.
-    const VERSION: u32 = 3;
+    // 4: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
+    // versions parsed some one ulp off, which could change outputs in the last bits.
+    const VERSION: u32 = 4;
     type Args = ImportSceneArgs;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {
@@ -352,7 +354,9 @@ pub struct SplitScene;
 
 impl Node for SplitScene {
     const KIND: &'static str = "SplitScene";
-    const VERSION: u32 = 1;
+    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
+    // versions parsed some one ulp off, which could change outputs in the last bits.
+    const VERSION: u32 = 2;
     type Args = SplitSceneArgs;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {
@@ -433,7 +437,9 @@ pub struct SparseDepth;
 
 impl Node for SparseDepth {
     const KIND: &'static str = "SparseDepth";
-    const VERSION: u32 = 1;
+    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
+    // versions parsed some one ulp off, which could change outputs in the last bits.
+    const VERSION: u32 = 2;
     type Args = SparseDepthArgs;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {
@@ -528,7 +534,9 @@ pub struct ExportScene;
 
 impl Node for ExportScene {
     const KIND: &'static str = "ExportScene";
-    const VERSION: u32 = 1;
+    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
+    // versions parsed some one ulp off, which could change outputs in the last bits.
+    const VERSION: u32 = 2;
     type Args = ExportSceneArgs;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {
