@@ -11,9 +11,20 @@ use std::process::Command;
 const BIN: &str = env!("CARGO_BIN_EXE_augsplat");
 
 fn bench(cache: &Path, out: &Path, grid: &[&str]) -> std::process::Output {
+    bench_pipeline(&augsplat_testkit::tiny::pipeline(), cache, out, grid, &[])
+}
+
+/// `augsplat bench PIPELINE` with `--grid`s and `--set`s.
+fn bench_pipeline(
+    pipeline: &Path,
+    cache: &Path,
+    out: &Path,
+    grid: &[&str],
+    sets: &[&str],
+) -> std::process::Output {
     let mut c = Command::new(BIN);
     c.arg("bench")
-        .arg(augsplat_testkit::tiny::pipeline())
+        .arg(pipeline)
         .arg("--cache")
         .arg(cache)
         .arg("--out")
@@ -21,6 +32,9 @@ fn bench(cache: &Path, out: &Path, grid: &[&str]) -> std::process::Output {
         .arg("-q");
     for g in grid {
         c.arg("--grid").arg(g);
+    }
+    for s in sets {
+        c.arg("--set").arg(s);
     }
     c.output().unwrap()
 }
@@ -152,22 +166,13 @@ fn bench_lists_what_a_gate_skipped_and_measures_the_rest() {
         ),
     )
     .unwrap();
-    let o = Command::new(BIN)
-        .arg("bench")
-        .arg(&p)
-        .arg("--cache")
-        .arg(&cache)
-        .arg("--out")
-        .arg(&out)
-        .arg("-q")
-        .args(["--grid", "gate.force=[Some(true), Some(false)]"])
-        .args(
-            augsplat_testkit::tiny::GATE_SETS
-                .iter()
-                .flat_map(|s| ["--set", s]),
-        )
-        .output()
-        .unwrap();
+    let o = bench_pipeline(
+        &p,
+        &cache,
+        &out,
+        &["gate.force=[Some(true), Some(false)]"],
+        augsplat_testkit::tiny::GATE_SETS,
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let table: Value =
         serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
@@ -204,17 +209,13 @@ const SAVING_SETS: &[&str] = &[
 fn bench_estimates_what_the_branch_off_and_the_early_stop_saved() {
     let tmp = tempfile::tempdir().unwrap();
     let (cache, out) = (tmp.path().join("cache"), tmp.path().join("out"));
-    let o = Command::new(BIN)
-        .arg("bench")
-        .arg(augsplat_testkit::tiny::pipeline())
-        .arg("--cache")
-        .arg(&cache)
-        .arg("--out")
-        .arg(&out)
-        .args(["-q", "--grid", "params.quarter_decay=[3.0, 100.0]"])
-        .args(SAVING_SETS.iter().flat_map(|s| ["--set", s]))
-        .output()
-        .unwrap();
+    let o = bench_pipeline(
+        &augsplat_testkit::tiny::pipeline(),
+        &cache,
+        &out,
+        &["params.quarter_decay=[3.0, 100.0]"],
+        SAVING_SETS,
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let table: Value =
         serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();

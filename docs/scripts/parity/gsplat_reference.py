@@ -341,15 +341,11 @@ def refine(splats, opt, grad2d, count, sscale, step, args):
     high = avg > 2e-4
     small = torch.exp(splats["scales"]).max(-1).values <= 0.01 * sscale
     dup = high & small
-    # Clone: append copies.
+    # Clone: append copies, with zero moments as gsplat's `duplicate`.
     keep = torch.arange(n)
     for k in splats:
         splats[k] = torch.cat([splats[k], splats[k][dup]])
-        opt[k].edit(torch.cat([keep, keep[dup]]), 0)
-        # The clones' moments are zero, as gsplat's `duplicate`.
-        if opt[k].m is not None:
-            opt[k].m[n:] = 0
-            opt[k].v[n:] = 0
+        opt[k].edit(keep, int(dup.sum()))
     split = torch.cat([high & ~small, torch.zeros(int(dup.sum()), dtype=torch.bool)])
     # Split: two children drawn from each, originals removed.
     s = torch.exp(splats["scales"][split])
