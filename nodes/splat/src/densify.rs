@@ -216,6 +216,21 @@ pub struct Densifier {
     pub count: Vec<u32>,
 }
 
+/// Whether [`Densifier::step_post_update`] can change anything after `step`: a refinement
+/// (clone, split, prune) or an opacity reset falls on it. On the other steps it returns at
+/// once, so a trainer whose state lives elsewhere (the GPU) need not bring it back.
+pub fn acts_at(step: u64, sched: &DensifySchedule, args: &DensifyArgs) -> bool {
+    if !args.enabled || step >= sched.stop {
+        return false;
+    }
+    let refine = step > sched.start && step.is_multiple_of(sched.every);
+    let reset = sched.reset_every > 0
+        && step > 0
+        && step.is_multiple_of(sched.reset_every)
+        && args.reset != OpacityReset::Never;
+    refine || reset
+}
+
 impl Densifier {
     /// Empty statistics for `n` Gaussians.
     pub fn new(n: usize) -> Self {
@@ -281,7 +296,7 @@ impl Densifier {
         visibility: &mut dyn FnMut(&Gaussians) -> Vec<f64>,
     ) -> RefineReport {
         let mut rep = RefineReport::default();
-        if !args.enabled || step >= sched.stop {
+        if !acts_at(step, sched, args) {
             return rep;
         }
         if step > sched.start && step.is_multiple_of(sched.every) {

@@ -324,7 +324,7 @@ struct LoopState {
     loss_n: u64,
 }
 
-fn write_checkpoint(trainer: &Trainer<'_>, st: &LoopState) -> Vec<u8> {
+fn write_checkpoint(trainer: &mut Trainer<'_>, st: &LoopState) -> Vec<u8> {
     use augsplat_core::state::StateWriter;
     let mut w = StateWriter::new();
     w.tag("fit");
@@ -524,7 +524,7 @@ pub fn fit(
         }
         if let Some(save) = save.as_mut() {
             if every > 0 && done.is_multiple_of(every) && done < a.steps {
-                match save(write_checkpoint(&trainer, &st)) {
+                match save(write_checkpoint(&mut trainer, &st)) {
                     Ok(()) => on_event(FitEvent::Log(format!("checkpoint at step {done}"))),
                     Err(e) => on_event(FitEvent::Log(format!(
                         "warning: could not save the checkpoint at step {done}: {e}"

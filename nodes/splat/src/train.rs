@@ -387,9 +387,11 @@ pub struct Trainer<'a> {
     epoch: u64,
     usable_synth: Vec<usize>,
     d_rgb: Vec<f32>,
-    /// The GPU (with `backend: Gpu`) and this step's upload of the Gaussians.
+    /// The GPU (with `backend: Gpu`), the training state on it, and whether that state is
+    /// newer than `g`, `adam` and `densifier` (which then hold the sizes but not the values).
     gpu: Option<std::sync::Arc<crate::gpu::GpuContext>>,
-    gpu_scene: Option<crate::gpu::GpuScene>,
+    gpu_state: Option<crate::gpu::GpuTrainer>,
+    gpu_ahead: bool,
 }
 
 impl<'a> Trainer<'a> {
@@ -420,24 +422,48 @@ impl<'a> Trainer<'a> {
             usable_synth,
             d_rgb: Vec::new(),
             gpu: None,
-            gpu_scene: None,
+            gpu_state: None,
+            gpu_ahead: false,
             adam,
             g,
             args,
         }
     }
 
-    /// Renders and back-propagates each view on `gpu` from now on (the loss, Adam,
-    /// densification and evaluations stay on the CPU). A GPU failure in a later step ends
-    /// the training with the device's message (a panic the engine reports as the node's
-    /// failure).
+    /// Trains on `gpu` from now on: the Gaussians, Adam's moments and the densification
+    /// statistics move to the GPU and stay there between steps (see
+    /// [`crate::gpu`]); densification, opacity resets, evaluations and checkpoints bring them
+    /// back to the host. A GPU failure in a later step ends the training with the device's
+    /// message (a panic the engine reports as the node's failure).
     pub fn use_gpu(&mut self, gpu: std::sync::Arc<crate::gpu::GpuContext>) {
+        self.sync_from_gpu();
+        self.gpu_state = None;
         self.gpu = Some(gpu);
     }
 
-    /// The current Gaussians.
-    pub fn gaussians(&self) -> &Gaussians {
+    /// The current Gaussians (brought back from the GPU first when it trains there).
+    pub fn gaussians(&mut self) -> &Gaussians {
+        self.sync_from_gpu();
         &self.g
+    }
+
+    /// Copies the GPU's training state into `g`, `adam` and `densifier` if it is newer.
+    fn sync_from_gpu(&mut self) {
+        if !self.gpu_ahead {
+            return;
+        }
+        if let (Some(gpu), Some(st)) = (&self.gpu, &self.gpu_state) {
+            st.download(gpu, &mut self.g, &mut self.adam, &mut self.densifier)
+                .unwrap_or_else(|e| panic!("backend: Gpu: {e}"));
+        }
+        self.gpu_ahead = false;
+    }
+
+    /// Brings the state back from the GPU and drops the GPU's copy: the host is about to
+    /// change it (the next step uploads it again).
+    fn take_back_from_gpu(&mut self) {
+        self.sync_from_gpu();
+        self.gpu_state = None;
     }
     /// Steps taken so far.
     pub fn steps_done(&self) -> u64 {
@@ -456,7 +482,8 @@ impl<'a> Trainer<'a> {
         &self.args
     }
     /// The Gaussians, ending the training.
-    pub fn into_gaussians(self) -> Gaussians {
+    pub fn into_gaussians(mut self) -> Gaussians {
+        self.sync_from_gpu();
         self.g
     }
 
@@ -464,7 +491,8 @@ impl<'a> Trainer<'a> {
     /// optimiser's moments, the densification statistics, the step and the position in the
     /// shuffled view order. (Every other random choice is drawn from a stream keyed by the
     /// step, so nothing else carries over.)
-    pub fn write_state(&self, w: &mut augsplat_core::state::StateWriter) {
+    pub fn write_state(&mut self, w: &mut augsplat_core::state::StateWriter) {
+        self.sync_from_gpu();
         w.tag("trainer");
         w.u64(self.step);
         w.u64(self.epoch);
@@ -514,6 +542,8 @@ impl<'a> Trainer<'a> {
         self.densifier = Densifier { grad2d, count };
         self.adam = adam;
         self.g = g;
+        self.gpu_state = None;
+        self.gpu_ahead = false;
         Ok(())
     }
 
@@ -543,47 +573,12 @@ impl<'a> Trainer<'a> {
         settings: &RenderSettings,
     ) -> (f64, Gradients, u64) {
         let cam = src.camera(i);
-        if let (Some(gpu), Some(scene)) = (&self.gpu, &self.gpu_scene) {
-            return Self::render_and_backward_gpu(
-                gpu,
-                scene,
-                src,
-                i,
-                scale,
-                settings,
-                &mut self.d_rgb,
-            );
-        }
         let out: RenderOutput = crate::render_masked(&self.g, cam, settings, src.mask(i));
         self.d_rgb.clear();
         self.d_rgb.resize(out.rgb.len(), 0.0);
         let l = src.loss(i, &out.rgb, scale as f32, &mut self.d_rgb);
         let gr = crate::backward(&self.g, cam, settings, &out, &self.d_rgb, None, None);
         (l, gr, out.stats.pairs)
-    }
-
-    /// [`Self::render_and_backward`] on the GPU: the render and the backward pass there, the
-    /// loss here.
-    #[allow(clippy::too_many_arguments)]
-    fn render_and_backward_gpu(
-        gpu: &crate::gpu::GpuContext,
-        scene: &crate::gpu::GpuScene,
-        src: &dyn Supervision,
-        i: usize,
-        scale: f64,
-        settings: &RenderSettings,
-        d_rgb: &mut Vec<f32>,
-    ) -> (f64, Gradients, u64) {
-        let cam = src.camera(i);
-        let fail = |e: crate::gpu::GpuError| -> ! { panic!("backend: Gpu: {e}") };
-        let frame = crate::gpu::render_scene(gpu, scene, cam, settings).unwrap_or_else(|e| fail(e));
-        d_rgb.clear();
-        d_rgb.resize(frame.rgb.len(), 0.0);
-        let l = src.loss(i, &frame.rgb, scale as f32, d_rgb);
-        let gr =
-            crate::gpu::backward_gpu(gpu, scene, cam, settings, d_rgb).unwrap_or_else(|e| fail(e));
-        let grads = gr.into_gradients();
-        (l, grads, frame.stats.pairs)
     }
 
     /// Renders view `i` of `src`, adds `scale · dL/drgb`, back-propagates into `acc`.
@@ -608,28 +603,13 @@ impl<'a> Trainer<'a> {
 
     /// One optimisation step.
     pub fn step(&mut self) -> StepReport {
+        if self.gpu.is_some() {
+            return self.step_gpu();
+        }
         let step = self.step;
         let plan = self.args.schedule.plan(step);
-        if plan.switch {
-            if let Schedule::Staged {
-                reset_at_switch: true,
-                ..
-            } = self.args.schedule
-            {
-                densify::reset_opacities(&mut self.g, &mut self.adam, 0.1);
-                self.adam.clear();
-                self.densifier.clear();
-            }
-        }
+        self.reset_at_switch(&plan);
         let settings = self.args.render_settings(step);
-        // With the GPU, this step's Gaussians are uploaded once for all its views.
-        self.gpu_scene = match &self.gpu {
-            Some(gpu) => Some(
-                crate::gpu::GpuScene::upload(gpu, &self.g)
-                    .unwrap_or_else(|e| panic!("backend: Gpu: {e}")),
-            ),
-            None => None,
-        };
         let n = self.g.len();
         let k3 = self.g.coeffs() * 3;
         let sh_active = 3 * crate::gaussians::sh_coeffs(settings.sh_degree.min(self.g.sh_degree));
@@ -657,19 +637,12 @@ impl<'a> Trainer<'a> {
                 let pool = &self.usable_synth;
                 let b = plan.synthetic_batch.min(pool.len());
                 if b > 0 {
-                    // Draw b views without replacement (partial Fisher–Yates on a copy).
-                    let mut ids = pool.clone();
-                    let mut rng = Rng::stream(self.args.seed ^ 0x5F17, step);
-                    for k in 0..b {
-                        let j = k + rng.below((ids.len() - k) as u64) as usize;
-                        ids.swap(k, j);
-                    }
-                    ids.truncate(b);
+                    let ids = self.draw_synthetic(step, b);
                     let scale = plan.synthetic_weight / b as f64;
                     let mut sum = 0.0;
                     let want_stat = densify_on && self.args.synthetic.densify_from_synthetic;
                     for &i in &ids {
-                        if want_stat || self.gpu.is_some() {
+                        if want_stat {
                             let (l, gr, pairs) = self.render_and_backward(src, i, scale, &settings);
                             sum += l;
                             rep.pairs += pairs;
@@ -721,24 +694,147 @@ impl<'a> Trainer<'a> {
         }
         self.adam
             .step(&mut self.g, &acc, &self.args.learning_rates, lr);
-        if self.args.densify.enabled {
-            // For a `KeepVisible` reset: each Gaussian's visibility in the real views.
-            let real = self.real;
-            let mut visibility = |g: &Gaussians| {
-                let cams: Vec<&Camera> = (0..real.len()).map(|i| real.camera(i)).collect();
-                densify::peak_alpha_ratios(g, &cams, settings.antialiased, settings.near as f64)
-            };
-            rep.refine = self.densifier.step_post_update(
-                step,
-                &self.dsched,
-                &self.args.densify,
-                &mut self.g,
-                &mut self.adam,
-                self.scene_scale,
-                self.args.seed ^ 0xDE45,
-                &mut visibility,
-            );
+        rep.refine = self.post_update(step, &settings);
+        self.step += 1;
+        rep.gaussians = self.g.len();
+        rep
+    }
+
+    /// Staged's opacity reset at its switch, when asked for (clears the moments and the
+    /// densification statistics too).
+    fn reset_at_switch(&mut self, plan: &crate::schedule::StepPlan) {
+        if plan.switch {
+            if let Schedule::Staged {
+                reset_at_switch: true,
+                ..
+            } = self.args.schedule
+            {
+                self.take_back_from_gpu();
+                densify::reset_opacities(&mut self.g, &mut self.adam, 0.1);
+                self.adam.clear();
+                self.densifier.clear();
+            }
         }
+    }
+
+    /// `b` synthetic views of the usable pool, drawn without replacement from a stream keyed
+    /// by the step (partial Fisher–Yates on a copy).
+    fn draw_synthetic(&self, step: u64, b: usize) -> Vec<usize> {
+        let mut ids = self.usable_synth.clone();
+        let mut rng = Rng::stream(self.args.seed ^ 0x5F17, step);
+        for k in 0..b {
+            let j = k + rng.below((ids.len() - k) as u64) as usize;
+            ids.swap(k, j);
+        }
+        ids.truncate(b);
+        ids
+    }
+
+    /// Densification and opacity resets after the step's update (on the host: a GPU state is
+    /// brought back first, and uploaded again by the next step).
+    fn post_update(&mut self, step: u64, settings: &RenderSettings) -> densify::RefineReport {
+        if !densify::acts_at(step, &self.dsched, &self.args.densify) {
+            return Default::default();
+        }
+        self.take_back_from_gpu();
+        // For a `KeepVisible` reset: each Gaussian's visibility in the real views.
+        let real = self.real;
+        let mut visibility = |g: &Gaussians| {
+            let cams: Vec<&Camera> = (0..real.len()).map(|i| real.camera(i)).collect();
+            densify::peak_alpha_ratios(g, &cams, settings.antialiased, settings.near as f64)
+        };
+        self.densifier.step_post_update(
+            step,
+            &self.dsched,
+            &self.args.densify,
+            &mut self.g,
+            &mut self.adam,
+            self.scene_scale,
+            self.args.seed ^ 0xDE45,
+            &mut visibility,
+        )
+    }
+
+    /// [`Trainer::step`] on the GPU: the same views, losses, sums and Adam constants, with the
+    /// state kept there ([`crate::gpu::GpuTrainer`]).
+    fn step_gpu(&mut self) -> StepReport {
+        let step = self.step;
+        let plan = self.args.schedule.plan(step);
+        self.reset_at_switch(&plan);
+        let settings = self.args.render_settings(step);
+        let Some(gpu) = self.gpu.clone() else {
+            unreachable!("step_gpu runs only with a GPU");
+        };
+        let fail = |e: crate::gpu::GpuError| -> ! { panic!("backend: Gpu: {e}") };
+        if self.gpu_state.is_none() {
+            let st = crate::gpu::GpuTrainer::upload(&gpu, &self.g, &self.adam, &self.densifier)
+                .unwrap_or_else(|e| fail(e));
+            self.gpu_state = Some(st);
+        }
+        let sh_active = 3 * crate::gaussians::sh_coeffs(settings.sh_degree.min(self.g.sh_degree));
+        let mut rep = StepReport {
+            step,
+            ..Default::default()
+        };
+        let densify_on = self.args.densify.enabled && step < self.dsched.stop;
+        let view = |st: &crate::gpu::GpuTrainer,
+                    src: &dyn Supervision,
+                    i: usize,
+                    scale: f64,
+                    stats: Option<f32>| {
+            let mut loss = |rgb: &[f32], grad: &mut [f32]| src.loss(i, rgb, scale as f32, grad);
+            let l = crate::gpu::ViewLoss::Host(&mut loss);
+            st.add_view(&gpu, src.camera(i), &settings, l, stats, sh_active)
+                .unwrap_or_else(|e| fail(e))
+        };
+        if let Some(st) = &self.gpu_state {
+            st.begin_step(&gpu).unwrap_or_else(|e| fail(e));
+        }
+        if plan.real_weight > 0.0 {
+            if let Some(i) = self.next_real() {
+                if let Some(st) = &self.gpu_state {
+                    let stats = densify_on.then_some(1.0);
+                    let (l, pairs) = view(st, self.real, i, plan.real_weight, stats);
+                    rep.real_loss = Some(l);
+                    rep.loss += plan.real_weight * l;
+                    rep.pairs += pairs;
+                }
+            }
+        }
+        if let (true, Some(src)) = (
+            plan.synthetic_weight > 0.0 && plan.synthetic_batch > 0,
+            self.synthetic,
+        ) {
+            let b = plan.synthetic_batch.min(self.usable_synth.len());
+            if b > 0 {
+                let ids = self.draw_synthetic(step, b);
+                let scale = plan.synthetic_weight / b as f64;
+                let want_stat = densify_on && self.args.synthetic.densify_from_synthetic;
+                let mut sum = 0.0;
+                if let Some(st) = &self.gpu_state {
+                    for &i in &ids {
+                        let (l, pairs) = view(st, src, i, scale, want_stat.then_some(b as f32));
+                        sum += l;
+                        rep.pairs += pairs;
+                    }
+                }
+                rep.synthetic_loss = Some(sum / b as f64);
+                rep.loss += plan.synthetic_weight * sum / b as f64;
+            }
+        }
+        let lr = self
+            .args
+            .learning_rates
+            .means_at(step, self.args.steps, self.scene_scale);
+        let consts = self
+            .adam
+            .next_gpu_consts(sh_active, &self.args.learning_rates, lr);
+        if let Some(st) = &self.gpu_state {
+            st.adam_step(&gpu, &consts, self.args.adam.is_dense())
+                .unwrap_or_else(|e| fail(e));
+        }
+        self.gpu_ahead = true;
+        rep.refine = self.post_update(step, &settings);
         self.step += 1;
         rep.gaussians = self.g.len();
         rep

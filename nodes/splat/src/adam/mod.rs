@@ -600,8 +600,52 @@ impl Adam {
             g.sh.len(),
             "Adam SH state width differs from the set"
         );
+        let c = self.next_consts(grads.sh_active, lr, means_lr);
+        let vis = &grads.visible;
+        update_group(
+            g.means.as_flattened_mut(),
+            grads.means.as_flattened(),
+            &mut self.means,
+            vis,
+            c[0],
+        );
+        update_group(
+            g.log_scales.as_flattened_mut(),
+            grads.log_scales.as_flattened(),
+            &mut self.scales,
+            vis,
+            c[1],
+        );
+        update_group(
+            g.quats.as_flattened_mut(),
+            grads.quats.as_flattened(),
+            &mut self.quats,
+            vis,
+            c[2],
+        );
+        update_group(
+            &mut g.opacity_logits,
+            &grads.opacity_logits,
+            &mut self.opacities,
+            vis,
+            c[3],
+        );
+        update_group(&mut g.sh, &grads.sh, &mut self.sh, vis, c[4]);
+    }
+
+    /// Counts one more step of every group and returns each group's constants for it (the
+    /// means, scales, quaternions, opacities and SH, in that order): the bias-corrected step
+    /// sizes in f64 rounded to f32, and for the SH the leading values to update (see
+    /// [`ParamGrads::sh_active`]). [`Adam::step`] and the GPU's Adam use these same numbers.
+    fn next_consts(
+        &mut self,
+        sh_active: usize,
+        lr: &LearningRates,
+        means_lr: f64,
+    ) -> [StepConst; 5] {
         let (b1, b2) = (lr.beta1, lr.beta2);
-        let konst = |idx: usize, lr_a: f64, lr_b: f64, split: usize, steps: &mut [u64; 5]| {
+        let steps = &mut self.steps;
+        let mut konst = |idx: usize, lr_a: f64, lr_b: f64, split: usize| {
             steps[idx] += 1;
             let t = steps[idx] as i32;
             let bc1 = 1.0 - b1.powi(t);
@@ -617,50 +661,86 @@ impl Adam {
                 eps: lr.eps as f32,
             }
         };
-        let vis = &grads.visible;
-        let c = konst(0, means_lr, means_lr, 3, &mut self.steps);
-        update_group(
-            g.means.as_flattened_mut(),
-            grads.means.as_flattened(),
-            &mut self.means,
-            vis,
-            c,
-        );
-        let c = konst(1, lr.scales, lr.scales, 3, &mut self.steps);
-        update_group(
-            g.log_scales.as_flattened_mut(),
-            grads.log_scales.as_flattened(),
-            &mut self.scales,
-            vis,
-            c,
-        );
-        let c = konst(2, lr.quats, lr.quats, 4, &mut self.steps);
-        update_group(
-            g.quats.as_flattened_mut(),
-            grads.quats.as_flattened(),
-            &mut self.quats,
-            vis,
-            c,
-        );
-        let c = konst(3, lr.opacities, lr.opacities, 1, &mut self.steps);
-        update_group(
-            &mut g.opacity_logits,
-            &grads.opacity_logits,
-            &mut self.opacities,
-            vis,
-            c,
-        );
-        let c = konst(4, lr.sh0, lr.shn, 3, &mut self.steps);
-        let cols = grads.sh_active.max(self.sh_touched).min(self.sh.width);
+        let c0 = konst(0, means_lr, means_lr, 3);
+        let c1 = konst(1, lr.scales, lr.scales, 3);
+        let c2 = konst(2, lr.quats, lr.quats, 4);
+        let c3 = konst(3, lr.opacities, lr.opacities, 1);
+        let c4 = konst(4, lr.sh0, lr.shn, 3);
+        let cols = sh_active.max(self.sh_touched).min(self.sh.width);
         self.sh_touched = cols;
-        update_group(
-            &mut g.sh,
-            &grads.sh,
-            &mut self.sh,
-            vis,
-            StepConst { cols, ..c },
-        );
+        [c0, c1, c2, c3, StepConst { cols, ..c4 }]
     }
+
+    /// One step's constants for the GPU's Adam (`adam.wgsl`), per group in the order of
+    /// [`Adam::next_consts`]: counts the step as [`Adam::step`] does; the moments are then
+    /// updated on the GPU (see [`Adam::moments_mut`] to bring them back).
+    pub(crate) fn next_gpu_consts(
+        &mut self,
+        sh_active: usize,
+        lr: &LearningRates,
+        means_lr: f64,
+    ) -> [GpuStepConst; 5] {
+        let widths = self.widths();
+        let c = self.next_consts(sh_active, lr, means_lr);
+        std::array::from_fn(|k| GpuStepConst {
+            width: widths[k],
+            step_a: c[k].step_a,
+            step_b: c[k].step_b,
+            split: c[k].split.min(widths[k]),
+            cols: c[k].cols.min(widths[k]),
+            b1: c[k].b1,
+            b2: c[k].b2,
+            inv_sqrt_bc2: c[k].inv_sqrt_bc2,
+            eps: c[k].eps,
+        })
+    }
+
+    /// Values per Gaussian of each group (means, scales, quaternions, opacities, SH).
+    pub(crate) fn widths(&self) -> [usize; 5] {
+        [
+            self.means.width,
+            self.scales.width,
+            self.quats.width,
+            self.opacities.width,
+            self.sh.width,
+        ]
+    }
+
+    /// The first and second moments of one group, writable (the GPU trainer copies its
+    /// moments back here).
+    pub(crate) fn moments_mut(&mut self, group: Group) -> (&mut Vec<f32>, &mut Vec<f32>) {
+        let m = match group {
+            Group::Means => &mut self.means,
+            Group::Scales => &mut self.scales,
+            Group::Quats => &mut self.quats,
+            Group::Opacities => &mut self.opacities,
+            Group::Sh => &mut self.sh,
+        };
+        (&mut m.m, &mut m.v)
+    }
+}
+
+/// One group's constants of one Adam step, for the GPU kernel (`adam.wgsl`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct GpuStepConst {
+    /// Values per Gaussian.
+    pub width: usize,
+    /// lr / (1 − β1ᵗ) for the first `split` values of a Gaussian.
+    pub step_a: f32,
+    /// Same for the values from `split` on.
+    pub step_b: f32,
+    /// See `step_a`.
+    pub split: usize,
+    /// Leading values of each Gaussian to update.
+    pub cols: usize,
+    /// β1.
+    pub b1: f32,
+    /// β2.
+    pub b2: f32,
+    /// 1 / √(1 − β2ᵗ).
+    pub inv_sqrt_bc2: f32,
+    /// ε.
+    pub eps: f32,
 }
 
 #[cfg(test)]

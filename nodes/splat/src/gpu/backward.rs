@@ -1,8 +1,9 @@
 //! Host side of the GPU backward pass: the compositing backward (`backward/backward.wgsl`:
 //! per-tile pair sums, then per-Gaussian sums in a fixed order) and the projection and colour
-//! backward (`project/project_vjp.wgsl`). The training loop on the GPU is not written yet.
+//! backward (`project/project_vjp.wgsl`); `record_backward` and `record_vjp` are the same
+//! steps recorded into a caller's encoder, for the training step in `gpu/train.rs`.
 
-use super::forward::{camera_words, forward_pass, GpuScene};
+use super::forward::{camera_words, forward_pass, ForwardState, GpuScene};
 use super::{f32_words, GpuContext, GpuError};
 use crate::render::{Cutoff, RenderSettings};
 use crate::tiles::TileGrid;
@@ -92,13 +93,36 @@ fn vjp_inner(
 ) -> Result<ParamGradsGpu, GpuError> {
     let n = scene.len();
     let k = scene.coeffs as usize;
-    let grid = TileGrid::new(cam.width, cam.height);
-    let camera = ctx.uniform("camera", &camera_words(scene, cam, s, grid));
     let grads = ctx.storage("parameter gradients", 4 * (PARAM_GRAD_STRIDE * n) as u64)?;
     let sh = ctx.storage("SH gradients", 4 * (3 * k * n) as u64)?;
     let mut enc = ctx.device.create_command_encoder(&Default::default());
+    record_vjp(ctx, &mut enc, scene, cam, s, upstream, (&grads, &sh));
+    ctx.submit(enc)?;
+    let to_f32 = |w: Vec<u32>| w.into_iter().map(f32::from_bits).collect();
+    Ok(ParamGradsGpu {
+        params: to_f32(ctx.read_words(&grads, PARAM_GRAD_STRIDE * n)?),
+        sh: to_f32(ctx.read_words(&sh, 3 * k * n)?),
+        means2d: Vec::new(),
+        visible: Vec::new(),
+    })
+}
+
+/// Records `project_vjp.wgsl`: the screen-space gradients in `upstream` become the raw
+/// parameters' gradients in `out` (`PARAM_GRAD_STRIDE` values per Gaussian, then the SH
+/// gradients in the parameters' layout).
+pub(super) fn record_vjp(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    upstream: &wgpu::Buffer,
+    out: (&wgpu::Buffer, &wgpu::Buffer),
+) {
+    let grid = TileGrid::new(cam.width, cam.height);
+    let camera = ctx.uniform("camera", &camera_words(scene, cam, s, grid));
     ctx.dispatch(
-        &mut enc,
+        enc,
         &ctx.kernels.project_vjp,
         &[
             (0, &camera),
@@ -108,19 +132,59 @@ fn vjp_inner(
             (4, &scene.logits),
             (5, &scene.sh),
             (6, upstream),
-            (7, &grads),
-            (8, &sh),
+            (7, out.0),
+            (8, out.1),
         ],
-        ctx.groups((n as u32).div_ceil(256)),
+        ctx.groups((scene.len() as u32).div_ceil(256)),
     );
-    ctx.submit(enc)?;
-    let to_f32 = |w: Vec<u32>| w.into_iter().map(f32::from_bits).collect();
-    Ok(ParamGradsGpu {
-        params: to_f32(ctx.read_words(&grads, PARAM_GRAD_STRIDE * n)?),
-        sh: to_f32(ctx.read_words(&sh, 3 * k * n)?),
-        means2d: Vec::new(),
-        visible: Vec::new(),
-    })
+}
+
+/// Records the compositing backward of one forward pass: `d_rgb` (dL/d(rgb), `H·W·3`) becomes
+/// each Gaussian's screen-space gradient in `screen` ([`SCREEN_GRAD_STRIDE`] values per
+/// Gaussian) — per-tile pair sums into the pair buffer, then each Gaussian's pairs summed in
+/// tile order. Returns the pair buffer, which must live until the commands ran.
+pub(super) fn record_backward(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    st: &ForwardState,
+    grid: TileGrid,
+    d_rgb: &wgpu::Buffer,
+    screen: &wgpu::Buffer,
+    n: u32,
+) -> Result<wgpu::Buffer, GpuError> {
+    let pair_grads = ctx.storage("pair gradients", 4 * PAIR_STRIDE * u64::from(st.pairs))?;
+    let kr = &ctx.kernels;
+    ctx.dispatch(
+        enc,
+        &kr.rasterize_backward,
+        &[
+            (0, &st.params),
+            (2, &st.order),
+            (4, &st.pair_rank),
+            (5, &st.sorted),
+            (6, &st.ranges),
+            (7, &st.splats),
+            (8, &st.image),
+            (9, d_rgb),
+            (10, &pair_grads),
+        ],
+        [grid.tiles_x, grid.tiles_y],
+    );
+    ctx.dispatch(
+        enc,
+        &kr.gaussian_sums,
+        &[
+            (0, &st.params),
+            (1, &st.rects),
+            (2, &st.order),
+            (3, &st.counts),
+            (7, &st.splats),
+            (10, &pair_grads),
+            (11, screen),
+        ],
+        ctx.groups(n.div_ceil(256)),
+    );
+    Ok(pair_grads)
 }
 
 /// The gradients of a loss on the colour image, on the GPU: renders `scene` from `cam` (the
@@ -165,40 +229,9 @@ pub fn backward_gpu_with_cutoff(
         let st = forward_pass(ctx, scene, cam, s, grid, cutoff)?;
         let n = scene.len() as u64;
         let g_rgb = ctx.storage_init("colour gradients", &f32_words(d_rgb.iter().copied()))?;
-        let pair_grads = ctx.storage("pair gradients", 4 * PAIR_STRIDE * u64::from(st.pairs))?;
         let screen = ctx.storage("screen-space gradients", 4 * SCREEN_GRAD_STRIDE as u64 * n)?;
-        let kr = &ctx.kernels;
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        ctx.dispatch(
-            &mut enc,
-            &kr.rasterize_backward,
-            &[
-                (0, &st.params),
-                (2, &st.order),
-                (4, &st.pair_rank),
-                (5, &st.sorted),
-                (6, &st.ranges),
-                (7, &st.splats),
-                (8, &st.image),
-                (9, &g_rgb),
-                (10, &pair_grads),
-            ],
-            [grid.tiles_x, grid.tiles_y],
-        );
-        ctx.dispatch(
-            &mut enc,
-            &kr.gaussian_sums,
-            &[
-                (0, &st.params),
-                (1, &st.rects),
-                (2, &st.order),
-                (3, &st.counts),
-                (7, &st.splats),
-                (10, &pair_grads),
-                (11, &screen),
-            ],
-            ctx.groups((n as u32).div_ceil(256)),
-        );
+        let _pairs = record_backward(ctx, &mut enc, &st, grid, &g_rgb, &screen, n as u32)?;
         ctx.submit(enc)?;
         let mut out = vjp_inner(ctx, scene, cam, s, &screen)?;
         let nn = n as usize;
@@ -218,4 +251,4 @@ pub fn backward_gpu_with_cutoff(
 }
 
 /// f32 values per pair slot of `backward.wgsl`.
-const PAIR_STRIDE: u64 = 10;
+pub(super) const PAIR_STRIDE: u64 = 10;

@@ -11,7 +11,7 @@ use augsplat_core::Camera;
 const SPLAT_STRIDE: u64 = 12;
 /// f32 words per pixel of the image buffer (`forward.wgsl`): r, g, b, alpha, depth, T, the
 /// bits of the last contributor's position.
-const IMAGE_STRIDE: usize = 7;
+pub(super) const IMAGE_STRIDE: usize = 7;
 /// Gaussians per projection workgroup.
 const GROUP: u32 = 256;
 

@@ -8,7 +8,10 @@
 //!   each tile back to front and sums every (tile, Gaussian) pair by a fixed-order tree into
 //!   the pair's own slot, each Gaussian's slots are summed in tile order
 //!   (`backward/backward.wgsl`), and [`project_vjp_gpu`] (`project/project_vjp.wgsl`) turns
-//!   them into gradients of the raw parameters; training on the GPU is not written yet;
+//!   them into gradients of the raw parameters;
+//! - [`GpuTrainer`]: the training state kept on the GPU between steps (Gaussians, Adam's
+//!   moments, the step's gradient sums, the densification statistics), with Adam
+//!   (`adam/adam.wgsl`) and the per-view sums (`gpu/accumulate.wgsl`) there;
 //! - [`render_gpu`]: the forward pass — projection and SH colour (`project/project.wgsl`), a
 //!   stable radix sort of the visible Gaussians by depth (`gpu/sort.wgsl`, `gpu/scan.wgsl`),
 //!   tile binning in (tile, depth, index) order by a second stable sort on the tile, and
@@ -21,12 +24,14 @@
 mod backward;
 mod forward;
 mod sort;
+mod train;
 
 pub use backward::{
     backward_gpu, backward_gpu_with_cutoff, project_vjp_gpu, ParamGradsGpu, PARAM_GRAD_STRIDE,
     SCREEN_GRAD_STRIDE,
 };
 pub use forward::{render_gpu, render_scene, render_scene_with_cutoff, GpuFrame, GpuScene};
+pub(crate) use train::{GpuTrainer, ViewLoss};
 
 use std::sync::mpsc;
 use wgpu::util::DeviceExt;
@@ -130,6 +135,8 @@ struct Kernels {
     project_vjp: wgpu::ComputePipeline,
     rasterize_backward: wgpu::ComputePipeline,
     gaussian_sums: wgpu::ComputePipeline,
+    accumulate: wgpu::ComputePipeline,
+    adam: wgpu::ComputePipeline,
 }
 
 impl GpuContext {
@@ -377,6 +384,8 @@ impl Kernels {
             include_str!("../project/project_vjp.wgsl"),
         );
         let bwd = module("backward.wgsl", include_str!("../backward/backward.wgsl"));
+        let acc = module("accumulate.wgsl", include_str!("accumulate.wgsl"));
+        let adam = module("adam.wgsl", include_str!("../adam/adam.wgsl"));
         let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry),
@@ -400,6 +409,8 @@ impl Kernels {
             project_vjp: pipeline(&vjp, "project_vjp"),
             rasterize_backward: pipeline(&bwd, "rasterize_backward"),
             gaussian_sums: pipeline(&bwd, "gaussian_sums"),
+            accumulate: pipeline(&acc, "accumulate"),
+            adam: pipeline(&adam, "adam"),
         }
     }
 }

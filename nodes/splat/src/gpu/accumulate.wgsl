@@ -1,0 +1,68 @@
+// One view's gradients added into the step's sums on the GPU — the WGSL twin of the trainer's
+// `merge_grads` (the step's gradient is the sum of its views' gradients, added view after view
+// in the order they were drawn) and of `Densifier::accumulate_scaled` (the densification
+// statistic: the norm of each visible Gaussian's screen-space mean gradient in NDC-normalised
+// units, times the batch factor, with a count). One invocation per Gaussian; the views come
+// one dispatch after another, so every sum has a fixed order and no atomics are needed.
+
+struct AccConst {
+    // Gaussians, SH values per Gaussian (3·coefficients), leading SH values that may be
+    // non-zero, whether to gather the statistic.
+    n: u32,
+    sh_width: u32,
+    sh_cols: u32,
+    stats: u32,
+    // Half the image size (the NDC scale of the screen gradient) and the statistic's factor.
+    half_w: f32,
+    half_h: f32,
+    factor: f32,
+    pad: f32,
+}
+
+@group(0) @binding(0) var<uniform> c: AccConst;
+@group(0) @binding(1) var<storage, read> view_grads: array<f32>;     // 11 per Gaussian
+@group(0) @binding(2) var<storage, read> view_sh: array<f32>;        // sh_width per Gaussian
+@group(0) @binding(3) var<storage, read> screen: array<f32>;         // 10 per Gaussian
+@group(0) @binding(4) var<storage, read> rects: array<vec4<u32>>;    // z: tiles touched
+@group(0) @binding(5) var<storage, read_write> acc_grads: array<f32>;
+@group(0) @binding(6) var<storage, read_write> acc_sh: array<f32>;
+@group(0) @binding(7) var<storage, read_write> acc_visible: array<u32>;
+@group(0) @binding(8) var<storage, read_write> grad2d: array<f32>;
+@group(0) @binding(9) var<storage, read_write> count: array<u32>;
+
+const GRAD_STRIDE: u32 = 11u;
+const SCREEN_STRIDE: u32 = 10u;
+
+fn finite(v: f32) -> bool {
+    // NaN fails the comparison; ±Inf exceeds the largest finite f32.
+    return abs(v) <= 3.4028234663852886e38;
+}
+
+@compute @workgroup_size(256)
+fn accumulate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = gid.x + gid.y * nwg.x * 256u;
+    if (i >= c.n) {
+        return;
+    }
+    let og = i * GRAD_STRIDE;
+    for (var q = 0u; q < GRAD_STRIDE; q++) {
+        acc_grads[og + q] = acc_grads[og + q] + view_grads[og + q];
+    }
+    let os = i * c.sh_width;
+    for (var q = 0u; q < c.sh_cols; q++) {
+        acc_sh[os + q] = acc_sh[os + q] + view_sh[os + q];
+    }
+    let vis = rects[i].z > 0u;
+    if (vis) {
+        acc_visible[i] = 1u;
+        if (c.stats != 0u) {
+            let x = screen[i * SCREEN_STRIDE] * c.half_w * c.factor;
+            let y = screen[i * SCREEN_STRIDE + 1u] * c.half_h * c.factor;
+            let norm = sqrt(x * x + y * y);
+            if (finite(norm)) {
+                grad2d[i] = grad2d[i] + norm;
+            }
+            count[i] = count[i] + 1u;
+        }
+    }
+}

@@ -1,0 +1,307 @@
+//! The training step on the GPU: the Gaussians, Adam's moments, the step's gradient sums and
+//! the densification statistics live in GPU buffers from one step to the next, so a step
+//! sends nothing to the GPU but its camera and (for a loss computed on the host) one colour
+//! gradient, and reads back only the number of (tile, Gaussian) pairs and the loss.
+//!
+//! Per view ([`GpuTrainer::add_view`]): the forward kernels, the loss and its colour
+//! gradient, the compositing backward, the projection backward, then `accumulate.wgsl` adds
+//! the view's gradients to the step's sums (and the densification statistic to its sums) —
+//! views one after another, so every sum has the CPU trainer's order. Per step
+//! ([`GpuTrainer::adam_step`]): `adam/adam.wgsl` once per parameter group, with the constants
+//! the CPU's `Adam` computes. The trainer brings the state back to the host
+//! ([`GpuTrainer::download`]) only where the CPU must see it: densification, opacity resets,
+//! evaluations and checkpoints; after the host changed it, it uploads a new state.
+
+use super::backward::{record_backward, record_vjp, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE};
+use super::forward::{forward_pass, tile_grid, GpuScene, IMAGE_STRIDE};
+use super::{f32_words, GpuContext, GpuError};
+use crate::adam::{Adam, GpuStepConst, Group};
+use crate::densify::Densifier;
+use crate::render::{Cutoff, RenderSettings};
+use crate::Gaussians;
+use augsplat_core::Camera;
+
+/// The parameter groups in the order of Adam's constants.
+const GROUPS: [Group; 5] = [
+    Group::Means,
+    Group::Scales,
+    Group::Quats,
+    Group::Opacities,
+    Group::Sh,
+];
+
+/// How a view's loss and colour gradient are computed.
+pub enum ViewLoss<'a> {
+    /// On the host: the rendered colour (`H·W·3`) is read back, the closure writes
+    /// `scale · dL/d(rgb)` into the zeroed buffer it gets and returns the loss; the gradient
+    /// is sent to the GPU.
+    Host(&'a mut dyn FnMut(&[f32], &mut [f32]) -> f64),
+}
+
+/// A training state on the GPU (see the module docs).
+pub struct GpuTrainer {
+    scene: GpuScene,
+    /// First and second moments per group, in the order of [`GROUPS`].
+    moments: Vec<(wgpu::Buffer, wgpu::Buffer)>,
+    /// The step's summed gradients: `PARAM_GRAD_STRIDE` per Gaussian.
+    acc_grads: wgpu::Buffer,
+    /// The step's summed SH gradients, in the parameters' layout.
+    acc_sh: wgpu::Buffer,
+    /// Per Gaussian: visible in any of the step's views (1) or not (0).
+    acc_visible: wgpu::Buffer,
+    /// The densification statistic's sums and counts.
+    grad2d: wgpu::Buffer,
+    count: wgpu::Buffer,
+}
+
+impl GpuTrainer {
+    /// Uploads the Gaussians, Adam's moments and the densification statistics.
+    pub fn upload(
+        ctx: &GpuContext,
+        g: &Gaussians,
+        adam: &Adam,
+        stats: &Densifier,
+    ) -> Result<GpuTrainer, GpuError> {
+        let n = g.len();
+        if adam.len() != n || stats.grad2d.len() != n || stats.count.len() != n {
+            return Err(GpuError::Invalid(format!(
+                "{n} Gaussians, moments for {}, statistics for {}",
+                adam.len(),
+                stats.grad2d.len()
+            )));
+        }
+        let scene = GpuScene::upload(ctx, g)?;
+        ctx.scoped(|| {
+            let mut moments = Vec::with_capacity(GROUPS.len());
+            for group in GROUPS {
+                let (m, v) = adam.moments(group);
+                moments.push((
+                    ctx.storage_init("Adam first moments", &f32_words(m.iter().copied()))?,
+                    ctx.storage_init("Adam second moments", &f32_words(v.iter().copied()))?,
+                ));
+            }
+            let nn = n as u64;
+            Ok(GpuTrainer {
+                acc_grads: ctx.storage("step gradients", 4 * PARAM_GRAD_STRIDE as u64 * nn)?,
+                acc_sh: ctx.storage("step SH gradients", 4 * 3 * u64::from(scene.coeffs) * nn)?,
+                acc_visible: ctx.storage("step visibility", 4 * nn)?,
+                grad2d: ctx.storage_init(
+                    "densification sums",
+                    &f32_words(stats.grad2d.iter().copied()),
+                )?,
+                count: ctx.storage_init("densification counts", &stats.count)?,
+                moments,
+                scene,
+            })
+        })
+    }
+
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.scene.len()
+    }
+
+    /// Copies the state back into the host's Gaussians, moments and statistics, which must
+    /// have this state's sizes.
+    pub fn download(
+        &self,
+        ctx: &GpuContext,
+        g: &mut Gaussians,
+        adam: &mut Adam,
+        stats: &mut Densifier,
+    ) -> Result<(), GpuError> {
+        let n = self.len();
+        let k = self.scene.coeffs as usize;
+        if g.len() != n || g.coeffs() != k || adam.len() != n || stats.grad2d.len() != n {
+            return Err(GpuError::Invalid(format!(
+                "the host holds {} Gaussians with {} SH coefficients, the GPU {n} with {k}",
+                g.len(),
+                g.coeffs()
+            )));
+        }
+        let floats = |buf: &wgpu::Buffer, len: usize| -> Result<Vec<f32>, GpuError> {
+            Ok(ctx
+                .read_words(buf, len)?
+                .into_iter()
+                .map(f32::from_bits)
+                .collect())
+        };
+        let sc = &self.scene;
+        copy_rows(&floats(&sc.means, 3 * n)?, &mut g.means);
+        copy_rows(&floats(&sc.scales, 3 * n)?, &mut g.log_scales);
+        copy_rows(&floats(&sc.quats, 4 * n)?, &mut g.quats);
+        g.opacity_logits = floats(&sc.logits, n)?;
+        g.sh = floats(&sc.sh, 3 * k * n)?;
+        let widths = adam.widths();
+        for ((group, (m, v)), w) in GROUPS.iter().zip(&self.moments).zip(widths) {
+            let (hm, hv) = adam.moments_mut(*group);
+            *hm = floats(m, w * n)?;
+            *hv = floats(v, w * n)?;
+        }
+        stats.grad2d = floats(&self.grad2d, n)?;
+        stats.count = ctx.read_words(&self.count, n)?;
+        Ok(())
+    }
+
+    /// Clears the step's gradient sums and visibility (before the step's first view).
+    pub fn begin_step(&self, ctx: &GpuContext) -> Result<(), GpuError> {
+        ctx.scoped(|| {
+            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            enc.clear_buffer(&self.acc_grads, 0, None);
+            enc.clear_buffer(&self.acc_sh, 0, None);
+            enc.clear_buffer(&self.acc_visible, 0, None);
+            ctx.submit(enc)
+        })
+    }
+
+    /// Renders the current Gaussians from `cam`, computes the view's loss, back-propagates it
+    /// and adds the view's gradients to the step's sums; with `stats = Some(factor)` also adds
+    /// the densification statistic (the screen-space mean gradient × `factor`, as
+    /// `Densifier::accumulate_scaled`). `sh_active` is the number of leading SH values per
+    /// Gaussian whose gradient may be non-zero. Returns (loss, pairs).
+    pub fn add_view(
+        &self,
+        ctx: &GpuContext,
+        cam: &Camera,
+        s: &RenderSettings,
+        loss: ViewLoss<'_>,
+        stats: Option<f32>,
+        sh_active: usize,
+    ) -> Result<(f64, u64), GpuError> {
+        let grid = tile_grid(cam)?;
+        ctx.scoped(|| {
+            let sc = &self.scene;
+            let n = sc.n;
+            let nn = u64::from(n);
+            let sh_width = 3 * sc.coeffs;
+            let st = forward_pass(ctx, sc, cam, s, grid, Cutoff::Hard)?;
+            let px = cam.width as usize * cam.height as usize;
+            let (value, d_rgb) = match loss {
+                ViewLoss::Host(f) => {
+                    let img = ctx.read_words(&st.image, IMAGE_STRIDE * px)?;
+                    let rgb: Vec<f32> = img
+                        .chunks_exact(IMAGE_STRIDE)
+                        .flat_map(|p| p[..3].iter().map(|w| f32::from_bits(*w)))
+                        .collect();
+                    let mut grad = vec![0.0f32; rgb.len()];
+                    let value = f(&rgb, &mut grad);
+                    let buf = ctx.storage_init("colour gradients", &f32_words(grad))?;
+                    (value, buf)
+                }
+            };
+            let screen =
+                ctx.storage("screen-space gradients", 4 * SCREEN_GRAD_STRIDE as u64 * nn)?;
+            let view_grads = ctx.storage("view gradients", 4 * PARAM_GRAD_STRIDE as u64 * nn)?;
+            let view_sh = ctx.storage("view SH gradients", 4 * u64::from(sh_width) * nn)?;
+            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let _pair_grads = record_backward(ctx, &mut enc, &st, grid, &d_rgb, &screen, n)?;
+            record_vjp(ctx, &mut enc, sc, cam, s, &screen, (&view_grads, &view_sh));
+            let consts = ctx.uniform(
+                "accumulate constants",
+                &[
+                    n,
+                    sh_width,
+                    (sh_active as u32).min(sh_width),
+                    u32::from(stats.is_some()),
+                    (0.5 * cam.width as f32).to_bits(),
+                    (0.5 * cam.height as f32).to_bits(),
+                    stats.unwrap_or(1.0).to_bits(),
+                    0,
+                ],
+            );
+            ctx.dispatch(
+                &mut enc,
+                &ctx.kernels.accumulate,
+                &[
+                    (0, &consts),
+                    (1, &view_grads),
+                    (2, &view_sh),
+                    (3, &screen),
+                    (4, &st.rects),
+                    (5, &self.acc_grads),
+                    (6, &self.acc_sh),
+                    (7, &self.acc_visible),
+                    (8, &self.grad2d),
+                    (9, &self.count),
+                ],
+                ctx.groups(n.div_ceil(256)),
+            );
+            ctx.submit(enc)?;
+            // The composited pairs, as the CPU renderer counts them.
+            let info = ctx.read_words(&st.info, 2 * px)?;
+            let pairs = info.chunks_exact(2).map(|p| u64::from(p[1])).sum();
+            Ok((value, pairs))
+        })
+    }
+
+    /// One Adam step over every group with the step's summed gradients; `dense` updates
+    /// every Gaussian, otherwise only those visible in one of the step's views.
+    pub fn adam_step(
+        &self,
+        ctx: &GpuContext,
+        consts: &[GpuStepConst; 5],
+        dense: bool,
+    ) -> Result<(), GpuError> {
+        ctx.scoped(|| {
+            let sc = &self.scene;
+            let n = sc.n;
+            let params = [&sc.means, &sc.scales, &sc.quats, &sc.logits, &sc.sh];
+            // Where each group's gradient sits: (buffer, stride, offset).
+            let grads = [
+                (&self.acc_grads, PARAM_GRAD_STRIDE as u32, 0),
+                (&self.acc_grads, PARAM_GRAD_STRIDE as u32, 3),
+                (&self.acc_grads, PARAM_GRAD_STRIDE as u32, 6),
+                (&self.acc_grads, PARAM_GRAD_STRIDE as u32, 10),
+                (&self.acc_sh, 3 * sc.coeffs, 0),
+            ];
+            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            for (k, c) in consts.iter().enumerate() {
+                let (gbuf, stride, offset) = grads[k];
+                let width = c.width as u32;
+                let words = [
+                    n,
+                    width,
+                    stride,
+                    offset,
+                    c.split as u32,
+                    c.cols as u32,
+                    u32::from(dense),
+                    0,
+                    c.step_a.to_bits(),
+                    c.step_b.to_bits(),
+                    c.b1.to_bits(),
+                    c.b2.to_bits(),
+                    c.inv_sqrt_bc2.to_bits(),
+                    c.eps.to_bits(),
+                    0,
+                    0,
+                ];
+                let uniform = ctx.uniform("Adam constants", &words);
+                let values = n.checked_mul(width).ok_or_else(|| {
+                    GpuError::Invalid(format!("{n} Gaussians × {width} values overflow"))
+                })?;
+                ctx.dispatch(
+                    &mut enc,
+                    &ctx.kernels.adam,
+                    &[
+                        (0, &uniform),
+                        (1, params[k]),
+                        (2, gbuf),
+                        (3, &self.moments[k].0),
+                        (4, &self.moments[k].1),
+                        (5, &self.acc_visible),
+                    ],
+                    ctx.groups(values.div_ceil(256)),
+                );
+            }
+            ctx.submit(enc)
+        })
+    }
+}
+
+/// Copies a flat slice into fixed-width rows.
+fn copy_rows<const W: usize>(flat: &[f32], rows: &mut [[f32; W]]) {
+    for (r, c) in rows.iter_mut().zip(flat.chunks_exact(W)) {
+        r.copy_from_slice(c);
+    }
+}

@@ -1,0 +1,314 @@
+//! The training step on the GPU (state kept there between steps: Adam, the per-view sums and
+//! the densification statistics in WGSL) against the CPU trainer on a small generated scene:
+//! the same losses step by step, the same Gaussians within Adam's rounding, the same
+//! densification, Dual's synthetic batches, selective Adam, checkpoints taken mid-run, and
+//! identical bytes on every run. Skips with a message when no GPU adapter is found (fails
+//! under `CI=true`, where `.ci/run` installs lavapipe).
+
+mod train_util;
+
+use augsplat_core::Scene;
+use augsplat_splat::adam::AdamUpdates;
+use augsplat_splat::densify::DensifyArgs;
+use augsplat_splat::gpu::{GpuContext, GpuError};
+use augsplat_splat::train::{
+    scene_scale, RealImages, RealLoss, RealView, Schedule, StepReport, SynthView, SyntheticImages,
+    TrainArgs, Trainer,
+};
+use augsplat_splat::{init, loss::WeightNorm, Gaussians};
+use std::path::Path;
+use std::sync::Arc;
+
+fn context(test: &str) -> Option<Arc<GpuContext>> {
+    match GpuContext::new() {
+        Ok(c) => {
+            eprintln!("{test}: on {}", c.adapter());
+            Some(Arc::new(c))
+        }
+        Err(e @ GpuError::NoAdapter { .. }) => {
+            augsplat_testkit::skip(test, &e.to_string());
+            None
+        }
+        Err(e) => panic!("{test}: {e}"),
+    }
+}
+
+struct Case {
+    real: RealImages,
+    synth: SyntheticImages,
+    init: Gaussians,
+    scale: f64,
+}
+
+fn case(root: &Path) -> Case {
+    let (train, _) = train_util::make_scene(root, 48, 40, 9, 400);
+    let scene = Scene::load(&train).unwrap();
+    let views: Vec<RealView> = (0..scene.views.len())
+        .map(|i| RealView {
+            name: scene.views[i].name.clone(),
+            camera: scene.views[i].camera.clone(),
+            image: scene.load_image(&train, i).unwrap().data,
+        })
+        .collect();
+    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
+    let scale = scene_scale(&cams);
+    let cloud = scene.load_points(&train).unwrap();
+    let mut init = init::from_points(&cloud, 1, &Default::default(), scale, 1);
+    // Anisotropic, so that the quaternions' gradients are not rounding noise around zero
+    // (Adam would turn noise into full steps of either sign on both backends).
+    for (i, s) in init.log_scales.iter_mut().enumerate() {
+        s[i % 3] += 0.7;
+    }
+    let synth = SyntheticImages {
+        views: views
+            .iter()
+            .map(|v| {
+                let cam = v.camera.resized(24, 20);
+                let img =
+                    augsplat_core::ImageF32::from_vec(48, 40, 3, v.image.clone()).downscale(2);
+                let w: Vec<f32> = (0..24 * 20).map(|p| 0.25 + (p % 7) as f32 / 8.0).collect();
+                SynthView::new(v.name.clone(), cam, img.data, w, 0.0)
+            })
+            .collect(),
+        norm: WeightNorm::WeightSum,
+    };
+    Case {
+        real: RealImages {
+            views,
+            loss: RealLoss::default(),
+        },
+        synth,
+        init,
+        scale,
+    }
+}
+
+fn args(steps: u64, densify: bool) -> TrainArgs {
+    TrainArgs {
+        steps,
+        sh_degree: 1,
+        sh_increase_every: 3,
+        densify: DensifyArgs {
+            enabled: densify,
+            start: 2,
+            every: 3,
+            reset_every: 0,
+            scale_with_steps: false,
+            grad_threshold: 2e-5,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+/// Runs `steps` steps (on the GPU when given) and returns the reports and the Gaussians.
+fn train(
+    c: &Case,
+    args: &TrainArgs,
+    synthetic: bool,
+    gpu: Option<&Arc<GpuContext>>,
+) -> (Vec<StepReport>, Gaussians) {
+    let synth = synthetic.then_some(&c.synth as &dyn augsplat_splat::train::Supervision);
+    let mut t = Trainer::new(args.clone(), c.init.clone(), c.scale, &c.real, synth);
+    if let Some(g) = gpu {
+        t.use_gpu(g.clone());
+    }
+    let reps = (0..args.steps).map(|_| t.step()).collect();
+    (reps, t.into_gaussians())
+}
+
+fn bits(g: &Gaussians) -> Vec<u32> {
+    g.means
+        .as_flattened()
+        .iter()
+        .chain(g.log_scales.as_flattened())
+        .chain(g.quats.as_flattened())
+        .chain(&g.opacity_logits)
+        .chain(&g.sh)
+        .map(|v| v.to_bits())
+        .collect()
+}
+
+/// The losses of two runs agree step by step within `tol` relative.
+fn same_losses(cpu: &[StepReport], gpu: &[StepReport], tol: f64, what: &str) {
+    assert_eq!(cpu.len(), gpu.len());
+    let mut worst = 0.0f64;
+    for (a, b) in cpu.iter().zip(gpu) {
+        assert_eq!(a.step, b.step);
+        assert_eq!(a.real_loss.is_some(), b.real_loss.is_some(), "{what}");
+        assert_eq!(
+            a.synthetic_loss.is_some(),
+            b.synthetic_loss.is_some(),
+            "{what}"
+        );
+        let rel = (a.loss - b.loss).abs() / a.loss.abs().max(1e-12);
+        worst = worst.max(rel);
+        assert!(
+            rel <= tol,
+            "{what}, step {}: CPU loss {} GPU loss {} ({rel:.2e} relative)",
+            a.step,
+            a.loss,
+            b.loss
+        );
+    }
+    eprintln!("{what}: losses agree within {worst:.2e} relative");
+}
+
+/// Each parameter's difference between two sets of equal size, in units of its group's
+/// Adam step (the learning rates of `TrainArgs::default()`).
+fn param_gaps(a: &Gaussians, b: &Gaussians, scale: f64) -> Vec<f64> {
+    assert_eq!(a.len(), b.len());
+    let lr = augsplat_splat::adam::LearningRates::default();
+    let gap = |x: &[f32], y: &[f32], step: f64| -> Vec<f64> {
+        x.iter()
+            .zip(y)
+            .map(|(p, q)| (f64::from(*p) - f64::from(*q)).abs() / step)
+            .collect()
+    };
+    [
+        gap(
+            a.means.as_flattened(),
+            b.means.as_flattened(),
+            lr.means * scale,
+        ),
+        gap(
+            a.log_scales.as_flattened(),
+            b.log_scales.as_flattened(),
+            lr.scales,
+        ),
+        gap(a.quats.as_flattened(), b.quats.as_flattened(), lr.quats),
+        gap(&a.opacity_logits, &b.opacity_logits, lr.opacities),
+        gap(&a.sh, &b.sh, lr.shn),
+    ]
+    .concat()
+}
+
+#[test]
+fn gpu_training_follows_the_cpu_and_repeats_bit_for_bit() {
+    let test = "gpu_training_follows_the_cpu_and_repeats_bit_for_bit";
+    let Some(gpu) = context(test) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let c = case(tmp.path());
+
+    // Without densification the two backends hold the same set: the losses agree step by
+    // step and every parameter within a few of Adam's steps (a gradient within rounding of
+    // zero can flip the sign of one update).
+    let a = args(6, false);
+    let (cpu_reps, cpu_g) = train(&c, &a, false, None);
+    let (gpu_reps, gpu_g) = train(&c, &a, false, Some(&gpu));
+    same_losses(&cpu_reps, &gpu_reps, 1e-4, "baseline, 6 steps");
+    let gaps = param_gaps(&cpu_g, &gpu_g, c.scale);
+    let worst = gaps.iter().copied().fold(0.0, f64::max);
+    let close = gaps.iter().filter(|&&g| g <= 0.01).count();
+    eprintln!(
+        "baseline, 6 steps: largest parameter gap {worst:.3} Adam steps; {close} of {} within 0.01",
+        gaps.len()
+    );
+    assert!(worst < 12.0, "parameters {worst} Adam steps apart");
+    {
+        let n = cpu_g.len();
+        let k = cpu_g.sh.len() / n;
+        let mut off = 0;
+        for (name, w) in [
+            ("means", 3),
+            ("scales", 3),
+            ("quats", 4),
+            ("opacity", 1),
+            ("sh", k),
+        ] {
+            let g = &gaps[off..off + w * n];
+            off += w * n;
+            eprintln!(
+                "{name}: {} of {} within 0.01, max {:.3}",
+                g.iter().filter(|&&x| x <= 0.01).count(),
+                g.len(),
+                g.iter().copied().fold(0.0, f64::max)
+            );
+        }
+    }
+    // Most parameters agree far closer than one step.
+    assert!(
+        close as f64 >= 0.9 * gaps.len() as f64,
+        "only {close} of {} parameters within 0.01 Adam steps",
+        gaps.len()
+    );
+
+    // With densification (the state goes back to the host at each refinement and up again)
+    // and Dual's synthetic batches: the same losses and the same refinements.
+    let mut a = args(8, true);
+    a.schedule = Schedule::Dual {
+        w_nerf0: 2.0,
+        w_real: 1.0,
+        quarter_decay: 4.0,
+        off_below: Some(0.5),
+        synthetic_batch: 3,
+    };
+    let (cpu_reps, cpu_g) = train(&c, &a, true, None);
+    let (gpu_reps, gpu_g) = train(&c, &a, true, Some(&gpu));
+    same_losses(
+        &cpu_reps,
+        &gpu_reps,
+        1e-3,
+        "Dual with densification, 8 steps",
+    );
+    let refine = |r: &[StepReport]| {
+        r.iter()
+            .map(|s| (s.refine, s.gaussians))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(refine(&cpu_reps), refine(&gpu_reps));
+    assert!(
+        cpu_reps
+            .iter()
+            .any(|r| r.refine.cloned + r.refine.split > 0),
+        "the case must densify: {:?}",
+        refine(&cpu_reps)
+    );
+    assert_eq!(cpu_g.len(), gpu_g.len());
+
+    // Two GPU runs: identical bytes.
+    let (again_reps, again_g) = train(&c, &a, true, Some(&gpu));
+    assert_eq!(bits(&gpu_g), bits(&again_g), "two GPU runs differ");
+    let losses = |r: &[StepReport]| r.iter().map(|s| s.loss.to_bits()).collect::<Vec<_>>();
+    assert_eq!(losses(&gpu_reps), losses(&again_reps));
+
+    // Selective Adam (only the step's visible Gaussians move) on the GPU too.
+    let mut a = args(5, false);
+    a.adam = AdamUpdates::Selective;
+    let (cpu_reps, _) = train(&c, &a, false, None);
+    let (gpu_reps, _) = train(&c, &a, false, Some(&gpu));
+    same_losses(&cpu_reps, &gpu_reps, 1e-4, "selective Adam, 5 steps");
+}
+
+#[test]
+fn a_gpu_run_resumes_from_a_checkpoint_as_if_uninterrupted() {
+    let test = "a_gpu_run_resumes_from_a_checkpoint_as_if_uninterrupted";
+    let Some(gpu) = context(test) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let c = case(tmp.path());
+    let a = args(7, true);
+    let (_, whole) = train(&c, &a, false, Some(&gpu));
+    // Four steps, a checkpoint (the state comes back from the GPU), a fresh trainer restored
+    // from it, three more steps.
+    let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, None);
+    t.use_gpu(gpu.clone());
+    for _ in 0..4 {
+        t.step();
+    }
+    let mut w = augsplat_core::state::StateWriter::new();
+    t.write_state(&mut w);
+    // Stepping on after the checkpoint is unaffected by having taken it.
+    for _ in 4..7 {
+        t.step();
+    }
+    assert_eq!(bits(&t.into_gaussians()), bits(&whole));
+    let bytes = w.finish();
+    let mut r = augsplat_core::state::StateReader::new(&bytes);
+    let mut resumed = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, None);
+    resumed.use_gpu(gpu.clone());
+    resumed.restore_state(&mut r).unwrap();
+    for _ in 4..7 {
+        resumed.step();
+    }
+    assert_eq!(bits(&resumed.into_gaussians()), bits(&whole));
+}
