@@ -12,7 +12,10 @@
 //! - [`render_gpu`]: the forward pass — projection and SH colour (`project/project.wgsl`), a
 //!   stable radix sort of the visible Gaussians by depth (`gpu/sort.wgsl`, `gpu/scan.wgsl`),
 //!   tile binning in (tile, depth, index) order by a second stable sort on the tile, and
-//!   per-tile front-to-back compositing in shared-memory batches (`forward/forward.wgsl`).
+//!   per-tile front-to-back compositing in shared-memory batches (`forward/forward.wgsl`);
+//! - [`loss_gpu`] and [`GpuLoss`]: the training losses and their gradients on the colour
+//!   (`loss/loss.wgsl`) — the photometric loss (L2 or L1, plus SSIM in four separable passes
+//!   with its adjoint) and the weighted L2, each summed per 256-value block by a fixed tree.
 //!
 //! Determinism: every reduction runs in a fixed order — prefix sums by blocks in shared
 //! memory, radix sort ranks by counting, compositing in list order — and no float atomics
@@ -20,6 +23,7 @@
 
 mod backward;
 mod forward;
+mod loss;
 mod sort;
 
 pub use backward::{
@@ -27,6 +31,7 @@ pub use backward::{
     SCREEN_GRAD_STRIDE,
 };
 pub use forward::{render_gpu, render_scene, render_scene_with_cutoff, GpuFrame, GpuScene};
+pub use loss::{loss_gpu, GpuLoss};
 
 use std::sync::mpsc;
 use wgpu::util::DeviceExt;
@@ -130,6 +135,7 @@ struct Kernels {
     project_vjp: wgpu::ComputePipeline,
     rasterize_backward: wgpu::ComputePipeline,
     gaussian_sums: wgpu::ComputePipeline,
+    loss: loss::LossKernels,
 }
 
 impl GpuContext {
@@ -400,6 +406,7 @@ impl Kernels {
             project_vjp: pipeline(&vjp, "project_vjp"),
             rasterize_backward: pipeline(&bwd, "rasterize_backward"),
             gaussian_sums: pipeline(&bwd, "gaussian_sums"),
+            loss: loss::LossKernels::new(device),
         }
     }
 }
