@@ -28,6 +28,24 @@ pub trait Supervision: Send + Sync {
     /// The loss of view `i` for rendered colour `rgb` (`H·W·3`); adds `scale · dL/d(rgb)`
     /// into `grad`.
     fn loss(&self, i: usize, rgb: &[f32], scale: f32, grad: &mut [f32]) -> f64;
+    /// The same loss as [`Supervision::loss`], described for the GPU's loss kernels: the
+    /// view's target colour, its per-pixel weights and the loss. `None` (the default, for
+    /// sources the GPU kernels do not cover) computes the loss on the host when training on
+    /// the GPU: the render is read back and the colour gradient sent up.
+    fn gpu_loss(&self, _i: usize) -> Option<GpuLossView<'_>> {
+        None
+    }
+}
+
+/// One view's loss for the GPU (see [`Supervision::gpu_loss`]).
+#[derive(Clone, Copy, Debug)]
+pub struct GpuLossView<'a> {
+    /// Target colour, `H·W·3`.
+    pub target: &'a [f32],
+    /// Per-pixel weights, `H·W` (the weighted L2).
+    pub weights: Option<&'a [f32]>,
+    /// The loss.
+    pub loss: crate::gpu::GpuLoss,
 }
 
 /// One real training image.
@@ -81,6 +99,16 @@ impl Supervision for RealImages {
             grad,
         )
         .0
+    }
+    fn gpu_loss(&self, i: usize) -> Option<GpuLossView<'_>> {
+        Some(GpuLossView {
+            target: &self.views[i].image,
+            weights: None,
+            loss: crate::gpu::GpuLoss::Photometric {
+                kind: self.loss.kind,
+                ssim_lambda: self.loss.ssim_lambda as f32,
+            },
+        })
     }
 }
 
@@ -154,5 +182,15 @@ impl Supervision for SyntheticImages {
     fn loss(&self, i: usize, rgb: &[f32], scale: f32, grad: &mut [f32]) -> f64 {
         let v = &self.views[i];
         loss::weighted_l2(rgb, &v.target, &v.weight, self.norm, scale, grad)
+    }
+    fn gpu_loss(&self, i: usize) -> Option<GpuLossView<'_>> {
+        let v = &self.views[i];
+        Some(GpuLossView {
+            target: &v.target,
+            weights: Some(&v.weight),
+            loss: crate::gpu::GpuLoss::WeightedL2 {
+                denominator: loss::weighted_l2_denominator(&v.weight, self.norm),
+            },
+        })
     }
 }

@@ -392,7 +392,12 @@ pub struct Trainer<'a> {
     gpu: Option<std::sync::Arc<crate::gpu::GpuContext>>,
     gpu_state: Option<crate::gpu::GpuTrainer>,
     gpu_ahead: bool,
+    /// The views' targets on the GPU, uploaded at their first use.
+    gpu_targets: GpuTargets,
 }
+
+/// Targets on the GPU by (synthetic?, view index).
+type GpuTargets = std::collections::HashMap<(bool, usize), crate::gpu::GpuTarget>;
 
 impl<'a> Trainer<'a> {
     /// A trainer starting from `g`. The SH storage of `g` must be `args.sh_degree`.
@@ -424,6 +429,7 @@ impl<'a> Trainer<'a> {
             gpu: None,
             gpu_state: None,
             gpu_ahead: false,
+            gpu_targets: GpuTargets::new(),
             adam,
             g,
             args,
@@ -438,6 +444,7 @@ impl<'a> Trainer<'a> {
     pub fn use_gpu(&mut self, gpu: std::sync::Arc<crate::gpu::GpuContext>) {
         self.sync_from_gpu();
         self.gpu_state = None;
+        self.gpu_targets.clear();
         self.gpu = Some(gpu);
     }
 
@@ -778,13 +785,31 @@ impl<'a> Trainer<'a> {
         };
         let densify_on = self.args.densify.enabled && step < self.dsched.stop;
         let view = |st: &crate::gpu::GpuTrainer,
+                    targets: &mut GpuTargets,
+                    synthetic: bool,
                     src: &dyn Supervision,
                     i: usize,
                     scale: f64,
                     stats: Option<f32>| {
-            let mut loss = |rgb: &[f32], grad: &mut [f32]| src.loss(i, rgb, scale as f32, grad);
-            let l = crate::gpu::ViewLoss::Host(&mut loss);
-            st.add_view(&gpu, src.camera(i), &settings, l, stats, sh_active)
+            let mut host = |rgb: &[f32], grad: &mut [f32]| src.loss(i, rgb, scale as f32, grad);
+            let loss = match src.gpu_loss(i) {
+                Some(v) => {
+                    let target = match targets.entry((synthetic, i)) {
+                        std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                        std::collections::hash_map::Entry::Vacant(e) => e.insert(
+                            crate::gpu::GpuTarget::upload(&gpu, v.target, v.weights)
+                                .unwrap_or_else(|e| fail(e)),
+                        ),
+                    };
+                    crate::gpu::ViewLoss::Gpu {
+                        target,
+                        loss: v.loss,
+                        scale: scale as f32,
+                    }
+                }
+                None => crate::gpu::ViewLoss::Host(&mut host),
+            };
+            st.add_view(&gpu, src.camera(i), &settings, loss, stats, sh_active)
                 .unwrap_or_else(|e| fail(e))
         };
         if let Some(st) = &self.gpu_state {
@@ -794,7 +819,15 @@ impl<'a> Trainer<'a> {
             if let Some(i) = self.next_real() {
                 if let Some(st) = &self.gpu_state {
                     let stats = densify_on.then_some(1.0);
-                    let (l, pairs) = view(st, self.real, i, plan.real_weight, stats);
+                    let (l, pairs) = view(
+                        st,
+                        &mut self.gpu_targets,
+                        false,
+                        self.real,
+                        i,
+                        plan.real_weight,
+                        stats,
+                    );
                     rep.real_loss = Some(l);
                     rep.loss += plan.real_weight * l;
                     rep.pairs += pairs;
@@ -813,7 +846,15 @@ impl<'a> Trainer<'a> {
                 let mut sum = 0.0;
                 if let Some(st) = &self.gpu_state {
                     for &i in &ids {
-                        let (l, pairs) = view(st, src, i, scale, want_stat.then_some(b as f32));
+                        let (l, pairs) = view(
+                            st,
+                            &mut self.gpu_targets,
+                            true,
+                            src,
+                            i,
+                            scale,
+                            want_stat.then_some(b as f32),
+                        );
                         sum += l;
                         rep.pairs += pairs;
                     }

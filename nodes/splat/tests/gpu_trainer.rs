@@ -1,8 +1,9 @@
 //! The training step on the GPU (state kept there between steps: Adam, the per-view sums and
 //! the densification statistics in WGSL) against the CPU trainer on a small generated scene:
-//! the same losses step by step, the same Gaussians within Adam's rounding, the same
-//! densification, Dual's synthetic batches, selective Adam, checkpoints taken mid-run, and
-//! identical bytes on every run. Skips with a message when no GPU adapter is found (fails
+//! the same losses step by step (on lavapipe within 5e-7 relative; asserted within 1e-4),
+//! every parameter within a small fraction of an Adam step, the same densification, Dual's
+//! synthetic batches, the losses on the GPU (`loss/loss.wgsl`) and on the host, selective
+//! Adam, checkpoints taken mid-run, and identical bytes on every run. Skips with a message when no GPU adapter is found (fails
 //! under `CI=true`, where `.ci/run` installs lavapipe).
 
 mod train_util;
@@ -12,8 +13,8 @@ use augsplat_splat::adam::AdamUpdates;
 use augsplat_splat::densify::DensifyArgs;
 use augsplat_splat::gpu::{GpuContext, GpuError};
 use augsplat_splat::train::{
-    scene_scale, RealImages, RealLoss, RealView, Schedule, StepReport, SynthView, SyntheticImages,
-    TrainArgs, Trainer,
+    scene_scale, RealImages, RealLoss, RealView, Schedule, StepReport, Supervision, SynthView,
+    SyntheticImages, TrainArgs, Trainer,
 };
 use augsplat_splat::{init, loss::WeightNorm, Gaussians};
 use std::path::Path;
@@ -108,13 +109,28 @@ fn train(
     synthetic: bool,
     gpu: Option<&Arc<GpuContext>>,
 ) -> (Vec<StepReport>, Gaussians) {
-    let synth = synthetic.then_some(&c.synth as &dyn augsplat_splat::train::Supervision);
+    let synth = synthetic.then_some(&c.synth as &dyn Supervision);
     let mut t = Trainer::new(args.clone(), c.init.clone(), c.scale, &c.real, synth);
     if let Some(g) = gpu {
         t.use_gpu(g.clone());
     }
     let reps = (0..args.steps).map(|_| t.step()).collect();
     (reps, t.into_gaussians())
+}
+
+/// Real images whose loss only the host computes (no `gpu_loss`).
+struct HostLoss<'a>(&'a RealImages);
+
+impl Supervision for HostLoss<'_> {
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    fn camera(&self, i: usize) -> &augsplat_core::Camera {
+        self.0.camera(i)
+    }
+    fn loss(&self, i: usize, rgb: &[f32], scale: f32, grad: &mut [f32]) -> f64 {
+        self.0.loss(i, rgb, scale, grad)
+    }
 }
 
 fn bits(g: &Gaussians) -> Vec<u32> {
@@ -204,7 +220,7 @@ fn gpu_training_follows_the_cpu_and_repeats_bit_for_bit() {
         "baseline, 6 steps: largest parameter gap {worst:.3} Adam steps; {close} of {} within 0.01",
         gaps.len()
     );
-    assert!(worst < 12.0, "parameters {worst} Adam steps apart");
+    assert!(worst < 4.0, "parameters {worst} Adam steps apart");
     {
         let n = cpu_g.len();
         let k = cpu_g.sh.len() / n;
@@ -228,7 +244,7 @@ fn gpu_training_follows_the_cpu_and_repeats_bit_for_bit() {
     }
     // Most parameters agree far closer than one step.
     assert!(
-        close as f64 >= 0.9 * gaps.len() as f64,
+        close as f64 >= 0.98 * gaps.len() as f64,
         "only {close} of {} parameters within 0.01 Adam steps",
         gaps.len()
     );
@@ -248,7 +264,7 @@ fn gpu_training_follows_the_cpu_and_repeats_bit_for_bit() {
     same_losses(
         &cpu_reps,
         &gpu_reps,
-        1e-3,
+        1e-4,
         "Dual with densification, 8 steps",
     );
     let refine = |r: &[StepReport]| {
@@ -271,6 +287,16 @@ fn gpu_training_follows_the_cpu_and_repeats_bit_for_bit() {
     assert_eq!(bits(&gpu_g), bits(&again_g), "two GPU runs differ");
     let losses = |r: &[StepReport]| r.iter().map(|s| s.loss.to_bits()).collect::<Vec<_>>();
     assert_eq!(losses(&gpu_reps), losses(&again_reps));
+
+    // A supervision source the GPU's loss kernels do not cover: its loss runs on the host
+    // (the render read back, the colour gradient sent up), with the same result.
+    let a = args(6, false);
+    let host = HostLoss(&c.real);
+    let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &host, None);
+    t.use_gpu(gpu.clone());
+    let host_reps: Vec<StepReport> = (0..a.steps).map(|_| t.step()).collect();
+    let (cpu_reps, _) = train(&c, &a, false, None);
+    same_losses(&cpu_reps, &host_reps, 1e-4, "host loss, 6 steps");
 
     // Selective Adam (only the step's visible Gaussians move) on the GPU too.
     let mut a = args(5, false);

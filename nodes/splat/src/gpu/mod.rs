@@ -9,13 +9,16 @@
 //!   the pair's own slot, each Gaussian's slots are summed in tile order
 //!   (`backward/backward.wgsl`), and [`project_vjp_gpu`] (`project/project_vjp.wgsl`) turns
 //!   them into gradients of the raw parameters;
-//! - [`GpuTrainer`]: the training state kept on the GPU between steps (Gaussians, Adam's
+//! - `GpuTrainer`: the training state kept on the GPU between steps (Gaussians, Adam's
 //!   moments, the step's gradient sums, the densification statistics), with Adam
 //!   (`adam/adam.wgsl`) and the per-view sums (`gpu/accumulate.wgsl`) there;
 //! - [`render_gpu`]: the forward pass — projection and SH colour (`project/project.wgsl`), a
 //!   stable radix sort of the visible Gaussians by depth (`gpu/sort.wgsl`, `gpu/scan.wgsl`),
 //!   tile binning in (tile, depth, index) order by a second stable sort on the tile, and
-//!   per-tile front-to-back compositing in shared-memory batches (`forward/forward.wgsl`).
+//!   per-tile front-to-back compositing in shared-memory batches (`forward/forward.wgsl`);
+//! - [`loss_gpu`] and [`GpuLoss`]: the training losses and their gradients on the colour
+//!   (`loss/loss.wgsl`) — the photometric loss (L2 or L1, plus SSIM in four separable passes
+//!   with its adjoint) and the weighted L2, each summed per 256-value block by a fixed tree.
 //!
 //! Determinism: every reduction runs in a fixed order — prefix sums by blocks in shared
 //! memory, radix sort ranks by counting, compositing in list order — and no float atomics
@@ -23,6 +26,7 @@
 
 mod backward;
 mod forward;
+mod loss;
 mod sort;
 mod train;
 
@@ -31,7 +35,8 @@ pub use backward::{
     SCREEN_GRAD_STRIDE,
 };
 pub use forward::{render_gpu, render_scene, render_scene_with_cutoff, GpuFrame, GpuScene};
-pub(crate) use train::{GpuTrainer, ViewLoss};
+pub use loss::{loss_gpu, GpuLoss};
+pub(crate) use train::{GpuTarget, GpuTrainer, ViewLoss};
 
 use std::sync::mpsc;
 use wgpu::util::DeviceExt;
@@ -137,6 +142,7 @@ struct Kernels {
     gaussian_sums: wgpu::ComputePipeline,
     accumulate: wgpu::ComputePipeline,
     adam: wgpu::ComputePipeline,
+    loss: loss::LossKernels,
 }
 
 impl GpuContext {
@@ -411,6 +417,7 @@ impl Kernels {
             gaussian_sums: pipeline(&bwd, "gaussian_sums"),
             accumulate: pipeline(&acc, "accumulate"),
             adam: pipeline(&adam, "adam"),
+            loss: loss::LossKernels::new(device),
         }
     }
 }

@@ -14,6 +14,7 @@
 
 use super::backward::{record_backward, record_vjp, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE};
 use super::forward::{forward_pass, tile_grid, GpuScene, IMAGE_STRIDE};
+use super::loss::{record_loss, GpuLoss};
 use super::{f32_words, GpuContext, GpuError};
 use crate::adam::{Adam, GpuStepConst, Group};
 use crate::densify::Densifier;
@@ -36,6 +37,43 @@ pub enum ViewLoss<'a> {
     /// `scale · dL/d(rgb)` into the zeroed buffer it gets and returns the loss; the gradient
     /// is sent to the GPU.
     Host(&'a mut dyn FnMut(&[f32], &mut [f32]) -> f64),
+    /// On the GPU (`loss/loss.wgsl`): the view's target, uploaded once, and its loss;
+    /// `scale` multiplies the gradient.
+    Gpu {
+        /// The target colour (and weights).
+        target: &'a GpuTarget,
+        /// The loss.
+        loss: GpuLoss,
+        /// The gradient's factor.
+        scale: f32,
+    },
+}
+
+/// A view's target colour (`H·W·3`) and optional per-pixel weights (`H·W`) on the GPU.
+pub struct GpuTarget {
+    rgb: wgpu::Buffer,
+    weights: Option<wgpu::Buffer>,
+}
+
+impl GpuTarget {
+    /// Uploads a target.
+    pub fn upload(
+        ctx: &GpuContext,
+        rgb: &[f32],
+        weights: Option<&[f32]>,
+    ) -> Result<GpuTarget, GpuError> {
+        ctx.scoped(|| {
+            Ok(GpuTarget {
+                rgb: ctx.storage_init("target colour", &f32_words(rgb.iter().copied()))?,
+                weights: match weights {
+                    Some(w) => {
+                        Some(ctx.storage_init("target weights", &f32_words(w.iter().copied()))?)
+                    }
+                    None => None,
+                },
+            })
+        })
+    }
 }
 
 /// A training state on the GPU (see the module docs).
@@ -176,7 +214,9 @@ impl GpuTrainer {
             let sh_width = 3 * sc.coeffs;
             let st = forward_pass(ctx, sc, cam, s, grid, Cutoff::Hard)?;
             let px = cam.width as usize * cam.height as usize;
-            let (value, d_rgb) = match loss {
+            let d_rgb = ctx.storage("colour gradients", 4 * 3 * px as u64)?;
+            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let (host_value, sums) = match loss {
                 ViewLoss::Host(f) => {
                     let img = ctx.read_words(&st.image, IMAGE_STRIDE * px)?;
                     let rgb: Vec<f32> = img
@@ -185,15 +225,35 @@ impl GpuTrainer {
                         .collect();
                     let mut grad = vec![0.0f32; rgb.len()];
                     let value = f(&rgb, &mut grad);
-                    let buf = ctx.storage_init("colour gradients", &f32_words(grad))?;
-                    (value, buf)
+                    ctx.queue
+                        .write_buffer(&d_rgb, 0, &super::words_to_bytes(&f32_words(grad)));
+                    (value, None)
+                }
+                ViewLoss::Gpu {
+                    target,
+                    loss,
+                    scale,
+                } => {
+                    let sums = record_loss(
+                        ctx,
+                        &mut enc,
+                        &st.image,
+                        IMAGE_STRIDE as u32,
+                        &target.rgb,
+                        target.weights.as_ref(),
+                        cam.width,
+                        cam.height,
+                        loss,
+                        scale,
+                        &d_rgb,
+                    )?;
+                    (0.0, Some(sums))
                 }
             };
             let screen =
                 ctx.storage("screen-space gradients", 4 * SCREEN_GRAD_STRIDE as u64 * nn)?;
             let view_grads = ctx.storage("view gradients", 4 * PARAM_GRAD_STRIDE as u64 * nn)?;
             let view_sh = ctx.storage("view SH gradients", 4 * u64::from(sh_width) * nn)?;
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
             let _pair_grads = record_backward(ctx, &mut enc, &st, grid, &d_rgb, &screen, n)?;
             record_vjp(ctx, &mut enc, sc, cam, s, &screen, (&view_grads, &view_sh));
             let consts = ctx.uniform(
@@ -227,6 +287,10 @@ impl GpuTrainer {
                 ctx.groups(n.div_ceil(256)),
             );
             ctx.submit(enc)?;
+            let value = match sums {
+                Some(sums) => sums.value(ctx)?,
+                None => host_value,
+            };
             // The composited pairs, as the CPU renderer counts them.
             let info = ctx.read_words(&st.info, 2 * px)?;
             let pairs = info.chunks_exact(2).map(|p| u64::from(p[1])).sum();

@@ -247,12 +247,7 @@ pub fn weighted_l2(
         return 0.0;
     }
     let clean = |w: f32| if w.is_finite() && w > 0.0 { w } else { 0.0 };
-    let denom = match norm {
-        WeightNorm::WeightSum => {
-            3.0 * det_sum(px, 4096, |r| r.map(|p| clean(weights[p]) as f64).sum())
-        }
-        WeightNorm::PixelCount => 3.0 * px as f64,
-    };
+    let denom = weighted_l2_denominator(weights, norm);
     if denom <= 0.0 || !denom.is_finite() {
         return 0.0;
     }
@@ -282,6 +277,21 @@ pub fn weighted_l2(
         .iter()
         .sum::<f64>();
     loss / denom
+}
+
+/// The denominator `N` of [`weighted_l2`] for a weight map: `3 · Σ w` over the finite
+/// positive weights ([`WeightNorm::WeightSum`], summed in fixed chunks) or `3 · pixels`
+/// ([`WeightNorm::PixelCount`]). The GPU's weighted L2 takes the same number.
+pub fn weighted_l2_denominator(weights: &[f32], norm: WeightNorm) -> f64 {
+    let clean = |w: f32| if w.is_finite() && w > 0.0 { w } else { 0.0 };
+    match norm {
+        WeightNorm::WeightSum => {
+            3.0 * det_sum(weights.len(), 4096, |r| {
+                r.map(|p| clean(weights[p]) as f64).sum()
+            })
+        }
+        WeightNorm::PixelCount => 3.0 * weights.len() as f64,
+    }
 }
 
 /// Fused SSIM forward and backward (valid padding, see the module docs). Returns the mean SSIM

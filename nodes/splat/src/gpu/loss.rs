@@ -1,0 +1,457 @@
+//! Host side of the GPU losses (`loss/loss.wgsl`): the photometric loss (L2 or L1, plus SSIM
+//! with valid padding) and the weighted L2 of [`crate::loss`], recorded into a caller's
+//! command encoder on GPU buffers so that a training step can keep its images on the GPU.
+//!
+//! The kernels write `scale · dL/dpred` (they do not add to it) and leave one f32 partial
+//! sum per 256-value block, summed by a fixed tree; [`LossSums::value`] adds the partials in
+//! index order in f64. No atomics: the same inputs on one adapter give the same bytes.
+
+use super::{f32_words, GpuContext, GpuError};
+use crate::loss::{gaussian_window, PixelLoss, WeightNorm, SSIM_C1, SSIM_C2, SSIM_WINDOW};
+
+/// Values per block of the loss kernels (their workgroup size): one partial sum each.
+const BLOCK: u64 = 256;
+/// Rows and columns the SSIM window reaches past its first one.
+const HALO: u32 = SSIM_WINDOW as u32 - 1;
+
+/// Which loss a view uses on the GPU.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GpuLoss {
+    /// The real-image loss `(1 − λ)·P + λ·(1 − SSIM)` of [`crate::loss::photometric`]; the
+    /// SSIM term is left out (as on the CPU) when λ = 0 or the image is smaller than the
+    /// 11-pixel window in either dimension.
+    Photometric {
+        /// The pixel-wise term P.
+        kind: PixelLoss,
+        /// λ, the weight of the SSIM term.
+        ssim_lambda: f32,
+    },
+    /// The confidence-weighted L2 of [`crate::loss::weighted_l2`]:
+    /// `Σ_p w_p Σ_c (pred − target)² / denominator`, with weights that are not finite or not
+    /// positive counted as 0; a denominator that is not positive and finite gives loss 0 and
+    /// a zero gradient. [`GpuLoss::weighted_l2`] makes the denominator of a [`WeightNorm`].
+    WeightedL2 {
+        /// `3 · Σ w` ([`WeightNorm::WeightSum`]) or `3 · pixels` ([`WeightNorm::PixelCount`]).
+        denominator: f64,
+    },
+}
+
+impl GpuLoss {
+    /// The weighted L2 normalised by `norm`, for an image of `pixels` pixels whose cleaned
+    /// weights (non-finite and negative ones set to 0) sum to `weight_sum`, as
+    /// [`crate::supervision::SynthView::weight_sum`] holds.
+    pub fn weighted_l2(norm: WeightNorm, weight_sum: f64, pixels: usize) -> GpuLoss {
+        let denominator = match norm {
+            WeightNorm::WeightSum => 3.0 * weight_sum,
+            WeightNorm::PixelCount => 3.0 * pixels as f64,
+        };
+        GpuLoss::WeightedL2 { denominator }
+    }
+}
+
+/// The compiled loss kernels (`loss/loss.wgsl`).
+pub(super) struct LossKernels {
+    pixel: wgpu::ComputePipeline,
+    weighted: wgpu::ComputePipeline,
+    h_moments: wgpu::ComputePipeline,
+    v_ssim: wgpu::ComputePipeline,
+    v_adjoint: wgpu::ComputePipeline,
+    ssim_grad: wgpu::ComputePipeline,
+}
+
+impl LossKernels {
+    pub(super) fn new(device: &wgpu::Device) -> LossKernels {
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("loss.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("../loss/loss.wgsl").into()),
+        });
+        let pipeline = |entry: &str| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: None,
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        LossKernels {
+            pixel: pipeline("pixel"),
+            weighted: pipeline("weighted"),
+            h_moments: pipeline("h_moments"),
+            v_ssim: pipeline("v_ssim"),
+            v_adjoint: pipeline("v_adjoint"),
+            ssim_grad: pipeline("ssim_grad"),
+        }
+    }
+}
+
+/// One term's per-block partial sums on the GPU.
+struct Partials {
+    buf: wgpu::Buffer,
+    blocks: usize,
+    /// What the sum is divided by (values, map values or the weighted L2's denominator).
+    divisor: f64,
+}
+
+impl Partials {
+    fn new(ctx: &GpuContext, what: &str, values: u64, divisor: f64) -> Result<Self, GpuError> {
+        let blocks = values.div_ceil(BLOCK);
+        Ok(Partials {
+            buf: ctx.storage(what, 4 * blocks)?,
+            blocks: blocks as usize,
+            divisor,
+        })
+    }
+
+    /// The mean: the partials read back and added in index order, in f64.
+    fn mean(&self, ctx: &GpuContext) -> Result<f64, GpuError> {
+        let words = ctx.read_words(&self.buf, self.blocks)?;
+        let sum: f64 = words
+            .into_iter()
+            .map(|w| f64::from(f32::from_bits(w)))
+            .sum();
+        Ok(sum / self.divisor)
+    }
+}
+
+/// The partial sums of one recorded loss; read them after the encoder has been submitted.
+pub(crate) struct LossSums {
+    /// The pixel term (or the weighted L2); `None` where it is 0 by definition.
+    pixel: Option<Partials>,
+    /// The SSIM map; `None` where the SSIM term is left out.
+    ssim: Option<Partials>,
+    /// The factor of the pixel term in the loss (`1 − λ`, or 1 for the weighted L2).
+    pixel_weight: f64,
+}
+
+impl LossSums {
+    /// The sums of an empty image: loss 0.
+    fn zero(pixel_weight: f64) -> LossSums {
+        LossSums {
+            pixel: None,
+            ssim: None,
+            pixel_weight,
+        }
+    }
+
+    /// The loss value, the same quantity as the CPU function returns (the first of
+    /// [`crate::loss::photometric`]'s three).
+    pub(crate) fn value(&self, ctx: &GpuContext) -> Result<f64, GpuError> {
+        Ok(self.terms(ctx)?.0)
+    }
+
+    /// `(loss, pixel term, mean SSIM)` as [`crate::loss::photometric`] returns them (SSIM 1
+    /// where the term is left out); for the weighted L2, `(loss, loss, 1)`.
+    pub(crate) fn terms(&self, ctx: &GpuContext) -> Result<(f64, f64, f64), GpuError> {
+        let pixel = match &self.pixel {
+            Some(p) => p.mean(ctx)?,
+            None => 0.0,
+        };
+        Ok(match &self.ssim {
+            Some(s) => {
+                let ssim = s.mean(ctx)?;
+                let lam = 1.0 - self.pixel_weight;
+                (self.pixel_weight * pixel + lam * (1.0 - ssim), pixel, ssim)
+            }
+            None => (self.pixel_weight * pixel, pixel, 1.0),
+        })
+    }
+}
+
+/// Checks that `buf` holds at least `words` f32 words.
+fn check_size(buf: &wgpu::Buffer, words: u64, what: &str) -> Result<(), GpuError> {
+    if buf.size() < 4 * words {
+        return Err(GpuError::Invalid(format!(
+            "loss: the {what} buffer has {} bytes, the image needs {}",
+            buf.size(),
+            4 * words
+        )));
+    }
+    Ok(())
+}
+
+/// The uniform of `loss.wgsl`: sizes, stride, mode, gradient factors, stabilisers, window.
+fn params(width: u32, height: u32, stride: u32, mode: u32, k: f32, gs: f32) -> Vec<u32> {
+    let mut w = vec![width, height, stride, mode];
+    w.extend(f32_words([k, gs, SSIM_C1 as f32, SSIM_C2 as f32]));
+    w.extend(f32_words(gaussian_window().map(|v| v as f32)));
+    w.push(0);
+    w
+}
+
+/// The image buffers and size of one recorded loss.
+struct Images<'a> {
+    pred: &'a wgpu::Buffer,
+    stride: u32,
+    target: &'a wgpu::Buffer,
+    d_rgb: &'a wgpu::Buffer,
+    width: u32,
+    height: u32,
+}
+
+impl Images<'_> {
+    /// Interleaved values, `3·W·H`.
+    fn values(&self) -> u64 {
+        3 * u64::from(self.width) * u64::from(self.height)
+    }
+    /// The words of `loss.wgsl`'s uniform with this size and stride.
+    fn params(&self, mode: u32, k: f32, gs: f32) -> Vec<u32> {
+        params(self.width, self.height, self.stride, mode, k, gs)
+    }
+}
+
+/// Records the loss of `pred` (`pred_stride` f32 words per pixel, colour in the first three:
+/// the forward's image buffer, or a plain rgb buffer with stride 3) against `target`
+/// (`H·W·3` f32) and, for [`GpuLoss::WeightedL2`], `weights` (`H·W` f32; ignored otherwise):
+/// writes `scale · dL/dpred` into `d_rgb` (`H·W·3` f32, overwritten) and returns the partial
+/// sums that give the loss value once `enc` has been submitted. The factors follow the CPU
+/// functions' arithmetic in f32, so the gradient matches theirs (added into zeros) to
+/// rounding.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn record_loss(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    pred: &wgpu::Buffer,
+    pred_stride: u32,
+    target: &wgpu::Buffer,
+    weights: Option<&wgpu::Buffer>,
+    width: u32,
+    height: u32,
+    loss: GpuLoss,
+    scale: f32,
+    d_rgb: &wgpu::Buffer,
+) -> Result<LossSums, GpuError> {
+    let pixels = u64::from(width) * u64::from(height);
+    // The kernels index the five moment planes (< 15 words per pixel) in u32.
+    if 15 * pixels > u64::from(u32::MAX) {
+        return Err(GpuError::Invalid(format!(
+            "loss: a {width}×{height} image is too large for the loss kernels"
+        )));
+    }
+    if pred_stride < 3 {
+        return Err(GpuError::Invalid(format!(
+            "loss: a prediction stride of {pred_stride} words per pixel (need at least 3)"
+        )));
+    }
+    check_size(pred, u64::from(pred_stride) * pixels, "prediction")?;
+    check_size(target, 3 * pixels, "target")?;
+    check_size(d_rgb, 3 * pixels, "gradient")?;
+    let im = Images {
+        pred,
+        stride: pred_stride,
+        target,
+        d_rgb,
+        width,
+        height,
+    };
+    match loss {
+        GpuLoss::WeightedL2 { denominator } => {
+            let w = weights.ok_or_else(|| {
+                GpuError::Invalid("loss: the weighted L2 needs a weight buffer".into())
+            })?;
+            check_size(w, pixels, "weight")?;
+            record_weighted(ctx, enc, &im, w, denominator, scale)
+        }
+        GpuLoss::Photometric { kind, ssim_lambda } => {
+            record_photometric(ctx, enc, &im, kind, ssim_lambda, scale)
+        }
+    }
+}
+
+/// The weighted L2 (`weighted`).
+fn record_weighted(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    im: &Images<'_>,
+    weights: &wgpu::Buffer,
+    denominator: f64,
+    scale: f32,
+) -> Result<LossSums, GpuError> {
+    let n = im.values();
+    let live = denominator > 0.0 && denominator.is_finite();
+    if n == 0 {
+        return Ok(LossSums::zero(1.0));
+    }
+    // The CPU's factor (loss/mod.rs `weighted_l2`); mode 1 writes a zero gradient.
+    let g = (2.0 * scale as f64 / denominator) as f32;
+    let uni = ctx.uniform("weighted L2 params", &im.params(u32::from(!live), g, 0.0));
+    let sums = Partials::new(ctx, "weighted L2 sums", n, denominator)?;
+    ctx.dispatch(
+        enc,
+        &ctx.kernels.loss.weighted,
+        &[
+            (0, &uni),
+            (1, im.pred),
+            (2, im.target),
+            (3, weights),
+            (6, im.d_rgb),
+            (7, &sums.buf),
+        ],
+        groups(ctx, n),
+    );
+    Ok(LossSums {
+        pixel: live.then_some(sums),
+        ssim: None,
+        pixel_weight: 1.0,
+    })
+}
+
+/// The photometric loss: `pixel` alone, or the four SSIM passes (see `loss.wgsl`).
+fn record_photometric(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    im: &Images<'_>,
+    kind: PixelLoss,
+    ssim_lambda: f32,
+    scale: f32,
+) -> Result<LossSums, GpuError> {
+    let n = im.values();
+    let pixel_weight = 1.0 - f64::from(ssim_lambda);
+    if n == 0 {
+        return Ok(LossSums::zero(pixel_weight));
+    }
+    // The CPU's factors, in its order of f32 operations (loss/mod.rs `photometric`).
+    let pix_scale = scale * (1.0 - ssim_lambda);
+    let (mode, k) = match kind {
+        PixelLoss::L2 => (0, 2.0 * pix_scale / n as f32),
+        PixelLoss::L1 => (1, pix_scale / n as f32),
+    };
+    let kr = &ctx.kernels.loss;
+    let pix = Partials::new(ctx, "pixel-term sums", n, n as f64)?;
+    let (width, height) = (im.width, im.height);
+    let window = SSIM_WINDOW as u32;
+    if ssim_lambda == 0.0 || width < window || height < window {
+        let uni = ctx.uniform("pixel loss params", &im.params(mode, k, 0.0));
+        ctx.dispatch(
+            enc,
+            &kr.pixel,
+            &[
+                (0, &uni),
+                (1, im.pred),
+                (2, im.target),
+                (6, im.d_rgb),
+                (7, &pix.buf),
+            ],
+            groups(ctx, n),
+        );
+        return Ok(LossSums {
+            pixel: Some(pix),
+            ssim: None,
+            pixel_weight,
+        });
+    }
+    let m = 3 * u64::from(width - HALO);
+    let plane = u64::from(height) * m;
+    let count = u64::from(height - HALO) * m;
+    let gs = ((-scale * ssim_lambda) as f64 / count as f64) as f32;
+    let uni = ctx.uniform("photometric loss params", &im.params(mode, k, gs));
+    let moments = ctx.storage("SSIM moments", 4 * 5 * plane)?;
+    let part = ctx.storage("SSIM partials", 4 * 3 * count)?;
+    let ssim = Partials::new(ctx, "SSIM sums", count, count as f64)?;
+    ctx.dispatch(
+        enc,
+        &kr.h_moments,
+        &[(0, &uni), (1, im.pred), (2, im.target), (4, &moments)],
+        groups(ctx, plane),
+    );
+    ctx.dispatch(
+        enc,
+        &kr.v_ssim,
+        &[(0, &uni), (4, &moments), (5, &part), (7, &ssim.buf)],
+        groups(ctx, count),
+    );
+    ctx.dispatch(
+        enc,
+        &kr.v_adjoint,
+        &[(0, &uni), (4, &moments), (5, &part)],
+        groups(ctx, plane),
+    );
+    ctx.dispatch(
+        enc,
+        &kr.ssim_grad,
+        &[
+            (0, &uni),
+            (1, im.pred),
+            (2, im.target),
+            (4, &moments),
+            (6, im.d_rgb),
+            (7, &pix.buf),
+        ],
+        groups(ctx, n),
+    );
+    Ok(LossSums {
+        pixel: Some(pix),
+        ssim: Some(ssim),
+        pixel_weight,
+    })
+}
+
+/// Workgroups for one thread per value.
+fn groups(ctx: &GpuContext, values: u64) -> [u32; 2] {
+    ctx.groups(values.div_ceil(BLOCK) as u32)
+}
+
+/// The loss of `pred_rgb` against `target` (both `H·W·3`, interleaved) on the GPU, with
+/// `weights` (`H·W`) for [`GpuLoss::WeightedL2`]: uploads, runs the kernels and reads back
+/// `(loss value, scale · dL/dpred)` — the value [`crate::loss::photometric`] (first of its
+/// three) or [`crate::loss::weighted_l2`] returns and the gradient they add into a zero
+/// buffer, to f32 rounding. For tests and tools; a GPU training step keeps its buffers on
+/// the GPU instead. Deterministic: the same inputs give the same bytes on one adapter.
+#[allow(clippy::too_many_arguments)]
+pub fn loss_gpu(
+    ctx: &GpuContext,
+    pred_rgb: &[f32],
+    target: &[f32],
+    weights: Option<&[f32]>,
+    width: u32,
+    height: u32,
+    loss: GpuLoss,
+    scale: f32,
+) -> Result<(f64, Vec<f32>), GpuError> {
+    let pixels = width as usize * height as usize;
+    for (what, len, need) in [
+        ("prediction", pred_rgb.len(), 3 * pixels),
+        ("target", target.len(), 3 * pixels),
+        ("weight", weights.map_or(pixels, <[f32]>::len), pixels),
+    ] {
+        if len != need {
+            return Err(GpuError::Invalid(format!(
+                "loss: {len} {what} values for a {width}×{height} image (need {need})"
+            )));
+        }
+    }
+    if pixels == 0 {
+        return Ok((0.0, Vec::new()));
+    }
+    ctx.scoped(|| {
+        let pred = ctx.storage_init("prediction", &f32_words(pred_rgb.iter().copied()))?;
+        let tgt = ctx.storage_init("target", &f32_words(target.iter().copied()))?;
+        let w = match weights {
+            Some(w) => Some(ctx.storage_init("weights", &f32_words(w.iter().copied()))?),
+            None => None,
+        };
+        let d_rgb = ctx.storage("colour gradients", 4 * 3 * pixels as u64)?;
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let sums = record_loss(
+            ctx,
+            &mut enc,
+            &pred,
+            3,
+            &tgt,
+            w.as_ref(),
+            width,
+            height,
+            loss,
+            scale,
+            &d_rgb,
+        )?;
+        ctx.submit(enc)?;
+        let grad = ctx
+            .read_words(&d_rgb, 3 * pixels)?
+            .into_iter()
+            .map(f32::from_bits)
+            .collect();
+        Ok((sums.value(ctx)?, grad))
+    })
+}
