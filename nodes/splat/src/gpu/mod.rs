@@ -17,14 +17,17 @@
 //! Determinism: every reduction runs in a fixed order — prefix sums by blocks in shared
 //! memory, radix sort ranks by counting, compositing in list order — and no float atomics
 //! (no atomics at all) are used, so the same inputs on the same adapter give the same bytes.
+//! The one exception is the hidden `backward_gpu_atomic`, a float-atomic variant of the
+//! compositing backward that exists only to measure what this determinism costs
+//! (`examples/gpu_determinism_cost.rs`); nothing else calls it.
 
 mod backward;
 mod forward;
 mod sort;
 
 pub use backward::{
-    backward_gpu, backward_gpu_with_cutoff, project_vjp_gpu, ParamGradsGpu, PARAM_GRAD_STRIDE,
-    SCREEN_GRAD_STRIDE,
+    backward_gpu, backward_gpu_atomic, backward_gpu_timed, backward_gpu_with_cutoff,
+    project_vjp_gpu, BackwardStage, ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
 };
 pub use forward::{render_gpu, render_scene, render_scene_with_cutoff, GpuFrame, GpuScene};
 
@@ -130,6 +133,7 @@ struct Kernels {
     project_vjp: wgpu::ComputePipeline,
     rasterize_backward: wgpu::ComputePipeline,
     gaussian_sums: wgpu::ComputePipeline,
+    rasterize_backward_atomic: wgpu::ComputePipeline,
 }
 
 impl GpuContext {
@@ -377,6 +381,10 @@ impl Kernels {
             include_str!("../project/project_vjp.wgsl"),
         );
         let bwd = module("backward.wgsl", include_str!("../backward/backward.wgsl"));
+        let bwd_atomic = module(
+            "backward_atomic.wgsl",
+            include_str!("../backward/backward_atomic.wgsl"),
+        );
         let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry),
@@ -400,6 +408,7 @@ impl Kernels {
             project_vjp: pipeline(&vjp, "project_vjp"),
             rasterize_backward: pipeline(&bwd, "rasterize_backward"),
             gaussian_sums: pipeline(&bwd, "gaussian_sums"),
+            rasterize_backward_atomic: pipeline(&bwd_atomic, "rasterize_backward_atomic"),
         }
     }
 }
