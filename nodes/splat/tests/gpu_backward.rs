@@ -292,3 +292,80 @@ fn gpu_gradients_agree_with_finite_differences_of_the_gpu_forward() {
     );
     assert!(median <= 5e-3, "median {median}");
 }
+
+/// The float-atomic variant of the compositing backward (`backward_gpu_atomic`, kept only to
+/// measure what determinism costs) against the deterministic [`backward_gpu`]: they differ
+/// only in the order of each Gaussian's per-tile sums, so every group agrees within 1e-4 of
+/// the group's largest magnitude, with the same visibility. The second case's footprints
+/// span several tiles, so a kernel that overwrote instead of adding, or lost adds to a race,
+/// fails. Whether two atomic runs gave the same bytes is printed, not asserted: it depends
+/// on the adapter's scheduling.
+///
+/// [`backward_gpu`]: augsplat_splat::gpu::backward_gpu
+#[test]
+fn gpu_atomic_backward_matches_the_deterministic_one() {
+    let Some(ctx) = context("gpu_atomic_backward_matches_the_deterministic_one") else {
+        return;
+    };
+    let mut rng = Rng::new(11);
+    for (n, w, h, footprint, seed) in [
+        (1500usize, 64u32, 48u32, 4.0f64, 3u64),
+        (300, 61, 45, 16.0, 8),
+    ] {
+        let cam = augsplat_testkit::cameras::facing(w, h, 4.0);
+        let g = Gaussians::random_cloud(n, footprint / cam.fx, seed);
+        let s = RenderSettings {
+            sh_degree: 3,
+            background: [0.3, 0.2, 0.1],
+            ..Default::default()
+        };
+        let d_rgb: Vec<f32> = (0..w as usize * h as usize * 3)
+            .map(|_| rng.uniform(-1.0, 1.0) as f32)
+            .collect();
+        let scene = GpuScene::upload(&ctx, &g).unwrap();
+        let det = augsplat_splat::gpu::backward_gpu(&ctx, &scene, &cam, &s, &d_rgb).unwrap();
+        let atomic =
+            augsplat_splat::gpu::backward_gpu_atomic(&ctx, &scene, &cam, &s, &d_rgb).unwrap();
+        let what = format!("{n} Gaussians at {w}×{h}, footprint scale {footprint} px");
+        assert_eq!(det.visible, atomic.visible, "{what}: visibility");
+        let check = |name: &str, a: Vec<f32>, d: Vec<f32>| {
+            assert_eq!(a.len(), d.len(), "{what}: {name} length");
+            let (rel, scale) = relative(a.into_iter(), d.into_iter().map(f64::from));
+            eprintln!("{what}: atomic vs ordered {name} {rel:.2e} (scale {scale:.2e})");
+            assert!(scale > 0.0, "{what}: {name} all zero");
+            assert!(rel <= 1e-4, "{what}: {name} {rel} relative to {scale}");
+        };
+        let group = |p: &[f32], q: std::ops::Range<usize>| -> Vec<f32> {
+            (0..n)
+                .flat_map(|i| q.clone().map(move |k| p[i * PARAM_GRAD_STRIDE + k]))
+                .collect()
+        };
+        for (name, q) in [
+            ("means", 0..3),
+            ("log-scales", 3..6),
+            ("quaternions", 6..10),
+            ("opacity logits", 10..11),
+        ] {
+            check(
+                name,
+                group(&atomic.params, q.clone()),
+                group(&det.params, q),
+            );
+        }
+        check("SH", atomic.sh.clone(), det.sh.clone());
+        let flat = |m: &[[f32; 2]]| m.iter().flatten().copied().collect::<Vec<_>>();
+        check("means2d", flat(&atomic.means2d), flat(&det.means2d));
+        let again =
+            augsplat_splat::gpu::backward_gpu_atomic(&ctx, &scene, &cam, &s, &d_rgb).unwrap();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let same = bits(&atomic.params) == bits(&again.params)
+            && bits(&atomic.sh) == bits(&again.sh)
+            && bits(&flat(&atomic.means2d)) == bits(&flat(&again.means2d));
+        let identical_to_ordered = bits(&atomic.params) == bits(&det.params);
+        eprintln!(
+            "{what}: two atomic runs bit-identical on {}: {same}; atomic params bit-identical \
+             to the ordered ones: {identical_to_ordered}",
+            ctx.adapter()
+        );
+    }
+}

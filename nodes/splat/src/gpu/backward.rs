@@ -2,6 +2,8 @@
 //! per-tile pair sums, then per-Gaussian sums in a fixed order) and the projection and colour
 //! backward (`project/project_vjp.wgsl`); `record_backward` and `record_vjp` are the same
 //! steps recorded into a caller's encoder, for the training step in `gpu/train.rs`.
+//! `backward_gpu_atomic` (hidden) swaps the ordered pair sums for float atomics, only to
+//! measure what determinism costs.
 
 use super::forward::{camera_words, forward_pass, ForwardState, GpuScene};
 use super::{f32_words, GpuContext, GpuError};
@@ -141,8 +143,9 @@ pub(super) fn record_vjp(
 
 /// Records the compositing backward of one forward pass: `d_rgb` (dL/d(rgb), `H·W·3`) becomes
 /// each Gaussian's screen-space gradient in `screen` ([`SCREEN_GRAD_STRIDE`] values per
-/// Gaussian) — per-tile pair sums into the pair buffer, then each Gaussian's pairs summed in
-/// tile order. Returns the pair buffer, which must live until the commands ran.
+/// Gaussian) — per-tile pair sums into `pair_grads` (`PAIR_STRIDE` values per pair, see
+/// [`pair_buffer`]), then each Gaussian's pairs summed in tile order.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn record_backward(
     ctx: &GpuContext,
     enc: &mut wgpu::CommandEncoder,
@@ -151,8 +154,8 @@ pub(super) fn record_backward(
     d_rgb: &wgpu::Buffer,
     screen: &wgpu::Buffer,
     n: u32,
-) -> Result<wgpu::Buffer, GpuError> {
-    let pair_grads = ctx.storage("pair gradients", 4 * PAIR_STRIDE * u64::from(st.pairs))?;
+    pair_grads: &wgpu::Buffer,
+) {
     let kr = &ctx.kernels;
     ctx.dispatch(
         enc,
@@ -166,7 +169,7 @@ pub(super) fn record_backward(
             (7, &st.splats),
             (8, &st.image),
             (9, d_rgb),
-            (10, &pair_grads),
+            (10, pair_grads),
         ],
         [grid.tiles_x, grid.tiles_y],
     );
@@ -179,12 +182,16 @@ pub(super) fn record_backward(
             (2, &st.order),
             (3, &st.counts),
             (7, &st.splats),
-            (10, &pair_grads),
+            (10, pair_grads),
             (11, screen),
         ],
         ctx.groups(n.div_ceil(256)),
     );
-    Ok(pair_grads)
+}
+
+/// The pair buffer [`record_backward`] sums into, sized for a forward pass's pairs.
+pub(super) fn pair_buffer(ctx: &GpuContext, st: &ForwardState) -> Result<wgpu::Buffer, GpuError> {
+    ctx.storage("pair gradients", 4 * PAIR_STRIDE * u64::from(st.pairs))
 }
 
 /// The gradients of a loss on the colour image, on the GPU: renders `scene` from `cam` (the
@@ -214,6 +221,80 @@ pub fn backward_gpu_with_cutoff(
     d_rgb: &[f32],
     cutoff: Cutoff,
 ) -> Result<ParamGradsGpu, GpuError> {
+    backward_inner(ctx, scene, cam, s, d_rgb, cutoff, Reduction::Ordered).map(|(g, _)| g)
+}
+
+/// [`backward_gpu`] with the per-Gaussian sums done by float atomics instead of ordered pair
+/// slots (`backward/backward_atomic.wgsl`): each tile adds its share of a Gaussian's
+/// screen-space gradient straight into the Gaussian's slot by a compare-exchange loop on the
+/// bits, so there is no pair buffer and no second pass. It exists only to measure what the
+/// determinism of [`backward_gpu`] costs (`examples/gpu_determinism_cost.rs`); nothing else
+/// uses it. Not bit-reproducible by design on real GPUs: the order in which tiles add into a
+/// Gaussian's slot depends on scheduling, so the gradients agree with [`backward_gpu`]'s only
+/// up to f32 rounding, and two runs may differ in the last bits.
+#[doc(hidden)]
+pub fn backward_gpu_atomic(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    d_rgb: &[f32],
+) -> Result<ParamGradsGpu, GpuError> {
+    backward_inner(ctx, scene, cam, s, d_rgb, Cutoff::Hard, Reduction::Atomic).map(|(g, _)| g)
+}
+
+/// What one [`backward_gpu_timed`] run spent in the stage where the two reductions differ.
+#[doc(hidden)]
+#[derive(Clone, Copy, Debug)]
+pub struct BackwardStage {
+    /// Number of (tile, Gaussian) pairs of the forward pass.
+    pub pairs: u32,
+    /// Wall time of the compositing backward's submission, from recording to the device's
+    /// completion: `rasterize_backward` + `gaussian_sums` (deterministic), or the buffer
+    /// clear + `rasterize_backward_atomic` (atomic). The forward pass before it and the
+    /// projection backward and read-backs after it are the same for both and left out.
+    pub kernels: std::time::Duration,
+}
+
+/// [`backward_gpu`] (`atomic` false) or [`backward_gpu_atomic`] (`atomic` true), with the
+/// pair count and the time of the stage where they differ; for the determinism-cost example.
+#[doc(hidden)]
+pub fn backward_gpu_timed(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    d_rgb: &[f32],
+    atomic: bool,
+) -> Result<(ParamGradsGpu, BackwardStage), GpuError> {
+    let reduction = if atomic {
+        Reduction::Atomic
+    } else {
+        Reduction::Ordered
+    };
+    backward_inner(ctx, scene, cam, s, d_rgb, Cutoff::Hard, reduction)
+}
+
+/// How the compositing backward sums each Gaussian's per-tile shares.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Reduction {
+    /// Into the pairs' own slots, then per Gaussian in tile order (`backward.wgsl`).
+    Ordered,
+    /// Straight into the Gaussian's slot by float atomic adds (`backward_atomic.wgsl`).
+    Atomic,
+}
+
+/// The forward kernels, the compositing backward with `reduction`, the projection backward
+/// and the read-backs; with the pair count and the compositing backward's wall time.
+fn backward_inner(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    d_rgb: &[f32],
+    cutoff: Cutoff,
+    reduction: Reduction,
+) -> Result<(ParamGradsGpu, BackwardStage), GpuError> {
     let grid = super::forward::tile_grid(cam)?;
     let pixels = cam.width as usize * cam.height as usize;
     if d_rgb.len() != 3 * pixels {
@@ -230,9 +311,45 @@ pub fn backward_gpu_with_cutoff(
         let n = scene.len() as u64;
         let g_rgb = ctx.storage_init("colour gradients", &f32_words(d_rgb.iter().copied()))?;
         let screen = ctx.storage("screen-space gradients", 4 * SCREEN_GRAD_STRIDE as u64 * n)?;
+        // Allocated before the clock starts: the timed stage is the kernels alone.
+        let pair_grads = match reduction {
+            Reduction::Ordered => Some(pair_buffer(ctx, &st)?),
+            Reduction::Atomic => None,
+        };
+        let kr = &ctx.kernels;
+        let started = std::time::Instant::now();
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        let _pairs = record_backward(ctx, &mut enc, &st, grid, &g_rgb, &screen, n as u32)?;
+        match &pair_grads {
+            Some(pair_grads) => {
+                record_backward(
+                    ctx, &mut enc, &st, grid, &g_rgb, &screen, n as u32, pair_grads,
+                );
+            }
+            None => {
+                enc.clear_buffer(&screen, 0, None);
+                ctx.dispatch(
+                    &mut enc,
+                    &kr.rasterize_backward_atomic,
+                    &[
+                        (0, &st.params),
+                        (2, &st.order),
+                        (4, &st.pair_rank),
+                        (5, &st.sorted),
+                        (6, &st.ranges),
+                        (7, &st.splats),
+                        (8, &st.image),
+                        (9, &g_rgb),
+                        (11, &screen),
+                    ],
+                    [grid.tiles_x, grid.tiles_y],
+                );
+            }
+        }
         ctx.submit(enc)?;
+        let stage = BackwardStage {
+            pairs: st.pairs,
+            kernels: started.elapsed(),
+        };
         let mut out = vjp_inner(ctx, scene, cam, s, &screen)?;
         let nn = n as usize;
         let sg = ctx.read_words(&screen, SCREEN_GRAD_STRIDE * nn)?;
@@ -246,7 +363,7 @@ pub fn backward_gpu_with_cutoff(
             .chunks_exact(4)
             .map(|m| m[2] > 0)
             .collect();
-        Ok(out)
+        Ok((out, stage))
     })
 }
 

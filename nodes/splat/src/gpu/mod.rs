@@ -23,6 +23,9 @@
 //! Determinism: every reduction runs in a fixed order — prefix sums by blocks in shared
 //! memory, radix sort ranks by counting, compositing in list order — and no float atomics
 //! (no atomics at all) are used, so the same inputs on the same adapter give the same bytes.
+//! The one exception is the hidden `backward_gpu_atomic`, a float-atomic variant of the
+//! compositing backward that exists only to measure what this determinism costs
+//! (`examples/gpu_determinism_cost.rs`); nothing else calls it.
 
 mod backward;
 mod forward;
@@ -31,8 +34,8 @@ mod sort;
 mod train;
 
 pub use backward::{
-    backward_gpu, backward_gpu_with_cutoff, project_vjp_gpu, ParamGradsGpu, PARAM_GRAD_STRIDE,
-    SCREEN_GRAD_STRIDE,
+    backward_gpu, backward_gpu_atomic, backward_gpu_timed, backward_gpu_with_cutoff,
+    project_vjp_gpu, BackwardStage, ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
 };
 pub use forward::{render_gpu, render_scene, render_scene_with_cutoff, GpuFrame, GpuScene};
 pub use loss::{loss_gpu, GpuLoss};
@@ -143,6 +146,7 @@ struct Kernels {
     accumulate: wgpu::ComputePipeline,
     adam: wgpu::ComputePipeline,
     loss: loss::LossKernels,
+    rasterize_backward_atomic: wgpu::ComputePipeline,
 }
 
 impl GpuContext {
@@ -392,6 +396,10 @@ impl Kernels {
         let bwd = module("backward.wgsl", include_str!("../backward/backward.wgsl"));
         let acc = module("accumulate.wgsl", include_str!("accumulate.wgsl"));
         let adam = module("adam.wgsl", include_str!("../adam/adam.wgsl"));
+        let bwd_atomic = module(
+            "backward_atomic.wgsl",
+            include_str!("../backward/backward_atomic.wgsl"),
+        );
         let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry),
@@ -418,6 +426,7 @@ impl Kernels {
             accumulate: pipeline(&acc, "accumulate"),
             adam: pipeline(&adam, "adam"),
             loss: loss::LossKernels::new(device),
+            rasterize_backward_atomic: pipeline(&bwd_atomic, "rasterize_backward_atomic"),
         }
     }
 }

@@ -12,7 +12,9 @@
 //! ([`GpuTrainer::download`]) only where the CPU must see it: densification, opacity resets,
 //! evaluations and checkpoints; after the host changed it, it uploads a new state.
 
-use super::backward::{record_backward, record_vjp, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE};
+use super::backward::{
+    pair_buffer, record_backward, record_vjp, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
+};
 use super::forward::{forward_pass, tile_grid, GpuScene, IMAGE_STRIDE};
 use super::loss::{record_loss, GpuLoss};
 use super::{f32_words, GpuContext, GpuError};
@@ -254,7 +256,8 @@ impl GpuTrainer {
                 ctx.storage("screen-space gradients", 4 * SCREEN_GRAD_STRIDE as u64 * nn)?;
             let view_grads = ctx.storage("view gradients", 4 * PARAM_GRAD_STRIDE as u64 * nn)?;
             let view_sh = ctx.storage("view SH gradients", 4 * u64::from(sh_width) * nn)?;
-            let _pair_grads = record_backward(ctx, &mut enc, &st, grid, &d_rgb, &screen, n)?;
+            let pair_grads = pair_buffer(ctx, &st)?;
+            record_backward(ctx, &mut enc, &st, grid, &d_rgb, &screen, n, &pair_grads);
             record_vjp(ctx, &mut enc, sc, cam, s, &screen, (&view_grads, &view_sh));
             let consts = ctx.uniform(
                 "accumulate constants",
