@@ -1,8 +1,9 @@
-//! `OptimizeSplats` with `backend: Gpu` (each view's render and backward pass on the GPU;
-//! the loss, Adam, densification and evaluations on the CPU) through the CLI on the tiny
-//! demo: a 50-step baseline gives the same model bytes in two fresh stores and the same
-//! held-out PSNR as the CPU backend to 0.1 dB; Staged and Dual run on the GPU too; the
-//! adapter is recorded in the model folder; a mask-needing setting is refused at plan time.
+//! `OptimizeSplats` with `backend: Gpu` (the training state on the GPU; densification and
+//! evaluations on the CPU) through the CLI on the tiny demo: a 50-step baseline gives the
+//! same model bytes in two fresh stores and the same held-out PSNR as the CPU backend to
+//! 0.1 dB; Staged and Dual run on the GPU too; the adapter is recorded in the model folder; a
+//! device lost mid-run ends the node with a clear message and no cache entry; a
+//! mask-needing setting is refused at plan time.
 //! Skips with a message when the machine has no GPU adapter (fails under `CI=true`).
 
 use serde_json::Value;
@@ -11,6 +12,16 @@ use std::process::Command;
 
 /// Runs the tiny demo with `sets`, up to `targets`; returns (success, output, summary).
 fn run(cache: &Path, sets: &[&str], targets: &[&str]) -> (bool, String, Value) {
+    run_with_env(cache, sets, targets, &[])
+}
+
+/// [`run`] with extra environment variables.
+fn run_with_env(
+    cache: &Path,
+    sets: &[&str],
+    targets: &[&str],
+    env: &[(&str, &str)],
+) -> (bool, String, Value) {
     let summary = cache.with_extension("json");
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_augsplat"));
     cmd.arg("run")
@@ -26,6 +37,7 @@ fn run(cache: &Path, sets: &[&str], targets: &[&str]) -> (bool, String, Value) {
     for t in targets {
         cmd.arg("--target").arg(t);
     }
+    cmd.envs(env.iter().copied());
     let out = cmd.output().unwrap();
     let text = format!(
         "{}{}",
@@ -124,6 +136,36 @@ fn training_on_the_gpu_is_deterministic_and_matches_the_cpu() {
             .join("device.json")
             .is_file());
     }
+
+    // A device lost mid-training (destroyed after 5 steps through the fault tests' hook)
+    // ends the node with the device's message and leaves no cache entry: a rerun without
+    // the fault trains it from scratch and gets the same model as before.
+    let lost = dir.path().join("lost");
+    let (ok, text, _) = run_with_env(
+        &lost,
+        &gpu_sets,
+        &["baseline"],
+        &[("AUGSPLAT_TEST_LOSE_GPU_AFTER", "5")],
+    );
+    assert!(!ok, "{text}");
+    assert!(text.contains("the GPU device was lost"), "{text}");
+    let (ok, text, again) = run(&lost, &gpu_sets, &["baseline"]);
+    assert!(ok, "{text}");
+    let status = again["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["name"] == "baseline")
+        .map(|n| n["status"].clone());
+    assert_eq!(
+        status,
+        Some(Value::from("ran")),
+        "a failed node must leave no cache entry: {again}"
+    );
+    assert_eq!(
+        std::fs::read(output(&lost, &again, "baseline", "model").join("final.ply")).unwrap(),
+        std::fs::read(ma.join("final.ply")).unwrap()
+    );
 
     // Pixel masks (skip_below > 0) are not on the GPU yet: refused before anything runs.
     let (ok, text, _) = run(

@@ -404,6 +404,13 @@ pub fn fit(
         real,
         synthetic.map(|s| s as &dyn Supervision),
     );
+    // The fault tests' hook: destroy the GPU device after this many steps, as a driver
+    // reset would (`AUGSPLAT_TEST_LOSE_GPU_AFTER`; never set in real runs).
+    let lose_gpu = gpu.clone().zip(
+        std::env::var("AUGSPLAT_TEST_LOSE_GPU_AFTER")
+            .ok()
+            .and_then(|v| v.parse::<u64>().ok()),
+    );
     if let Some(gpu) = gpu {
         trainer.use_gpu(gpu);
     }
@@ -447,6 +454,11 @@ pub fn fit(
     // Only Dual switches a branch off to save time; Staged's switch is its method.
     let dual = matches!(a.schedule, crate::train::Schedule::Dual { .. });
     while trainer.steps_done() < a.steps {
+        if let Some((gpu, after)) = &lose_gpu {
+            if trainer.steps_done() == *after {
+                gpu.destroy_device();
+            }
+        }
         let ts = std::time::Instant::now();
         let rep = trainer.step();
         let dt = ts.elapsed().as_secs_f64();

@@ -256,3 +256,18 @@ fn gpu_renders_are_bit_identical_run_to_run() {
         assert_eq!(a.last, b.last);
     }
 }
+
+#[test]
+fn a_lost_device_is_an_error_not_a_panic() {
+    let Some(ctx) = context("a_lost_device_is_an_error_not_a_panic") else {
+        return;
+    };
+    let g = Gaussians::empty(0);
+    let cam = camera(32, 24);
+    let s = RenderSettings::default();
+    render_gpu(&ctx, &g, &cam, &s).unwrap();
+    ctx.destroy_device();
+    let e = render_gpu(&ctx, &g, &cam, &s).unwrap_err();
+    eprintln!("after the device was destroyed: {e}");
+    assert!(matches!(e, GpuError::Device { .. }), "{e}");
+}

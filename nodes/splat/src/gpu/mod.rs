@@ -127,6 +127,8 @@ pub struct GpuContext {
     adapter: AdapterSummary,
     limits: wgpu::Limits,
     kernels: Kernels,
+    /// Why the device was lost, once it was (set by wgpu's device-lost callback).
+    lost: std::sync::Arc<std::sync::Mutex<Option<String>>>,
 }
 
 /// The compiled compute pipelines.
@@ -199,6 +201,17 @@ impl GpuContext {
             adapter: summary.to_string(),
             message: format!("cannot open the device: {e}"),
         })?;
+        let lost = std::sync::Arc::new(std::sync::Mutex::new(None));
+        let lost_in_callback = lost.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            if let Ok(mut l) = lost_in_callback.lock() {
+                *l = Some(if message.is_empty() {
+                    format!("{reason:?}")
+                } else {
+                    format!("{reason:?}: {message}")
+                });
+            }
+        });
         // Compiling the kernels reports shader errors through an error scope, not a panic.
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let kernels = Kernels::new(&device);
@@ -214,6 +227,7 @@ impl GpuContext {
             adapter: summary,
             limits,
             kernels,
+            lost,
         })
     }
 
@@ -222,9 +236,23 @@ impl GpuContext {
         &self.adapter
     }
 
-    /// A storage buffer of `bytes` bytes (at least 4), checked against the adapter's limits.
+    /// Destroys the device, as a driver reset or an unplugged GPU would: every later call on
+    /// this context fails with a [`GpuError::Device`]. Only for the fault tests.
+    #[doc(hidden)]
+    pub fn destroy_device(&self) {
+        self.device.destroy();
+    }
+
+    /// The device's limits (the adapter's own, which the context asks for in full).
+    pub fn limits(&self) -> &wgpu::Limits {
+        &self.limits
+    }
+
+    /// A storage buffer of `bytes` bytes (at least 16), checked against the adapter's limits.
     fn storage(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
-        let bytes = bytes.max(4).next_multiple_of(4);
+        // At least one 16-byte element: kernels read some buffers as arrays of vec4, and an
+        // empty set (no Gaussians, no pairs) still binds them.
+        let bytes = bytes.max(16).next_multiple_of(4);
         let limit = self
             .limits
             .max_storage_buffer_binding_size
@@ -258,12 +286,17 @@ impl GpuContext {
 
     /// A uniform buffer holding `words`.
     fn uniform(&self, what: &str, words: &[u32]) -> wgpu::Buffer {
-        self.device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(what),
-                contents: &words_to_bytes(words),
-                usage: wgpu::BufferUsages::UNIFORM,
-            })
+        // Written through the queue rather than mapped at creation: on a lost device a
+        // mapped creation panics inside wgpu, a queue write is an error the scope reports.
+        let bytes = words_to_bytes(words);
+        let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(what),
+            size: (bytes.len() as u64).max(16).next_multiple_of(16),
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.queue.write_buffer(&buf, 0, &bytes);
+        buf
     }
 
     /// Records one dispatch of `pipeline` over `groups` workgroups (spread over two
@@ -311,7 +344,16 @@ impl GpuContext {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| self.device_error(format!("waiting for the GPU: {e}")))?;
-        Ok(())
+        self.check_lost()
+    }
+
+    /// A [`GpuError::Device`] if the device was lost (a driver reset, a removed GPU).
+    fn check_lost(&self) -> Result<(), GpuError> {
+        let lost = self.lost.lock().ok().and_then(|l| l.clone());
+        match lost {
+            Some(why) => Err(self.device_error(format!("the GPU device was lost ({why})"))),
+            None => Ok(()),
+        }
     }
 
     fn device_error(&self, message: String) -> GpuError {
@@ -362,11 +404,15 @@ impl GpuContext {
     /// Runs `f` inside an error scope: validation errors and out-of-memory become
     /// [`GpuError::Device`] instead of a panic in wgpu's default handler.
     fn scoped<T>(&self, f: impl FnOnce() -> Result<T, GpuError>) -> Result<T, GpuError> {
+        self.check_lost()?;
         let oom_scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let validation_scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let out = f();
         let validation = pollster::block_on(validation_scope.pop());
         let oom = pollster::block_on(oom_scope.pop());
+        // A lost device shows up as errors on whatever was in flight: name the cause.
+        let _ = self.device.poll(wgpu::PollType::Poll);
+        self.check_lost()?;
         if let Some(e) = oom {
             return Err(self.device_error(format!("out of GPU memory: {e}")));
         }
