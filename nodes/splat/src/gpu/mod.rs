@@ -42,7 +42,6 @@ pub use loss::{loss_gpu, GpuLoss};
 pub(crate) use train::{GpuTarget, GpuTrainer, ViewLoss};
 
 use std::sync::mpsc;
-use wgpu::util::DeviceExt;
 
 /// Where a node computes its splatting: part of the node's args, hence of its key.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
