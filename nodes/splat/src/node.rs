@@ -37,7 +37,8 @@ impl Node for OptimizeSplats {
     // exponential (σ in bits, a degree-5 polynomial) changes renders in the last bits.
     // 6: Adam updates every Gaussian by default (`adam: Dense`, gsplat's default), where
     // version 5 and earlier updated only the visible ones (now `adam: Selective`).
-    const VERSION: u32 = 6;
+    // 7: with `backend: Gpu` the loss and Adam run on the GPU (CPU outputs unchanged).
+    const VERSION: u32 = 7;
     type Args = TrainArgs;
 
     fn inputs(_args: &TrainArgs) -> Vec<InputDecl> {

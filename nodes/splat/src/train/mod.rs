@@ -26,224 +26,23 @@
 //!
 //! Every random choice comes from [`Rng::stream`] keyed by the seed and the step, and every
 //! reduction has a fixed order, so a run is bit-identical for any thread count.
+//!
+//! With [`Trainer::use_gpu`] the same step runs on the GPU (`train/gpu.rs`): the state stays
+//! there between steps and comes back for densification, resets, evaluations and
+//! checkpoints. The arguments live in `train/args.rs`.
 
-use crate::adam::{Adam, LearningRates, ParamGrads};
-use crate::densify::{self, Densifier, DensifyArgs, DensifySchedule};
-use crate::init::InitArgs;
-use crate::loss::PixelLoss;
+use crate::adam::{Adam, ParamGrads};
+use crate::densify::{self, Densifier, DensifySchedule};
 pub use crate::schedule::{dual_lambda, dual_raw_weight, Schedule, StepPlan};
 pub use crate::supervision::{RealImages, RealView, Supervision, SynthView, SyntheticImages};
 use crate::{Gaussians, Gradients, RenderOutput, RenderSettings};
 use augsplat_core::{Camera, Rng};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
-/// Real-image loss parameters: `(1 − λ)·P + λ·(1 − SSIM)`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct RealLoss {
-    /// λ, the SSIM share.
-    pub ssim_lambda: f64,
-    /// The pixel term P.
-    pub kind: PixelLoss,
-}
+mod args;
+mod gpu;
 
-impl Default for RealLoss {
-    fn default() -> Self {
-        RealLoss {
-            ssim_lambda: 0.2,
-            kind: PixelLoss::L2,
-        }
-    }
-}
-
-/// Synthetic-supervision parameters.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct SyntheticArgs {
-    /// Normalise the weighted L2 by the weight sum (else by the pixel count), see
-    /// [`crate::loss::weighted_l2`].
-    pub normalize_by_weight_sum: bool,
-    /// Pixels whose weight is below this are neither rendered nor back-propagated (0 = render
-    /// everything; tiles with no such pixel are skipped by the rasteriser).
-    pub skip_below: f64,
-    /// Also accumulate the densification statistic from synthetic renders.
-    pub densify_from_synthetic: bool,
-}
-
-impl Default for SyntheticArgs {
-    fn default() -> Self {
-        SyntheticArgs {
-            normalize_by_weight_sum: true,
-            skip_below: 0.0,
-            densify_from_synthetic: false,
-        }
-    }
-}
-
-/// The `OptimizeSplats` arguments (also the trainer's configuration).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct TrainArgs {
-    /// Optimisation steps.
-    pub steps: u64,
-    /// Evaluate the held-out views every this many steps (and after the last step).
-    pub eval_every: u64,
-    /// Maximum SH degree (storage and final active degree).
-    pub sh_degree: u32,
-    /// Active SH degree increases by one every this many steps (gsplat: 1000).
-    pub sh_increase_every: u64,
-    /// Background colour.
-    pub background: [f32; 3],
-    /// Per-pixel alpha clamp.
-    pub max_alpha: f32,
-    /// Antialiased rasterisation (mip-splatting compensation).
-    pub antialiased: bool,
-    /// Learning rates.
-    pub learning_rates: LearningRates,
-    /// Densification.
-    pub densify: DensifyArgs,
-    /// Initialisation.
-    pub init: InitArgs,
-    /// Real-image loss.
-    pub real_loss: RealLoss,
-    /// Supervision schedule.
-    pub schedule: Schedule,
-    /// Synthetic supervision options.
-    pub synthetic: SyntheticArgs,
-    /// Stop when the selection metric (average error, or PSNR without LPIPS) has not improved
-    /// for this many evaluations.
-    pub early_stop_patience: Option<u32>,
-    /// Scene scale override (None: 1.1 × the largest distance of a training camera from the
-    /// cameras' mean, as gsplat).
-    pub scene_scale: Option<f64>,
-    /// LPIPS backbone when the `lpips` input is connected: "alex" (AugSplat) or "vgg".
-    pub lpips_net: String,
-    /// Seed of every random choice.
-    pub seed: u64,
-    /// Method name for reports (empty: the schedule's name).
-    pub label: String,
-    /// Write wall-clock seconds into `curve.json` (off by default: with it the output bytes
-    /// differ between runs; the node log always has the times).
-    pub record_wall_time: bool,
-    /// Where each view's render and backward pass run: `Cpu` (default) or `Gpu` (wgpu; the
-    /// loss, Adam, densification and the held-out evaluations stay on the CPU). Left out of
-    /// the serialised args when `Cpu`, so CPU keys did not change when it was added.
-    #[serde(skip_serializing_if = "crate::gpu::Backend::is_cpu")]
-    pub backend: crate::gpu::Backend,
-    /// Which Gaussians each Adam step updates: `Dense` (all of them, gsplat
-    /// `simple_trainer`'s default, and ours) or `Selective` (the visible ones). Left out of
-    /// the serialised args when `Dense`.
-    #[serde(skip_serializing_if = "crate::adam::AdamUpdates::is_dense")]
-    pub adam: crate::adam::AdamUpdates,
-}
-
-impl Default for TrainArgs {
-    fn default() -> Self {
-        TrainArgs {
-            steps: 3000,
-            eval_every: 100,
-            sh_degree: 3,
-            sh_increase_every: 1000,
-            background: [0.0; 3],
-            max_alpha: crate::constants::MAX_ALPHA,
-            antialiased: false,
-            learning_rates: LearningRates::default(),
-            densify: DensifyArgs::default(),
-            init: InitArgs::default(),
-            real_loss: RealLoss::default(),
-            schedule: Schedule::Baseline,
-            synthetic: SyntheticArgs::default(),
-            early_stop_patience: None,
-            scene_scale: None,
-            lpips_net: "alex".into(),
-            seed: 0,
-            label: String::new(),
-            record_wall_time: false,
-            backend: crate::gpu::Backend::Cpu,
-            adam: crate::adam::AdamUpdates::Dense,
-        }
-    }
-}
-
-impl TrainArgs {
-    /// Checks every range.
-    pub fn validate(&self) -> Result<(), String> {
-        if self.sh_degree > 3 {
-            return Err(format!("sh_degree = {} must be 0..=3", self.sh_degree));
-        }
-        if self.sh_increase_every == 0 {
-            return Err("sh_increase_every must be ≥ 1".into());
-        }
-        if self.eval_every == 0 {
-            return Err("eval_every must be ≥ 1".into());
-        }
-        if !(self.max_alpha > 0.0 && self.max_alpha <= 1.0) {
-            return Err(format!("max_alpha = {} must be in (0, 1]", self.max_alpha));
-        }
-        if self.background.iter().any(|v| !v.is_finite()) {
-            return Err("background must be finite".into());
-        }
-        if !(0.0..=1.0).contains(&self.real_loss.ssim_lambda) {
-            return Err(format!(
-                "real_loss.ssim_lambda = {} must be in [0, 1]",
-                self.real_loss.ssim_lambda
-            ));
-        }
-        if self.backend == crate::gpu::Backend::Gpu && self.synthetic.skip_below > 0.0 {
-            return Err(format!(
-                "synthetic.skip_below = {} needs pixel masks, which the GPU backend does not have yet: use backend: Cpu, or skip_below: 0",
-                self.synthetic.skip_below
-            ));
-        }
-        if !(self.synthetic.skip_below.is_finite() && self.synthetic.skip_below >= 0.0) {
-            return Err(format!(
-                "synthetic.skip_below = {} must be finite and ≥ 0",
-                self.synthetic.skip_below
-            ));
-        }
-        if let Some(s) = self.scene_scale {
-            if !(s.is_finite() && s > 0.0) {
-                return Err(format!("scene_scale = {s} must be positive"));
-            }
-        }
-        if !matches!(
-            self.lpips_net.to_ascii_lowercase().as_str(),
-            "alex" | "alexnet" | "vgg" | "vgg16"
-        ) {
-            return Err(format!(
-                "lpips_net = {:?} must be \"alex\" or \"vgg\"",
-                self.lpips_net
-            ));
-        }
-        self.learning_rates.validate()?;
-        self.densify.validate()?;
-        self.init.validate()?;
-        self.schedule.validate()
-    }
-    /// The method's name for reports: `label`, or the schedule's name when it is empty.
-    pub fn method_label(&self) -> String {
-        if self.label.is_empty() {
-            self.schedule.name().to_string()
-        } else {
-            self.label.clone()
-        }
-    }
-    /// The active SH degree at 0-based step `step`.
-    pub fn active_sh_degree(&self, step: u64) -> u32 {
-        ((step / self.sh_increase_every.max(1)).min(self.sh_degree as u64)) as u32
-    }
-    /// Render settings at step `step`.
-    pub fn render_settings(&self, step: u64) -> RenderSettings {
-        RenderSettings {
-            sh_degree: self.active_sh_degree(step),
-            background: self.background,
-            max_alpha: self.max_alpha,
-            antialiased: self.antialiased,
-            ..RenderSettings::default()
-        }
-    }
-}
+pub use args::{RealLoss, SyntheticArgs, TrainArgs};
 
 /// What one step did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -397,7 +196,7 @@ pub struct Trainer<'a> {
 }
 
 /// Targets on the GPU by (synthetic?, view index).
-type GpuTargets = std::collections::HashMap<(bool, usize), crate::gpu::GpuTarget>;
+pub(super) type GpuTargets = std::collections::HashMap<(bool, usize), crate::gpu::GpuTarget>;
 
 impl<'a> Trainer<'a> {
     /// A trainer starting from `g`. The SH storage of `g` must be `args.sh_degree`.
@@ -436,42 +235,12 @@ impl<'a> Trainer<'a> {
         }
     }
 
-    /// Trains on `gpu` from now on: the Gaussians, Adam's moments and the densification
-    /// statistics move to the GPU and stay there between steps (see
-    /// [`crate::gpu`]); densification, opacity resets, evaluations and checkpoints bring them
-    /// back to the host. A GPU failure in a later step ends the training with the device's
-    /// message (a panic the engine reports as the node's failure).
-    pub fn use_gpu(&mut self, gpu: std::sync::Arc<crate::gpu::GpuContext>) {
-        self.sync_from_gpu();
-        self.gpu_state = None;
-        self.gpu_targets.clear();
-        self.gpu = Some(gpu);
-    }
-
     /// The current Gaussians (brought back from the GPU first when it trains there).
     pub fn gaussians(&mut self) -> &Gaussians {
         self.sync_from_gpu();
         &self.g
     }
 
-    /// Copies the GPU's training state into `g`, `adam` and `densifier` if it is newer.
-    fn sync_from_gpu(&mut self) {
-        if !self.gpu_ahead {
-            return;
-        }
-        if let (Some(gpu), Some(st)) = (&self.gpu, &self.gpu_state) {
-            st.download(gpu, &mut self.g, &mut self.adam, &mut self.densifier)
-                .unwrap_or_else(|e| panic!("backend: Gpu: {e}"));
-        }
-        self.gpu_ahead = false;
-    }
-
-    /// Brings the state back from the GPU and drops the GPU's copy: the host is about to
-    /// change it (the next step uploads it again).
-    fn take_back_from_gpu(&mut self) {
-        self.sync_from_gpu();
-        self.gpu_state = None;
-    }
     /// Steps taken so far.
     pub fn steps_done(&self) -> u64 {
         self.step
@@ -554,7 +323,7 @@ impl<'a> Trainer<'a> {
         Ok(())
     }
 
-    fn next_real(&mut self) -> Option<usize> {
+    pub(super) fn next_real(&mut self) -> Option<usize> {
         let n = self.real.len();
         if n == 0 {
             return None;
@@ -709,7 +478,7 @@ impl<'a> Trainer<'a> {
 
     /// Staged's opacity reset at its switch, when asked for (clears the moments and the
     /// densification statistics too).
-    fn reset_at_switch(&mut self, plan: &crate::schedule::StepPlan) {
+    pub(super) fn reset_at_switch(&mut self, plan: &crate::schedule::StepPlan) {
         if plan.switch {
             if let Schedule::Staged {
                 reset_at_switch: true,
@@ -726,7 +495,7 @@ impl<'a> Trainer<'a> {
 
     /// `b` synthetic views of the usable pool, drawn without replacement from a stream keyed
     /// by the step (partial Fisher–Yates on a copy).
-    fn draw_synthetic(&self, step: u64, b: usize) -> Vec<usize> {
+    pub(super) fn draw_synthetic(&self, step: u64, b: usize) -> Vec<usize> {
         let mut ids = self.usable_synth.clone();
         let mut rng = Rng::stream(self.args.seed ^ 0x5F17, step);
         for k in 0..b {
@@ -739,7 +508,11 @@ impl<'a> Trainer<'a> {
 
     /// Densification and opacity resets after the step's update (on the host: a GPU state is
     /// brought back first, and uploaded again by the next step).
-    fn post_update(&mut self, step: u64, settings: &RenderSettings) -> densify::RefineReport {
+    pub(super) fn post_update(
+        &mut self,
+        step: u64,
+        settings: &RenderSettings,
+    ) -> densify::RefineReport {
         if !densify::acts_at(step, &self.dsched, &self.args.densify) {
             return Default::default();
         }
@@ -760,125 +533,6 @@ impl<'a> Trainer<'a> {
             self.args.seed ^ 0xDE45,
             &mut visibility,
         )
-    }
-
-    /// [`Trainer::step`] on the GPU: the same views, losses, sums and Adam constants, with the
-    /// state kept there ([`crate::gpu::GpuTrainer`]).
-    fn step_gpu(&mut self) -> StepReport {
-        let step = self.step;
-        let plan = self.args.schedule.plan(step);
-        self.reset_at_switch(&plan);
-        let settings = self.args.render_settings(step);
-        let Some(gpu) = self.gpu.clone() else {
-            unreachable!("step_gpu runs only with a GPU");
-        };
-        let fail = |e: crate::gpu::GpuError| -> ! { panic!("backend: Gpu: {e}") };
-        if self.gpu_state.is_none() {
-            let st = crate::gpu::GpuTrainer::upload(&gpu, &self.g, &self.adam, &self.densifier)
-                .unwrap_or_else(|e| fail(e));
-            self.gpu_state = Some(st);
-        }
-        let sh_active = 3 * crate::gaussians::sh_coeffs(settings.sh_degree.min(self.g.sh_degree));
-        let mut rep = StepReport {
-            step,
-            ..Default::default()
-        };
-        let densify_on = self.args.densify.enabled && step < self.dsched.stop;
-        let view = |st: &crate::gpu::GpuTrainer,
-                    targets: &mut GpuTargets,
-                    synthetic: bool,
-                    src: &dyn Supervision,
-                    i: usize,
-                    scale: f64,
-                    stats: Option<f32>| {
-            let mut host = |rgb: &[f32], grad: &mut [f32]| src.loss(i, rgb, scale as f32, grad);
-            let loss = match src.gpu_loss(i) {
-                Some(v) => {
-                    let target = match targets.entry((synthetic, i)) {
-                        std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-                        std::collections::hash_map::Entry::Vacant(e) => e.insert(
-                            crate::gpu::GpuTarget::upload(&gpu, v.target, v.weights)
-                                .unwrap_or_else(|e| fail(e)),
-                        ),
-                    };
-                    crate::gpu::ViewLoss::Gpu {
-                        target,
-                        loss: v.loss,
-                        scale: scale as f32,
-                    }
-                }
-                None => crate::gpu::ViewLoss::Host(&mut host),
-            };
-            st.add_view(&gpu, src.camera(i), &settings, loss, stats, sh_active)
-                .unwrap_or_else(|e| fail(e))
-        };
-        if let Some(st) = &self.gpu_state {
-            st.begin_step(&gpu).unwrap_or_else(|e| fail(e));
-        }
-        if plan.real_weight > 0.0 {
-            if let Some(i) = self.next_real() {
-                if let Some(st) = &self.gpu_state {
-                    let stats = densify_on.then_some(1.0);
-                    let (l, pairs) = view(
-                        st,
-                        &mut self.gpu_targets,
-                        false,
-                        self.real,
-                        i,
-                        plan.real_weight,
-                        stats,
-                    );
-                    rep.real_loss = Some(l);
-                    rep.loss += plan.real_weight * l;
-                    rep.pairs += pairs;
-                }
-            }
-        }
-        if let (true, Some(src)) = (
-            plan.synthetic_weight > 0.0 && plan.synthetic_batch > 0,
-            self.synthetic,
-        ) {
-            let b = plan.synthetic_batch.min(self.usable_synth.len());
-            if b > 0 {
-                let ids = self.draw_synthetic(step, b);
-                let scale = plan.synthetic_weight / b as f64;
-                let want_stat = densify_on && self.args.synthetic.densify_from_synthetic;
-                let mut sum = 0.0;
-                if let Some(st) = &self.gpu_state {
-                    for &i in &ids {
-                        let (l, pairs) = view(
-                            st,
-                            &mut self.gpu_targets,
-                            true,
-                            src,
-                            i,
-                            scale,
-                            want_stat.then_some(b as f32),
-                        );
-                        sum += l;
-                        rep.pairs += pairs;
-                    }
-                }
-                rep.synthetic_loss = Some(sum / b as f64);
-                rep.loss += plan.synthetic_weight * sum / b as f64;
-            }
-        }
-        let lr = self
-            .args
-            .learning_rates
-            .means_at(step, self.args.steps, self.scene_scale);
-        let consts = self
-            .adam
-            .next_gpu_consts(sh_active, &self.args.learning_rates, lr);
-        if let Some(st) = &self.gpu_state {
-            st.adam_step(&gpu, &consts, self.args.adam.is_dense())
-                .unwrap_or_else(|e| fail(e));
-        }
-        self.gpu_ahead = true;
-        rep.refine = self.post_update(step, &settings);
-        self.step += 1;
-        rep.gaussians = self.g.len();
-        rep
     }
 }
 
