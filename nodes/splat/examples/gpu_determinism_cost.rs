@@ -1,7 +1,8 @@
 //! What the GPU backward's determinism costs: the deterministic compositing backward
-//! (`backward_gpu`: per-pair slots summed by a fixed-order tree, then a second pass adding
-//! each Gaussian's slots in tile order) against a float-atomic variant written only for this
-//! comparison (`backward_gpu_atomic`: the same per-tile tree, then a compare-exchange float
+//! (`backward_gpu`: each (tile, Gaussian) pair's pixels summed in a fixed order — the tile's
+//! columns, then the column sums — into the pair's slot, then a second pass adding each
+//! Gaussian's slots in tile order) against a float-atomic variant written only for this
+//! comparison (`backward_gpu_atomic`: the same per-tile sums, then a compare-exchange float
 //! add straight into the Gaussian's slot; no pair buffer, no second pass).
 //!
 //! Both are timed through `backward_gpu_timed`, which runs the same code as `backward_gpu` /

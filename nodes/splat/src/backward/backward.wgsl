@@ -6,8 +6,9 @@
 //    the forward's final T and keeps R = Σ_behind G_j α_j T_j + T_N g·background, so that
 //    dL/dα_i = (G_i T_{i+1} − R) / (1 − α_i) with G_i = g·c_i. Per (tile, Gaussian) pair the
 //    256 pixels' Q = dL/dα₁·e^{power} (zero where the α clamp is active), Q·dx, Q·dy, Q·dx²,
-//    Q·dx·dy, Q·dy² and g·α·T are summed by a fixed-order tree in shared memory into the
-//    pair's own slot (its emit position): no atomics, no two tiles write the same memory.
+//    Q·dx·dy, Q·dy² and g·α·T are summed in a fixed order in shared memory (two levels, see
+//    "Per-pair sums" below) into the pair's own slot (its emit position): no atomics, no two
+//    tiles write the same memory.
 // 2. `gaussian_sums`: per Gaussian, its pair slots summed in emit order (tiles row-major),
 //    turned into dL/d(mean2d, conic, opacity, colour) with dσ = ½dx²·da + dx·dy·db +
 //    ½dy²·dc + (a dx + b dy)·d(mean_x) + (b dx + c dy)·d(mean_y), dα₁/dσ = −o·e^{−σ}.
@@ -45,9 +46,55 @@ const ALPHA_THRESHOLD: f32 = 0.003921568627450980;
 
 var<workgroup> batch: array<array<f32, 10>, 256>;
 var<workgroup> batch_e: array<u32, 256>;
-var<workgroup> red: array<array<f32, 10>, 256>;
+// Per-pair sums. Each pixel (thread li = 16·y + x) writes its 9 values into `red`, one row
+// per value (value-major: red[q·RED_ROW + li]); then, in two fixed-order levels,
+//   level 1: 144 threads, one per (value q, column x): part[q][x] = the column's 16 pixels
+//            in row order, ((v(x,0) + v(x,1)) + v(x,2)) + … + v(x,15), reading red[q][x + 16k];
+//   level 2: 9 threads, one per value: the 16 column partials in column order,
+//            ((part[q][0] + part[q][1]) + …) + part[q][15], written to the pair's slot.
+// The order depends on nothing but the pixel positions, so the bytes are the same every run.
+// Two barriers per pair (after the writes, after level 1) instead of a 256-wide tree's ten
+// (after the writes, after each of its 8 levels, after the slot's write), and 144 + 9
+// threads busy instead of 128, 64, …, 1; the same 255 adds per value.
+// On a real GPU (32 shared-memory banks of 4 bytes): the writes are 32 consecutive words per
+// warp; in level 1 a warp's 32 lanes are the 16 columns of two values, each half reading 16
+// consecutive words — columns rather than contiguous runs of 16 pixels, which would put a
+// half-warp's lanes 16 words apart, on 2 banks (8-way conflicts or worse) — and RED_ROW's 16
+// words of padding put the second value's 16 lanes on the other 16 banks (a row of 256 would
+// put both halves on the same ones: 2-way conflicts). A lane's 16 loads have fixed addresses,
+// so they can all be in flight at once, leaving 15 dependent adds per level. PART_ROW = 17
+// puts level 2's 9 lanes on 9 different banks, and level 2 writes the slot's 9 floats from 9
+// consecutive lanes: one coalesced store.
+const RED_ROW: u32 = 272u;
+const PART_ROW: u32 = 17u;
+var<workgroup> red: array<f32, 2448>;  // 9 × RED_ROW
+var<workgroup> part: array<f32, 153>;  // 9 × PART_ROW
 var<workgroup> lasts: array<u32, 256>;
 var<workgroup> tile_last: u32;
+
+// Level 1 of the per-pair sums, by threads 0–143: part[q][x] = Σ_y red[q][16y + x], y in order.
+fn column_sums(li: u32) {
+    if (li < 144u) {
+        let q = li >> 4u;
+        let x = li & 15u;
+        let base = q * RED_ROW + x;
+        var s = red[base];
+        for (var k = 16u; k < 256u; k += 16u) {
+            s = s + red[base + k];
+        }
+        part[q * PART_ROW + x] = s;
+    }
+}
+
+// Level 2 of the per-pair sums: value q's 16 column partials, x in order.
+fn value_sum(q: u32) -> f32 {
+    let o = q * PART_ROW;
+    var s = part[o];
+    for (var x = 1u; x < 16u; x++) {
+        s = s + part[o + x];
+    }
+    return s;
+}
 
 @compute @workgroup_size(16, 16)
 fn rasterize_backward(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
@@ -101,7 +148,7 @@ fn rasterize_backward(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invo
         for (var jj = hi; jj > lo; jj--) {
             let j = jj - 1u;
             let b = j - lo;
-            var c: array<f32, 10>;
+            var c: array<f32, 9>;
             if (inside && j < last) {
                 let dx = batch[b][0] - cx;
                 let dy = batch[b][1] - cy;
@@ -144,24 +191,20 @@ fn rasterize_backward(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invo
                     }
                 }
             }
-            red[li] = c;
-            workgroupBarrier();
-            for (var off = 128u; off > 0u; off = off >> 1u) {
-                if (li < off) {
-                    for (var q = 0u; q < 9u; q++) {
-                        red[li][q] = red[li][q] + red[li + off][q];
-                    }
-                }
-                workgroupBarrier();
-            }
-            if (li == 0u) {
-                let o = batch_e[b] * PAIR_STRIDE;
-                for (var q = 0u; q < 9u; q++) {
-                    pair_grads[o + q] = red[0][q];
-                }
+            for (var q = 0u; q < 9u; q++) {
+                red[q * RED_ROW + li] = c[q];
             }
             workgroupBarrier();
+            column_sums(li);
+            workgroupBarrier();
+            // No barrier after level 2: the next pair's writes to `red` come after this
+            // barrier (level 1 is done), and its writes to `part` after its own first one.
+            if (li < 9u) {
+                pair_grads[batch_e[b] * PAIR_STRIDE + li] = value_sum(li);
+            }
         }
+        // Level 2 of the batch's last pair still reads batch_e: wait before reloading it.
+        workgroupBarrier();
         hi = lo;
     }
 }

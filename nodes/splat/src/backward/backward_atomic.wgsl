@@ -3,13 +3,14 @@
 // `backward_gpu_atomic`), not used by training.
 //
 // `rasterize_backward_atomic` is backward.wgsl's `rasterize_backward` line for line — the
-// same back-to-front walk and the same fixed-order tree over the tile's 256 pixels — except
-// at the end of each (tile, Gaussian) pair: instead of writing the tile's sums into the
-// pair's own slot for `gaussian_sums` to add up in tile order, thread 0 converts them to
+// same back-to-front walk and the same two-level fixed-order sums over the tile's 256 pixels
+// (column sums, then the 16 columns; the same barriers) — except at the end of each (tile,
+// Gaussian) pair: instead of writing the tile's sums into the pair's own slot for
+// `gaussian_sums` to add up in tile order, level 2's 9 lanes convert them to
 // dL/d(mean2d, conic, opacity, colour) (gaussian_sums' conversion, which is linear in the
-// sums) and adds them straight into the Gaussian's SCREEN_STRIDE slot with a float atomic
-// add. So there is no pair buffer and no second pass; `screen` must be zeroed beforehand
-// (the depth entry and Gaussians that reach no tile stay zero).
+// sums) and each adds one of them straight into the Gaussian's SCREEN_STRIDE slot with a
+// float atomic add. So there is no pair buffer and no second pass; `screen` must be zeroed
+// beforehand (the depth entry and Gaussians that reach no tile stay zero).
 //
 // WGSL has no float atomics: `add_f32` emulates one with a compare-exchange loop on the
 // bits, as a wgpu port without float-atomic extensions must. The order in which tiles add
@@ -45,7 +46,12 @@ const ALPHA_THRESHOLD: f32 = 0.003921568627450980;
 
 var<workgroup> batch: array<array<f32, 10>, 256>;
 var<workgroup> batch_g: array<u32, 256>;
-var<workgroup> red: array<array<f32, 10>, 256>;
+// Per-pair sums, as in backward.wgsl (see its comments): red[q·RED_ROW + li], then
+// part[q·PART_ROW + x].
+const RED_ROW: u32 = 272u;
+const PART_ROW: u32 = 17u;
+var<workgroup> red: array<f32, 2448>;  // 9 × RED_ROW
+var<workgroup> part: array<f32, 153>;  // 9 × PART_ROW
 var<workgroup> lasts: array<u32, 256>;
 var<workgroup> tile_last: u32;
 
@@ -60,6 +66,30 @@ fn add_f32(i: u32, v: f32) {
         }
         old = r.old_value;
     }
+}
+
+// Level 1 of the per-pair sums, by threads 0–143: part[q][x] = Σ_y red[q][16y + x], y in order.
+fn column_sums(li: u32) {
+    if (li < 144u) {
+        let q = li >> 4u;
+        let x = li & 15u;
+        let base = q * RED_ROW + x;
+        var s = red[base];
+        for (var k = 16u; k < 256u; k += 16u) {
+            s = s + red[base + k];
+        }
+        part[q * PART_ROW + x] = s;
+    }
+}
+
+// Level 2 of the per-pair sums: value q's 16 column partials, x in order.
+fn value_sum(q: u32) -> f32 {
+    let o = q * PART_ROW;
+    var s = part[o];
+    for (var x = 1u; x < 16u; x++) {
+        s = s + part[o + x];
+    }
+    return s;
 }
 
 @compute @workgroup_size(16, 16)
@@ -115,7 +145,7 @@ fn rasterize_backward_atomic(@builtin(workgroup_id) wid: vec3<u32>, @builtin(loc
         for (var jj = hi; jj > lo; jj--) {
             let j = jj - 1u;
             let b = j - lo;
-            var c: array<f32, 10>;
+            var c: array<f32, 9>;
             if (inside && j < last) {
                 let dx = batch[b][0] - cx;
                 let dy = batch[b][1] - cy;
@@ -158,37 +188,36 @@ fn rasterize_backward_atomic(@builtin(workgroup_id) wid: vec3<u32>, @builtin(loc
                     }
                 }
             }
-            red[li] = c;
-            workgroupBarrier();
-            for (var off = 128u; off > 0u; off = off >> 1u) {
-                if (li < off) {
-                    for (var q = 0u; q < 9u; q++) {
-                        red[li][q] = red[li][q] + red[li + off][q];
-                    }
-                }
-                workgroupBarrier();
+            for (var q = 0u; q < 9u; q++) {
+                red[q * RED_ROW + li] = c[q];
             }
-            if (li == 0u) {
-                // gaussian_sums' conversion, applied to this tile's share (it is linear in
-                // the sums), added straight into the Gaussian's slot.
-                let s = red[0];
-                let os = batch_g[b] * SCREEN_STRIDE;
+            workgroupBarrier();
+            column_sums(li);
+            workgroupBarrier();
+            if (li < 9u) {
+                // Level 2 and gaussian_sums' conversion, applied to this tile's share (it is
+                // linear in the sums): lane li adds entry li straight into the Gaussian's
+                // slot — −o(a s₁ + b s₂), −o(b s₁ + c s₂), −½o s₃, −o s₄, −½o s₅, s₀, s₆, s₇,
+                // s₈ — with selects rather than a branch per lane, which SIMD back-ends run
+                // one after the other. Every lane also sums s₂ (the same order, so the same
+                // bits as lane 2's own), which lanes 0 and 1 need.
                 let ca = batch[b][2];
                 let cb = batch[b][3];
                 let cc = batch[b][4];
                 let op = batch[b][5];
-                add_f32(os, -op * (ca * s[1] + cb * s[2]));
-                add_f32(os + 1u, -op * (cb * s[1] + cc * s[2]));
-                add_f32(os + 2u, -op * 0.5 * s[3]);
-                add_f32(os + 3u, -op * s[4]);
-                add_f32(os + 4u, -op * 0.5 * s[5]);
-                add_f32(os + 5u, s[0]);
-                add_f32(os + 6u, s[6]);
-                add_f32(os + 7u, s[7]);
-                add_f32(os + 8u, s[8]);
+                let sum_of = array<u32, 9>(1u, 1u, 3u, 4u, 5u, 0u, 6u, 7u, 8u);
+                let sa = value_sum(sum_of[li]);
+                let sb = value_sum(2u);
+                let one = li == 1u;
+                let mean = select(ca, cb, one) * sa + select(cb, cc, one) * sb;
+                let m = select(1.0, select(-op, -op * 0.5, li == 2u || li == 4u), li < 5u);
+                let v = m * select(sa, mean, li < 2u);
+                add_f32(batch_g[b] * SCREEN_STRIDE + li, v);
             }
-            workgroupBarrier();
         }
+        // Level 2 of the batch's last pair still reads batch and batch_g: wait before
+        // reloading them.
+        workgroupBarrier();
         hi = lo;
     }
 }

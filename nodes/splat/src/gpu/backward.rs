@@ -1,5 +1,6 @@
 //! Host side of the GPU backward pass: the compositing backward (`backward/backward.wgsl`:
-//! per-tile pair sums, then per-Gaussian sums in a fixed order) and the projection and colour
+//! per-tile pair sums — each pair's 256 pixels summed column by column, then the 16 columns,
+//! in a fixed order — then per-Gaussian sums in tile order) and the projection and colour
 //! backward (`project/project_vjp.wgsl`); `record_backward` and `record_vjp` are the same
 //! steps recorded into a caller's encoder, for the training step in `gpu/train.rs`.
 //! `backward_gpu_atomic` (hidden) swaps the ordered pair sums for float atomics, only to

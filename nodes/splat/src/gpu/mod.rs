@@ -5,10 +5,11 @@
 //!   the adapter's name, driver and backend for the outputs' metadata; asking for a GPU where
 //!   there is none is a [`GpuError::NoAdapter`] that says what was found;
 //! - [`backward_gpu`]: gradients of a loss on the colour — the compositing backward walks
-//!   each tile back to front and sums every (tile, Gaussian) pair by a fixed-order tree into
-//!   the pair's own slot, each Gaussian's slots are summed in tile order
-//!   (`backward/backward.wgsl`), and [`project_vjp_gpu`] (`project/project_vjp.wgsl`) turns
-//!   them into gradients of the raw parameters;
+//!   each tile back to front and sums every (tile, Gaussian) pair's 256 pixels in a fixed
+//!   order into the pair's own slot (each of the tile's 16 columns top to bottom, then the
+//!   16 column sums left to right: two barriers per pair), each Gaussian's slots are summed
+//!   in tile order (`backward/backward.wgsl`), and [`project_vjp_gpu`]
+//!   (`project/project_vjp.wgsl`) turns them into gradients of the raw parameters;
 //! - `GpuTrainer`: the training state kept on the GPU between steps (Gaussians, Adam's
 //!   moments, the step's gradient sums, the densification statistics), with Adam
 //!   (`adam/adam.wgsl`) and the per-view sums (`gpu/accumulate.wgsl`) there;
