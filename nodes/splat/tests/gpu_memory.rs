@@ -4,8 +4,8 @@
 //! grew by about 400 kB per step here (60 MB over the 150 steps measured). Linux only (reads
 //! `/proc/self/status`); skips without a GPU adapter (fails under `CI=true`). Not yet a
 //! guarantee for every scene: rendering the demo scene's views on lavapipe still grows the
-//! process by about 380 kB per render (the projection kernel, depending on the camera; cause
-//! not found yet).
+//! process by about 380 kB per render (in the forward pass, depending on the camera's pose;
+//! cause not found yet).
 
 use augsplat_splat::gpu::{GpuContext, GpuError};
 use augsplat_splat::train::{RealImages, RealLoss, RealView, TrainArgs, Trainer};
