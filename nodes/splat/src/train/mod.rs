@@ -16,7 +16,7 @@
 //!    statistic is wanted);
 //! 4. takes one Adam step over every Gaussian (`adam: Dense`, the default) or only those
 //!    visible in some render of the step (`adam: Selective`); the means rate follows
-//!    [`LearningRates::means_at`];
+//!    [`crate::adam::LearningRates::means_at`];
 //! 5. feeds the densification statistic of the *real* renders (and of the synthetic ones when
 //!    `densify_from_synthetic`) to the [`Densifier`] and runs its refinement schedule.
 //!
