@@ -188,9 +188,7 @@ impl Supervision for SyntheticImages {
         Some(GpuLossView {
             target: &v.target,
             weights: Some(&v.weight),
-            loss: crate::gpu::GpuLoss::WeightedL2 {
-                denominator: loss::weighted_l2_denominator(&v.weight, self.norm),
-            },
+            loss: crate::gpu::GpuLoss::weighted_l2(self.norm, &v.weight),
         })
     }
 }

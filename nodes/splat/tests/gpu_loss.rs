@@ -76,22 +76,12 @@ enum Cpu {
 }
 
 impl Cpu {
-    /// The GPU's name of the same loss (the weighted L2's denominator from the clean weights,
-    /// as `SynthView::weight_sum` holds their sum).
+    /// The GPU's name of the same loss (the weighted L2's denominator from the weights, as the
+    /// CPU computes it).
     fn gpu(self, weights: Option<&[f32]>) -> GpuLoss {
         match self {
             Cpu::Photometric(kind, ssim_lambda) => GpuLoss::Photometric { kind, ssim_lambda },
-            Cpu::Weighted(norm) => {
-                let w = weights.expect("weights");
-                let clean = |v: f32| {
-                    if v.is_finite() && v > 0.0 {
-                        v as f64
-                    } else {
-                        0.0
-                    }
-                };
-                GpuLoss::weighted_l2(norm, w.iter().map(|&v| clean(v)).sum(), w.len())
-            }
+            Cpu::Weighted(norm) => GpuLoss::weighted_l2(norm, weights.expect("weights")),
         }
     }
 }
@@ -266,7 +256,7 @@ fn weighted_l2_without_weight_is_zero() {
     };
     let (pred, target) = images(7, 19, 13, 0.5);
     let weights = vec![0.0f32; 19 * 13];
-    let loss = GpuLoss::weighted_l2(WeightNorm::WeightSum, 0.0, weights.len());
+    let loss = GpuLoss::weighted_l2(WeightNorm::WeightSum, &weights);
     let (l, g) = loss_gpu(&ctx, &pred, &target, Some(&weights), 19, 13, loss, 1.0)
         .unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(l, 0.0);
@@ -284,7 +274,7 @@ fn mismatched_sizes_are_errors() {
         kind: PixelLoss::L2,
         ssim_lambda: 0.2,
     };
-    let weighted = GpuLoss::weighted_l2(WeightNorm::PixelCount, 0.0, 144);
+    let weighted = GpuLoss::weighted_l2(WeightNorm::PixelCount, &[1.0; 144]);
     for (what, r) in [
         (
             "short target",

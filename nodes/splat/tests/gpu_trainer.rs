@@ -133,17 +133,7 @@ impl Supervision for HostLoss<'_> {
     }
 }
 
-fn bits(g: &Gaussians) -> Vec<u32> {
-    g.means
-        .as_flattened()
-        .iter()
-        .chain(g.log_scales.as_flattened())
-        .chain(g.quats.as_flattened())
-        .chain(&g.opacity_logits)
-        .chain(&g.sh)
-        .map(|v| v.to_bits())
-        .collect()
-}
+use train_util::param_bits as bits;
 
 /// The losses of two runs agree step by step within `tol` relative.
 fn same_losses(cpu: &[StepReport], gpu: &[StepReport], tol: f64, what: &str) {

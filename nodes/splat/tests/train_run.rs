@@ -32,17 +32,7 @@ fn initial(dir: &Path, degree: u32, sscale: f64) -> Gaussians {
     init::from_points(&cloud, degree, &Default::default(), sscale, 1)
 }
 
-fn bits(g: &Gaussians) -> Vec<u32> {
-    g.means
-        .as_flattened()
-        .iter()
-        .chain(g.log_scales.as_flattened())
-        .chain(g.quats.as_flattened())
-        .chain(&g.opacity_logits)
-        .chain(&g.sh)
-        .map(|v| v.to_bits())
-        .collect()
-}
+use train_util::param_bits as bits;
 
 #[test]
 fn training_steps_are_bit_identical_for_1_and_2_threads() {

@@ -158,20 +158,12 @@ pub(super) fn record_backward(
     pair_grads: &wgpu::Buffer,
 ) {
     let kr = &ctx.kernels;
+    let mut walk = walk_bindings(st, d_rgb);
+    walk.push((10, pair_grads));
     ctx.dispatch(
         enc,
         &kr.rasterize_backward,
-        &[
-            (0, &st.params),
-            (2, &st.order),
-            (4, &st.pair_rank),
-            (5, &st.sorted),
-            (6, &st.ranges),
-            (7, &st.splats),
-            (8, &st.image),
-            (9, d_rgb),
-            (10, pair_grads),
-        ],
+        &walk,
         [grid.tiles_x, grid.tiles_y],
     );
     ctx.dispatch(
@@ -188,6 +180,24 @@ pub(super) fn record_backward(
         ],
         ctx.groups(n.div_ceil(256)),
     );
+}
+
+/// The bindings both compositing backward kernels (`rasterize_backward` and its atomic
+/// variant) read: the forward pass's lists, splats and image, and `d_rgb` at binding 9.
+fn walk_bindings<'a>(
+    st: &'a ForwardState,
+    d_rgb: &'a wgpu::Buffer,
+) -> Vec<(u32, &'a wgpu::Buffer)> {
+    vec![
+        (0, &st.params),
+        (2, &st.order),
+        (4, &st.pair_rank),
+        (5, &st.sorted),
+        (6, &st.ranges),
+        (7, &st.splats),
+        (8, &st.image),
+        (9, d_rgb),
+    ]
 }
 
 /// The pair buffer [`record_backward`] sums into, sized for a forward pass's pairs.
@@ -328,20 +338,12 @@ fn backward_inner(
             }
             None => {
                 enc.clear_buffer(&screen, 0, None);
+                let mut walk = walk_bindings(&st, &g_rgb);
+                walk.push((11, &screen));
                 ctx.dispatch(
                     &mut enc,
                     &kr.rasterize_backward_atomic,
-                    &[
-                        (0, &st.params),
-                        (2, &st.order),
-                        (4, &st.pair_rank),
-                        (5, &st.sorted),
-                        (6, &st.ranges),
-                        (7, &st.splats),
-                        (8, &st.image),
-                        (9, &g_rgb),
-                        (11, &screen),
-                    ],
+                    &walk,
                     [grid.tiles_x, grid.tiles_y],
                 );
             }

@@ -37,15 +37,13 @@ pub enum GpuLoss {
 }
 
 impl GpuLoss {
-    /// The weighted L2 normalised by `norm`, for an image of `pixels` pixels whose cleaned
-    /// weights (non-finite and negative ones set to 0) sum to `weight_sum`, as
-    /// [`crate::supervision::SynthView::weight_sum`] holds.
-    pub fn weighted_l2(norm: WeightNorm, weight_sum: f64, pixels: usize) -> GpuLoss {
-        let denominator = match norm {
-            WeightNorm::WeightSum => 3.0 * weight_sum,
-            WeightNorm::PixelCount => 3.0 * pixels as f64,
-        };
-        GpuLoss::WeightedL2 { denominator }
+    /// The weighted L2 normalised by `norm` for the per-pixel `weights`: the denominator is
+    /// [`crate::loss::weighted_l2_denominator`], the very number the CPU's weighted L2 divides
+    /// by.
+    pub fn weighted_l2(norm: WeightNorm, weights: &[f32]) -> GpuLoss {
+        GpuLoss::WeightedL2 {
+            denominator: crate::loss::weighted_l2_denominator(weights, norm),
+        }
     }
 }
 

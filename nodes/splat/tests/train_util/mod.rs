@@ -44,3 +44,17 @@ pub fn make_scene(root: &Path, w: u32, h: u32, views: u32, points: u32) -> (Path
     }
     (out[0].clone(), out[1].clone())
 }
+
+/// The bits of every parameter of `g` (means, log-scales, quaternions, opacity logits, SH), for
+/// comparing two runs byte for byte.
+pub fn param_bits(g: &augsplat_splat::Gaussians) -> Vec<u32> {
+    g.means
+        .as_flattened()
+        .iter()
+        .chain(g.log_scales.as_flattened())
+        .chain(g.quats.as_flattened())
+        .chain(&g.opacity_logits)
+        .chain(&g.sh)
+        .map(|v| v.to_bits())
+        .collect()
+}
