@@ -17,14 +17,13 @@
 //! `cargo run --release -p augsplat-splat --example gpu_determinism_cost [-- N,N,... [WxH,...] [REPS]]`
 //! Defaults: 10000 at 256x256, 7 repetitions. `WGPU_BACKEND` picks the API.
 
-use augsplat_splat::gpu::{backward_gpu_timed, GpuContext, GpuScene, ParamGradsGpu};
+use augsplat_splat::gpu::{backward_gpu_timed, GpuScene, ParamGradsGpu};
 use augsplat_splat::{Gaussians, RenderSettings};
 use std::time::Instant;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+#[path = "common/gpu_bench.rs"]
+mod gpu_bench;
+use gpu_bench::median;
 
 /// The bits of every gradient of a run, for comparing runs.
 fn bits(g: &ParamGradsGpu) -> Vec<u32> {
@@ -56,26 +55,12 @@ fn relative(a: &ParamGradsGpu, b: &ParamGradsGpu) -> f64 {
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let counts: Vec<usize> = args.first().map_or(vec![10_000], |a| {
-        a.split(',').filter_map(|s| s.parse().ok()).collect()
-    });
-    let sizes: Vec<(u32, u32)> = args.get(1).map_or(vec![(256, 256)], |a| {
-        a.split(',')
-            .filter_map(|s| {
-                let (w, h) = s.split_once('x')?;
-                Some((w.parse().ok()?, h.parse().ok()?))
-            })
-            .collect()
-    });
-    let reps: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(7).max(1);
-    let ctx = match GpuContext::new() {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("{e}");
-            std::process::exit(1);
-        }
-    };
+    let gpu_bench::Args {
+        counts,
+        sizes,
+        reps,
+    } = gpu_bench::args(7);
+    let ctx = gpu_bench::context();
     println!("adapter: {}", ctx.adapter());
     println!("median of {reps} runs; \"stage\" is the compositing backward's submission alone\n");
     println!(
