@@ -559,3 +559,35 @@ fn a_claim_whose_holder_stopped_renewing_is_taken_over() {
         "the stale node ran again"
     );
 }
+
+#[test]
+fn log_prints_node_log_lines_as_they_arrive() {
+    let env = Env::new();
+    let f = env.write(
+        "l.ron",
+        r#"(nodes: {
+            "talk": (kind: "Command", args: (program: "sh", args: ["-c", "echo first-line; echo second-line >&2"])),
+        })"#,
+    );
+    let out = env.run(&["run", f.to_str().unwrap(), "-q", "--log"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    // Each line carries the node's name and its elapsed seconds: `[talk 0.0 s] first-line`.
+    for line in ["first-line", "second-line"] {
+        assert!(
+            err.lines()
+                .any(|l| l.starts_with("[talk ") && l.contains(" s] ") && l.ends_with(line)),
+            "{err}"
+        );
+    }
+    // Without `--log` (and cached now, with a changed node so it runs again) nothing is echoed.
+    let g = env.write(
+        "m.ron",
+        r#"(nodes: {
+            "talk": (kind: "Command", args: (program: "sh", args: ["-c", "echo third-line"])),
+        })"#,
+    );
+    let out = env.run(&["run", g.to_str().unwrap(), "-q"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(!text(&out).contains("third-line"), "{}", text(&out));
+}

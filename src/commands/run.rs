@@ -34,6 +34,11 @@ pub struct Args {
     /// No progress bars and no final table.
     #[arg(long, short = 'q')]
     pub quiet: bool,
+    /// Print each node's log lines on stderr as they arrive, as `[node 12.3 s] line` (the
+    /// trainers log their evaluations and refinements): for long runs whose stderr goes to a
+    /// file. Works with `--quiet`.
+    #[arg(long)]
+    pub log: bool,
     /// Where nodes run: `local` (this process) or `slurm` (one `sbatch` job per ready node,
     /// one job array per repeat or sweep; the store must be on a filesystem the compute nodes
     /// share). Resources come from the pipeline's `resources:` block.
@@ -59,6 +64,7 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
         targets: args.targets.clone(),
         progress: !args.quiet && std::io::stderr().is_terminal(),
         checkpoint_every: args.checkpoint_every,
+        echo_log: args.log,
         ..Default::default()
     };
     opts.executor = match args.executor.as_str() {

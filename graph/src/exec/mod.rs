@@ -38,6 +38,10 @@ pub struct RunOptions {
     /// Long nodes save a checkpoint every this many of their steps (0: never); a rerun of
     /// an interrupted computation resumes from it. Not part of any key.
     pub checkpoint_every: u64,
+    /// Echo each running node's log lines to stderr as they arrive, prefixed with the node's
+    /// name and its elapsed seconds (for long runs under `nohup`, Slurm or a CI log, where no
+    /// progress bar is drawn). The log is stored with the node's result either way.
+    pub echo_log: bool,
     /// Where computations run.
     pub executor: Executor,
 }
@@ -64,6 +68,7 @@ impl Default for RunOptions {
             targets: Vec::new(),
             progress: false,
             checkpoint_every: DEFAULT_CHECKPOINT_EVERY,
+            echo_log: false,
             executor: Executor::Local,
         }
     }
@@ -201,6 +206,7 @@ fn run_local(
 ) -> Result<Vec<Option<CompResult>>, EngineError> {
     let mut sched = Scheduler::new(plan, store, need, opts.jobs.max(1), opts.progress);
     sched.checkpoint_every = opts.checkpoint_every;
+    sched.echo_log = opts.echo_log;
     let here = format!("pid {} on {}", std::process::id(), crate::store::hostname());
     let place = |_c: usize| Some((here.clone(), false));
     let (tx, rx) = mpsc::channel::<Msg>();
@@ -265,6 +271,7 @@ pub fn compute_by_key(
         threads: threads.max(1),
         bar: None,
         checkpoint_every,
+        echo_log: false,
     };
     Ok(job.run(plan, store))
 }

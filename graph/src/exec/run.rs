@@ -19,6 +19,8 @@ use std::time::Instant;
 struct NodeSink {
     lines: Mutex<Vec<String>>,
     bar: Option<ProgressBar>,
+    /// With `--log`: the node's name and start, to echo each line to stderr.
+    echo: Option<(String, Instant)>,
 }
 
 impl ProgressSink for NodeSink {
@@ -32,6 +34,13 @@ impl ProgressSink for NodeSink {
         }
     }
     fn log(&self, line: &str) {
+        if let Some((name, start)) = &self.echo {
+            let line = format!("[{name} {:.1} s] {line}", start.elapsed().as_secs_f64());
+            match &self.bar {
+                Some(b) => b.println(line),
+                None => eprintln!("{line}"),
+            }
+        }
         if let Ok(mut l) = self.lines.lock() {
             l.push(line.to_string());
         }
@@ -70,6 +79,8 @@ pub(super) struct Job {
     pub(super) bar: Option<ProgressBar>,
     /// Checkpoint every this many steps (0: never).
     pub(super) checkpoint_every: u64,
+    /// Echo the node's log lines to stderr as they arrive.
+    pub(super) echo_log: bool,
 }
 
 impl Job {
@@ -239,6 +250,7 @@ fn run_in_scratch(
         threads,
         bar,
         checkpoint_every,
+        echo_log,
     } = job;
     let name = name.as_str();
     let comp = &plan.comps[c];
@@ -254,6 +266,7 @@ fn run_in_scratch(
     let sink = Arc::new(NodeSink {
         lines: Mutex::new(Vec::new()),
         bar,
+        echo: echo_log.then(|| (name.to_string(), Instant::now())),
     });
     let seed = u64::from_le_bytes(key[..8].try_into().expect("8 bytes"));
     // A gate that says no, or a gated input the node does not accept: the node ends at once

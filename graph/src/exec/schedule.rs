@@ -103,6 +103,8 @@ pub(super) struct Scheduler<'a> {
     warned_broken: BTreeSet<usize>,
     /// The checkpoint cadence handed to each job.
     pub(super) checkpoint_every: u64,
+    /// Whether each job echoes its log lines to stderr.
+    pub(super) echo_log: bool,
     /// Start every ready computation, whatever the thread budget (the Slurm executor: the
     /// cluster schedules; the budget only sizes each job).
     pub(super) unbounded: bool,
@@ -158,6 +160,7 @@ impl<'a> Scheduler<'a> {
             progress: Progress::new(show_progress, total),
             warned_broken: BTreeSet::new(),
             checkpoint_every: super::DEFAULT_CHECKPOINT_EVERY,
+            echo_log: false,
             unbounded: false,
         }
     }
@@ -235,6 +238,7 @@ impl<'a> Scheduler<'a> {
                 inputs: folders,
                 threads: want,
                 checkpoint_every: self.checkpoint_every,
+                echo_log: self.echo_log,
             });
         }
         Ok(())
