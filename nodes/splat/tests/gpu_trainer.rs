@@ -147,6 +147,16 @@ fn same_losses(cpu: &[StepReport], gpu: &[StepReport], tol: f64, what: &str) {
             b.synthetic_loss.is_some(),
             "{what}"
         );
+        // The composited pairs, counted on the GPU by block sums: the CPU's count, up to the
+        // rare α-cutoff flip (a pair or two per render).
+        let dp = a.pairs.abs_diff(b.pairs);
+        assert!(
+            a.pairs > 0 && dp <= 2 + a.pairs / 10_000,
+            "{what}, step {}: CPU pairs {} GPU pairs {}",
+            a.step,
+            a.pairs,
+            b.pairs
+        );
         let rel = (a.loss - b.loss).abs() / a.loss.abs().max(1e-12);
         worst = worst.max(rel);
         assert!(

@@ -66,3 +66,41 @@ fn accumulate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
         }
     }
 }
+
+// The composited (Gaussian, pixel) pairs of one render, as the CPU renderer counts them: the
+// sum of each pixel's count (the second word of its info), as per-block partial sums of 256
+// pixels that the host adds in block order. Integer sums: exact in any order.
+struct PairConst {
+    pixels: u32,
+    blocks: u32,
+    pad0: u32,
+    pad1: u32,
+}
+
+@group(0) @binding(10) var<uniform> pc: PairConst;
+@group(0) @binding(11) var<storage, read> info: array<u32>;          // 2 per pixel
+@group(0) @binding(12) var<storage, read_write> pair_partials: array<u32>;
+
+var<workgroup> part: array<u32, 256>;
+
+@compute @workgroup_size(256)
+fn count_pairs(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+               @builtin(local_invocation_index) li: u32) {
+    let block = wid.x + wid.y * nwg.x;
+    let p = block * 256u + li;
+    var v = 0u;
+    if (p < pc.pixels) {
+        v = info[2u * p + 1u];
+    }
+    part[li] = v;
+    workgroupBarrier();
+    for (var s = 128u; s > 0u; s = s >> 1u) {
+        if (li < s) {
+            part[li] = part[li] + part[li + s];
+        }
+        workgroupBarrier();
+    }
+    if (li == 0u && block < pc.blocks) {
+        pair_partials[block] = part[0];
+    }
+}

@@ -328,6 +328,8 @@ fn backward_inner(
             Reduction::Atomic => None,
         };
         let kr = &ctx.kernels;
+        // The forward's work done before the clock starts.
+        ctx.wait()?;
         let started = std::time::Instant::now();
         let mut enc = ctx.device.create_command_encoder(&Default::default());
         match &pair_grads {

@@ -287,9 +287,8 @@ pub(super) fn forward_pass(
         ctx.groups(n.div_ceil(GROUP)),
     );
     ctx.record_scan(&mut enc, &counts, n + 1)?;
-    ctx.submit(enc)?;
     // The number of (tile, Gaussian) pairs: the exclusive sum at n (counts[n] was zero).
-    let pairs = ctx.read_words(&counts, n as usize + 1)?[n as usize];
+    let pairs = ctx.read_after(enc, &[(&counts, u64::from(n), 1)])?[0][0];
 
     // Emit the pairs in rank order, sort them by tile (stable: ranks stay ascending), find
     // each tile's range and composite.
@@ -349,7 +348,8 @@ pub(super) fn forward_pass(
         ],
         [grid.tiles_x, grid.tiles_y],
     );
-    ctx.submit(enc)?;
+    // The image stays on the GPU until a caller reads it (after its own work, one wait).
+    ctx.submit_no_wait(enc)?;
     let sorted_in_first = std::ptr::eq(sorted_pairs, &pair_vals);
     let sorted = if sorted_in_first {
         pair_vals

@@ -102,14 +102,10 @@ impl Partials {
         })
     }
 
-    /// The mean: the partials read back and added in index order, in f64.
-    fn mean(&self, ctx: &GpuContext) -> Result<f64, GpuError> {
-        let words = ctx.read_words(&self.buf, self.blocks)?;
-        let sum: f64 = words
-            .into_iter()
-            .map(|w| f64::from(f32::from_bits(w)))
-            .sum();
-        Ok(sum / self.divisor)
+    /// The mean of the partials `words` (read back from `buf`), added in index order, in f64.
+    fn mean_of(&self, words: &[u32]) -> f64 {
+        let sum: f64 = words.iter().map(|&w| f64::from(f32::from_bits(w))).sum();
+        sum / self.divisor
     }
 }
 
@@ -142,18 +138,33 @@ impl LossSums {
     /// `(loss, pixel term, mean SSIM)` as [`crate::loss::photometric`] returns them (SSIM 1
     /// where the term is left out); for the weighted L2, `(loss, loss, 1)`.
     pub(crate) fn terms(&self, ctx: &GpuContext) -> Result<(f64, f64, f64), GpuError> {
-        let pixel = match &self.pixel {
-            Some(p) => p.mean(ctx)?,
-            None => 0.0,
-        };
-        Ok(match &self.ssim {
-            Some(s) => {
-                let ssim = s.mean(ctx)?;
+        let enc = ctx.device.create_command_encoder(&Default::default());
+        let words = ctx.read_after(enc, &self.parts())?;
+        Ok(self.terms_from(&words))
+    }
+
+    /// The partial-sum buffers to read back, for [`GpuContext::read_after`]: (buffer, first
+    /// word, words).
+    pub(crate) fn parts(&self) -> Vec<(&wgpu::Buffer, u64, usize)> {
+        [&self.pixel, &self.ssim]
+            .into_iter()
+            .flatten()
+            .map(|p| (&p.buf, 0, p.blocks))
+            .collect()
+    }
+
+    /// [`LossSums::terms`] from the words of [`LossSums::parts`], in that order.
+    pub(crate) fn terms_from(&self, words: &[Vec<u32>]) -> (f64, f64, f64) {
+        let mut words = words.iter();
+        let mut next = |p: &Partials| p.mean_of(words.next().map_or(&[][..], |w| &w[..]));
+        let pixel = self.pixel.as_ref().map_or(0.0, &mut next);
+        match self.ssim.as_ref().map(&mut next) {
+            Some(ssim) => {
                 let lam = 1.0 - self.pixel_weight;
                 (self.pixel_weight * pixel + lam * (1.0 - ssim), pixel, ssim)
             }
             None => (self.pixel_weight * pixel, pixel, 1.0),
-        })
+        }
     }
 }
 

@@ -146,6 +146,7 @@ struct Kernels {
     rasterize_backward: wgpu::ComputePipeline,
     gaussian_sums: wgpu::ComputePipeline,
     accumulate: wgpu::ComputePipeline,
+    count_pairs: wgpu::ComputePipeline,
     adam: wgpu::ComputePipeline,
     loss: loss::LossKernels,
     rasterize_backward_atomic: wgpu::ComputePipeline,
@@ -341,6 +342,20 @@ impl GpuContext {
     /// device loss as [`GpuError::Device`].
     fn submit(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
         self.queue.submit([enc.finish()]);
+        self.wait()
+    }
+
+    /// Submits `enc` without waiting for it: for work whose results stay on the GPU. The
+    /// queue runs submissions in order, so the next read-back ([`GpuContext::read_after`])
+    /// sees its effects; errors surface there or in the enclosing [`GpuContext::scoped`].
+    fn submit_no_wait(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
+        self.queue.submit([enc.finish()]);
+        let _ = self.device.poll(wgpu::PollType::Poll);
+        self.check_lost()
+    }
+
+    /// Waits until everything submitted so far has run.
+    fn wait(&self) -> Result<(), GpuError> {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| self.device_error(format!("waiting for the GPU: {e}")))?;
@@ -368,16 +383,39 @@ impl GpuContext {
         if words == 0 {
             return Ok(Vec::new());
         }
-        let bytes = 4 * words as u64;
+        let enc = self.device.create_command_encoder(&Default::default());
+        let mut parts = self.read_after(enc, &[(buf, 0, words)])?;
+        Ok(parts.pop().unwrap_or_default())
+    }
+
+    /// Appends to `enc` a copy of each part (buffer, first word, words) into one staging
+    /// buffer, submits it, waits once and returns each part's words: one round trip for
+    /// several small read-backs.
+    fn read_after(
+        &self,
+        mut enc: wgpu::CommandEncoder,
+        parts: &[(&wgpu::Buffer, u64, usize)],
+    ) -> Result<Vec<Vec<u32>>, GpuError> {
+        let total: u64 = parts.iter().map(|p| 4 * p.2 as u64).sum();
+        if total == 0 {
+            self.submit(enc)?;
+            return Ok(parts.iter().map(|_| Vec::new()).collect());
+        }
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
-            size: bytes,
+            size: total,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let mut enc = self.device.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(buf, 0, &staging, 0, bytes);
-        self.submit(enc)?;
+        let mut at = 0;
+        for &(buf, first, words) in parts {
+            let bytes = 4 * words as u64;
+            if bytes > 0 {
+                enc.copy_buffer_to_buffer(buf, 4 * first, &staging, at, bytes);
+            }
+            at += bytes;
+        }
+        self.queue.submit([enc.finish()]);
         let slice = staging.slice(..);
         let (tx, rx) = mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -386,16 +424,28 @@ impl GpuContext {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| self.device_error(format!("waiting for a read-back: {e}")))?;
-        rx.recv()
-            .map_err(|e| self.device_error(format!("read-back lost: {e}")))?
+        self.check_lost()?;
+        // The wait ran the mapping's callback if the copy ran; never block on it (a device
+        // that was destroyed or lost may keep the callback forever).
+        rx.try_recv()
+            .map_err(|_| {
+                self.device_error("the read-back never completed (is the device lost?)".into())
+            })?
             .map_err(|e| self.device_error(format!("read-back failed: {e}")))?;
         let data = slice
             .get_mapped_range()
             .map_err(|e| self.device_error(format!("read-back mapping: {e}")))?;
-        let out = data
-            .chunks_exact(4)
-            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
+        let mut out = Vec::with_capacity(parts.len());
+        let mut at = 0;
+        for &(_, _, words) in parts {
+            out.push(
+                data[at..at + 4 * words]
+                    .chunks_exact(4)
+                    .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                    .collect(),
+            );
+            at += 4 * words;
+        }
         drop(data);
         staging.unmap();
         Ok(out)
@@ -410,17 +460,39 @@ impl GpuContext {
         let out = f();
         let validation = pollster::block_on(validation_scope.pop());
         let oom = pollster::block_on(oom_scope.pop());
-        // A lost device shows up as errors on whatever was in flight: name the cause.
-        let _ = self.device.poll(wgpu::PollType::Poll);
+        if oom.is_none() && validation.is_none() {
+            let _ = self.device.poll(wgpu::PollType::Poll);
+            self.check_lost()?;
+            return out;
+        }
+        // A lost or destroyed device shows up as errors on whatever was recorded: let the
+        // queue drain (wgpu reports the loss once it is empty) and name the cause.
+        let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
         self.check_lost()?;
         if let Some(e) = oom {
-            return Err(self.device_error(format!("out of GPU memory: {e}")));
+            return Err(self.device_error(format!("out of GPU memory: {}", error_chain(&e))));
         }
         if let Some(e) = validation {
-            return Err(self.device_error(format!("validation error: {e}")));
+            return Err(self.device_error(format!("validation error: {}", error_chain(&e))));
         }
         out
     }
+}
+
+/// `e` and its sources, joined by ": " (wgpu's top-level message alone can be as bare as
+/// "Validation Error").
+fn error_chain(e: &wgpu::Error) -> String {
+    let mut text = e.to_string();
+    let mut source = std::error::Error::source(e);
+    while let Some(s) = source {
+        let line = s.to_string();
+        if !text.contains(&line) {
+            text.push_str(": ");
+            text.push_str(&line);
+        }
+        source = s.source();
+    }
+    text
 }
 
 impl Kernels {
@@ -470,6 +542,7 @@ impl Kernels {
             rasterize_backward: pipeline(&bwd, "rasterize_backward"),
             gaussian_sums: pipeline(&bwd, "gaussian_sums"),
             accumulate: pipeline(&acc, "accumulate"),
+            count_pairs: pipeline(&acc, "count_pairs"),
             adam: pipeline(&adam, "adam"),
             loss: loss::LossKernels::new(device),
             rasterize_backward_atomic: pipeline(&bwd_atomic, "rasterize_backward_atomic"),

@@ -190,7 +190,7 @@ impl GpuTrainer {
             enc.clear_buffer(&self.acc_grads, 0, None);
             enc.clear_buffer(&self.acc_sh, 0, None);
             enc.clear_buffer(&self.acc_visible, 0, None);
-            ctx.submit(enc)
+            ctx.submit_no_wait(enc)
         })
     }
 
@@ -289,14 +289,28 @@ impl GpuTrainer {
                 ],
                 ctx.groups(n.div_ceil(256)),
             );
-            ctx.submit(enc)?;
-            let value = match sums {
-                Some(sums) => sums.value(ctx)?,
+            // The composited pairs, as the CPU renderer counts them: per-block sums on the
+            // GPU, added here.
+            let blocks = px.div_ceil(256);
+            let pair_partials = ctx.storage("composited pairs per block", 4 * blocks as u64)?;
+            let pair_consts =
+                ctx.uniform("pair count constants", &[px as u32, blocks as u32, 0, 0]);
+            ctx.dispatch(
+                &mut enc,
+                &ctx.kernels.count_pairs,
+                &[(10, &pair_consts), (11, &st.info), (12, &pair_partials)],
+                ctx.groups(blocks as u32),
+            );
+            // One round trip: the loss's partial sums and the pair counts together.
+            let mut parts = sums.as_ref().map(|s| s.parts()).unwrap_or_default();
+            parts.push((&pair_partials, 0, blocks));
+            let mut words = ctx.read_after(enc, &parts)?;
+            let pair_words = words.pop().unwrap_or_default();
+            let pairs = pair_words.iter().map(|&w| u64::from(w)).sum();
+            let value = match &sums {
+                Some(sums) => sums.terms_from(&words).0,
                 None => host_value,
             };
-            // The composited pairs, as the CPU renderer counts them.
-            let info = ctx.read_words(&st.info, 2 * px)?;
-            let pairs = info.chunks_exact(2).map(|p| u64::from(p[1])).sum();
             Ok((value, pairs))
         })
     }
@@ -361,7 +375,7 @@ impl GpuTrainer {
                     ctx.groups(values.div_ceil(256)),
                 );
             }
-            ctx.submit(enc)
+            ctx.submit_no_wait(enc)
         })
     }
 }
