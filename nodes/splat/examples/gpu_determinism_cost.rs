@@ -71,7 +71,7 @@ fn main() {
     println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|---:|");
     let s = RenderSettings::default();
     for &(w, h) in &sizes {
-        let cam = bench_camera(w, h);
+        let cam = gpu_bench::bench_camera(w, h);
         for &n in &counts {
             let g = Gaussians::random_cloud(n, 4.0 / cam.fx, 7);
             let scene = match GpuScene::upload(&ctx, &g) {
@@ -123,22 +123,5 @@ fn main() {
                 relative(&atomic_ref, &det_ref)
             );
         }
-    }
-}
-
-/// The camera of `train_step_bench` and `gpu_raster`: 4 units behind the box, focal length
-/// 0.9·width.
-fn bench_camera(w: u32, h: u32) -> augsplat_core::Camera {
-    augsplat_core::Camera {
-        width: w,
-        height: h,
-        fx: w as f64 * 0.9,
-        fy: w as f64 * 0.9,
-        cx: w as f64 / 2.0,
-        cy: h as f64 / 2.0,
-        world_to_camera: augsplat_core::linalg::mat4_from_rt(
-            &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            [0.0, 0.0, 4.0],
-        ),
     }
 }

@@ -15,7 +15,6 @@
 #[path = "common/gpu_bench.rs"]
 mod gpu_bench;
 
-use augsplat_core::Camera;
 use augsplat_splat::densify::DensifyArgs;
 use augsplat_splat::train::{RealImages, RealView, TrainArgs, Trainer};
 use augsplat_splat::Gaussians;
@@ -23,20 +22,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 fn view(w: u32, h: u32) -> RealView {
-    let camera = Camera {
-        width: w,
-        height: h,
-        fx: w as f64 * 0.9,
-        fy: w as f64 * 0.9,
-        cx: w as f64 / 2.0,
-        cy: h as f64 / 2.0,
-        world_to_camera: [
-            [1.0, 0.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0, 0.0],
-            [0.0, 0.0, 1.0, 4.0],
-            [0.0, 0.0, 0.0, 1.0],
-        ],
-    };
+    let camera = gpu_bench::bench_camera(w, h);
     let image = (0..(w * h) as usize)
         .flat_map(|p| {
             let (x, y) = (

@@ -55,3 +55,20 @@ pub fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
 }
+
+/// The camera of `train_step_bench` and the GPU benchmarks: 4 units behind the Gaussians'
+/// box, focal length 0.9·width, centred principal point.
+pub fn bench_camera(w: u32, h: u32) -> augsplat_core::Camera {
+    augsplat_core::Camera {
+        width: w,
+        height: h,
+        fx: w as f64 * 0.9,
+        fy: w as f64 * 0.9,
+        cx: w as f64 / 2.0,
+        cy: h as f64 / 2.0,
+        world_to_camera: augsplat_core::linalg::mat4_from_rt(
+            &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0, 0.0, 4.0],
+        ),
+    }
+}
