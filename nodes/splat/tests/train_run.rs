@@ -210,6 +210,84 @@ fn staged_trainer_uses_synthetic_then_real_and_resets_at_the_switch() {
     }
 }
 
+/// Dual's real view is rendered with the loss weight `1 − λ` (1/3 at step 0 with the
+/// defaults): its densification statistic is that fraction of the baseline's, unless
+/// `synthetic.unweighted_stats` divides the weight back out.
+#[test]
+fn dual_densify_statistics_are_weighted_unless_asked_otherwise() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, _) = train_util::make_scene(tmp.path(), 40, 32, 9, 300);
+    let views = load_views(&train);
+    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
+    let ss = scene_scale(&cams);
+    let synth = SyntheticImages {
+        views: views
+            .iter()
+            .map(|v| {
+                let cam = v.camera.resized(20, 16);
+                let img =
+                    augsplat_core::ImageF32::from_vec(40, 32, 3, v.image.clone()).downscale(2);
+                SynthView::new(v.name.clone(), cam, img.data, vec![1.0; 20 * 16], 0.5)
+            })
+            .collect(),
+        norm: WeightNorm::WeightSum,
+    };
+    let real = RealImages {
+        views,
+        loss: RealLoss::default(),
+    };
+    let dual = Schedule::Dual {
+        w_nerf0: 2.0,
+        w_real: 1.0,
+        quarter_decay: 100.0,
+        off_below: Some(0.1),
+        synthetic_batch: 2,
+    };
+    let lam0 = augsplat_splat::schedule::dual_lambda(2.0, 1.0, 100.0, 0);
+    // One step, statistics gathered but no refinement yet.
+    let stats = |schedule: Schedule, unweighted: bool| {
+        let mut args = TrainArgs {
+            steps: 100,
+            sh_degree: 0,
+            densify: DensifyArgs {
+                start: 50,
+                every: 50,
+                scale_with_steps: false,
+                ..Default::default()
+            },
+            schedule,
+            ..Default::default()
+        };
+        args.synthetic.unweighted_stats = unweighted;
+        let mut t = Trainer::new(args, initial(&train, 0, ss), ss, &real, Some(&synth));
+        t.step();
+        let (g, c) = t.densify_statistics();
+        (g.to_vec(), c.to_vec())
+    };
+    let (base, base_count) = stats(Schedule::Baseline, false);
+    let (weighted, count_w) = stats(dual.clone(), false);
+    let (unweighted, count_u) = stats(dual, true);
+    assert_eq!(base_count, count_w);
+    assert_eq!(base_count, count_u);
+    let seen = base.iter().filter(|&&x| x > 0.0).count();
+    assert!(seen > 10, "only {seen} Gaussians have a statistic");
+    let big = base.iter().cloned().fold(0.0f32, f32::max);
+    for i in 0..base.len() {
+        let w = (1.0 - lam0) as f32 * base[i];
+        assert!(
+            (weighted[i] - w).abs() <= 1e-4 * big,
+            "Gaussian {i}: weighted {} against (1 − λ)·baseline {w}",
+            weighted[i]
+        );
+        assert!(
+            (unweighted[i] - base[i]).abs() <= 1e-4 * big,
+            "Gaussian {i}: unweighted {} against baseline {}",
+            unweighted[i],
+            base[i]
+        );
+    }
+}
+
 #[test]
 fn empty_and_degenerate_inputs_do_not_panic() {
     // No Gaussians at all, and a view with no usable synthetic weight.

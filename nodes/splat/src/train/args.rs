@@ -39,6 +39,29 @@ pub struct SyntheticArgs {
     pub skip_below: f64,
     /// Also accumulate the densification statistic from synthetic renders.
     pub densify_from_synthetic: bool,
+    /// Gather the densification statistic from each render's gradient divided by that
+    /// render's loss weight (Dual's `1 − λ` for the real view, `λ / B` for a synthetic one),
+    /// so a real view densifies at the baseline's rate while the synthetic branch is on.
+    /// `false` (the paper's, as a gsplat trainer would do it): the statistic sees the
+    /// weighted gradient. Left out of the key when `false`.
+    #[serde(skip_serializing_if = "is_false")]
+    pub unweighted_stats: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
+impl SyntheticArgs {
+    /// The factor on a render's densification statistic when its loss was scaled by
+    /// `scale`: 1 / `scale` with [`SyntheticArgs::unweighted_stats`], else 1.
+    pub fn stat_factor(&self, scale: f64) -> f32 {
+        if self.unweighted_stats && scale > 0.0 {
+            (1.0 / scale) as f32
+        } else {
+            1.0
+        }
+    }
 }
 
 impl Default for SyntheticArgs {
@@ -47,6 +70,7 @@ impl Default for SyntheticArgs {
             normalize_by_weight_sum: true,
             skip_below: 0.0,
             densify_from_synthetic: false,
+            unweighted_stats: false,
         }
     }
 }

@@ -92,7 +92,8 @@ impl Trainer<'_> {
         if plan.real_weight > 0.0 {
             if let Some(i) = self.next_real() {
                 if let Some(st) = &self.gpu_state {
-                    let stats = densify_on.then_some(1.0);
+                    let stats =
+                        densify_on.then(|| self.args.synthetic.stat_factor(plan.real_weight));
                     let (l, pairs) = view(
                         st,
                         &mut self.gpu_targets,
@@ -127,7 +128,9 @@ impl Trainer<'_> {
                             src,
                             i,
                             scale,
-                            want_stat.then_some(b as f32),
+                            want_stat.then(|| {
+                                b as f32 * self.args.synthetic.stat_factor(plan.synthetic_weight)
+                            }),
                         );
                         sum += l;
                         rep.pairs += pairs;

@@ -241,6 +241,14 @@ impl<'a> Trainer<'a> {
         &self.g
     }
 
+    /// The densification statistics gathered since the last refinement: per Gaussian, the
+    /// summed norm of its screen-space gradient and the number of renders that saw it
+    /// (brought back from the GPU first when it trains there).
+    pub fn densify_statistics(&mut self) -> (&[f32], &[u32]) {
+        self.sync_from_gpu();
+        (&self.densifier.grad2d, &self.densifier.count)
+    }
+
     /// Steps taken so far.
     pub fn steps_done(&self) -> u64 {
         self.step
@@ -403,7 +411,9 @@ impl<'a> Trainer<'a> {
                 rep.loss += plan.real_weight * l;
                 rep.pairs += pairs;
                 if densify_on && gr.means2d_abs.len() == n && gr.visible.len() == n {
-                    self.densifier.accumulate(&gr.means2d_abs, &gr.visible);
+                    let f = self.args.synthetic.stat_factor(plan.real_weight);
+                    self.densifier
+                        .accumulate_scaled(&gr.means2d_abs, &gr.visible, f);
                 }
                 merge_grads(&mut acc, gr, n, k3, sh_active);
             }
@@ -423,11 +433,12 @@ impl<'a> Trainer<'a> {
                             sum += l;
                             rep.pairs += pairs;
                             if want_stat && gr.means2d_abs.len() == n && gr.visible.len() == n {
-                                self.densifier.accumulate_scaled(
-                                    &gr.means2d_abs,
-                                    &gr.visible,
-                                    b as f32,
-                                );
+                                // gsplat's `× n_cameras` for the batch, and the
+                                // weight's inverse when the statistic is unweighted.
+                                let f = b as f32
+                                    * self.args.synthetic.stat_factor(plan.synthetic_weight);
+                                self.densifier
+                                    .accumulate_scaled(&gr.means2d_abs, &gr.visible, f);
                             }
                             merge_grads(&mut acc, gr, n, k3, sh_active);
                         } else {
