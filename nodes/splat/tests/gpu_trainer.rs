@@ -42,7 +42,12 @@ struct Case {
 }
 
 fn case(root: &Path) -> Case {
-    let (train, _) = train_util::make_scene(root, 48, 40, 9, 400);
+    case_of(root, 1, 400)
+}
+
+/// The generated case with SH of `degree`, from `points` SfM points.
+fn case_of(root: &Path, degree: u32, points: u32) -> Case {
+    let (train, _) = train_util::make_scene(root, 48, 40, 9, points);
     let scene = Scene::load(&train).unwrap();
     let views: Vec<RealView> = (0..scene.views.len())
         .map(|i| RealView {
@@ -54,7 +59,7 @@ fn case(root: &Path) -> Case {
     let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
     let scale = scene_scale(&cams);
     let cloud = scene.load_points(&train).unwrap();
-    let mut init = init::from_points(&cloud, 1, &Default::default(), scale, 1);
+    let mut init = init::from_points(&cloud, degree, &Default::default(), scale, 1);
     // Anisotropic, so that the quaternions' gradients are not rounding noise around zero
     // (Adam would turn noise into full steps of either sign on both backends).
     for (i, s) in init.log_scales.iter_mut().enumerate() {
@@ -282,6 +287,21 @@ fn gpu_training_follows_the_cpu_and_repeats_bit_for_bit() {
     );
     assert_eq!(cpu_g.len(), gpu_g.len());
 
+    // The same with statistics from the synthetic views too, each divided by its loss
+    // weight: the factor the GPU's statistics kernel receives must match the CPU's.
+    let mut u = a.clone();
+    u.synthetic.densify_from_synthetic = true;
+    u.synthetic.unweighted_stats = true;
+    let (cpu_u, _) = train(&c, &u, true, None);
+    let (gpu_u, _) = train(&c, &u, true, Some(&gpu));
+    same_losses(&cpu_u, &gpu_u, 1e-4, "Dual, unweighted statistics, 8 steps");
+    assert_eq!(refine(&cpu_u), refine(&gpu_u));
+    assert_ne!(
+        refine(&cpu_u),
+        refine(&cpu_reps),
+        "unweighted statistics must change what densifies"
+    );
+
     // Two GPU runs: identical bytes.
     let (again_reps, again_g) = train(&c, &a, true, Some(&gpu));
     assert_eq!(bits(&gpu_g), bits(&again_g), "two GPU runs differ");
@@ -337,4 +357,69 @@ fn a_gpu_run_resumes_from_a_checkpoint_as_if_uninterrupted() {
         resumed.step();
     }
     assert_eq!(bits(&resumed.into_gaussians()), bits(&whole));
+}
+
+/// Per-Gaussian arrays larger than one storage binding (here the degree-3 SH coefficients,
+/// their gradients and their Adam moments, 192 bytes per Gaussian, under a binding cap
+/// lowered to 128 KiB) run in chunks — projection, its VJP, the per-view sums and Adam each
+/// bind their own range — and a chunked run gives the same bytes as a whole one. A cap below
+/// what a buffer read at any index needs is a clear error naming that buffer.
+#[test]
+fn arrays_past_one_binding_run_in_chunks_with_the_same_bytes() {
+    let Some(gpu) = context("arrays_past_one_binding_run_in_chunks_with_the_same_bytes") else {
+        return;
+    };
+    let cap = 128 * 1024;
+    let capped = Arc::new(GpuContext::new().unwrap().with_binding_limit(cap));
+    let tmp = tempfile::tempdir().unwrap();
+    let mut c = case_of(tmp.path(), 3, 1200);
+    // Small Gaussians, so that the tile lists (40 bytes per pair, read at any index) stay
+    // under the cap while the SH arrays do not.
+    for s in c.init.log_scales.iter_mut().flatten() {
+        *s -= 1.5;
+    }
+    let sh_bytes = 4 * c.init.sh.len() as u64;
+    assert!(
+        sh_bytes > cap,
+        "the SH array ({sh_bytes} bytes) must need more than one chunk"
+    );
+    let mut a = args(8, true);
+    // Densify, but not past what the splats (48 bytes per Gaussian) fit in the cap.
+    a.densify.grad_threshold = 1e-3;
+    a.sh_degree = 3;
+    a.sh_increase_every = 2;
+    a.schedule = Schedule::Dual {
+        w_nerf0: 2.0,
+        w_real: 1.0,
+        quarter_decay: 4.0,
+        off_below: Some(0.5),
+        synthetic_batch: 3,
+    };
+    let (whole_reps, whole_g) = train(&c, &a, true, Some(&gpu));
+    let (chunked_reps, chunked_g) = train(&c, &a, true, Some(&capped));
+    let losses = |r: &[StepReport]| r.iter().map(|s| s.loss.to_bits()).collect::<Vec<_>>();
+    assert_eq!(losses(&whole_reps), losses(&chunked_reps));
+    assert_eq!(
+        bits(&whole_g),
+        bits(&chunked_g),
+        "chunking changed the result"
+    );
+    assert!(whole_g.len() > c.init.len(), "the run must densify");
+
+    // 4 KiB cannot hold the screen-space splats (48 bytes per Gaussian, read at any index).
+    let tiny = GpuContext::new().unwrap().with_binding_limit(4096);
+    let settings = a.render_settings(a.steps);
+    match augsplat_splat::gpu::render_gpu(&tiny, &c.init, c.real.camera(0), &settings) {
+        Err(GpuError::TooLarge {
+            what, bytes, limit, ..
+        }) => {
+            assert_eq!(what, "splats");
+            assert_eq!(bytes, 48 * c.init.len() as u64);
+            assert_eq!(limit, 4096);
+        }
+        other => panic!(
+            "expected a TooLarge error, got {:?}",
+            other.map(|f| f.width)
+        ),
+    }
 }

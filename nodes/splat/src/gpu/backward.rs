@@ -6,7 +6,7 @@
 //! `backward_gpu_atomic` (hidden) swaps the ordered pair sums for float atomics, only to
 //! measure what determinism costs.
 
-use super::forward::{camera_words, forward_pass, ForwardState, GpuScene};
+use super::forward::{camera_words, forward_pass, ForwardState, GpuScene, CAMERA_COUNT_WORD};
 use super::{f32_words, GpuContext, GpuError};
 use crate::render::{Cutoff, RenderSettings};
 use crate::tiles::TileGrid;
@@ -96,10 +96,10 @@ fn vjp_inner(
 ) -> Result<ParamGradsGpu, GpuError> {
     let n = scene.len();
     let k = scene.coeffs as usize;
-    let grads = ctx.storage("parameter gradients", 4 * (PARAM_GRAD_STRIDE * n) as u64)?;
-    let sh = ctx.storage("SH gradients", 4 * (3 * k * n) as u64)?;
+    let grads = ctx.storage_items("parameter gradients", 4 * (PARAM_GRAD_STRIDE * n) as u64)?;
+    let sh = ctx.storage_items("SH gradients", 4 * (3 * k * n) as u64)?;
     let mut enc = ctx.device.create_command_encoder(&Default::default());
-    record_vjp(ctx, &mut enc, scene, cam, s, upstream, (&grads, &sh));
+    record_vjp(ctx, &mut enc, scene, cam, s, upstream, (&grads, &sh))?;
     ctx.submit(enc)?;
     let to_f32 = |w: Vec<u32>| w.into_iter().map(f32::from_bits).collect();
     Ok(ParamGradsGpu {
@@ -121,25 +121,26 @@ pub(super) fn record_vjp(
     s: &RenderSettings,
     upstream: &wgpu::Buffer,
     out: (&wgpu::Buffer, &wgpu::Buffer),
-) {
+) -> Result<(), GpuError> {
     let grid = TileGrid::new(cam.width, cam.height);
-    let camera = ctx.uniform("camera", &camera_words(scene, cam, s, grid));
-    ctx.dispatch(
+    let k3 = 3 * u64::from(scene.coeffs);
+    ctx.dispatch_items(
         enc,
         &ctx.kernels.project_vjp,
+        (&camera_words(scene, cam, s, grid), CAMERA_COUNT_WORD),
         &[
-            (0, &camera),
-            (1, &scene.means),
-            (2, &scene.scales),
-            (3, &scene.quats),
-            (4, &scene.logits),
-            (5, &scene.sh),
-            (6, upstream),
-            (7, out.0),
-            (8, out.1),
+            (1, &scene.means, 3),
+            (2, &scene.scales, 3),
+            (3, &scene.quats, 4),
+            (4, &scene.logits, 1),
+            (5, &scene.sh, k3),
+            (6, upstream, SCREEN_GRAD_STRIDE as u64),
+            (7, out.0, PARAM_GRAD_STRIDE as u64),
+            (8, out.1, k3),
         ],
-        ctx.groups((scene.len() as u32).div_ceil(256)),
-    );
+        scene.n,
+        1,
+    )
 }
 
 /// Records the compositing backward of one forward pass: `d_rgb` (dL/d(rgb), `H·W·3`) becomes

@@ -80,18 +80,21 @@ impl GpuScene {
                 n: n32,
                 coeffs: k as u32,
                 sh_degree: g.sh_degree,
-                means: ctx.storage_init("means", &f32_words(g.means.iter().flatten().copied()))?,
-                scales: ctx.storage_init(
+                means: ctx
+                    .storage_items_init("means", &f32_words(g.means.iter().flatten().copied()))?,
+                scales: ctx.storage_items_init(
                     "log-scales",
                     &f32_words(g.log_scales.iter().flatten().copied()),
                 )?,
-                quats: ctx
-                    .storage_init("quaternions", &f32_words(g.quats.iter().flatten().copied()))?,
-                logits: ctx.storage_init(
+                quats: ctx.storage_items_init(
+                    "quaternions",
+                    &f32_words(g.quats.iter().flatten().copied()),
+                )?,
+                logits: ctx.storage_items_init(
                     "opacity logits",
                     &f32_words(g.opacity_logits.iter().copied()),
                 )?,
-                sh: ctx.storage_init("SH coefficients", &f32_words(g.sh.iter().copied()))?,
+                sh: ctx.storage_items_init("SH coefficients", &f32_words(g.sh.iter().copied()))?,
             })
         })
     }
@@ -104,6 +107,9 @@ impl GpuScene {
         self.n == 0
     }
 }
+
+/// The word of [`camera_words`] that holds the number of Gaussians (`cam.counts.x`).
+pub(super) const CAMERA_COUNT_WORD: usize = 28;
 
 /// The camera uniform of `project.wgsl`.
 pub(super) fn camera_words(
@@ -232,7 +238,7 @@ pub(super) fn forward_pass(
     let n = g.n;
     let nn = u64::from(n);
     let kr = &ctx.kernels;
-    let camera = ctx.uniform("camera", &camera_words(g, cam, s, grid));
+    let camera_w = camera_words(g, cam, s, grid);
     let splats = ctx.storage("splats", 4 * SPLAT_STRIDE * nn)?;
     let meta = ctx.storage("tile rectangles", 16 * nn)?;
     let keys = ctx.storage("depth keys", 4 * nn)?;
@@ -244,22 +250,24 @@ pub(super) fn forward_pass(
 
     // Project, sort by (depth, index), count each rank's tiles and scan them.
     let mut enc = ctx.device.create_command_encoder(&Default::default());
-    ctx.dispatch(
+    let k3 = 3 * u64::from(g.coeffs);
+    ctx.dispatch_items(
         &mut enc,
         &kr.project,
+        (&camera_w, CAMERA_COUNT_WORD),
         &[
-            (0, &camera),
-            (1, &g.means),
-            (2, &g.scales),
-            (3, &g.quats),
-            (4, &g.logits),
-            (5, &g.sh),
-            (6, &splats),
-            (7, &meta),
-            (8, &keys),
+            (1, &g.means, 3),
+            (2, &g.scales, 3),
+            (3, &g.quats, 4),
+            (4, &g.logits, 1),
+            (5, &g.sh, k3),
+            (6, &splats, SPLAT_STRIDE),
+            (7, &meta, 4),
+            (8, &keys, 1),
         ],
-        ctx.groups(n.div_ceil(GROUP)),
-    );
+        n,
+        1,
+    )?;
     let (_, sorted_order) = ctx.record_sort(&mut enc, &keys, &vals, (&keys2, &vals2), n, 32)?;
     let order_in_vals = std::ptr::eq(sorted_order, &vals);
     let order = if order_in_vals { vals } else { vals2 };

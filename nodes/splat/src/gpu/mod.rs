@@ -3,7 +3,11 @@
 //!
 //! - [`GpuContext`]: the adapter and device (limits raised to what the adapter reports), with
 //!   the adapter's name, driver and backend for the outputs' metadata; asking for a GPU where
-//!   there is none is a [`GpuError::NoAdapter`] that says what was found;
+//!   there is none is a [`GpuError::NoAdapter`] that says what was found. Per-Gaussian arrays
+//!   that kernels touch only at their own Gaussian (parameters, SH, gradients, moments) may
+//!   exceed one storage binding: those kernels run in chunks (`gpu/chunk.rs`); buffers read at
+//!   any index (splats, tile lists, images) must fit one binding, else a
+//!   [`GpuError::TooLarge`] names the buffer;
 //! - [`backward_gpu`]: gradients of a loss on the colour — the compositing backward walks
 //!   each tile back to front and sums every (tile, Gaussian) pair's 256 pixels in a fixed
 //!   order into the pair's own slot (each of the tile's 16 columns top to bottom, then the
@@ -29,6 +33,7 @@
 //! (`examples/gpu_determinism_cost.rs`); nothing else calls it.
 
 mod backward;
+mod chunk;
 mod forward;
 mod loss;
 mod sort;
@@ -126,6 +131,8 @@ pub struct GpuContext {
     queue: wgpu::Queue,
     adapter: AdapterSummary,
     limits: wgpu::Limits,
+    /// The largest storage binding in bytes (see [`GpuContext::with_binding_limit`]).
+    binding_limit: u64,
     kernels: Kernels,
     /// Why the device was lost, once it was (set by wgpu's device-lost callback).
     lost: std::sync::Arc<std::sync::Mutex<Option<String>>>,
@@ -222,10 +229,14 @@ impl GpuContext {
                 message: format!("the kernels do not compile: {e}"),
             });
         }
+        let binding_limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
         Ok(GpuContext {
             device,
             queue,
             adapter: summary,
+            binding_limit,
             limits,
             kernels,
             lost,
@@ -251,13 +262,14 @@ impl GpuContext {
 
     /// A storage buffer of `bytes` bytes (at least 16), checked against the adapter's limits.
     fn storage(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
+        self.storage_within(what, bytes, self.binding_limit)
+    }
+
+    /// A storage buffer of `bytes` bytes (at least 16), checked against `limit`.
+    fn storage_within(&self, what: &str, bytes: u64, limit: u64) -> Result<wgpu::Buffer, GpuError> {
         // At least one 16-byte element: kernels read some buffers as arrays of vec4, and an
         // empty set (no Gaussians, no pairs) still binds them.
         let bytes = bytes.max(16).next_multiple_of(4);
-        let limit = self
-            .limits
-            .max_storage_buffer_binding_size
-            .min(self.limits.max_buffer_size);
         if bytes > limit {
             return Err(GpuError::TooLarge {
                 what: what.into(),
@@ -309,7 +321,6 @@ impl GpuContext {
         bindings: &[(u32, &wgpu::Buffer)],
         groups: [u32; 2],
     ) {
-        let layout = pipeline.get_bind_group_layout(0);
         let entries: Vec<wgpu::BindGroupEntry<'_>> = bindings
             .iter()
             .map(|(b, buf)| wgpu::BindGroupEntry {
@@ -317,10 +328,22 @@ impl GpuContext {
                 resource: buf.as_entire_binding(),
             })
             .collect();
+        self.dispatch_entries(enc, pipeline, &entries, groups);
+    }
+
+    /// [`GpuContext::dispatch`] with ready bind-group entries (whole buffers or ranges).
+    fn dispatch_entries(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        entries: &[wgpu::BindGroupEntry<'_>],
+        groups: [u32; 2],
+    ) {
+        let layout = pipeline.get_bind_group_layout(0);
         let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: None,
             layout: &layout,
-            entries: &entries,
+            entries,
         });
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
         pass.set_pipeline(pipeline);

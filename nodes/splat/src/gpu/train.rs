@@ -116,20 +116,22 @@ impl GpuTrainer {
             for group in GROUPS {
                 let (m, v) = adam.moments(group);
                 moments.push((
-                    ctx.storage_init("Adam first moments", &f32_words(m.iter().copied()))?,
-                    ctx.storage_init("Adam second moments", &f32_words(v.iter().copied()))?,
+                    ctx.storage_items_init("Adam first moments", &f32_words(m.iter().copied()))?,
+                    ctx.storage_items_init("Adam second moments", &f32_words(v.iter().copied()))?,
                 ));
             }
             let nn = n as u64;
             Ok(GpuTrainer {
-                acc_grads: ctx.storage("step gradients", 4 * PARAM_GRAD_STRIDE as u64 * nn)?,
-                acc_sh: ctx.storage("step SH gradients", 4 * 3 * u64::from(scene.coeffs) * nn)?,
-                acc_visible: ctx.storage("step visibility", 4 * nn)?,
-                grad2d: ctx.storage_init(
+                acc_grads: ctx
+                    .storage_items("step gradients", 4 * PARAM_GRAD_STRIDE as u64 * nn)?,
+                acc_sh: ctx
+                    .storage_items("step SH gradients", 4 * 3 * u64::from(scene.coeffs) * nn)?,
+                acc_visible: ctx.storage_items("step visibility", 4 * nn)?,
+                grad2d: ctx.storage_items_init(
                     "densification sums",
                     &f32_words(stats.grad2d.iter().copied()),
                 )?,
-                count: ctx.storage_init("densification counts", &stats.count)?,
+                count: ctx.storage_items_init("densification counts", &stats.count)?,
                 moments,
                 scene,
             })
@@ -254,41 +256,43 @@ impl GpuTrainer {
             };
             let screen =
                 ctx.storage("screen-space gradients", 4 * SCREEN_GRAD_STRIDE as u64 * nn)?;
-            let view_grads = ctx.storage("view gradients", 4 * PARAM_GRAD_STRIDE as u64 * nn)?;
-            let view_sh = ctx.storage("view SH gradients", 4 * u64::from(sh_width) * nn)?;
+            let view_grads =
+                ctx.storage_items("view gradients", 4 * PARAM_GRAD_STRIDE as u64 * nn)?;
+            let view_sh = ctx.storage_items("view SH gradients", 4 * u64::from(sh_width) * nn)?;
             let pair_grads = pair_buffer(ctx, &st)?;
             record_backward(ctx, &mut enc, &st, grid, &d_rgb, &screen, n, &pair_grads);
-            record_vjp(ctx, &mut enc, sc, cam, s, &screen, (&view_grads, &view_sh));
-            let consts = ctx.uniform(
-                "accumulate constants",
-                &[
-                    n,
-                    sh_width,
-                    (sh_active as u32).min(sh_width),
-                    u32::from(stats.is_some()),
-                    (0.5 * cam.width as f32).to_bits(),
-                    (0.5 * cam.height as f32).to_bits(),
-                    stats.unwrap_or(1.0).to_bits(),
-                    0,
-                ],
-            );
-            ctx.dispatch(
+            record_vjp(ctx, &mut enc, sc, cam, s, &screen, (&view_grads, &view_sh))?;
+            let sw = u64::from(sh_width);
+            ctx.dispatch_items(
                 &mut enc,
                 &ctx.kernels.accumulate,
+                (
+                    &[
+                        n,
+                        sh_width,
+                        (sh_active as u32).min(sh_width),
+                        u32::from(stats.is_some()),
+                        (0.5 * cam.width as f32).to_bits(),
+                        (0.5 * cam.height as f32).to_bits(),
+                        stats.unwrap_or(1.0).to_bits(),
+                        0,
+                    ],
+                    0,
+                ),
                 &[
-                    (0, &consts),
-                    (1, &view_grads),
-                    (2, &view_sh),
-                    (3, &screen),
-                    (4, &st.rects),
-                    (5, &self.acc_grads),
-                    (6, &self.acc_sh),
-                    (7, &self.acc_visible),
-                    (8, &self.grad2d),
-                    (9, &self.count),
+                    (1, &view_grads, PARAM_GRAD_STRIDE as u64),
+                    (2, &view_sh, sw),
+                    (3, &screen, SCREEN_GRAD_STRIDE as u64),
+                    (4, &st.rects, 4),
+                    (5, &self.acc_grads, PARAM_GRAD_STRIDE as u64),
+                    (6, &self.acc_sh, sw),
+                    (7, &self.acc_visible, 1),
+                    (8, &self.grad2d, 1),
+                    (9, &self.count, 1),
                 ],
-                ctx.groups(n.div_ceil(256)),
-            );
+                n,
+                1,
+            )?;
             // The composited pairs, as the CPU renderer counts them: per-block sums on the
             // GPU, added here.
             let blocks = px.div_ceil(256);
@@ -357,23 +361,23 @@ impl GpuTrainer {
                     0,
                     0,
                 ];
-                let uniform = ctx.uniform("Adam constants", &words);
-                let values = n.checked_mul(width).ok_or_else(|| {
-                    GpuError::Invalid(format!("{n} Gaussians × {width} values overflow"))
-                })?;
-                ctx.dispatch(
+                // The gradient buffer is bound per Gaussian (its stride) and read at
+                // `offset` inside each Gaussian's values.
+                let w = u64::from(width);
+                ctx.dispatch_items(
                     &mut enc,
                     &ctx.kernels.adam,
+                    (&words, 0),
                     &[
-                        (0, &uniform),
-                        (1, params[k]),
-                        (2, gbuf),
-                        (3, &self.moments[k].0),
-                        (4, &self.moments[k].1),
-                        (5, &self.acc_visible),
+                        (1, params[k], w),
+                        (2, gbuf, u64::from(stride)),
+                        (3, &self.moments[k].0, w),
+                        (4, &self.moments[k].1, w),
+                        (5, &self.acc_visible, 1),
                     ],
-                    ctx.groups(values.div_ceil(256)),
-                );
+                    n,
+                    width,
+                )?;
             }
             ctx.submit_no_wait(enc)
         })
