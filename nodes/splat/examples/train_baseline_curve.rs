@@ -151,6 +151,7 @@ fn time_loop(a: &[String]) {
             quarter_decay: 300.0,
             off_below: Some(0.1),
             synthetic_batch: 20,
+            reset_at_off: false,
         },
         s => panic!("unknown schedule {s}"),
     };

@@ -68,7 +68,17 @@ pub enum Schedule {
         /// Synthetic views per step.
         #[serde(default = "d_batch")]
         synthetic_batch: usize,
+        /// Ours, not the paper's: at the first step with the synthetic branch off, clamp
+        /// opacities to at most 0.1 and clear the optimiser state, as Staged does at its
+        /// switch (Gaussians that only the prior's views asked for then fade unless the real
+        /// views keep them). Left out of the key when `false`.
+        #[serde(default, skip_serializing_if = "is_false")]
+        reset_at_off: bool,
     },
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 /// What one step does, as decided by the [`Schedule`].
@@ -80,7 +90,8 @@ pub struct StepPlan {
     pub synthetic_weight: f64,
     /// Synthetic views rendered this step.
     pub synthetic_batch: usize,
-    /// Staged: this is the first real-only step (reset happens before it).
+    /// The first real-only step after synthetic ones (Staged's switch, Dual's switch-off);
+    /// a reset asked for happens before it.
     pub switch: bool,
 }
 
@@ -132,6 +143,7 @@ impl Schedule {
                 quarter_decay,
                 off_below,
                 synthetic_batch,
+                ..
             } => {
                 for (n, v) in [
                     ("w_nerf0", w_nerf0),
@@ -194,11 +206,18 @@ impl Schedule {
                 quarter_decay,
                 off_below,
                 synthetic_batch,
+                ..
             } => {
+                let off_at = |t: u64| {
+                    let raw = dual_raw_weight(w_nerf0, quarter_decay, t);
+                    raw <= 0.0 || off_below.is_some_and(|o| raw < o)
+                };
                 let raw = dual_raw_weight(w_nerf0, quarter_decay, step);
-                let off = raw <= 0.0 || off_below.is_some_and(|o| raw < o);
-                if off {
-                    return real_only;
+                if off_at(step) {
+                    return StepPlan {
+                        switch: step > 0 && !off_at(step - 1),
+                        ..real_only
+                    };
                 }
                 let lam = raw / (raw + w_real);
                 StepPlan {

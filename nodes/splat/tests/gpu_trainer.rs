@@ -263,6 +263,7 @@ fn gpu_training_follows_the_cpu_and_repeats_bit_for_bit() {
         quarter_decay: 4.0,
         off_below: Some(0.5),
         synthetic_batch: 3,
+        reset_at_off: false,
     };
     let (cpu_reps, cpu_g) = train(&c, &a, true, None);
     let (gpu_reps, gpu_g) = train(&c, &a, true, Some(&gpu));
@@ -394,6 +395,7 @@ fn arrays_past_one_binding_run_in_chunks_with_the_same_bytes() {
         quarter_decay: 4.0,
         off_below: Some(0.5),
         synthetic_batch: 3,
+        reset_at_off: false,
     };
     let (whole_reps, whole_g) = train(&c, &a, true, Some(&gpu));
     let (chunked_reps, chunked_g) = train(&c, &a, true, Some(&capped));

@@ -52,6 +52,7 @@ fn small_dual() -> Schedule {
         quarter_decay: 10.0,
         off_below: Some(0.1),
         synthetic_batch: 2,
+        reset_at_off: false,
     }
 }
 

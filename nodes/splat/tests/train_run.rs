@@ -242,6 +242,7 @@ fn dual_densify_statistics_are_weighted_unless_asked_otherwise() {
         quarter_decay: 100.0,
         off_below: Some(0.1),
         synthetic_batch: 2,
+        reset_at_off: false,
     };
     let lam0 = augsplat_splat::schedule::dual_lambda(2.0, 1.0, 100.0, 0);
     // One step, statistics gathered but no refinement yet.
@@ -286,6 +287,74 @@ fn dual_densify_statistics_are_weighted_unless_asked_otherwise() {
             base[i]
         );
     }
+}
+
+/// Dual with `reset_at_off` clamps the opacities at its switch-off (step 2 here: w̃ = 2·4^(−t)
+/// first falls below 0.5 at t = 2), as Staged does at its switch; without it, nothing is reset.
+#[test]
+fn dual_resets_opacities_at_its_switch_off_only_when_asked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, _) = train_util::make_scene(tmp.path(), 40, 32, 9, 300);
+    let views = load_views(&train);
+    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
+    let ss = scene_scale(&cams);
+    let synth = SyntheticImages {
+        views: views
+            .iter()
+            .map(|v| {
+                let cam = v.camera.resized(20, 16);
+                let img =
+                    augsplat_core::ImageF32::from_vec(40, 32, 3, v.image.clone()).downscale(2);
+                SynthView::new(v.name.clone(), cam, img.data, vec![1.0; 20 * 16], 0.5)
+            })
+            .collect(),
+        norm: WeightNorm::WeightSum,
+    };
+    let real = RealImages {
+        views,
+        loss: RealLoss::default(),
+    };
+    let max_logit_after = |reset: bool, steps: u64| {
+        let args = TrainArgs {
+            steps: 5,
+            sh_degree: 0,
+            densify: DensifyArgs {
+                enabled: false,
+                ..Default::default()
+            },
+            schedule: Schedule::Dual {
+                w_nerf0: 2.0,
+                w_real: 1.0,
+                quarter_decay: 1.0,
+                off_below: Some(0.5),
+                synthetic_batch: 2,
+                reset_at_off: reset,
+            },
+            learning_rates: LearningRates {
+                opacities: 0.05,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let mut g0 = initial(&train, 0, ss);
+        g0.opacity_logits.fill(2.0);
+        let mut t = Trainer::new(args, g0, ss, &real, Some(&synth));
+        let reps: Vec<_> = (0..steps).map(|_| t.step()).collect();
+        assert!(reps[1].synthetic_loss.is_some());
+        assert!(reps.len() < 3 || reps[2].synthetic_loss.is_none());
+        t.gaussians()
+            .opacity_logits
+            .iter()
+            .cloned()
+            .fold(f32::MIN, f32::max) as f64
+    };
+    // Clamped to logit(0.1), then one fresh-Adam step moves each by at most lr.
+    let cap = (0.1f64 / 0.9).ln() + 0.05 + 1e-5;
+    assert!(max_logit_after(true, 2) > 1.5, "no reset before the switch-off");
+    let reset = max_logit_after(true, 3);
+    assert!(reset <= cap, "max opacity logit {reset} after the switch-off");
+    let kept = max_logit_after(false, 3);
+    assert!(kept > 1.5, "reset without reset_at_off: {kept}");
 }
 
 #[test]
@@ -333,6 +402,7 @@ fn empty_and_degenerate_inputs_do_not_panic() {
             quarter_decay: 300.0,
             off_below: None,
             synthetic_batch: 4,
+            reset_at_off: false,
         },
         ..Default::default()
     };

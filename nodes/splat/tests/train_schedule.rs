@@ -12,6 +12,7 @@ fn dual(d: f64, off: Option<f64>) -> Schedule {
         quarter_decay: d,
         off_below: off,
         synthetic_batch: 20,
+        reset_at_off: false,
     }
 }
 
@@ -34,6 +35,14 @@ fn dual_lambda_matches_closed_form_at_0_d_2d() {
         (p.synthetic_weight, p.real_weight, p.synthetic_batch),
         (0.0, 1.0, 0)
     );
+    // The switch-off is flagged once, at step 649 (where `reset_at_off` acts); D = 0 has no
+    // synthetic step to switch from.
+    let switches: Vec<u64> = (0..3000)
+        .filter(|&t| dual(d, Some(0.1)).plan(t).switch)
+        .collect();
+    assert_eq!(switches, [649]);
+    assert!((0..100).all(|t| !dual(0.0, Some(0.1)).plan(t).switch));
+    assert!((0..3000).all(|t| !dual(d, None).plan(t).switch));
     // Never off without a threshold.
     assert!(dual(d, None).plan(100_000).synthetic_weight >= 0.0);
     assert!(dual(d, None).plan(3000).synthetic_weight > 0.0);
@@ -105,7 +114,8 @@ fn args_parse_with_defaults_and_reject_typos() {
             w_real: 1.0,
             quarter_decay: 100.0,
             off_below: Some(0.1),
-            synthetic_batch: 20
+            synthetic_batch: 20,
+            reset_at_off: false,
         }
     );
     let s: TrainArgs = serde_json::from_str(r#"{"schedule": {"Staged": {}}}"#).unwrap();

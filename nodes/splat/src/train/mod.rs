@@ -487,13 +487,16 @@ impl<'a> Trainer<'a> {
         rep
     }
 
-    /// Staged's opacity reset at its switch, when asked for (clears the moments and the
-    /// densification statistics too).
+    /// Staged's opacity reset at its switch, or Dual's at its switch-off, when asked for
+    /// (clears the moments and the densification statistics too).
     pub(super) fn reset_at_switch(&mut self, plan: &crate::schedule::StepPlan) {
         if plan.switch {
             if let Schedule::Staged {
                 reset_at_switch: true,
                 ..
+            }
+            | Schedule::Dual {
+                reset_at_off: true, ..
             } = self.args.schedule
             {
                 self.take_back_from_gpu();
