@@ -360,30 +360,35 @@ fn a_gpu_run_resumes_from_a_checkpoint_as_if_uninterrupted() {
     assert_eq!(bits(&resumed.into_gaussians()), bits(&whole));
 }
 
-/// Per-Gaussian arrays larger than one storage binding (here the degree-3 SH coefficients,
-/// their gradients and their Adam moments, 192 bytes per Gaussian, under a binding cap
-/// lowered to 128 KiB) run in chunks — projection, its VJP, the per-view sums and Adam each
-/// bind their own range — and a chunked run gives the same bytes as a whole one. A cap below
-/// what a buffer read at any index needs is a clear error naming that buffer.
+/// Arrays larger than one storage binding give the same bytes as whole ones, under a binding
+/// cap lowered to 92 KiB: per-Gaussian arrays that kernels touch only at their own Gaussian
+/// (the degree-3 SH coefficients, their gradients and Adam moments, 192 bytes per Gaussian:
+/// five chunks) run in chunks — projection, its VJP, the per-view sums and Adam each bind
+/// their own range — and buffers read or written at any index (the splats, the
+/// screen-space gradients, the pair slots) are bound as two ranges. A cap below what two
+/// bindings hold is a clear error naming the buffer.
 #[test]
 fn arrays_past_one_binding_run_in_chunks_with_the_same_bytes() {
     let Some(gpu) = context("arrays_past_one_binding_run_in_chunks_with_the_same_bytes") else {
         return;
     };
-    let cap = 128 * 1024;
+    let cap = 92 * 1024;
     let capped = Arc::new(GpuContext::new().unwrap().with_binding_limit(cap));
     let tmp = tempfile::tempdir().unwrap();
-    let mut c = case_of(tmp.path(), 3, 1200);
-    // Small Gaussians, so that the tile lists (40 bytes per pair, read at any index) stay
-    // under the cap while the SH arrays do not.
+    let mut c = case_of(tmp.path(), 3, 2500);
+    // Small Gaussians, so that the pair slots (40 bytes per pair) fit two bindings.
     for s in c.init.log_scales.iter_mut().flatten() {
         *s -= 1.5;
     }
     let sh_bytes = 4 * c.init.sh.len() as u64;
+    let n0 = c.init.len() as u64;
     assert!(
-        sh_bytes > cap,
-        "the SH array ({sh_bytes} bytes) must need more than one chunk"
+        sh_bytes > 4 * cap,
+        "the SH array ({sh_bytes} bytes) must need five chunks"
     );
+    // The splats (48 bytes per Gaussian) and the screen-space gradients (40) are read or
+    // written at any index: each needs its two bindings from the first step on.
+    assert!(40 * n0 > cap && 48 * n0 <= 2 * cap, "{n0} Gaussians");
     let mut a = args(8, true);
     // Densify, but not past what the splats (48 bytes per Gaussian) fit in the cap.
     a.densify.grad_threshold = 1e-3;
@@ -408,16 +413,17 @@ fn arrays_past_one_binding_run_in_chunks_with_the_same_bytes() {
     );
     assert!(whole_g.len() > c.init.len(), "the run must densify");
 
-    // 4 KiB cannot hold the screen-space splats (48 bytes per Gaussian, read at any index).
+    // Two 4 KiB bindings cannot hold the screen-space splats (48 bytes per Gaussian, read at
+    // any index).
     let tiny = GpuContext::new().unwrap().with_binding_limit(4096);
     let settings = a.render_settings(a.steps);
     match augsplat_splat::gpu::render_gpu(&tiny, &c.init, c.real.camera(0), &settings) {
         Err(GpuError::TooLarge {
             what, bytes, limit, ..
         }) => {
-            assert_eq!(what, "splats");
+            assert_eq!(what, "splats (read through two bindings)");
             assert_eq!(bytes, 48 * c.init.len() as u64);
-            assert_eq!(limit, 4096);
+            assert_eq!(limit, 2 * 4096);
         }
         other => panic!(
             "expected a TooLarge error, got {:?}",

@@ -350,9 +350,15 @@ fn dual_resets_opacities_at_its_switch_off_only_when_asked() {
     };
     // Clamped to logit(0.1), then one fresh-Adam step moves each by at most lr.
     let cap = (0.1f64 / 0.9).ln() + 0.05 + 1e-5;
-    assert!(max_logit_after(true, 2) > 1.5, "no reset before the switch-off");
+    assert!(
+        max_logit_after(true, 2) > 1.5,
+        "no reset before the switch-off"
+    );
     let reset = max_logit_after(true, 3);
-    assert!(reset <= cap, "max opacity logit {reset} after the switch-off");
+    assert!(
+        reset <= cap,
+        "max opacity logit {reset} after the switch-off"
+    );
     let kept = max_logit_after(false, 3);
     assert!(kept > 1.5, "reset without reset_at_off: {kept}");
 }

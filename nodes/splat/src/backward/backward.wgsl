@@ -23,6 +23,10 @@ struct Params {
     max_alpha: f32,
     cutoff: u32,
     background: vec4<f32>,
+    // x: the first Gaussian in `splats_hi`; y: the first pair slot in `pair_grads_hi`; z: the
+    // first Gaussian in `screen_hi` (buffers past one binding are read through two,
+    // gpu/chunk.rs).
+    splits: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -37,6 +41,42 @@ struct Params {
 @group(0) @binding(9) var<storage, read> d_rgb: array<f32>;       // 3 per pixel
 @group(0) @binding(10) var<storage, read_write> pair_grads: array<f32>; // PAIR_STRIDE per pair
 @group(0) @binding(11) var<storage, read_write> screen: array<f32>;     // SCREEN_STRIDE per Gaussian
+@group(0) @binding(12) var<storage, read> splats_hi: array<f32>;
+@group(0) @binding(13) var<storage, read_write> pair_grads_hi: array<f32>;
+@group(0) @binding(14) var<storage, read_write> screen_hi: array<f32>;
+
+// Value q of Gaussian g's splat, from whichever binding holds it.
+fn splat(g: u32, q: u32) -> f32 {
+    if (g < p.splits.x) {
+        return splats[g * SPLAT_STRIDE + q];
+    }
+    return splats_hi[(g - p.splits.x) * SPLAT_STRIDE + q];
+}
+
+// Value q of pair slot e, and its write, in whichever binding holds the slot.
+fn pair_get(e: u32, q: u32) -> f32 {
+    if (e < p.splits.y) {
+        return pair_grads[e * PAIR_STRIDE + q];
+    }
+    return pair_grads_hi[(e - p.splits.y) * PAIR_STRIDE + q];
+}
+
+// Value q of Gaussian g's screen-space gradient, written in whichever binding holds it.
+fn screen_set(g: u32, q: u32, v: f32) {
+    if (g < p.splits.z) {
+        screen[g * SCREEN_STRIDE + q] = v;
+    } else {
+        screen_hi[(g - p.splits.z) * SCREEN_STRIDE + q] = v;
+    }
+}
+
+fn pair_set(e: u32, q: u32, v: f32) {
+    if (e < p.splits.y) {
+        pair_grads[e * PAIR_STRIDE + q] = v;
+    } else {
+        pair_grads_hi[(e - p.splits.y) * PAIR_STRIDE + q] = v;
+    }
+}
 
 const SPLAT_STRIDE: u32 = 12u;
 const IMAGE_STRIDE: u32 = 7u;
@@ -139,9 +179,9 @@ fn rasterize_backward(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invo
         if (k < hi) {
             let e = sorted_e[start + k];
             batch_e[li] = e;
-            let o = order[pair_rank[e]] * SPLAT_STRIDE;
+            let gi = order[pair_rank[e]];
             for (var q = 0u; q < 10u; q++) {
-                batch[li][q] = splats[o + q];
+                batch[li][q] = splat(gi, q);
             }
         }
         workgroupBarrier();
@@ -200,7 +240,7 @@ fn rasterize_backward(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invo
             // No barrier after level 2: the next pair's writes to `red` come after this
             // barrier (level 1 is done), and its writes to `part` after its own first one.
             if (li < 9u) {
-                pair_grads[batch_e[b] * PAIR_STRIDE + li] = value_sum(li);
+                pair_set(batch_e[b], li, value_sum(li));
             }
         }
         // Level 2 of the batch's last pair still reads batch_e: wait before reloading it.
@@ -220,31 +260,28 @@ fn gaussian_sums(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     var s: array<f32, 10>;
     let off = counts[rk];
     for (var k = 0u; k < cnt; k++) {
-        let o = (off + k) * PAIR_STRIDE;
         for (var q = 0u; q < 9u; q++) {
-            s[q] = s[q] + pair_grads[o + q];
+            s[q] = s[q] + pair_get(off + k, q);
         }
     }
-    let os = gi * SCREEN_STRIDE;
     if (cnt == 0u) {
         for (var q = 0u; q < SCREEN_STRIDE; q++) {
-            screen[os + q] = 0.0;
+            screen_set(gi, q, 0.0);
         }
         return;
     }
-    let g0 = gi * SPLAT_STRIDE;
-    let ca = splats[g0 + 2u];
-    let cb = splats[g0 + 3u];
-    let cc = splats[g0 + 4u];
-    let op = splats[g0 + 5u];
-    screen[os] = -op * (ca * s[1] + cb * s[2]);
-    screen[os + 1u] = -op * (cb * s[1] + cc * s[2]);
-    screen[os + 2u] = -op * 0.5 * s[3];
-    screen[os + 3u] = -op * s[4];
-    screen[os + 4u] = -op * 0.5 * s[5];
-    screen[os + 5u] = s[0];
-    screen[os + 6u] = s[6];
-    screen[os + 7u] = s[7];
-    screen[os + 8u] = s[8];
-    screen[os + 9u] = 0.0;
+    let ca = splat(gi, 2u);
+    let cb = splat(gi, 3u);
+    let cc = splat(gi, 4u);
+    let op = splat(gi, 5u);
+    screen_set(gi, 0u, -op * (ca * s[1] + cb * s[2]));
+    screen_set(gi, 1u, -op * (cb * s[1] + cc * s[2]));
+    screen_set(gi, 2u, -op * 0.5 * s[3]);
+    screen_set(gi, 3u, -op * s[4]);
+    screen_set(gi, 4u, -op * 0.5 * s[5]);
+    screen_set(gi, 5u, s[0]);
+    screen_set(gi, 6u, s[6]);
+    screen_set(gi, 7u, s[7]);
+    screen_set(gi, 8u, s[8]);
+    screen_set(gi, 9u, 0.0);
 }

@@ -27,6 +27,7 @@ struct Params {
     max_alpha: f32,
     cutoff: u32,
     background: vec4<f32>,
+    splits: vec4<u32>,       // x, z: the first Gaussian in `splats_hi`, `screen_hi` (backward.wgsl)
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -38,6 +39,15 @@ struct Params {
 @group(0) @binding(8) var<storage, read> image: array<f32>;       // forward.wgsl IMAGE_STRIDE
 @group(0) @binding(9) var<storage, read> d_rgb: array<f32>;       // 3 per pixel
 @group(0) @binding(11) var<storage, read_write> screen: array<atomic<u32>>; // f32 bits, SCREEN_STRIDE per Gaussian
+@group(0) @binding(12) var<storage, read> splats_hi: array<f32>;
+@group(0) @binding(14) var<storage, read_write> screen_hi: array<atomic<u32>>;
+
+fn splat(g: u32, q: u32) -> f32 {
+    if (g < p.splits.x) {
+        return splats[g * SPLAT_STRIDE + q];
+    }
+    return splats_hi[(g - p.splits.x) * SPLAT_STRIDE + q];
+}
 
 const SPLAT_STRIDE: u32 = 12u;
 const IMAGE_STRIDE: u32 = 7u;
@@ -57,14 +67,28 @@ var<workgroup> tile_last: u32;
 
 // screen[i] += v as f32, atomically: retry the compare-exchange until no other invocation
 // changed the word between the read and the write.
-fn add_f32(i: u32, v: f32) {
-    var old = atomicLoad(&screen[i]);
-    loop {
-        let r = atomicCompareExchangeWeak(&screen[i], old, bitcast<u32>(bitcast<f32>(old) + v));
-        if (r.exchanged) {
-            break;
+// Value q of Gaussian g, in whichever of the two bindings holds it (`splits.z`).
+fn add_f32(g: u32, q: u32, v: f32) {
+    if (g < p.splits.z) {
+        let i = g * SCREEN_STRIDE + q;
+        var old = atomicLoad(&screen[i]);
+        loop {
+            let r = atomicCompareExchangeWeak(&screen[i], old, bitcast<u32>(bitcast<f32>(old) + v));
+            if (r.exchanged) {
+                break;
+            }
+            old = r.old_value;
         }
-        old = r.old_value;
+    } else {
+        let i = (g - p.splits.z) * SCREEN_STRIDE + q;
+        var old = atomicLoad(&screen_hi[i]);
+        loop {
+            let r = atomicCompareExchangeWeak(&screen_hi[i], old, bitcast<u32>(bitcast<f32>(old) + v));
+            if (r.exchanged) {
+                break;
+            }
+            old = r.old_value;
+        }
     }
 }
 
@@ -136,9 +160,8 @@ fn rasterize_backward_atomic(@builtin(workgroup_id) wid: vec3<u32>, @builtin(loc
             let e = sorted_e[start + k];
             let gi = order[pair_rank[e]];
             batch_g[li] = gi;
-            let o = gi * SPLAT_STRIDE;
             for (var q = 0u; q < 10u; q++) {
-                batch[li][q] = splats[o + q];
+                batch[li][q] = splat(gi, q);
             }
         }
         workgroupBarrier();
@@ -212,7 +235,7 @@ fn rasterize_backward_atomic(@builtin(workgroup_id) wid: vec3<u32>, @builtin(loc
                 let mean = select(ca, cb, one) * sa + select(cb, cc, one) * sb;
                 let m = select(1.0, select(-op, -op * 0.5, li == 2u || li == 4u), li < 5u);
                 let v = m * select(sa, mean, li < 2u);
-                add_f32(batch_g[b] * SCREEN_STRIDE + li, v);
+                add_f32(batch_g[b], li, v);
             }
         }
         // Level 2 of the batch's last pair still reads batch and batch_g: wait before

@@ -14,6 +14,9 @@ struct Params {
     max_alpha: f32,
     cutoff: u32,             // 0: hard 1/255 step; 1: the tests' C¹ smoothstep (forward/mod.rs)
     background: vec4<f32>,
+    // x: the first Gaussian whose splat is in `splats_hi`; y: the first pair slot in the
+    // backward's second binding (buffers past one binding are read through two, gpu/chunk.rs).
+    splits: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -29,6 +32,15 @@ struct Params {
 // The rank of each pair, by emit position; the sorted pairs carry emit positions (so the
 // backward pass can give every pair its own gradient slot).
 @group(0) @binding(10) var<storage, read_write> pair_rank: array<u32>;
+@group(0) @binding(11) var<storage, read> splats_hi: array<f32>;
+
+// Value q of Gaussian g's splat, from whichever binding holds it.
+fn splat(g: u32, q: u32) -> f32 {
+    if (g < p.splits.x) {
+        return splats[g * SPLAT_STRIDE + q];
+    }
+    return splats_hi[(g - p.splits.x) * SPLAT_STRIDE + q];
+}
 
 const SPLAT_STRIDE: u32 = 12u;
 const IMAGE_STRIDE: u32 = 7u;    // r, g, b, alpha, normalised depth, T, bits of `last`
@@ -132,9 +144,9 @@ fn rasterize(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id
         }
         let idx = base + li;
         if (idx < end) {
-            let o = order[pair_rank[pair_vals[idx]]] * SPLAT_STRIDE;
+            let gi = order[pair_rank[pair_vals[idx]]];
             for (var q = 0u; q < 10u; q++) {
-                batch[li][q] = splats[o + q];
+                batch[li][q] = splat(gi, q);
             }
         }
         workgroupBarrier();

@@ -6,7 +6,9 @@
 //! `backward_gpu_atomic` (hidden) swaps the ordered pair sums for float atomics, only to
 //! measure what determinism costs.
 
-use super::forward::{camera_words, forward_pass, ForwardState, GpuScene, CAMERA_COUNT_WORD};
+use super::forward::{
+    camera_words, forward_pass, ForwardState, GpuScene, CAMERA_COUNT_WORD, SPLAT_STRIDE,
+};
 use super::{f32_words, GpuContext, GpuError};
 use crate::render::{Cutoff, RenderSettings};
 use crate::tiles::TileGrid;
@@ -159,15 +161,25 @@ pub(super) fn record_backward(
     pair_grads: &wgpu::Buffer,
 ) {
     let kr = &ctx.kernels;
-    let mut walk = walk_bindings(st, d_rgb);
-    walk.push((10, pair_grads));
-    ctx.dispatch(
+    let (walk, splats) = walk_bindings(ctx, st, d_rgb);
+    let pairs = u64::from(st.pairs);
+    let pair_ranges = |ctx: &GpuContext| {
+        let [lo, hi] = ctx.split_ranges(pair_grads, pairs, PAIR_STRIDE);
+        vec![(10, lo), (13, hi)]
+    };
+    let mut ranged = splats;
+    ranged.extend(pair_ranges(ctx));
+    ctx.dispatch_mixed(
         enc,
         &kr.rasterize_backward,
         &walk,
+        ranged,
         [grid.tiles_x, grid.tiles_y],
     );
-    ctx.dispatch(
+    let mut ranged = splat_ranges(ctx, st);
+    ranged.extend(pair_ranges(ctx));
+    ranged.extend(screen_ranges(ctx, st, screen));
+    ctx.dispatch_mixed(
         enc,
         &kr.gaussian_sums,
         &[
@@ -175,35 +187,59 @@ pub(super) fn record_backward(
             (1, &st.rects),
             (2, &st.order),
             (3, &st.counts),
-            (7, &st.splats),
-            (10, pair_grads),
-            (11, screen),
         ],
+        ranged,
         ctx.groups(n.div_ceil(256)),
     );
 }
 
+/// The screen-space gradients' two bindings (11 and 14) of the backward kernels.
+fn screen_ranges<'a>(
+    ctx: &GpuContext,
+    st: &ForwardState,
+    screen: &'a wgpu::Buffer,
+) -> Vec<(u32, wgpu::BindingResource<'a>)> {
+    let n = u64::from(st.gaussians);
+    let [lo, hi] = ctx.split_ranges(screen, n, SCREEN_GRAD_STRIDE as u64);
+    vec![(11, lo), (14, hi)]
+}
+
+/// The splats' two bindings (7 and 12) of the backward kernels.
+fn splat_ranges<'a>(
+    ctx: &GpuContext,
+    st: &'a ForwardState,
+) -> Vec<(u32, wgpu::BindingResource<'a>)> {
+    let [lo, hi] = ctx.split_ranges(&st.splats, u64::from(st.gaussians), SPLAT_STRIDE);
+    vec![(7, lo), (12, hi)]
+}
+
 /// The bindings both compositing backward kernels (`rasterize_backward` and its atomic
-/// variant) read: the forward pass's lists, splats and image, and `d_rgb` at binding 9.
+/// variant) read: the forward pass's lists and image and `d_rgb` at binding 9, whole; the
+/// splats' two ranges.
+#[allow(clippy::type_complexity)]
 fn walk_bindings<'a>(
+    ctx: &GpuContext,
     st: &'a ForwardState,
     d_rgb: &'a wgpu::Buffer,
-) -> Vec<(u32, &'a wgpu::Buffer)> {
-    vec![
+) -> (
+    Vec<(u32, &'a wgpu::Buffer)>,
+    Vec<(u32, wgpu::BindingResource<'a>)>,
+) {
+    let whole = vec![
         (0, &st.params),
         (2, &st.order),
         (4, &st.pair_rank),
         (5, &st.sorted),
         (6, &st.ranges),
-        (7, &st.splats),
         (8, &st.image),
         (9, d_rgb),
-    ]
+    ];
+    (whole, splat_ranges(ctx, st))
 }
 
 /// The pair buffer [`record_backward`] sums into, sized for a forward pass's pairs.
 pub(super) fn pair_buffer(ctx: &GpuContext, st: &ForwardState) -> Result<wgpu::Buffer, GpuError> {
-    ctx.storage("pair gradients", 4 * PAIR_STRIDE * u64::from(st.pairs))
+    ctx.storage_split("pair gradients", u64::from(st.pairs), PAIR_STRIDE)
 }
 
 /// The gradients of a loss on the colour image, on the GPU: renders `scene` from `cam` (the
@@ -322,7 +358,7 @@ fn backward_inner(
         let st = forward_pass(ctx, scene, cam, s, grid, cutoff)?;
         let n = scene.len() as u64;
         let g_rgb = ctx.storage_init("colour gradients", &f32_words(d_rgb.iter().copied()))?;
-        let screen = ctx.storage("screen-space gradients", 4 * SCREEN_GRAD_STRIDE as u64 * n)?;
+        let screen = ctx.storage_split("screen-space gradients", n, SCREEN_GRAD_STRIDE as u64)?;
         // Allocated before the clock starts: the timed stage is the kernels alone.
         let pair_grads = match reduction {
             Reduction::Ordered => Some(pair_buffer(ctx, &st)?),
@@ -341,12 +377,13 @@ fn backward_inner(
             }
             None => {
                 enc.clear_buffer(&screen, 0, None);
-                let mut walk = walk_bindings(&st, &g_rgb);
-                walk.push((11, &screen));
-                ctx.dispatch(
+                let (walk, mut ranged) = walk_bindings(ctx, &st, &g_rgb);
+                ranged.extend(screen_ranges(ctx, &st, &screen));
+                ctx.dispatch_mixed(
                     &mut enc,
                     &kr.rasterize_backward_atomic,
                     &walk,
+                    ranged,
                     [grid.tiles_x, grid.tiles_y],
                 );
             }

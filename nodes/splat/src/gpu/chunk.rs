@@ -124,3 +124,87 @@ impl GpuContext {
         Ok(())
     }
 }
+
+/// Buffers read at any index (the screen-space splats, the pair slots of the backward) are
+/// bound as two ranges, items `[0, split)` and `[split, items)`, and the kernels pick one by
+/// the item's index (`splits` in their parameters): twice the adapter's binding limit.
+impl GpuContext {
+    /// Where a buffer of `items` items of `words` words splits into its two bindings: `items`
+    /// when one binding holds it all, else the most items one binding holds (a multiple of
+    /// the offset alignment, so the second range starts aligned).
+    pub(super) fn split_at(&self, items: u64, words: u64) -> u32 {
+        let words = words.max(1);
+        if items * words * 4 <= self.binding_limit {
+            return items as u32;
+        }
+        let align = u64::from(self.limits.min_storage_buffer_offset_alignment.max(4));
+        let fit = self.binding_limit / (4 * words) / align * align;
+        fit.min(items) as u32
+    }
+
+    /// A buffer of `items` items of `words` words for [`GpuContext::split_at`]'s two
+    /// bindings: a [`GpuError::TooLarge`] naming `what` when two bindings cannot hold it.
+    pub(super) fn storage_split(
+        &self,
+        what: &str,
+        items: u64,
+        words: u64,
+    ) -> Result<wgpu::Buffer, GpuError> {
+        let split = u64::from(self.split_at(items, words));
+        if (items - split) * words * 4 > self.binding_limit || (split == 0 && items > 0) {
+            return Err(GpuError::TooLarge {
+                what: format!("{what} (read through two bindings)"),
+                bytes: 4 * words * items,
+                limit: 2 * self.binding_limit,
+                adapter: self.adapter.to_string(),
+            });
+        }
+        self.storage_items(what, 4 * words * items)
+    }
+
+    /// The two bindings of a [`GpuContext::storage_split`] buffer: the whole buffer twice when
+    /// it is not split.
+    pub(super) fn split_ranges<'a>(
+        &self,
+        buf: &'a wgpu::Buffer,
+        items: u64,
+        words: u64,
+    ) -> [wgpu::BindingResource<'a>; 2] {
+        let split = u64::from(self.split_at(items, words));
+        if split >= items {
+            return [buf.as_entire_binding(), buf.as_entire_binding()];
+        }
+        let range = |first: u64, count: u64| {
+            wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer: buf,
+                offset: 4 * words * first,
+                size: std::num::NonZeroU64::new(4 * words * count),
+            })
+        };
+        [range(0, split), range(split, items - split)]
+    }
+
+    /// [`GpuContext::dispatch`] with whole buffers and ready resources (ranges).
+    pub(super) fn dispatch_mixed(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        whole: &[(u32, &wgpu::Buffer)],
+        ranged: Vec<(u32, wgpu::BindingResource<'_>)>,
+        groups: [u32; 2],
+    ) {
+        let mut entries: Vec<wgpu::BindGroupEntry<'_>> = whole
+            .iter()
+            .map(|(b, buf)| wgpu::BindGroupEntry {
+                binding: *b,
+                resource: buf.as_entire_binding(),
+            })
+            .collect();
+        entries.extend(
+            ranged
+                .into_iter()
+                .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource }),
+        );
+        self.dispatch_entries(enc, pipeline, &entries, groups);
+    }
+}

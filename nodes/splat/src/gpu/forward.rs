@@ -8,7 +8,7 @@ use crate::Gaussians;
 use augsplat_core::Camera;
 
 /// f32 words per splat record (`project.wgsl`).
-const SPLAT_STRIDE: u64 = 12;
+pub(super) const SPLAT_STRIDE: u64 = 12;
 /// f32 words per pixel of the image buffer (`forward.wgsl`): r, g, b, alpha, depth, T, the
 /// bits of the last contributor's position.
 pub(super) const IMAGE_STRIDE: usize = 7;
@@ -202,6 +202,8 @@ pub(super) fn tile_grid(cam: &Camera) -> Result<TileGrid, GpuError> {
 
 /// The buffers of one forward pass that the backward pass reads again.
 pub(super) struct ForwardState {
+    /// Number of Gaussians.
+    pub gaussians: u32,
     /// Number of (tile, Gaussian) pairs.
     pub pairs: u32,
     /// The forward kernels' parameters (with `pairs`).
@@ -239,7 +241,7 @@ pub(super) fn forward_pass(
     let nn = u64::from(n);
     let kr = &ctx.kernels;
     let camera_w = camera_words(g, cam, s, grid);
-    let splats = ctx.storage("splats", 4 * SPLAT_STRIDE * nn)?;
+    let splats = ctx.storage_split("splats", nn, SPLAT_STRIDE)?;
     let meta = ctx.storage("tile rectangles", 16 * nn)?;
     let keys = ctx.storage("depth keys", 4 * nn)?;
     let index: Vec<u32> = (0..n).collect();
@@ -285,6 +287,14 @@ pub(super) fn forward_pass(
         ];
         w.extend(f32_words(s.background));
         w.push(0);
+        // Where the splats, the backward's pair slots and its screen-space gradients switch
+        // to their second binding.
+        w.extend([
+            ctx.split_at(nn, SPLAT_STRIDE),
+            ctx.split_at(u64::from(pairs), super::backward::PAIR_STRIDE),
+            ctx.split_at(nn, super::backward::SCREEN_GRAD_STRIDE as u64),
+            0,
+        ]);
         w
     };
     let params0 = ctx.uniform("forward params", &fwd_params(0));
@@ -341,7 +351,8 @@ pub(super) fn forward_pass(
         &[(0, &params), (4, sorted_tiles), (6, &ranges)],
         ctx.groups(pairs.div_ceil(GROUP)),
     );
-    ctx.dispatch(
+    let [lo, hi] = ctx.split_ranges(&splats, nn, SPLAT_STRIDE);
+    ctx.dispatch_mixed(
         &mut enc,
         &kr.rasterize,
         &[
@@ -349,11 +360,11 @@ pub(super) fn forward_pass(
             (2, &order),
             (5, sorted_pairs),
             (6, &ranges),
-            (7, &splats),
             (8, &image),
             (9, &info),
             (10, &pair_rank),
         ],
+        vec![(7, lo), (11, hi)],
         [grid.tiles_x, grid.tiles_y],
     );
     // The image stays on the GPU until a caller reads it (after its own work, one wait).
@@ -365,6 +376,7 @@ pub(super) fn forward_pass(
         pair_vals2
     };
     Ok(ForwardState {
+        gaussians: n,
         pairs,
         params,
         rects: meta,
