@@ -364,9 +364,9 @@ fn a_gpu_run_resumes_from_a_checkpoint_as_if_uninterrupted() {
 /// cap lowered to 92 KiB: per-Gaussian arrays that kernels touch only at their own Gaussian
 /// (the degree-3 SH coefficients, their gradients and Adam moments, 192 bytes per Gaussian:
 /// five chunks) run in chunks — projection, its VJP, the per-view sums and Adam each bind
-/// their own range — and buffers read or written at any index (the splats, the
-/// screen-space gradients, the pair slots) are bound as two ranges. A cap below what two
-/// bindings hold is a clear error naming the buffer.
+/// their own range — and buffers read or written at any index are bound as consecutive
+/// ranges (the splats and the screen-space gradients two, the backward's pair slots up to
+/// four). A cap below what those bindings hold is a clear error naming the buffer.
 #[test]
 fn arrays_past_one_binding_run_in_chunks_with_the_same_bytes() {
     let Some(gpu) = context("arrays_past_one_binding_run_in_chunks_with_the_same_bytes") else {
@@ -413,15 +413,44 @@ fn arrays_past_one_binding_run_in_chunks_with_the_same_bytes() {
     );
     assert!(whole_g.len() > c.init.len(), "the run must densify");
 
+    let settings = a.render_settings(a.steps);
+    // The pair slots in three or four bindings: larger Gaussians (several tiles each) and a
+    // cap set from the pair count, with the backward alone (gradients bit for bit).
+    let mut big = c.init.clone();
+    for s in big.log_scales.iter_mut().flatten() {
+        *s += 3.0;
+    }
+    let cam = c.real.camera(0);
+    let d_rgb: Vec<f32> = (0..3 * cam.width * cam.height)
+        .map(|i| ((i % 17) as f32 - 8.0) * 1e-3)
+        .collect();
+    let backward = |ctx: &GpuContext| {
+        let scene = augsplat_splat::gpu::GpuScene::upload(ctx, &big).unwrap();
+        augsplat_splat::gpu::backward_gpu_timed(ctx, &scene, cam, &settings, &d_rgb, false).unwrap()
+    };
+    let (whole_grads, stage) = backward(&gpu);
+    let pair_bytes = 40 * u64::from(stage.pairs);
+    let cap3 = (pair_bytes * 2 / 7).next_multiple_of(1024);
+    assert!(
+        pair_bytes > 2 * cap3 && 48 * big.len() as u64 <= 2 * cap3 && cap3 >= 91_200,
+        "{} pairs of {} Gaussians do not make a three-binding case",
+        stage.pairs,
+        big.len()
+    );
+    let capped3 = GpuContext::new().unwrap().with_binding_limit(cap3);
+    let (split_grads, _) = backward(&capped3);
+    let fbits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(fbits(&whole_grads.params), fbits(&split_grads.params));
+    assert_eq!(fbits(&whole_grads.sh), fbits(&split_grads.sh));
+
     // Two 4 KiB bindings cannot hold the screen-space splats (48 bytes per Gaussian, read at
     // any index).
     let tiny = GpuContext::new().unwrap().with_binding_limit(4096);
-    let settings = a.render_settings(a.steps);
     match augsplat_splat::gpu::render_gpu(&tiny, &c.init, c.real.camera(0), &settings) {
         Err(GpuError::TooLarge {
             what, bytes, limit, ..
         }) => {
-            assert_eq!(what, "splats (read through two bindings)");
+            assert_eq!(what, "splats (2 bindings)");
             assert_eq!(bytes, 48 * c.init.len() as u64);
             assert_eq!(limit, 2 * 4096);
         }

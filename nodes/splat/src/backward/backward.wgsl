@@ -23,10 +23,11 @@ struct Params {
     max_alpha: f32,
     cutoff: u32,
     background: vec4<f32>,
-    // x: the first Gaussian in `splats_hi`; y: the first pair slot in `pair_grads_hi`; z: the
-    // first Gaussian in `screen_hi` (buffers past one binding are read through two,
-    // gpu/chunk.rs).
+    // x: the first Gaussian whose splat is in the second splat binding; y: the same for the
+    // screen-space gradients; pair_splits: the first pair slot of the pair slots' second,
+    // third and fourth bindings (buffers past one binding, gpu/chunk.rs).
     splits: vec4<u32>,
+    pair_splits: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -42,8 +43,10 @@ struct Params {
 @group(0) @binding(10) var<storage, read_write> pair_grads: array<f32>; // PAIR_STRIDE per pair
 @group(0) @binding(11) var<storage, read_write> screen: array<f32>;     // SCREEN_STRIDE per Gaussian
 @group(0) @binding(12) var<storage, read> splats_hi: array<f32>;
-@group(0) @binding(13) var<storage, read_write> pair_grads_hi: array<f32>;
+@group(0) @binding(13) var<storage, read_write> pair_grads_b: array<f32>;
 @group(0) @binding(14) var<storage, read_write> screen_hi: array<f32>;
+@group(0) @binding(15) var<storage, read_write> pair_grads_c: array<f32>;
+@group(0) @binding(16) var<storage, read_write> pair_grads_d: array<f32>;
 
 // Value q of Gaussian g's splat, from whichever binding holds it.
 fn splat(g: u32, q: u32) -> f32 {
@@ -53,28 +56,40 @@ fn splat(g: u32, q: u32) -> f32 {
     return splats_hi[(g - p.splits.x) * SPLAT_STRIDE + q];
 }
 
-// Value q of pair slot e, and its write, in whichever binding holds the slot.
+// Value q of pair slot e, and its write, in whichever of the four bindings holds the slot.
 fn pair_get(e: u32, q: u32) -> f32 {
-    if (e < p.splits.y) {
+    let s = p.pair_splits;
+    if (e < s.x) {
         return pair_grads[e * PAIR_STRIDE + q];
     }
-    return pair_grads_hi[(e - p.splits.y) * PAIR_STRIDE + q];
+    if (e < s.y) {
+        return pair_grads_b[(e - s.x) * PAIR_STRIDE + q];
+    }
+    if (e < s.z) {
+        return pair_grads_c[(e - s.y) * PAIR_STRIDE + q];
+    }
+    return pair_grads_d[(e - s.z) * PAIR_STRIDE + q];
 }
 
 // Value q of Gaussian g's screen-space gradient, written in whichever binding holds it.
 fn screen_set(g: u32, q: u32, v: f32) {
-    if (g < p.splits.z) {
+    if (g < p.splits.y) {
         screen[g * SCREEN_STRIDE + q] = v;
     } else {
-        screen_hi[(g - p.splits.z) * SCREEN_STRIDE + q] = v;
+        screen_hi[(g - p.splits.y) * SCREEN_STRIDE + q] = v;
     }
 }
 
 fn pair_set(e: u32, q: u32, v: f32) {
-    if (e < p.splits.y) {
+    let s = p.pair_splits;
+    if (e < s.x) {
         pair_grads[e * PAIR_STRIDE + q] = v;
+    } else if (e < s.y) {
+        pair_grads_b[(e - s.x) * PAIR_STRIDE + q] = v;
+    } else if (e < s.z) {
+        pair_grads_c[(e - s.y) * PAIR_STRIDE + q] = v;
     } else {
-        pair_grads_hi[(e - p.splits.y) * PAIR_STRIDE + q] = v;
+        pair_grads_d[(e - s.z) * PAIR_STRIDE + q] = v;
     }
 }
 

@@ -27,7 +27,11 @@ struct Params {
     max_alpha: f32,
     cutoff: u32,
     background: vec4<f32>,
-    splits: vec4<u32>,       // x, z: the first Gaussian in `splats_hi`, `screen_hi` (backward.wgsl)
+    // x: the first Gaussian whose splat is in the second splat binding; y: the same for the
+    // screen-space gradients; pair_splits: the first pair slot of the pair slots' second,
+    // third and fourth bindings (buffers past one binding, gpu/chunk.rs).
+    splits: vec4<u32>,
+    pair_splits: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -67,9 +71,9 @@ var<workgroup> tile_last: u32;
 
 // screen[i] += v as f32, atomically: retry the compare-exchange until no other invocation
 // changed the word between the read and the write.
-// Value q of Gaussian g, in whichever of the two bindings holds it (`splits.z`).
+// Value q of Gaussian g, in whichever of the two bindings holds it (`splits.y`).
 fn add_f32(g: u32, q: u32, v: f32) {
-    if (g < p.splits.z) {
+    if (g < p.splits.y) {
         let i = g * SCREEN_STRIDE + q;
         var old = atomicLoad(&screen[i]);
         loop {
@@ -80,7 +84,7 @@ fn add_f32(g: u32, q: u32, v: f32) {
             old = r.old_value;
         }
     } else {
-        let i = (g - p.splits.z) * SCREEN_STRIDE + q;
+        let i = (g - p.splits.y) * SCREEN_STRIDE + q;
         var old = atomicLoad(&screen_hi[i]);
         loop {
             let r = atomicCompareExchangeWeak(&screen_hi[i], old, bitcast<u32>(bitcast<f32>(old) + v));

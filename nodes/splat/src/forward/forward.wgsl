@@ -14,9 +14,11 @@ struct Params {
     max_alpha: f32,
     cutoff: u32,             // 0: hard 1/255 step; 1: the tests' C¹ smoothstep (forward/mod.rs)
     background: vec4<f32>,
-    // x: the first Gaussian whose splat is in `splats_hi`; y: the first pair slot in the
-    // backward's second binding (buffers past one binding are read through two, gpu/chunk.rs).
+    // x: the first Gaussian whose splat is in the second splat binding; y: the same for the
+    // screen-space gradients; pair_splits: the first pair slot of the pair slots' second,
+    // third and fourth bindings (buffers past one binding, gpu/chunk.rs).
     splits: vec4<u32>,
+    pair_splits: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;

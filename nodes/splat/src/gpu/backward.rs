@@ -164,8 +164,8 @@ pub(super) fn record_backward(
     let (walk, splats) = walk_bindings(ctx, st, d_rgb);
     let pairs = u64::from(st.pairs);
     let pair_ranges = |ctx: &GpuContext| {
-        let [lo, hi] = ctx.split_ranges(pair_grads, pairs, PAIR_STRIDE);
-        vec![(10, lo), (13, hi)]
+        let r = ctx.split_ranges(pair_grads, pairs, PAIR_STRIDE, PAIR_BINDINGS.len());
+        PAIR_BINDINGS.into_iter().zip(r).collect::<Vec<_>>()
     };
     let mut ranged = splats;
     ranged.extend(pair_ranges(ctx));
@@ -200,8 +200,8 @@ fn screen_ranges<'a>(
     screen: &'a wgpu::Buffer,
 ) -> Vec<(u32, wgpu::BindingResource<'a>)> {
     let n = u64::from(st.gaussians);
-    let [lo, hi] = ctx.split_ranges(screen, n, SCREEN_GRAD_STRIDE as u64);
-    vec![(11, lo), (14, hi)]
+    let r = ctx.split_ranges(screen, n, SCREEN_GRAD_STRIDE as u64, 2);
+    [11, 14].into_iter().zip(r).collect()
 }
 
 /// The splats' two bindings (7 and 12) of the backward kernels.
@@ -209,8 +209,8 @@ fn splat_ranges<'a>(
     ctx: &GpuContext,
     st: &'a ForwardState,
 ) -> Vec<(u32, wgpu::BindingResource<'a>)> {
-    let [lo, hi] = ctx.split_ranges(&st.splats, u64::from(st.gaussians), SPLAT_STRIDE);
-    vec![(7, lo), (12, hi)]
+    let r = ctx.split_ranges(&st.splats, u64::from(st.gaussians), SPLAT_STRIDE, 2);
+    [7, 12].into_iter().zip(r).collect()
 }
 
 /// The bindings both compositing backward kernels (`rasterize_backward` and its atomic
@@ -239,7 +239,12 @@ fn walk_bindings<'a>(
 
 /// The pair buffer [`record_backward`] sums into, sized for a forward pass's pairs.
 pub(super) fn pair_buffer(ctx: &GpuContext, st: &ForwardState) -> Result<wgpu::Buffer, GpuError> {
-    ctx.storage_split("pair gradients", u64::from(st.pairs), PAIR_STRIDE)
+    ctx.storage_split(
+        "pair gradients",
+        u64::from(st.pairs),
+        PAIR_STRIDE,
+        PAIR_BINDINGS.len(),
+    )
 }
 
 /// The gradients of a loss on the colour image, on the GPU: renders `scene` from `cam` (the
@@ -358,7 +363,8 @@ fn backward_inner(
         let st = forward_pass(ctx, scene, cam, s, grid, cutoff)?;
         let n = scene.len() as u64;
         let g_rgb = ctx.storage_init("colour gradients", &f32_words(d_rgb.iter().copied()))?;
-        let screen = ctx.storage_split("screen-space gradients", n, SCREEN_GRAD_STRIDE as u64)?;
+        let screen =
+            ctx.storage_split("screen-space gradients", n, SCREEN_GRAD_STRIDE as u64, 2)?;
         // Allocated before the clock starts: the timed stage is the kernels alone.
         let pair_grads = match reduction {
             Reduction::Ordered => Some(pair_buffer(ctx, &st)?),
@@ -412,3 +418,7 @@ fn backward_inner(
 
 /// f32 values per pair slot of `backward.wgsl`.
 pub(super) const PAIR_STRIDE: u64 = 10;
+
+/// The bindings of the pair slots' four ranges in `backward.wgsl` (a 5M-Gaussian 1080p
+/// step has about 10M pairs: 400 MB of slots).
+const PAIR_BINDINGS: [u32; 4] = [10, 13, 15, 16];

@@ -125,54 +125,69 @@ impl GpuContext {
     }
 }
 
-/// Buffers read at any index (the screen-space splats, the pair slots of the backward) are
-/// bound as two ranges, items `[0, split)` and `[split, items)`, and the kernels pick one by
-/// the item's index (`splits` in their parameters): twice the adapter's binding limit.
+/// Buffers read or written at any index (the screen-space splats and gradients, the
+/// backward's pair slots) are bound as `k` consecutive ranges of items, and the kernels pick
+/// one by the item's index (`splits` and `pair_splits` in their parameters): `k` times the
+/// adapter's binding limit.
 impl GpuContext {
-    /// Where a buffer of `items` items of `words` words splits into its two bindings: `items`
-    /// when one binding holds it all, else the most items one binding holds (a multiple of
-    /// the offset alignment, so the second range starts aligned).
-    pub(super) fn split_at(&self, items: u64, words: u64) -> u32 {
-        let words = words.max(1);
-        if items * words * 4 <= self.binding_limit {
-            return items as u32;
-        }
+    /// The most items of `words` words one range holds: a multiple of the offset alignment,
+    /// so every range starts aligned.
+    fn range_items(&self, words: u64) -> u64 {
         let align = u64::from(self.limits.min_storage_buffer_offset_alignment.max(4));
-        let fit = self.binding_limit / (4 * words) / align * align;
-        fit.min(items) as u32
+        self.binding_limit / (4 * words.max(1)) / align * align
     }
 
-    /// A buffer of `items` items of `words` words for [`GpuContext::split_at`]'s two
-    /// bindings: a [`GpuError::TooLarge`] naming `what` when two bindings cannot hold it.
+    /// The first item of each range after the first, for a buffer of `items` items of
+    /// `words` words bound as `k` ranges (`k − 1` values; `items` for ranges left empty).
+    pub(super) fn split_points(&self, items: u64, words: u64, k: usize) -> Vec<u32> {
+        let per = if items * words * 4 <= self.binding_limit {
+            items
+        } else {
+            self.range_items(words)
+        };
+        (1..k).map(|i| (per * i as u64).min(items) as u32).collect()
+    }
+
+    /// A buffer of `items` items of `words` words for [`GpuContext::split_ranges`]'s `k`
+    /// bindings: a [`GpuError::TooLarge`] naming `what` when `k` bindings cannot hold it.
     pub(super) fn storage_split(
         &self,
         what: &str,
         items: u64,
         words: u64,
+        k: usize,
     ) -> Result<wgpu::Buffer, GpuError> {
-        let split = u64::from(self.split_at(items, words));
-        if (items - split) * words * 4 > self.binding_limit || (split == 0 && items > 0) {
+        let fits =
+            items * words * 4 <= self.binding_limit || items <= self.range_items(words) * k as u64;
+        if !fits {
             return Err(GpuError::TooLarge {
-                what: format!("{what} (read through two bindings)"),
+                what: format!("{what} ({k} bindings)"),
                 bytes: 4 * words * items,
-                limit: 2 * self.binding_limit,
+                limit: k as u64 * self.binding_limit,
                 adapter: self.adapter.to_string(),
             });
         }
         self.storage_items(what, 4 * words * items)
     }
 
-    /// The two bindings of a [`GpuContext::storage_split`] buffer: the whole buffer twice when
-    /// it is not split.
+    /// The `k` bindings of a [`GpuContext::storage_split`] buffer, at [`GpuContext::split_points`];
+    /// a range left empty binds the first range again (never read).
     pub(super) fn split_ranges<'a>(
         &self,
         buf: &'a wgpu::Buffer,
         items: u64,
         words: u64,
-    ) -> [wgpu::BindingResource<'a>; 2] {
-        let split = u64::from(self.split_at(items, words));
-        if split >= items {
-            return [buf.as_entire_binding(), buf.as_entire_binding()];
+        k: usize,
+    ) -> Vec<wgpu::BindingResource<'a>> {
+        let mut bounds = vec![0u64];
+        bounds.extend(
+            self.split_points(items, words, k)
+                .into_iter()
+                .map(u64::from),
+        );
+        bounds.push(items);
+        if bounds[1] >= items {
+            return (0..k).map(|_| buf.as_entire_binding()).collect();
         }
         let range = |first: u64, count: u64| {
             wgpu::BindingResource::Buffer(wgpu::BufferBinding {
@@ -181,7 +196,16 @@ impl GpuContext {
                 size: std::num::NonZeroU64::new(4 * words * count),
             })
         };
-        [range(0, split), range(split, items - split)]
+        (0..k)
+            .map(|i| {
+                let (a, b) = (bounds[i], bounds[i + 1]);
+                if b > a {
+                    range(a, b - a)
+                } else {
+                    range(0, bounds[1])
+                }
+            })
+            .collect()
     }
 
     /// [`GpuContext::dispatch`] with whole buffers and ready resources (ranges).

@@ -241,7 +241,7 @@ pub(super) fn forward_pass(
     let nn = u64::from(n);
     let kr = &ctx.kernels;
     let camera_w = camera_words(g, cam, s, grid);
-    let splats = ctx.storage_split("splats", nn, SPLAT_STRIDE)?;
+    let splats = ctx.storage_split("splats", nn, SPLAT_STRIDE, 2)?;
     let meta = ctx.storage("tile rectangles", 16 * nn)?;
     let keys = ctx.storage("depth keys", 4 * nn)?;
     let index: Vec<u32> = (0..n).collect();
@@ -287,14 +287,13 @@ pub(super) fn forward_pass(
         ];
         w.extend(f32_words(s.background));
         w.push(0);
-        // Where the splats, the backward's pair slots and its screen-space gradients switch
-        // to their second binding.
-        w.extend([
-            ctx.split_at(nn, SPLAT_STRIDE),
-            ctx.split_at(u64::from(pairs), super::backward::PAIR_STRIDE),
-            ctx.split_at(nn, super::backward::SCREEN_GRAD_STRIDE as u64),
-            0,
-        ]);
+        // Where the splats and the backward's screen-space gradients switch to their second
+        // binding, and its pair slots to their second, third and fourth.
+        w.extend(ctx.split_points(nn, SPLAT_STRIDE, 2));
+        w.extend(ctx.split_points(nn, super::backward::SCREEN_GRAD_STRIDE as u64, 2));
+        w.extend([0, 0]);
+        w.extend(ctx.split_points(u64::from(pairs), super::backward::PAIR_STRIDE, 4));
+        w.push(0);
         w
     };
     let params0 = ctx.uniform("forward params", &fwd_params(0));
@@ -351,7 +350,7 @@ pub(super) fn forward_pass(
         &[(0, &params), (4, sorted_tiles), (6, &ranges)],
         ctx.groups(pairs.div_ceil(GROUP)),
     );
-    let [lo, hi] = ctx.split_ranges(&splats, nn, SPLAT_STRIDE);
+    let splat_ranges = ctx.split_ranges(&splats, nn, SPLAT_STRIDE, 2);
     ctx.dispatch_mixed(
         &mut enc,
         &kr.rasterize,
@@ -364,7 +363,7 @@ pub(super) fn forward_pass(
             (9, &info),
             (10, &pair_rank),
         ],
-        vec![(7, lo), (11, hi)],
+        [7, 11].into_iter().zip(splat_ranges).collect(),
         [grid.tiles_x, grid.tiles_y],
     );
     // The image stays on the GPU until a caller reads it (after its own work, one wait).

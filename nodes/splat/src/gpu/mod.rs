@@ -86,13 +86,13 @@ pub enum GpuError {
         message: String,
     },
     /// The work needs a buffer larger than the adapter allows.
-    #[error("{what} needs {bytes} bytes in one GPU buffer; {adapter} allows {limit}")]
+    #[error("{what} needs {bytes} bytes; {adapter} allows {limit} for it")]
     TooLarge {
-        /// Which buffer.
+        /// Which buffer, and how it is bound ("one binding", "two bindings", "one buffer").
         what: String,
         /// Its size.
         bytes: u64,
-        /// The adapter's limit.
+        /// The adapter's limit for such a buffer.
         limit: u64,
         /// The adapter.
         adapter: String,
@@ -271,8 +271,13 @@ impl GpuContext {
         // empty set (no Gaussians, no pairs) still binds them.
         let bytes = bytes.max(16).next_multiple_of(4);
         if bytes > limit {
+            let how = if limit < self.limits.max_buffer_size {
+                "one binding"
+            } else {
+                "one buffer"
+            };
             return Err(GpuError::TooLarge {
-                what: what.into(),
+                what: format!("{what} ({how})"),
                 bytes,
                 limit,
                 adapter: self.adapter.to_string(),

@@ -255,7 +255,7 @@ impl GpuTrainer {
                 }
             };
             let screen =
-                ctx.storage_split("screen-space gradients", nn, SCREEN_GRAD_STRIDE as u64)?;
+                ctx.storage_split("screen-space gradients", nn, SCREEN_GRAD_STRIDE as u64, 2)?;
             let view_grads =
                 ctx.storage_items("view gradients", 4 * PARAM_GRAD_STRIDE as u64 * nn)?;
             let view_sh = ctx.storage_items("view SH gradients", 4 * u64::from(sh_width) * nn)?;
