@@ -1,17 +1,19 @@
-//! Per-Gaussian arrays larger than one binding: kernels that touch only their own item's
-//! values (projection, its VJP, the per-view sums, Adam) run over chunks of items, each chunk
-//! binding its own range of every per-item buffer and indexing it from 0.
+//! Buffers larger than one storage binding. An adapter caps one binding well below its
+//! largest buffer (lavapipe at 128 MiB, where a degree-3 Gaussian's SH coefficients, 192
+//! bytes, capped a training set at about 700,000 Gaussians when bound whole). Two schemes:
 //!
-//! An adapter caps one storage binding well below its largest buffer: lavapipe at 128 MiB,
-//! where a degree-3 Gaussian's SH coefficients (192 bytes), their gradients and their two
-//! Adam moments cap a training set at about 700,000 Gaussians when bound whole. Such buffers
-//! are allocated up to the adapter's buffer limit ([`GpuContext::storage_items`]) and are only
-//! ever bound by range ([`GpuContext::dispatch_items`]). Buffers that kernels read at any
-//! index (the screen-space splats, the tile lists) stay within one binding; they are 48 bytes
-//! per Gaussian or less, so the SH-sized arrays are no longer what limits the set.
+//! - Per-Gaussian arrays that kernels touch only at their own Gaussian (parameters, SH,
+//!   gradients, Adam's moments, statistics): projection, its VJP, the per-view sums and Adam
+//!   run over chunks of Gaussians, each chunk binding its own range of every such buffer and
+//!   indexing it from 0 ([`GpuContext::dispatch_items`]). These buffers are checked against
+//!   the adapter's largest buffer only ([`GpuContext::storage_items`]).
+//! - Buffers read or written at any index (the screen-space splats and gradients, the
+//!   backward's pair slots) are bound as up to four consecutive ranges, and the kernels pick
+//!   one by the index (`splits` and `pair_splits` in their parameters;
+//!   [`GpuContext::split_ranges`]).
 //!
-//! Each item's values are computed by the same invocation with the same inputs whichever
-//! chunk it falls in, so a chunked dispatch writes the same bytes as a whole one.
+//! Each value is computed by the same invocation from the same inputs whichever chunk or range
+//! it falls in, so the bytes are those of a whole-buffer run.
 
 use super::{GpuContext, GpuError};
 
@@ -29,8 +31,8 @@ impl GpuContext {
         self
     }
 
-    /// A storage buffer of `bytes` bytes that kernels bind only through
-    /// [`GpuContext::dispatch_items`]: checked against the adapter's largest buffer, not its largest binding.
+    /// A storage buffer of `bytes` bytes that kernels bind only by range: checked against the
+    /// adapter's largest buffer, not its largest binding.
     pub(super) fn storage_items(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
         self.storage_within(what, bytes, self.limits.max_buffer_size)
     }
@@ -49,18 +51,16 @@ impl GpuContext {
         Ok(buf)
     }
 
-    /// How many items one chunk of a dispatch over `items` items may hold, with `words` words
-    /// per item for each binding: a multiple of the offset alignment (so every
-    /// chunk's range starts aligned), each range within the binding limit.
-    pub(super) fn chunk_items(&self, words: &[u64]) -> Result<u64, GpuError> {
+    /// How many items one chunk of a dispatch may hold, with `words` words per item for each
+    /// binding: a multiple of the offset alignment (so every chunk's range starts aligned),
+    /// each range within the binding limit.
+    fn chunk_items(&self, words: &[u64]) -> Result<u64, GpuError> {
         let widest = words.iter().copied().max().unwrap_or(1).max(1);
-        let align = u64::from(self.limits.min_storage_buffer_offset_alignment.max(4));
-        let fit = self.binding_limit / (4 * widest);
-        let per = fit / align * align;
+        let per = self.range_items(widest);
         if per == 0 {
             return Err(GpuError::TooLarge {
-                what: format!("one chunk of {align} items of {widest} values"),
-                bytes: 4 * widest * align,
+                what: format!("one chunk of Gaussians with {widest} values each (one binding)"),
+                bytes: 4 * widest * u64::from(self.limits.min_storage_buffer_offset_alignment),
                 limit: self.binding_limit,
                 adapter: self.adapter.to_string(),
             });

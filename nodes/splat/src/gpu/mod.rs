@@ -3,11 +3,12 @@
 //!
 //! - [`GpuContext`]: the adapter and device (limits raised to what the adapter reports), with
 //!   the adapter's name, driver and backend for the outputs' metadata; asking for a GPU where
-//!   there is none is a [`GpuError::NoAdapter`] that says what was found. Per-Gaussian arrays
-//!   that kernels touch only at their own Gaussian (parameters, SH, gradients, moments) may
-//!   exceed one storage binding: those kernels run in chunks (`gpu/chunk.rs`); buffers read at
-//!   any index (splats, tile lists, images) must fit one binding, else a
-//!   [`GpuError::TooLarge`] names the buffer;
+//!   there is none is a [`GpuError::NoAdapter`] that says what was found. Buffers may exceed
+//!   one storage binding (`gpu/chunk.rs`): per-Gaussian arrays that kernels touch only at
+//!   their own Gaussian (parameters, SH, gradients, moments) run in chunks; the splats, the
+//!   screen-space gradients and the backward's pair slots are bound as two to four ranges;
+//!   the rest (tile lists, images) must fit one binding. Past that a [`GpuError::TooLarge`]
+//!   names the buffer;
 //! - [`backward_gpu`]: gradients of a loss on the colour — the compositing backward walks
 //!   each tile back to front and sums every (tile, Gaussian) pair's 256 pixels in a fixed
 //!   order into the pair's own slot (each of the tile's 16 columns top to bottom, then the
