@@ -210,13 +210,10 @@ fn staged_trainer_uses_synthetic_then_real_and_resets_at_the_switch() {
     }
 }
 
-/// Dual's real view is rendered with the loss weight `1 − λ` (1/3 at step 0 with the
-/// defaults): its densification statistic is that fraction of the baseline's, unless
-/// `synthetic.unweighted_stats` divides the weight back out.
-#[test]
-fn dual_densify_statistics_are_weighted_unless_asked_otherwise() {
-    let tmp = tempfile::tempdir().unwrap();
-    let (train, _) = train_util::make_scene(tmp.path(), 40, 32, 9, 300);
+/// A 40×32 generated scene of 9 views: its directory, the real views, the same views at
+/// half resolution as synthetic ones (weight 1 everywhere) and the scene scale.
+fn dual_case(root: &Path) -> (std::path::PathBuf, RealImages, SyntheticImages, f64) {
+    let (train, _) = train_util::make_scene(root, 40, 32, 9, 300);
     let views = load_views(&train);
     let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
     let ss = scene_scale(&cams);
@@ -236,6 +233,16 @@ fn dual_densify_statistics_are_weighted_unless_asked_otherwise() {
         views,
         loss: RealLoss::default(),
     };
+    (train, real, synth, ss)
+}
+
+/// Dual's real view is rendered with the loss weight `1 − λ` (1/3 at step 0 with the
+/// defaults): its densification statistic is that fraction of the baseline's, unless
+/// `synthetic.unweighted_stats` divides the weight back out.
+#[test]
+fn dual_densify_statistics_are_weighted_unless_asked_otherwise() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (train, real, synth, ss) = dual_case(tmp.path());
     let dual = Schedule::Dual {
         w_nerf0: 2.0,
         w_real: 1.0,
@@ -294,26 +301,7 @@ fn dual_densify_statistics_are_weighted_unless_asked_otherwise() {
 #[test]
 fn dual_resets_opacities_at_its_switch_off_only_when_asked() {
     let tmp = tempfile::tempdir().unwrap();
-    let (train, _) = train_util::make_scene(tmp.path(), 40, 32, 9, 300);
-    let views = load_views(&train);
-    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
-    let ss = scene_scale(&cams);
-    let synth = SyntheticImages {
-        views: views
-            .iter()
-            .map(|v| {
-                let cam = v.camera.resized(20, 16);
-                let img =
-                    augsplat_core::ImageF32::from_vec(40, 32, 3, v.image.clone()).downscale(2);
-                SynthView::new(v.name.clone(), cam, img.data, vec![1.0; 20 * 16], 0.5)
-            })
-            .collect(),
-        norm: WeightNorm::WeightSum,
-    };
-    let real = RealImages {
-        views,
-        loss: RealLoss::default(),
-    };
+    let (train, real, synth, ss) = dual_case(tmp.path());
     let max_logit_after = |reset: bool, steps: u64| {
         let args = TrainArgs {
             steps: 5,
