@@ -1,15 +1,15 @@
-//! A GPU training run on a generated cloud holds its memory flat: the resident memory after 100
-//! steps and after 250 steps differ by little (alone in its test binary, so no other test's
-//! allocations move the figure). Before the fix in `loss/loss.wgsl`'s `ssim_grad`, lavapipe
-//! grew by about 400 kB per step here (60 MB over the 150 steps measured). Linux only (reads
-//! `/proc/self/status`); skips without a GPU adapter (fails under `CI=true`). Not yet a
-//! guarantee for every scene: rendering the demo scene's views on lavapipe still grows the
-//! process by about 380 kB per render (in the forward pass, depending on the camera's pose;
-//! cause not found yet).
+//! GPU memory stays flat over long runs: a training run on a generated cloud (resident memory
+//! after 100 and after 250 steps), and 300 renders from a view of the demo scene (after 50 and
+//! after 300). One test, so that no other test's allocations move the figures. Before the
+//! fix in `loss/loss.wgsl`'s `ssim_grad`, lavapipe grew by about 400 kB per training step
+//! here; before the kernels read their parameters from storage buffers on software adapters,
+//! it grew by about 380 kB per render of the demo view (lavapipe recompiled every dispatch
+//! whose uniform values it could inline, and kept the copies). Linux only (reads
+//! `/proc/self/status`); skips without a GPU adapter (fails under `CI=true`).
 
-use augsplat_splat::gpu::{GpuContext, GpuError};
+use augsplat_splat::gpu::{render_scene, GpuContext, GpuError, GpuScene};
 use augsplat_splat::train::{RealImages, RealLoss, RealView, TrainArgs, Trainer};
-use augsplat_splat::Gaussians;
+use augsplat_splat::{Gaussians, RenderSettings};
 use std::sync::Arc;
 
 /// Resident memory of this process, kB.
@@ -24,8 +24,8 @@ fn rss_kb() -> Option<u64> {
 }
 
 #[test]
-fn gpu_training_memory_stays_flat() {
-    let test = "gpu_training_memory_stays_flat";
+fn gpu_training_and_rendering_memory_stays_flat() {
+    let test = "gpu_training_and_rendering_memory_stays_flat";
     if rss_kb().is_none() {
         eprintln!("skipping {test}: no /proc/self/status on this system");
         return;
@@ -64,7 +64,7 @@ fn gpu_training_memory_stays_flat() {
     args.densify.enabled = false;
     let g = Gaussians::random_cloud(2000, 0.02, 1);
     let mut t = Trainer::new(args, g, 1.0, &real, None);
-    t.use_gpu(gpu);
+    t.use_gpu(gpu.clone());
     let mut at = Vec::new();
     for step in 1..=250 {
         t.step();
@@ -80,5 +80,58 @@ fn gpu_training_memory_stays_flat() {
     assert!(
         growth < 16 * 1024,
         "memory grew by {growth} kB over 150 GPU training steps"
+    );
+
+    // The demo scene's first training view (128×96), whose pose made lavapipe recompile the
+    // forward kernels at every render.
+    let demo_view = augsplat_core::Camera {
+        width: 128,
+        height: 96,
+        fx: 110.85125168440815,
+        fy: 110.85125168440815,
+        cx: 64.0,
+        cy: 48.0,
+        world_to_camera: [
+            [
+                -0.2079116908177593,
+                0.9781476007338056,
+                0.0,
+                6.846176867277807e-17,
+            ],
+            [
+                0.4971904410316386,
+                0.10568109064088697,
+                -0.8611812657203578,
+                -0.41823345183279576,
+            ],
+            [
+                -0.8423623888612699,
+                -0.17904965305649764,
+                -0.5082979712454917,
+                0.8094292859958812,
+            ],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+    };
+    // A context of its own: lavapipe stops inlining a kernel's uniforms for good once an
+    // inlined copy does not shrink enough, which the training above may have caused.
+    let gpu = GpuContext::new().unwrap();
+    let scene = GpuScene::upload(&gpu, &Gaussians::random_cloud(3000, 0.02, 1)).unwrap();
+    let settings = RenderSettings::default();
+    let mut at = Vec::new();
+    for render in 1..=300 {
+        render_scene(&gpu, &scene, &demo_view, &settings).unwrap();
+        if render == 50 || render == 300 {
+            at.push(rss_kb().unwrap_or(0));
+        }
+    }
+    let growth = at[1] as i64 - at[0] as i64;
+    eprintln!(
+        "resident memory after 50 renders {} kB, after 300 renders {} kB ({growth:+} kB)",
+        at[0], at[1]
+    );
+    assert!(
+        growth < 8 * 1024,
+        "memory grew by {growth} kB over 250 GPU renders"
     );
 }

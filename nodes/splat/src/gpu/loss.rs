@@ -58,10 +58,13 @@ pub(super) struct LossKernels {
 }
 
 impl LossKernels {
-    pub(super) fn new(device: &wgpu::Device) -> LossKernels {
+    pub(super) fn new(device: &wgpu::Device, params_as_storage: bool) -> LossKernels {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("loss.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("../loss/loss.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(super::kernel_source(
+                include_str!("../loss/loss.wgsl"),
+                params_as_storage,
+            )),
         });
         let pipeline = |entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {

@@ -223,7 +223,12 @@ impl GpuContext {
         });
         // Compiling the kernels reports shader errors through an error scope, not a panic.
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let kernels = Kernels::new(&device);
+        // Software adapters read the kernels' parameters from storage buffers: lavapipe
+        // (Mesa 22) recompiles a compute shader at every dispatch whose uniform values it can
+        // inline into branches and loop bounds, and never frees the copies (about 380 kB per
+        // render). Real GPUs keep uniform buffers.
+        let params_as_storage = info.device_type == wgpu::DeviceType::Cpu;
+        let kernels = Kernels::new(&device, params_as_storage);
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Device {
                 adapter: summary.to_string(),
@@ -311,7 +316,10 @@ impl GpuContext {
         let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(what),
             size: (bytes.len() as u64).max(16).next_multiple_of(16),
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            // Also STORAGE: software adapters bind parameters as storage (`kernel_source`).
+            usage: wgpu::BufferUsages::UNIFORM
+                | wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         self.queue.write_buffer(&buf, 0, &bytes);
@@ -524,12 +532,23 @@ fn error_chain(e: &wgpu::Error) -> String {
     text
 }
 
+/// A kernel's WGSL source, with its `var<uniform>` parameters read from storage buffers when
+/// `params_as_storage` (the same layout: every parameter block holds 32-bit scalars and
+/// 16-byte vectors only).
+fn kernel_source(src: &str, params_as_storage: bool) -> std::borrow::Cow<'_, str> {
+    if params_as_storage {
+        src.replace("var<uniform>", "var<storage, read>").into()
+    } else {
+        src.into()
+    }
+}
+
 impl Kernels {
-    fn new(device: &wgpu::Device) -> Kernels {
+    fn new(device: &wgpu::Device, params_as_storage: bool) -> Kernels {
         let module = |label: &str, src: &str| {
             device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(label),
-                source: wgpu::ShaderSource::Wgsl(src.into()),
+                source: wgpu::ShaderSource::Wgsl(kernel_source(src, params_as_storage)),
             })
         };
         let project = module("project.wgsl", include_str!("../project/project.wgsl"));
@@ -573,7 +592,7 @@ impl Kernels {
             accumulate: pipeline(&acc, "accumulate"),
             count_pairs: pipeline(&acc, "count_pairs"),
             adam: pipeline(&adam, "adam"),
-            loss: loss::LossKernels::new(device),
+            loss: loss::LossKernels::new(device, params_as_storage),
             rasterize_backward_atomic: pipeline(&bwd_atomic, "rasterize_backward_atomic"),
         }
     }
