@@ -107,6 +107,18 @@ fn args(steps: u64, densify: bool) -> TrainArgs {
     }
 }
 
+/// Dual for a few steps: its synthetic branch off from step 5 (w̃ = 2·4^(−t/4) < 0.5).
+fn short_dual() -> Schedule {
+    Schedule::Dual {
+        w_nerf0: 2.0,
+        w_real: 1.0,
+        quarter_decay: 4.0,
+        off_below: Some(0.5),
+        synthetic_batch: 3,
+        reset_at_off: false,
+    }
+}
+
 /// Runs `steps` steps (on the GPU when given) and returns the reports and the Gaussians.
 fn train(
     c: &Case,
@@ -257,14 +269,7 @@ fn gpu_training_follows_the_cpu_and_repeats_bit_for_bit() {
     // With densification (the state goes back to the host at each refinement and up again)
     // and Dual's synthetic batches: the same losses and the same refinements.
     let mut a = args(8, true);
-    a.schedule = Schedule::Dual {
-        w_nerf0: 2.0,
-        w_real: 1.0,
-        quarter_decay: 4.0,
-        off_below: Some(0.5),
-        synthetic_batch: 3,
-        reset_at_off: false,
-    };
+    a.schedule = short_dual();
     let (cpu_reps, cpu_g) = train(&c, &a, true, None);
     let (gpu_reps, gpu_g) = train(&c, &a, true, Some(&gpu));
     same_losses(
@@ -394,14 +399,7 @@ fn arrays_past_one_binding_run_in_chunks_with_the_same_bytes() {
     a.densify.grad_threshold = 1e-3;
     a.sh_degree = 3;
     a.sh_increase_every = 2;
-    a.schedule = Schedule::Dual {
-        w_nerf0: 2.0,
-        w_real: 1.0,
-        quarter_decay: 4.0,
-        off_below: Some(0.5),
-        synthetic_batch: 3,
-        reset_at_off: false,
-    };
+    a.schedule = short_dual();
     let (whole_reps, whole_g) = train(&c, &a, true, Some(&gpu));
     let (chunked_reps, chunked_g) = train(&c, &a, true, Some(&capped));
     let losses = |r: &[StepReport]| r.iter().map(|s| s.loss.to_bits()).collect::<Vec<_>>();

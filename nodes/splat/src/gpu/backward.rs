@@ -162,13 +162,8 @@ pub(super) fn record_backward(
 ) {
     let kr = &ctx.kernels;
     let (walk, splats) = walk_bindings(ctx, st, d_rgb);
-    let pairs = u64::from(st.pairs);
-    let pair_ranges = |ctx: &GpuContext| {
-        let r = ctx.split_ranges(pair_grads, pairs, PAIR_STRIDE, PAIR_BINDINGS.len());
-        PAIR_BINDINGS.into_iter().zip(r).collect::<Vec<_>>()
-    };
     let mut ranged = splats;
-    ranged.extend(pair_ranges(ctx));
+    ranged.extend(pair_ranges(ctx, st, pair_grads));
     ctx.dispatch_mixed(
         enc,
         &kr.rasterize_backward,
@@ -177,7 +172,7 @@ pub(super) fn record_backward(
         [grid.tiles_x, grid.tiles_y],
     );
     let mut ranged = splat_ranges(ctx, st);
-    ranged.extend(pair_ranges(ctx));
+    ranged.extend(pair_ranges(ctx, st, pair_grads));
     ranged.extend(screen_ranges(ctx, st, screen));
     ctx.dispatch_mixed(
         enc,
@@ -191,6 +186,17 @@ pub(super) fn record_backward(
         ranged,
         ctx.groups(n.div_ceil(256)),
     );
+}
+
+/// The pair slots' four bindings ([`PAIR_BINDINGS`]) of the backward kernels.
+fn pair_ranges<'a>(
+    ctx: &GpuContext,
+    st: &ForwardState,
+    pair_grads: &'a wgpu::Buffer,
+) -> Vec<(u32, wgpu::BindingResource<'a>)> {
+    let pairs = u64::from(st.pairs);
+    let r = ctx.split_ranges(pair_grads, pairs, PAIR_STRIDE, PAIR_BINDINGS.len());
+    PAIR_BINDINGS.into_iter().zip(r).collect()
 }
 
 /// The screen-space gradients' two bindings (11 and 14) of the backward kernels.
