@@ -7,7 +7,9 @@ use crate::io::{self, WeightsMeta};
 use crate::train::{self, TrainOptions};
 use augsplat_core::artifacts::{self, files, PoseSet, RenderSet, RenderedView};
 use augsplat_graph::{InputDecl, Node, NodeError, RunContext, Threads};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Arguments of [`TrainField`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -395,59 +397,82 @@ impl Node for RenderField {
         let poses: PoseSet = artifacts::read_json(&poses_path)?;
         let out = ctx.output("renders")?.to_path_buf();
         let bg = a.background.unwrap_or(loaded.meta.background);
-        let mut set = RenderSet::default();
         let total = poses.views.len() as u64;
-        let (mut rays, mut stats) = (0u64, train::RenderStats::default());
-        for (i, pv) in poses.views.iter().enumerate() {
+        // Cameras are checked first, in order, so that a bad pose is reported before any work.
+        let mut cams = Vec::with_capacity(poses.views.len());
+        for pv in &poses.views {
             pv.camera.validate().map_err(|e| {
                 NodeError::new(format!("{}: pose {}: {e}", poses_path.display(), pv.name))
             })?;
-            let cam = if a.downscale > 1 {
+            cams.push(if a.downscale > 1 {
                 pv.camera.resized(
                     pv.camera.width.div_ceil(a.downscale),
                     pv.camera.height.div_ceil(a.downscale),
                 )
             } else {
                 pv.camera.clone()
-            };
-            let img = train::render_camera(
-                &loaded.field,
-                &loaded.params,
-                &loaded.occupancy,
-                &cam,
-                bg,
-                a.chunk_rays as usize,
-            );
-            rays += cam.width as u64 * cam.height as u64;
-            stats.add(&img.stats);
-            let file = format!("view_{i:04}.exr");
-            let plane = |c: usize| {
-                img.rgb
-                    .iter()
-                    .skip(c)
-                    .step_by(3)
-                    .copied()
-                    .collect::<Vec<f32>>()
-            };
-            let (r, g, b) = (plane(0), plane(1), plane(2));
-            augsplat_core::image::write_exr(
-                &out.join(&file),
-                cam.width,
-                cam.height,
-                &[
-                    ("R", &r),
-                    ("G", &g),
-                    ("B", &b),
-                    ("D", &img.depth),
-                    ("A", &img.acc),
-                ],
-            )?;
-            set.views.push(RenderedView {
-                name: pv.name.clone(),
-                camera: cam,
-                file,
             });
-            ctx.progress(i as u64 + 1, total, &pv.name);
+        }
+        // Views render in parallel, each in parallel chunks (rayon balances the two levels):
+        // no barrier between views, and each view's file is written by the thread that
+        // rendered it. Every view's pixels are the same as rendered alone.
+        let done = AtomicU64::new(0);
+        let ctx_ref = &*ctx;
+        let views: Vec<(RenderedView, u64, train::RenderStats)> = cams
+            .into_par_iter()
+            .zip(poses.views.par_iter())
+            .enumerate()
+            .map(|(i, (cam, pv))| -> Result<_, NodeError> {
+                let img = train::render_camera(
+                    &loaded.field,
+                    &loaded.params,
+                    &loaded.occupancy,
+                    &cam,
+                    bg,
+                    a.chunk_rays as usize,
+                );
+                let file = format!("view_{i:04}.exr");
+                let plane = |c: usize| {
+                    img.rgb
+                        .iter()
+                        .skip(c)
+                        .step_by(3)
+                        .copied()
+                        .collect::<Vec<f32>>()
+                };
+                let (r, g, b) = (plane(0), plane(1), plane(2));
+                augsplat_core::image::write_exr(
+                    &out.join(&file),
+                    cam.width,
+                    cam.height,
+                    &[
+                        ("R", &r),
+                        ("G", &g),
+                        ("B", &b),
+                        ("D", &img.depth),
+                        ("A", &img.acc),
+                    ],
+                )?;
+                let rays = cam.width as u64 * cam.height as u64;
+                let finished = done.fetch_add(1, Ordering::Relaxed) + 1;
+                ctx_ref.progress(finished, total, &pv.name);
+                Ok((
+                    RenderedView {
+                        name: pv.name.clone(),
+                        camera: cam,
+                        file,
+                    },
+                    rays,
+                    img.stats,
+                ))
+            })
+            .collect::<Result<_, _>>()?;
+        let mut set = RenderSet::default();
+        let (mut rays, mut stats) = (0u64, train::RenderStats::default());
+        for (view, r, s) in views {
+            rays += r;
+            stats.add(&s);
+            set.views.push(view);
         }
         artifacts::write_json(&out.join(files::RENDERS), &set)?;
         let per_ray = |v: u64| v as f64 / rays.max(1) as f64;

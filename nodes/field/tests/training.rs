@@ -147,6 +147,29 @@ fn same_seed_is_bit_identical_across_threads_and_seeds_differ() {
     );
     let set: RenderSet = read_json(&r1.join("renders.json")).unwrap();
     assert_eq!(set.views.len(), test.len());
+    // Views render in parallel: each file holds its own pose's image, in the poses' order.
+    let loaded = augsplat_field::io::load(&w1).unwrap();
+    for (i, (view, cam)) in set.views.iter().zip(&test).enumerate() {
+        assert_eq!(
+            (view.name.as_str(), view.file.as_str()),
+            (
+                format!("p{i}").as_str(),
+                format!("view_{i:04}.exr").as_str()
+            )
+        );
+        let alone = augsplat_field::train::render_camera(
+            &loaded.field,
+            &loaded.params,
+            &loaded.occupancy,
+            cam,
+            loaded.meta.background,
+            RenderFieldArgs::default().chunk_rays as usize,
+        );
+        let exr = augsplat_core::image::read_exr(&r2.join(&view.file)).unwrap();
+        let red: Vec<f32> = alone.rgb.iter().step_by(3).copied().collect();
+        assert_eq!(exr.channel("R").unwrap(), &red[..], "view {i}");
+        assert_eq!(exr.channel("D").unwrap(), &alone.depth[..], "view {i}");
+    }
     let exr = augsplat_core::image::read_exr(&r1.join(&set.views[0].file)).unwrap();
     let mut names = exr.names();
     names.sort();
