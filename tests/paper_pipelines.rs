@@ -118,3 +118,77 @@ fn each_paper_draw_is_reproducible_and_leak_free() {
         assert_eq!((train, test, key), (again.0, again.1, again.2), "{name}");
     }
 }
+
+/// The `--set`s of the study that `docs/results.md` reports for the improved Dual.
+const IMPROVED_DUAL_SETS: [&str; 3] = [
+    "dual.densify.reset=Never",
+    "dual.synthetic.unweighted_stats=true",
+    "dual.schedule=Dual(w_nerf0:2.0,w_real:1.0,quarter_decay:1000.0,off_below:None,synthetic_batch:20)",
+];
+
+/// Structural ids of a plan's computations, split into those of Dual, its evaluation and the
+/// report (which read Dual) and all the others.
+fn sids_by_dual(plan: &augsplat_graph::Plan) -> (BTreeSet<[u8; 32]>, BTreeSet<[u8; 32]>) {
+    let (mut dual, mut rest) = (BTreeSet::new(), BTreeSet::new());
+    for c in &plan.comps {
+        let base = &plan.instances[c.instances[0]].base;
+        if ["dual", "eval_dual", "report"].contains(&base.as_str()) {
+            dual.insert(c.sid);
+        } else {
+            rest.insert(c.sid);
+        }
+    }
+    (dual, rest)
+}
+
+#[test]
+fn the_improved_dual_fragment_changes_only_dual_and_is_what_the_study_measured() {
+    let tmp = tempfile::tempdir().unwrap();
+    let engine = Engine::new(augsplat::builtin_registry(), &tmp.path().join("cache")).unwrap();
+    let fragment = pipeline("fragments/improved_dual");
+    let measured_sets: Vec<String> = IMPROVED_DUAL_SETS.iter().map(|s| s.to_string()).collect();
+    for (name, _, _) in SCENES {
+        if !data_present(name) {
+            continue;
+        }
+        let file = tmp.path().join(format!("{name}_improved.ron"));
+        std::fs::write(
+            &file,
+            format!(
+                "(extends: [{:?}, {:?}])",
+                pipeline(name).display().to_string(),
+                fragment.display().to_string()
+            ),
+        )
+        .unwrap();
+        let paper = engine.load(&pipeline(name), &[]).unwrap();
+        let improved = engine
+            .load(&file, &[])
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let measured = engine.load(&pipeline(name), &measured_sets).unwrap();
+        let (paper_dual, paper_rest) = sids_by_dual(&paper);
+        let (improved_dual, improved_rest) = sids_by_dual(&improved);
+        let (measured_dual, _) = sids_by_dual(&measured);
+        // Everything but Dual keeps its key (a finished paper run is reused) …
+        assert_eq!(improved_rest, paper_rest, "{name}: a non-Dual node moved");
+        assert!(
+            improved_dual.is_disjoint(&paper_dual),
+            "{name}: Dual unchanged"
+        );
+        // … and Dual is exactly the configuration whose figures the results page reports.
+        assert_eq!(improved_dual, measured_dual, "{name}");
+        let dual = improved
+            .comps
+            .iter()
+            .find(|c| improved.instances[c.instances[0]].base == "dual")
+            .unwrap();
+        let a = &dual.args_json;
+        assert_eq!(a["densify"]["reset"], "Never", "{name}: {a}");
+        assert_eq!(a["synthetic"]["unweighted_stats"], true, "{name}: {a}");
+        assert_eq!(
+            a["schedule"]["Dual"]["quarter_decay"], 1000.0,
+            "{name}: {a}"
+        );
+        assert!(a["schedule"]["Dual"]["off_below"].is_null(), "{name}: {a}");
+    }
+}
