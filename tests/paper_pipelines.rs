@@ -144,7 +144,7 @@ fn sids_by_dual(plan: &augsplat_graph::Plan) -> (BTreeSet<[u8; 32]>, BTreeSet<[u
 #[test]
 fn the_improved_dual_fragment_changes_only_dual_and_is_what_the_study_measured() {
     let tmp = tempfile::tempdir().unwrap();
-    let engine = Engine::new(augsplat::builtin_registry(), &tmp.path().join("cache")).unwrap();
+    let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
     let fragment = pipeline("fragments/improved_dual");
     let measured_sets: Vec<String> = IMPROVED_DUAL_SETS.iter().map(|s| s.to_string()).collect();
     for (name, _, _) in SCENES {
