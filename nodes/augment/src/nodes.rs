@@ -164,14 +164,7 @@ pub fn scene_poses(dir: &Path, downscale: u32) -> Result<PoseSet, NodeError> {
                 v.name
             ))
         })?;
-        let camera = if downscale > 1 {
-            v.camera.resized(
-                v.camera.width.div_ceil(downscale),
-                v.camera.height.div_ceil(downscale),
-            )
-        } else {
-            v.camera.clone()
-        };
+        let camera = v.camera.downscaled(downscale);
         views.push(augsplat_core::artifacts::PoseView {
             name: v.name.clone(),
             camera,

@@ -87,6 +87,15 @@ impl Camera {
             world_to_camera: self.world_to_camera,
         }
     }
+    /// The same camera for its image downscaled by an integer `factor` (each side rounded
+    /// up, as image downscaling does); `factor ≤ 1` is the camera itself.
+    pub fn downscaled(&self, factor: u32) -> Camera {
+        if factor > 1 {
+            self.resized(self.width.div_ceil(factor), self.height.div_ceil(factor))
+        } else {
+            self.clone()
+        }
+    }
     /// Horizontal and vertical field of view, radians.
     pub fn fov(&self) -> (f64, f64) {
         (
@@ -257,6 +266,14 @@ mod tests {
         let (u, v, z) = cam.project(p);
         assert!(z > 0.0);
         assert!((u - 20.5).abs() < 1e-9 && (v - 10.5).abs() < 1e-9);
+        // Integer downscaling rounds each side up; a factor of 1 keeps the camera.
+        assert_eq!(cam.downscaled(1), cam);
+        let third = cam.downscaled(3);
+        assert_eq!(
+            (third.width, third.height),
+            (cam.width.div_ceil(3), cam.height.div_ceil(3))
+        );
+        assert_eq!(third, cam.resized(third.width, third.height));
         let small = cam.resized(32, 24);
         let (u2, v2, _) = small.project(p);
         assert!((u2 - u / 2.0).abs() < 1e-9 && (v2 - v / 2.0).abs() < 1e-9);

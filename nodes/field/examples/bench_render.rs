@@ -51,14 +51,7 @@ fn main() {
     let t0 = Instant::now();
     let (mut rays, mut stats) = (0u64, train::RenderStats::default());
     for pv in poses.views.iter().take(views) {
-        let cam = if down > 1 {
-            pv.camera.resized(
-                pv.camera.width.div_ceil(down),
-                pv.camera.height.div_ceil(down),
-            )
-        } else {
-            pv.camera.clone()
-        };
+        let cam = pv.camera.downscaled(down);
         let img = train::render_camera(
             &loaded.field,
             &loaded.params,

@@ -404,14 +404,7 @@ impl Node for RenderField {
             pv.camera.validate().map_err(|e| {
                 NodeError::new(format!("{}: pose {}: {e}", poses_path.display(), pv.name))
             })?;
-            cams.push(if a.downscale > 1 {
-                pv.camera.resized(
-                    pv.camera.width.div_ceil(a.downscale),
-                    pv.camera.height.div_ceil(a.downscale),
-                )
-            } else {
-                pv.camera.clone()
-            });
+            cams.push(pv.camera.downscaled(a.downscale));
         }
         // Views render in parallel, each in parallel chunks (rayon balances the two levels):
         // no barrier between views, and each view's file is written by the thread that
