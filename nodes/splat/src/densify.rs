@@ -10,7 +10,8 @@
 //!    *split* otherwise: replaced by two children at positions drawn from the Gaussian
 //!    (`μ + R·(s ⊙ n)`, n ~ N(0, I)) with scales divided by `split_factor` (1.6);
 //! 2. **prune**: opacity < `prune_opacity`, and (after `reset_every` steps) largest scale >
-//!    `prune_scale3d · scene_scale`;
+//!    `prune_scale3d · extent`, the extent being the scene scale (gsplat) or, with
+//!    [`PruneExtent::Content`], the larger of it and the content's own extent;
 //! 3. the statistics are cleared.
 //!
 //! **Opacity reset** ([`OpacityReset`]): with `Periodic` (3DGS, gsplat ≤ 1.5.2, the default),
@@ -55,8 +56,13 @@ pub struct DensifyArgs {
     pub split_factor: f64,
     /// Prune below this opacity.
     pub prune_opacity: f64,
-    /// Prune Gaussians whose largest scale exceeds this × scene scale (after the first reset).
+    /// Prune Gaussians whose largest scale exceeds this × the prune extent (after the first
+    /// reset).
     pub prune_scale3d: f64,
+    /// What the prune extent is (see [`PruneExtent`]). Left out of the key when `Cameras`,
+    /// so pipelines written before it existed keep their keys.
+    #[serde(skip_serializing_if = "PruneExtent::is_cameras")]
+    pub prune_extent: PruneExtent,
     /// First step at which refinement may happen (exclusive, as gsplat).
     pub start: u64,
     /// Refinement and opacity resets stop at this step.
@@ -86,6 +92,7 @@ impl Default for DensifyArgs {
             split_factor: 1.6,
             prune_opacity: 0.005,
             prune_scale3d: 0.1,
+            prune_extent: PruneExtent::Cameras,
             start: 500,
             stop: 15_000,
             every: 100,
@@ -116,6 +123,48 @@ impl OpacityReset {
     /// Whether this is the default (serde's `skip_serializing_if`).
     pub fn is_periodic(&self) -> bool {
         *self == OpacityReset::Periodic
+    }
+}
+
+/// What the large-Gaussian prune measures a Gaussian's largest scale against
+/// (`prune_scale3d ×` this extent).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum PruneExtent {
+    /// The scene scale: 1.1 × the cameras' largest distance from their centroid (gsplat's
+    /// rule, the default). In a forward-facing capture (LLFF) the cameras span a small
+    /// fraction of the depth range, so this prunes the large Gaussians the background needs.
+    #[default]
+    Cameras,
+    /// The larger of the scene scale and the content's extent: 1.1 × the 90th percentile of
+    /// the initial Gaussians' distances from the cameras' centroid
+    /// ([`crate::train::content_extent`]). Where the content lies within the cameras' spread
+    /// (a capture around an object) this is the scene scale.
+    Content,
+}
+
+impl PruneExtent {
+    /// Whether this is the default (serde's `skip_serializing_if`).
+    pub fn is_cameras(&self) -> bool {
+        *self == PruneExtent::Cameras
+    }
+}
+
+/// The lengths that densification compares Gaussians' scales with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Extents {
+    /// The scene scale: the clone/split boundary is `grow_scale3d ×` this.
+    pub scene: f64,
+    /// The large-Gaussian prune removes scales above `prune_scale3d ×` this.
+    pub prune: f64,
+}
+
+impl Extents {
+    /// Both lengths equal to `scale` (gsplat's rule).
+    pub fn uniform(scale: f64) -> Extents {
+        Extents {
+            scene: scale,
+            prune: scale,
+        }
     }
 }
 
@@ -291,7 +340,7 @@ impl Densifier {
         args: &DensifyArgs,
         g: &mut Gaussians,
         adam: &mut Adam,
-        scene_scale: f64,
+        extents: Extents,
         seed: u64,
         visibility: &mut dyn FnMut(&Gaussians) -> Vec<f64>,
     ) -> RefineReport {
@@ -300,11 +349,12 @@ impl Densifier {
             return rep;
         }
         if step > sched.start && step.is_multiple_of(sched.every) {
-            let (c, s) = self.grow(g, adam, args, scene_scale, &mut Rng::stream(seed, step));
+            let rng = &mut Rng::stream(seed, step);
+            let (c, s) = self.grow(g, adam, args, extents.scene, rng);
             rep.cloned = c;
             rep.split = s;
             let past_reset = sched.reset_every > 0 && step > sched.reset_every;
-            rep.pruned = self.prune(g, adam, args, scene_scale, past_reset);
+            rep.pruned = self.prune(g, adam, args, extents.prune, past_reset);
             self.clear();
         }
         if sched.reset_every > 0 && step > 0 && step.is_multiple_of(sched.reset_every) {
@@ -423,19 +473,20 @@ impl Densifier {
         (nc, ns)
     }
 
-    /// Removes transparent Gaussians and, when `prune_large`, over-large ones. Returns how
-    /// many were removed. Gaussians with non-finite parameters are removed too.
+    /// Removes transparent Gaussians and, when `prune_large`, those whose largest scale
+    /// exceeds `prune_scale3d × extent`. Returns how many were removed. Gaussians with
+    /// non-finite parameters are removed too.
     pub fn prune(
         &mut self,
         g: &mut Gaussians,
         adam: &mut Adam,
         args: &DensifyArgs,
-        scene_scale: f64,
+        extent: f64,
         prune_large: bool,
     ) -> usize {
         let n = g.len();
         let thr_logit = crate::init::logit(args.prune_opacity) as f32;
-        let big = args.prune_scale3d * scene_scale;
+        let big = args.prune_scale3d * extent;
         let keep: Vec<bool> = (0..n)
             .map(|i| {
                 let o = g.opacity_logits[i];

@@ -404,6 +404,13 @@ pub fn fit(
         real,
         synthetic.map(|s| s as &dyn Supervision),
     );
+    if a.densify.prune_extent == crate::densify::PruneExtent::Content {
+        on_event(FitEvent::Log(format!(
+            "large-Gaussian prune against the content's extent {:.4} ({:.2} × the scene scale)",
+            trainer.prune_extent(),
+            trainer.prune_extent() / scene_scale
+        )));
+    }
     // The fault tests' hook: destroy the GPU device after this many steps, as a driver
     // reset would (`AUGSPLAT_TEST_LOSE_GPU_AFTER`; never set in real runs).
     let lose_gpu = gpu.clone().zip(

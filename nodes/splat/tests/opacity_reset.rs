@@ -4,7 +4,9 @@
 
 use augsplat_core::{linalg, Camera};
 use augsplat_splat::adam::Adam;
-use augsplat_splat::densify::{self, Densifier, DensifyArgs, OpacityReset, KEEP_VISIBLE_ALPHA};
+use augsplat_splat::densify::{
+    self, Densifier, DensifyArgs, Extents, OpacityReset, KEEP_VISIBLE_ALPHA,
+};
 use augsplat_splat::{backward, render, Gaussians, RenderSettings};
 
 fn sigmoid(x: f64) -> f64 {
@@ -128,11 +130,38 @@ fn reset_modes_through_the_strategy() {
             densify::peak_alpha_ratios(g, &[&cam], true, 0.01)
         };
         // Refinement at 700: before `reset_every`, nothing is too large yet.
-        let r = d.step_post_update(700, &sched, &args, &mut g, &mut adam, 1.0, 0, &mut vis);
+        let r = d.step_post_update(
+            700,
+            &sched,
+            &args,
+            &mut g,
+            &mut adam,
+            Extents::uniform(1.0),
+            0,
+            &mut vis,
+        );
         assert_eq!((r.pruned, r.reset), (0, false));
-        let r750 = d.step_post_update(750, &sched, &args, &mut g, &mut adam, 1.0, 0, &mut vis);
+        let r750 = d.step_post_update(
+            750,
+            &sched,
+            &args,
+            &mut g,
+            &mut adam,
+            Extents::uniform(1.0),
+            0,
+            &mut vis,
+        );
         let after_reset = g.clone();
-        let r800 = d.step_post_update(800, &sched, &args, &mut g, &mut adam, 1.0, 0, &mut vis);
+        let r800 = d.step_post_update(
+            800,
+            &sched,
+            &args,
+            &mut g,
+            &mut adam,
+            Extents::uniform(1.0),
+            0,
+            &mut vis,
+        );
         (r750.reset, after_reset, r800.pruned, g.len(), calls)
     };
     let (reset, g, pruned, left, calls) = run(OpacityReset::Never);

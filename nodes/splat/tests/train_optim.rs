@@ -4,7 +4,7 @@
 
 use augsplat_core::{PointCloud, Rng};
 use augsplat_splat::adam::{Adam, Group, LearningRates, ParamGrads};
-use augsplat_splat::densify::{self, Densifier, DensifyArgs};
+use augsplat_splat::densify::{self, Densifier, DensifyArgs, Extents};
 use augsplat_splat::init::{self, InitArgs};
 use augsplat_splat::Gaussians;
 
@@ -524,7 +524,7 @@ fn schedule_scaling_and_opacity_reset() {
         &args,
         &mut g,
         &mut adam,
-        1.0,
+        Extents::uniform(1.0),
         0,
         &mut |_| unreachable!(),
     );
@@ -536,7 +536,7 @@ fn schedule_scaling_and_opacity_reset() {
         &args,
         &mut g,
         &mut adam,
-        1.0,
+        Extents::uniform(1.0),
         0,
         &mut |_| unreachable!(),
     );
@@ -550,7 +550,7 @@ fn schedule_scaling_and_opacity_reset() {
         &args,
         &mut g,
         &mut adam,
-        1.0,
+        Extents::uniform(1.0),
         0,
         &mut |_| unreachable!(),
     );
@@ -573,7 +573,7 @@ fn schedule_scaling_and_opacity_reset() {
         &args,
         &mut g,
         &mut adam,
-        1.0,
+        Extents::uniform(1.0),
         0,
         &mut |_| unreachable!(),
     );
@@ -590,7 +590,7 @@ fn schedule_scaling_and_opacity_reset() {
             &off,
             &mut g,
             &mut adam,
-            1.0,
+            Extents::uniform(1.0),
             0,
             &mut |_| unreachable!()
         ),

@@ -32,7 +32,7 @@
 //! checkpoints. The arguments live in `train/args.rs`.
 
 use crate::adam::{Adam, ParamGrads};
-use crate::densify::{self, Densifier, DensifySchedule};
+use crate::densify::{self, Densifier, DensifySchedule, Extents, PruneExtent};
 pub use crate::schedule::{dual_lambda, dual_raw_weight, Schedule, StepPlan};
 pub use crate::supervision::{RealImages, RealView, Supervision, SynthView, SyntheticImages};
 use crate::{Gaussians, Gradients, RenderOutput, RenderSettings};
@@ -84,6 +84,37 @@ pub fn scene_scale(cameras: &[&Camera]) -> f64 {
     } else {
         1.0
     }
+}
+
+/// The content's extent: 1.1 × the 90th percentile (the `⌊0.9·(n−1)⌋`-th smallest, from 0)
+/// of the distances of `means` from the cameras'
+/// centroid; `None` without cameras or points, or when it is not a positive finite length.
+/// The percentile keeps a few far outliers of an SfM cloud from setting it.
+///
+/// [`PruneExtent::Content`] prunes against the larger of this and [`scene_scale`]: in a
+/// forward-facing capture the content reaches many times farther than the cameras spread.
+pub fn content_extent(cameras: &[&Camera], means: &[[f32; 3]]) -> Option<f64> {
+    if cameras.is_empty() || means.is_empty() {
+        return None;
+    }
+    let cs: Vec<[f64; 3]> = cameras.iter().map(|c| c.center()).collect();
+    let centroid: [f64; 3] =
+        std::array::from_fn(|a| cs.iter().map(|c| c[a]).sum::<f64>() / cs.len() as f64);
+    let mut d: Vec<f64> = means
+        .iter()
+        .map(|m| {
+            let v: [f64; 3] = std::array::from_fn(|a| m[a] as f64 - centroid[a]);
+            (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+        })
+        .filter(|x| x.is_finite())
+        .collect();
+    if d.is_empty() {
+        return None;
+    }
+    let k = (0.9 * (d.len() - 1) as f64).floor() as usize;
+    let (_, kth, _) = d.select_nth_unstable_by(k, f64::total_cmp);
+    let e = 1.1 * *kth;
+    (e.is_finite() && e > 0.0).then_some(e)
 }
 
 /// Gaussians per parallel chunk of the gradient sum.
@@ -178,6 +209,8 @@ pub struct Trainer<'a> {
     densifier: Densifier,
     dsched: DensifySchedule,
     scene_scale: f64,
+    /// The large-Gaussian prune's extent (`densify.prune_extent`), fixed from the start.
+    prune_extent: f64,
     step: u64,
     real: &'a dyn Supervision,
     synthetic: Option<&'a dyn Supervision>,
@@ -199,7 +232,9 @@ pub struct Trainer<'a> {
 pub(super) type GpuTargets = std::collections::HashMap<(bool, usize), crate::gpu::GpuTarget>;
 
 impl<'a> Trainer<'a> {
-    /// A trainer starting from `g`. The SH storage of `g` must be `args.sh_degree`.
+    /// A trainer starting from `g`. The SH storage of `g` must be `args.sh_degree`. With
+    /// `densify.prune_extent: Content`, the prune's extent is measured here from `g` and the
+    /// real views' cameras (see [`content_extent`]).
     pub fn new(
         args: TrainArgs,
         g: Gaussians,
@@ -213,10 +248,18 @@ impl<'a> Trainer<'a> {
         let usable_synth = synthetic
             .map(|s| (0..s.len()).filter(|&i| s.usable(i)).collect())
             .unwrap_or_default();
+        let prune_extent = match args.densify.prune_extent {
+            PruneExtent::Cameras => scene_scale,
+            PruneExtent::Content => {
+                let cams: Vec<&Camera> = (0..real.len()).map(|i| real.camera(i)).collect();
+                content_extent(&cams, &g.means).map_or(scene_scale, |e| e.max(scene_scale))
+            }
+        };
         Trainer {
             densifier: Densifier::new(n),
             dsched,
             scene_scale,
+            prune_extent,
             step: 0,
             real,
             synthetic,
@@ -256,6 +299,11 @@ impl<'a> Trainer<'a> {
     /// The scene scale in use.
     pub fn scene_scale(&self) -> f64 {
         self.scene_scale
+    }
+    /// The extent the large-Gaussian prune measures scales against (the scene scale unless
+    /// `densify.prune_extent` is `Content`).
+    pub fn prune_extent(&self) -> f64 {
+        self.prune_extent
     }
     /// The densification schedule in use.
     pub fn densify_schedule(&self) -> DensifySchedule {
@@ -543,7 +591,10 @@ impl<'a> Trainer<'a> {
             &self.args.densify,
             &mut self.g,
             &mut self.adam,
-            self.scene_scale,
+            Extents {
+                scene: self.scene_scale,
+                prune: self.prune_extent,
+            },
             self.args.seed ^ 0xDE45,
             &mut visibility,
         )
