@@ -23,6 +23,7 @@ pub mod mlp;
 pub mod nodes;
 pub mod occupancy;
 pub mod reference;
+pub mod render;
 pub mod sh;
 pub mod train;
 pub mod volume;
