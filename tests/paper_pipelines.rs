@@ -126,41 +126,53 @@ const IMPROVED_DUAL_SETS: [&str; 3] = [
     "dual.schedule=Dual(w_nerf0:2.0,w_real:1.0,quarter_decay:1000.0,off_below:None,synthetic_batch:20)",
 ];
 
-/// Structural ids of a plan's computations, split into those of Dual, its evaluation and the
-/// report (which read Dual) and all the others.
-fn sids_by_dual(plan: &augsplat_graph::Plan) -> (BTreeSet<[u8; 32]>, BTreeSet<[u8; 32]>) {
-    let (mut dual, mut rest) = (BTreeSet::new(), BTreeSet::new());
+/// Structural ids of a plan's computations, split into those of the nodes named in `bases`
+/// and all the others.
+fn sids_by(
+    plan: &augsplat_graph::Plan,
+    bases: &[&str],
+) -> (BTreeSet<[u8; 32]>, BTreeSet<[u8; 32]>) {
+    let (mut named, mut rest) = (BTreeSet::new(), BTreeSet::new());
     for c in &plan.comps {
         let base = &plan.instances[c.instances[0]].base;
-        if ["dual", "eval_dual", "report"].contains(&base.as_str()) {
-            dual.insert(c.sid);
+        if bases.contains(&base.as_str()) {
+            named.insert(c.sid);
         } else {
             rest.insert(c.sid);
         }
     }
-    (dual, rest)
+    (named, rest)
+}
+
+/// [`sids_by`] Dual, its evaluation and the report (which read Dual).
+fn sids_by_dual(plan: &augsplat_graph::Plan) -> (BTreeSet<[u8; 32]>, BTreeSet<[u8; 32]>) {
+    sids_by(plan, &["dual", "eval_dual", "report"])
+}
+
+/// A one-line pipeline extending the scene's paper pipeline with `fragments`.
+fn extended(dir: &Path, name: &str, fragments: &[&str]) -> PathBuf {
+    let mut parts = vec![format!("{:?}", pipeline(name).display().to_string())];
+    parts.extend(
+        fragments
+            .iter()
+            .map(|f| format!("{:?}", pipeline(f).display().to_string())),
+    );
+    let tag: Vec<String> = fragments.iter().map(|f| f.replace('/', "_")).collect();
+    let file = dir.join(format!("{name}+{}.ron", tag.join("+")));
+    std::fs::write(&file, format!("(extends: [{}])", parts.join(", "))).unwrap();
+    file
 }
 
 #[test]
 fn the_improved_dual_fragment_changes_only_dual_and_is_what_the_study_measured() {
     let tmp = tempfile::tempdir().unwrap();
     let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
-    let fragment = pipeline("fragments/improved_dual");
     let measured_sets: Vec<String> = IMPROVED_DUAL_SETS.iter().map(|s| s.to_string()).collect();
     for (name, _, _) in SCENES {
         if !data_present(name) {
             continue;
         }
-        let file = tmp.path().join(format!("{name}_improved.ron"));
-        std::fs::write(
-            &file,
-            format!(
-                "(extends: [{:?}, {:?}])",
-                pipeline(name).display().to_string(),
-                fragment.display().to_string()
-            ),
-        )
-        .unwrap();
+        let file = extended(tmp.path(), name, &["fragments/improved_dual"]);
         let paper = engine.load(&pipeline(name), &[]).unwrap();
         let improved = engine
             .load(&file, &[])
@@ -190,5 +202,73 @@ fn the_improved_dual_fragment_changes_only_dual_and_is_what_the_study_measured()
             "{name}: {a}"
         );
         assert!(a["schedule"]["Dual"]["off_below"].is_null(), "{name}: {a}");
+    }
+}
+
+/// The `--set`s of the improved-baseline runs whose figures docs/results.md reports.
+const IMPROVED_BASELINE_SETS: [&str; 2] = [
+    "baseline.densify.reset=Never",
+    "baseline.densify.prune_extent=Content",
+];
+
+#[test]
+fn the_improved_baseline_fragment_reruns_only_what_reads_the_baseline() {
+    let tmp = tempfile::tempdir().unwrap();
+    let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
+    let measured_sets: Vec<String> = IMPROVED_BASELINE_SETS
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    // The baseline, and what reads its curve: every evaluation ("at the baseline's best
+    // step") and the report.
+    let readers = [
+        "baseline",
+        "eval_baseline",
+        "eval_staged",
+        "eval_dual",
+        "report",
+    ];
+    for (name, _, _) in SCENES {
+        if !data_present(name) {
+            continue;
+        }
+        let paper = engine.load(&pipeline(name), &[]).unwrap();
+        let file = extended(tmp.path(), name, &["fragments/improved_baseline"]);
+        let improved = engine
+            .load(&file, &[])
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let measured = engine.load(&pipeline(name), &measured_sets).unwrap();
+        let (paper_named, paper_rest) = sids_by(&paper, &readers);
+        let (improved_named, improved_rest) = sids_by(&improved, &readers);
+        let (measured_named, _) = sids_by(&measured, &readers);
+        assert_eq!(
+            improved_rest, paper_rest,
+            "{name}: Staged, Dual or upstream moved"
+        );
+        assert!(improved_named.is_disjoint(&paper_named), "{name}");
+        assert_eq!(improved_named, measured_named, "{name}");
+        let baseline = improved
+            .comps
+            .iter()
+            .find(|c| improved.instances[c.instances[0]].base == "baseline")
+            .unwrap();
+        let d = &baseline.args_json["densify"];
+        assert_eq!(d["reset"], "Never", "{name}: {d}");
+        assert_eq!(d["prune_extent"], "Content", "{name}: {d}");
+        // With both fragments, the improved Dual is the one measured alone.
+        let both = extended(
+            tmp.path(),
+            name,
+            &["fragments/improved_baseline", "fragments/improved_dual"],
+        );
+        let both = engine.load(&both, &[]).unwrap();
+        let dual_only = engine
+            .load(
+                &extended(tmp.path(), name, &["fragments/improved_dual"]),
+                &[],
+            )
+            .unwrap();
+        let dual = |p: &augsplat_graph::Plan| sids_by(p, &["dual"]).0;
+        assert_eq!(dual(&both), dual(&dual_only), "{name}");
     }
 }
