@@ -87,9 +87,9 @@ pub fn scene_scale(cameras: &[&Camera]) -> f64 {
 }
 
 /// The content's extent: 1.1 × the 90th percentile (the `⌊0.9·(n−1)⌋`-th smallest, from 0)
-/// of the distances of `means` from the cameras'
-/// centroid; `None` without cameras or points, or when it is not a positive finite length.
-/// The percentile keeps a few far outliers of an SfM cloud from setting it.
+/// of the distances of `means` from the cameras' centroid; `None` without cameras or points,
+/// or when it is not a positive finite length. The percentile keeps a few far outliers of an
+/// SfM cloud from setting it.
 ///
 /// [`PruneExtent::Content`] prunes against the larger of this and [`scene_scale`]: in a
 /// forward-facing capture the content reaches many times farther than the cameras spread.
