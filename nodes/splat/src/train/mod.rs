@@ -69,9 +69,7 @@ pub fn scene_scale(cameras: &[&Camera]) -> f64 {
     if cameras.is_empty() {
         return 1.0;
     }
-    let cs: Vec<[f64; 3]> = cameras.iter().map(|c| c.center()).collect();
-    let mean: [f64; 3] =
-        std::array::from_fn(|a| cs.iter().map(|c| c[a]).sum::<f64>() / cs.len() as f64);
+    let (cs, mean) = centres_and_centroid(cameras);
     let r = cs
         .iter()
         .map(|c| {
@@ -86,6 +84,13 @@ pub fn scene_scale(cameras: &[&Camera]) -> f64 {
     }
 }
 
+/// The cameras' centres and their mean (`cameras` must not be empty).
+fn centres_and_centroid(cameras: &[&Camera]) -> (Vec<[f64; 3]>, [f64; 3]) {
+    let cs: Vec<[f64; 3]> = cameras.iter().map(|c| c.center()).collect();
+    let mean = std::array::from_fn(|a| cs.iter().map(|c| c[a]).sum::<f64>() / cs.len() as f64);
+    (cs, mean)
+}
+
 /// The content's extent: 1.1 × the 90th percentile (the `⌊0.9·(n−1)⌋`-th smallest, from 0)
 /// of the distances of `means` from the cameras' centroid; `None` without cameras or points,
 /// or when it is not a positive finite length. The percentile keeps a few far outliers of an
@@ -97,9 +102,7 @@ pub fn content_extent(cameras: &[&Camera], means: &[[f32; 3]]) -> Option<f64> {
     if cameras.is_empty() || means.is_empty() {
         return None;
     }
-    let cs: Vec<[f64; 3]> = cameras.iter().map(|c| c.center()).collect();
-    let centroid: [f64; 3] =
-        std::array::from_fn(|a| cs.iter().map(|c| c[a]).sum::<f64>() / cs.len() as f64);
+    let (_, centroid) = centres_and_centroid(cameras);
     let mut d: Vec<f64> = means
         .iter()
         .map(|m| {
