@@ -1,0 +1,63 @@
+//! The `*_fast.ron` pipelines are the knee configurations of the run-time-against-error
+//! sweeps in `docs/benchmarks.md`: each plans to exactly the computations of its scene's
+//! pipeline with the bench's `--set`s, so `augsplat run pipelines/bonsai_fast.ron` after the
+//! bench (or the bench after it) recomputes nothing, and the figures quoted in its header are
+//! the ones its run reproduces. Real captures need the shared data folder (skipped without it
+//! outside CI).
+
+use augsplat_graph::Engine;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// The knee of each sweep, as the bench's configuration label and `--set`s.
+const KNEE_SETS: [&str; 3] = [
+    "field.steps=200",
+    "params.gs_steps=1500",
+    "params.max_gaussians=60000",
+];
+
+fn pipeline(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("pipelines")
+        .join(format!("{name}.ron"))
+}
+
+fn sids(plan: &augsplat_graph::Plan) -> BTreeSet<[u8; 32]> {
+    plan.comps.iter().map(|c| c.sid).collect()
+}
+
+#[test]
+fn each_fast_pipeline_is_its_scenes_knee_configuration() {
+    let tmp = tempfile::tempdir().unwrap();
+    let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
+    let knee: Vec<String> = KNEE_SETS.iter().map(|s| s.to_string()).collect();
+    for scene in ["bonsai", "fern"] {
+        if augsplat_testkit::data::shared_data(&format!("{scene}_fast.ron"), "lpips").is_none() {
+            continue;
+        }
+        let fast = engine
+            .load(&pipeline(&format!("{scene}_fast")), &[])
+            .unwrap_or_else(|e| panic!("{scene}_fast: {e}"));
+        let full = engine.load(&pipeline(scene), &[]).unwrap();
+        let measured = engine.load(&pipeline(scene), &knee).unwrap();
+        assert_eq!(sids(&fast), sids(&measured), "{scene}_fast is not the knee");
+        // The sweep's shared upstream (the scene and its split) is the full pipeline's; the
+        // fields and everything downstream of them are not.
+        let (f, s) = (sids(&fast), sids(&full));
+        assert!(
+            !f.is_disjoint(&s),
+            "{scene}: nothing shared with {scene}.ron"
+        );
+        assert_ne!(f, s, "{scene}_fast is {scene}.ron");
+        let field = fast
+            .comps
+            .iter()
+            .find(|c| fast.instances[c.instances[0]].base == "field")
+            .unwrap();
+        assert_eq!(
+            field.args_json["steps"], 200,
+            "{scene}: {}",
+            field.args_json
+        );
+    }
+}
