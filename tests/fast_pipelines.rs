@@ -2,8 +2,9 @@
 //! sweeps in `docs/benchmarks.md`: each plans to exactly the computations of its scene's
 //! pipeline with the bench's `--set`s, so `augsplat run pipelines/bonsai_fast.ron` after the
 //! bench (or the bench after it) recomputes nothing, and the figures quoted in its header are
-//! the ones its run reproduces. Real captures need the shared data folder (skipped without it
-//! outside CI).
+//! the ones its run reproduces. Also which pipelines are long enough for the opacity reset and
+//! the large-Gaussian prune to act. Real captures need the shared data folder (skipped without
+//! it outside CI).
 
 use augsplat_graph::Engine;
 use std::collections::BTreeSet;
@@ -59,5 +60,60 @@ fn each_fast_pipeline_is_its_scenes_knee_configuration() {
             "{scene}: {}",
             field.args_json
         );
+    }
+}
+
+/// The scaled densification schedule of each `OptimizeSplats` node of `name`, with the
+/// node's base name.
+fn schedules(
+    engine: &Engine,
+    name: &str,
+) -> Vec<(String, augsplat_splat::densify::DensifySchedule)> {
+    let plan = engine
+        .load(&pipeline(name), &[])
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    plan.comps
+        .iter()
+        .filter(|c| c.node.kind() == "OptimizeSplats")
+        .map(|c| {
+            let args: augsplat_splat::train::TrainArgs =
+                serde_json::from_value(c.args_json.clone())
+                    .unwrap_or_else(|e| panic!("{name}: {e}: {}", c.args_json));
+            let base = plan.instances[c.instances[0]].base.clone();
+            (base, args.densify.scaled(args.steps))
+        })
+        .collect()
+}
+
+/// The 1,500-step pipelines (the knees and `capture.ron`) end refinement before the scaled
+/// schedule's first opacity reset, so the improved presets' `reset: Never` and
+/// `prune_extent: Content` cannot change them (measured on fern through `capture.ron`: the
+/// same bytes; docs/results.md, *The large-Gaussian prune*); the 3,000-step paper pipelines
+/// reach it, which is where those presets matter.
+#[test]
+fn which_pipelines_reach_the_first_opacity_reset() {
+    let tmp = tempfile::tempdir().unwrap();
+    let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
+    for (name, reaches) in [
+        ("capture", false),
+        ("bonsai_fast", false),
+        ("fern_fast", false),
+        ("paper_horns", true),
+        ("paper_bonsai", true),
+    ] {
+        if augsplat_testkit::data::shared_data(&format!("{name}.ron"), "lpips").is_none() {
+            continue;
+        }
+        let found = schedules(&engine, name);
+        // Staged, Dual and 3DGS at least (the gate's rehearsals too, in capture.ron).
+        assert!(found.len() >= 3, "{name}: {found:?}");
+        for (node, s) in found {
+            if node.starts_with("gate_") {
+                // 600-step rehearsals: never reach it.
+                assert!(!s.reaches_reset(), "{name}.{node}: {s:?}");
+                continue;
+            }
+            assert_eq!(s.reaches_reset(), reaches, "{name}.{node}: {s:?}");
+        }
     }
 }

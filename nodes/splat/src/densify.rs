@@ -185,6 +185,18 @@ pub struct DensifySchedule {
     pub reset_every: u64,
 }
 
+impl DensifySchedule {
+    /// Whether the refinement window reaches the first opacity reset: `false` when
+    /// refinement stops at or before step `reset_every` (or there is no period), so that no
+    /// reset falls inside it and the large-Gaussian prune (which starts after `reset_every`
+    /// steps) never runs — the run's bytes are then the same for every
+    /// [`OpacityReset`] mode and [`PruneExtent`]. With gsplat's schedule scaled to the run,
+    /// runs of 1,500 steps or fewer never reach it; 3,000-step runs reset at step 750.
+    pub fn reaches_reset(&self) -> bool {
+        self.reset_every > 0 && self.stop > self.reset_every
+    }
+}
+
 impl DensifyArgs {
     /// Checks ranges.
     pub fn validate(&self) -> Result<(), String> {

@@ -411,6 +411,18 @@ pub fn fit(
             trainer.prune_extent() / scene_scale
         )));
     }
+    let sched = a.densify.scaled(a.steps);
+    let defaults = crate::densify::DensifyArgs::default();
+    if a.densify.enabled
+        && !sched.reaches_reset()
+        && (a.densify.reset != defaults.reset || a.densify.prune_extent != defaults.prune_extent)
+    {
+        on_event(FitEvent::Log(format!(
+            "densification ends at step {} of {}, before the first opacity reset (step {}): \
+             densify.reset and densify.prune_extent change nothing in this run",
+            sched.stop, a.steps, sched.reset_every
+        )));
+    }
     // The fault tests' hook: destroy the GPU device after this many steps, as a driver
     // reset would (`AUGSPLAT_TEST_LOSE_GPU_AFTER`; never set in real runs).
     let lose_gpu = gpu.clone().zip(

@@ -598,3 +598,33 @@ fn schedule_scaling_and_opacity_reset() {
     );
     densify::reset_opacities(&mut g, &mut adam, 0.5);
 }
+
+/// `reaches_reset` is exact where it says no: for every run length up to 8,000 steps whose
+/// scaled schedule does not reach the first reset, no step of the refinement window resets
+/// opacities or prunes large Gaussians (so the reset mode and the prune extent cannot change
+/// the run); 3,000 steps (the paper pipelines) reach it, 1,500 (the fast and capture
+/// pipelines) do not.
+#[test]
+fn schedules_that_stop_before_the_first_reset() {
+    let args = DensifyArgs::default();
+    assert!(args.scaled(30_000).reaches_reset());
+    assert!(args.scaled(3000).reaches_reset());
+    assert!(args.scaled(1502).reaches_reset());
+    assert!(!args.scaled(1500).reaches_reset());
+    assert!(!args.scaled(400).reaches_reset());
+    let mut unreached = 0;
+    for steps in 1..=8000u64 {
+        let s = args.scaled(steps);
+        let touches = (0..s.stop).any(|step| {
+            let reset = s.reset_every > 0 && step > 0 && step.is_multiple_of(s.reset_every);
+            let refine = step > s.start && step.is_multiple_of(s.every);
+            let large_prune = refine && s.reset_every > 0 && step > s.reset_every;
+            reset || large_prune
+        });
+        if !s.reaches_reset() {
+            unreached += 1;
+            assert!(!touches, "{steps} steps: {s:?}");
+        }
+    }
+    assert_eq!(unreached, 1500);
+}
