@@ -195,6 +195,17 @@ impl DensifySchedule {
     pub fn reaches_reset(&self) -> bool {
         self.reset_every > 0 && self.stop > self.reset_every
     }
+
+    /// Whether `step` is a step of the opacity-reset period (whatever the reset mode).
+    pub fn reset_due(&self, step: u64) -> bool {
+        self.reset_every > 0 && step > 0 && step.is_multiple_of(self.reset_every)
+    }
+
+    /// Whether a refinement at `step` also prunes oversized Gaussians (after the first reset
+    /// period, as gsplat, whether or not resets happen).
+    pub fn large_prune_active(&self, step: u64) -> bool {
+        self.reset_every > 0 && step > self.reset_every
+    }
 }
 
 impl DensifyArgs {
@@ -285,10 +296,7 @@ pub fn acts_at(step: u64, sched: &DensifySchedule, args: &DensifyArgs) -> bool {
         return false;
     }
     let refine = step > sched.start && step.is_multiple_of(sched.every);
-    let reset = sched.reset_every > 0
-        && step > 0
-        && step.is_multiple_of(sched.reset_every)
-        && args.reset != OpacityReset::Never;
+    let reset = sched.reset_due(step) && args.reset != OpacityReset::Never;
     refine || reset
 }
 
@@ -365,11 +373,11 @@ impl Densifier {
             let (c, s) = self.grow(g, adam, args, extents.scene, rng);
             rep.cloned = c;
             rep.split = s;
-            let past_reset = sched.reset_every > 0 && step > sched.reset_every;
+            let past_reset = sched.large_prune_active(step);
             rep.pruned = self.prune(g, adam, args, extents.prune, past_reset);
             self.clear();
         }
-        if sched.reset_every > 0 && step > 0 && step.is_multiple_of(sched.reset_every) {
+        if sched.reset_due(step) {
             match args.reset {
                 OpacityReset::Periodic => {
                     reset_opacities(g, adam, 2.0 * args.prune_opacity);

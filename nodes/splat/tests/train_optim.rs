@@ -616,10 +616,8 @@ fn schedules_that_stop_before_the_first_reset() {
     for steps in 1..=8000u64 {
         let s = args.scaled(steps);
         let touches = (0..s.stop).any(|step| {
-            let reset = s.reset_every > 0 && step > 0 && step.is_multiple_of(s.reset_every);
             let refine = step > s.start && step.is_multiple_of(s.every);
-            let large_prune = refine && s.reset_every > 0 && step > s.reset_every;
-            reset || large_prune
+            s.reset_due(step) || (refine && s.large_prune_active(step))
         });
         if !s.reaches_reset() {
             unreached += 1;
