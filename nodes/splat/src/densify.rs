@@ -196,6 +196,22 @@ impl DensifySchedule {
         self.reset_every > 0 && self.stop > self.reset_every
     }
 
+    /// The trainer's log line for a run of `steps` whose refinement window does not reach the
+    /// first opacity reset ([`Self::reaches_reset`] is false): the reset mode and the
+    /// large-Gaussian prune's extent cannot change such a run.
+    pub fn short_run_note(&self, steps: u64) -> String {
+        let why = if self.reset_every > 0 {
+            format!("before the first opacity reset (step {})", self.reset_every)
+        } else {
+            "and densify.reset_every = 0 sets no reset period".to_string()
+        };
+        format!(
+            "densification ends at step {} of {steps}, {why}: densify.reset and \
+             densify.prune_extent change nothing in this run",
+            self.stop
+        )
+    }
+
     /// Whether `step` is a step of the opacity-reset period (whatever the reset mode).
     pub fn reset_due(&self, step: u64) -> bool {
         self.reset_every > 0 && step > 0 && step.is_multiple_of(self.reset_every)

@@ -417,11 +417,7 @@ pub fn fit(
         && !sched.reaches_reset()
         && (a.densify.reset != defaults.reset || a.densify.prune_extent != defaults.prune_extent)
     {
-        on_event(FitEvent::Log(format!(
-            "densification ends at step {} of {}, before the first opacity reset (step {}): \
-             densify.reset and densify.prune_extent change nothing in this run",
-            sched.stop, a.steps, sched.reset_every
-        )));
+        on_event(FitEvent::Log(sched.short_run_note(a.steps)));
     }
     // The fault tests' hook: destroy the GPU device after this many steps, as a driver
     // reset would (`AUGSPLAT_TEST_LOSE_GPU_AFTER`; never set in real runs).

@@ -626,3 +626,29 @@ fn schedules_that_stop_before_the_first_reset() {
     }
     assert_eq!(unreached, 1500);
 }
+
+/// The trainer's note for such a short run names the first reset step when there is a reset
+/// period, and says there is none when `reset_every` is 0 (not "step 0").
+#[test]
+fn short_run_note_names_the_reset_or_its_absence() {
+    let s = DensifyArgs::default().scaled(1500);
+    assert!(!s.reaches_reset());
+    let note = s.short_run_note(1500);
+    assert!(
+        note.contains(&format!(
+            "before the first opacity reset (step {})",
+            s.reset_every
+        )),
+        "{note}"
+    );
+    assert!(note.contains(&format!("step {} of 1500", s.stop)), "{note}");
+    let none = DensifyArgs {
+        reset_every: 0,
+        ..DensifyArgs::default()
+    }
+    .scaled(1500);
+    assert!(!none.reaches_reset());
+    let note = none.short_run_note(1500);
+    assert!(note.contains("no reset period"), "{note}");
+    assert!(!note.contains("(step 0)"), "{note}");
+}
