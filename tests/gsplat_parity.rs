@@ -1,15 +1,17 @@
 //! Baseline parity with gsplat, kept measured: augsplat's baseline, set as gsplat 1.5.3
 //! (`real_loss.kind: L1`, `densify.reset: Never`, `max_alpha: 0.999`, no cap, dense Adam),
 //! trains on the parity case — the generated scene at 96×72, 26 / 4 views, 1,000 steps — with
-//! optimiser seeds 0, 1 and 2, and its mean final held-out PSNR must not fall more than 0.6 dB
-//! below an independent gsplat-1.5.3 trainer's mean over its three seeds on the same inputs,
+//! optimiser seeds 0 to 9, and its mean final held-out PSNR must not fall more than 0.6 dB
+//! below an independent gsplat-1.5.3 trainer's mean over its five seeds on the same inputs,
 //! nor rise more than 1.0 dB above it (`tests/pinned/gsplat_parity.json`, written by
 //! `docs/scripts/parity/record.sh` from `docs/scripts/parity/gsplat_reference.py`, a PyTorch
-//! trainer that shares no code with augsplat). When recorded: 31.38 ± 0.13 against
-//! 31.76 ± 0.38 dB, within 0.4 dB at every evaluation (`docs/results.md`, *Baseline parity
-//! with gsplat*); selective Adam updates, 1.0 dB lower at seed 0, would fail here. The split's
-//! output hashes are pinned too, so a changed case fails here instead of being compared with
-//! a reference recorded on other images.
+//! trainer that shares no code with augsplat). Ten seeds, because one run of this case moves
+//! by about 0.5 dB (sd) with its seed: a three-seed mean would sit within the threshold's
+//! reach by chance. When recorded: 31.83 ± 0.47 dB (seeds 0-9; 31.70 ± 0.54 over seeds
+//! 0-19) against 31.90 ± 0.37 dB (`docs/results.md`, *Baseline parity with gsplat*);
+//! selective Adam updates, 1.0 dB lower at seed 0, would fail here. The split's output hashes
+//! are pinned too, so a changed case fails here instead of being compared with a reference
+//! recorded on other images.
 
 mod common;
 
