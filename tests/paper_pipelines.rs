@@ -119,9 +119,11 @@ fn each_paper_draw_is_reproducible_and_leak_free() {
     }
 }
 
-/// The `--set`s of the study that `docs/results.md` reports for the improved Dual.
-const IMPROVED_DUAL_SETS: [&str; 3] = [
+/// The `--set`s of the study that `docs/results.md` reports for the improved Dual (with the
+/// content prune: *The improved Dual with the content prune too*).
+const IMPROVED_DUAL_SETS: [&str; 4] = [
     "dual.densify.reset=Never",
+    "dual.densify.prune_extent=Content",
     "dual.synthetic.unweighted_stats=true",
     "dual.schedule=Dual(w_nerf0:2.0,w_real:1.0,quarter_decay:1000.0,off_below:None,synthetic_batch:20)",
 ];
@@ -196,6 +198,7 @@ fn the_improved_dual_fragment_changes_only_dual_and_is_what_the_study_measured()
             .unwrap();
         let a = &dual.args_json;
         assert_eq!(a["densify"]["reset"], "Never", "{name}: {a}");
+        assert_eq!(a["densify"]["prune_extent"], "Content", "{name}: {a}");
         assert_eq!(a["synthetic"]["unweighted_stats"], true, "{name}: {a}");
         assert_eq!(
             a["schedule"]["Dual"]["quarter_decay"], 1000.0,
@@ -270,5 +273,68 @@ fn the_improved_baseline_fragment_reruns_only_what_reads_the_baseline() {
             .unwrap();
         let dual = |p: &augsplat_graph::Plan| sids_by(p, &["dual"]).0;
         assert_eq!(dual(&both), dual(&dual_only), "{name}");
+    }
+}
+
+/// The `--set`s of the improved-Staged runs whose figures docs/results.md reports (*Staged
+/// with the improved baseline's settings*).
+const IMPROVED_STAGED_SETS: [&str; 2] = [
+    "staged.densify.reset=Never",
+    "staged.densify.prune_extent=Content",
+];
+
+#[test]
+fn the_improved_staged_fragment_changes_only_staged_and_is_what_the_study_measured() {
+    let tmp = tempfile::tempdir().unwrap();
+    let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
+    let measured_sets: Vec<String> = IMPROVED_STAGED_SETS.iter().map(|s| s.to_string()).collect();
+    let readers = ["staged", "eval_staged", "report"];
+    for (name, _, _) in SCENES {
+        if !data_present(name) {
+            continue;
+        }
+        let paper = engine.load(&pipeline(name), &[]).unwrap();
+        let file = extended(tmp.path(), name, &["fragments/improved_staged"]);
+        let improved = engine
+            .load(&file, &[])
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let measured = engine.load(&pipeline(name), &measured_sets).unwrap();
+        let (paper_named, paper_rest) = sids_by(&paper, &readers);
+        let (improved_named, improved_rest) = sids_by(&improved, &readers);
+        let (measured_named, _) = sids_by(&measured, &readers);
+        // Everything but Staged keeps its key (a finished paper run is reused) …
+        assert_eq!(
+            improved_rest, paper_rest,
+            "{name}: a node other than Staged moved"
+        );
+        assert!(
+            improved_named.is_disjoint(&paper_named),
+            "{name}: Staged unchanged"
+        );
+        // … and Staged is exactly the configuration whose figures the results page reports.
+        assert_eq!(improved_named, measured_named, "{name}");
+        let staged = improved
+            .comps
+            .iter()
+            .find(|c| improved.instances[c.instances[0]].base == "staged")
+            .unwrap();
+        let a = &staged.args_json;
+        assert_eq!(a["densify"]["reset"], "Never", "{name}: {a}");
+        assert_eq!(a["densify"]["prune_extent"], "Content", "{name}: {a}");
+        // Still the paper's Staged schedule (its switch and the reset there).
+        assert!(a["schedule"]["Staged"].is_object(), "{name}: {a}");
+        // With all three improved presets, each method is the one measured alone.
+        let all = extended(
+            tmp.path(),
+            name,
+            &[
+                "fragments/improved_baseline",
+                "fragments/improved_dual",
+                "fragments/improved_staged",
+            ],
+        );
+        let all = engine.load(&all, &[]).unwrap();
+        let staged_of = |p: &augsplat_graph::Plan| sids_by(p, &["staged"]).0;
+        assert_eq!(staged_of(&all), staged_of(&measured), "{name}");
     }
 }

@@ -6,8 +6,9 @@
 #   bash docs/scripts/paper_study.sh [--improved] [--fragment NAME]… [SCENE…] [-- AUGSPLAT-RUN-ARGS…]
 #
 # SCENE: generated dtu_scan24 bonsai fern horns (the default: all five). --fragment NAME adds
-# pipelines/fragments/NAME.ron to every scene's pipeline; --improved is our two presets,
-# `--fragment improved_baseline --fragment improved_dual` (only what they change reruns).
+# pipelines/fragments/NAME.ron to every scene's pipeline; --improved is our three presets,
+# `--fragment improved_baseline --fragment improved_dual --fragment improved_staged` (only
+# what they change reruns).
 # Arguments after `--` go to `augsplat run` (e.g. `--set baseline.densify.reset=Never`).
 #
 # The whole study takes hours on a 2-core machine (docs/results.md gives the times); each
@@ -27,7 +28,7 @@ scenes=()
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
-    --improved) fragments+=(improved_baseline improved_dual); shift ;;
+    --improved) fragments+=(improved_baseline improved_dual improved_staged); shift ;;
     --fragment)
       [ $# -ge 2 ] && [ -f "$root/pipelines/fragments/$2.ron" ] \
         || { echo "--fragment needs a name from pipelines/fragments/" >&2; exit 2; }
