@@ -9,7 +9,10 @@ scene: held-out PSNR / SSIM / LPIPS / average error, mean ± sd over the seeds, 
 its best checkpoint and at the baseline's best step, the Gaussian count, each seed's average
 error (best step); the change of Staged's and Dual's average error against 3DGS, seed by seed;
 and, when OUT_DIR/<scene>.summary.json exists, the compute seconds of the nodes that ran. Then
-one row per scene and the average over the scenes of the better of Staged and Dual.
+one row per scene and the average over the scenes of Staged, of Dual, of the better of the two
+chosen after seeing all seeds, and of the better chosen for each seed on the *other* seeds
+alone (leave one seed out: a seed's result never takes part in choosing the method it is
+counted for, so the choice cannot favour that seed's luck).
 """
 
 import glob
@@ -46,6 +49,26 @@ def at_baseline(m):
     ab = m.get("at_baseline") or {}
     point = ab.get("point")
     return point["avg_error"] if point and point.get("avg_error") is not None else None
+
+
+def leave_one_seed_out(evals):
+    """The change (%) against 3DGS of the method chosen, for each seed, by the lower mean average
+    error of Staged and Dual over the other seeds; and the choices ("S" / "D" per seed)."""
+    base, staged, dual = evals["baseline"], evals["staged"], evals["dual"]
+    seeds = sorted(set(base) & set(staged) & set(dual))
+    if len(seeds) < 2:
+        return None, ""
+    err = lambda runs, s: runs[s]["mean"]["avg_error"]
+    chosen, picks = [], ""
+    for s in seeds:
+        others = [t for t in seeds if t != s]
+        m_staged = statistics.mean(err(staged, t) for t in others)
+        m_dual = statistics.mean(err(dual, t) for t in others)
+        runs = dual if m_dual <= m_staged else staged
+        picks += "D" if runs is dual else "S"
+        chosen.append(err(runs, s))
+    b = statistics.mean(err(base, s) for s in seeds)
+    return 100.0 * (statistics.mean(chosen) - b) / b, picks
 
 
 def scene_table(out_dir, scene):
@@ -127,21 +150,28 @@ def main():
             rows.append((s, r[0], r[1]))
     if not rows:
         return
-    print("| scene | 3DGS avg. error | Staged | Dual | better of the two |")
-    print("|---|---:|---:|---:|---:|")
-    best = []
+    print("| scene | 3DGS avg. error | Staged | Dual | better of the two | chosen on the other seeds |")
+    print("|---|---:|---:|---:|---:|---:|")
+    cols = {"Staged": [], "Dual": [], "better": [], "loso": []}
     for s, evals, ch in rows:
         base = evals["baseline"]
         b = statistics.mean(v["mean"]["avg_error"] for v in base.values()) if base else float("nan")
         cells = [f"{ch[k]:+.1f} %" if k in ch else "—" for k in ("Staged", "Dual")]
+        for k in ("Staged", "Dual"):
+            if k in ch:
+                cols[k].append(ch[k])
         better = min(ch.values()) if ch else None
         if better is not None:
-            best.append(better)
+            cols["better"].append(better)
+        loso, picks = leave_one_seed_out(evals)
+        if loso is not None:
+            cols["loso"].append(loso)
         print(f"| {s} | {b:.4f} | {cells[0]} | {cells[1]} | "
-              f"{f'{better:+.1f} %' if better is not None else '—'} |")
-    if best:
-        print(f"| average over {len(best)} scenes | | | | **{statistics.mean(best):+.1f} %** |")
-
+              f"{f'{better:+.1f} %' if better is not None else '—'} | "
+              f"{f'{loso:+.1f} % ({picks})' if loso is not None else '—'} |")
+    avg = {k: (f"{statistics.mean(v):+.1f} % ({len(v)})" if v else "—") for k, v in cols.items()}
+    print(f"| average (scenes) | | {avg['Staged']} | {avg['Dual']} | **{avg['better']}** | "
+          f"**{avg['loso']}** |")
 
 if __name__ == "__main__":
     main()
