@@ -173,5 +173,6 @@ def main():
     print(f"| average (scenes) | | {avg['Staged']} | {avg['Dual']} | **{avg['better']}** | "
           f"**{avg['loso']}** |")
 
+
 if __name__ == "__main__":
     main()
