@@ -6,7 +6,10 @@
 //! the large-Gaussian prune to act. Real captures need the shared data folder (skipped without
 //! it outside CI).
 
+mod common;
+
 use augsplat_graph::Engine;
+use common::args_of;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
@@ -50,16 +53,8 @@ fn each_fast_pipeline_is_its_scenes_knee_configuration() {
             "{scene}: nothing shared with {scene}.ron"
         );
         assert_ne!(f, s, "{scene}_fast is {scene}.ron");
-        let field = fast
-            .comps
-            .iter()
-            .find(|c| fast.instances[c.instances[0]].base == "field")
-            .unwrap();
-        assert_eq!(
-            field.args_json["steps"], 200,
-            "{scene}: {}",
-            field.args_json
-        );
+        let field = args_of(&fast, "field");
+        assert_eq!(field["steps"], 200, "{scene}: {}", field);
     }
 }
 

@@ -7,7 +7,7 @@
 mod common;
 
 use augsplat_graph::Engine;
-use common::{augsplat, output_dir, run_with_summary};
+use common::{args_of, augsplat, output_dir, run_with_summary};
 use serde_json::Value;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -146,11 +146,6 @@ fn sids_by(
     (named, rest)
 }
 
-/// [`sids_by`] Dual, its evaluation and the report (which read Dual).
-fn sids_by_dual(plan: &augsplat_graph::Plan) -> (BTreeSet<[u8; 32]>, BTreeSet<[u8; 32]>) {
-    sids_by(plan, &["dual", "eval_dual", "report"])
-}
-
 /// A one-line pipeline extending the scene's paper pipeline with `fragments`.
 fn extended(dir: &Path, name: &str, fragments: &[&str]) -> PathBuf {
     let mut parts = vec![format!("{:?}", pipeline(name).display().to_string())];
@@ -165,38 +160,57 @@ fn extended(dir: &Path, name: &str, fragments: &[&str]) -> PathBuf {
     file
 }
 
+/// Plans the scene's paper pipeline, the pipeline extended with `fragment`, and the paper
+/// pipeline with the study's `sets`; checks that the fragment moves the computations of the
+/// nodes in `movers` — and no other — and gives them exactly the measured runs' keys (a
+/// finished paper run is reused, and the results page's figures are the fragment's). Returns
+/// the extended plan.
+fn check_fragment(
+    engine: &Engine,
+    dir: &Path,
+    name: &str,
+    fragment: &str,
+    sets: &[&str],
+    movers: &[&str],
+) -> augsplat_graph::Plan {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    let paper = engine.load(&pipeline(name), &[]).unwrap();
+    let improved = engine
+        .load(&extended(dir, name, &[fragment]), &[])
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    let measured = engine.load(&pipeline(name), &sets).unwrap();
+    let (paper_moved, paper_rest) = sids_by(&paper, movers);
+    let (improved_moved, improved_rest) = sids_by(&improved, movers);
+    let (measured_moved, _) = sids_by(&measured, movers);
+    assert_eq!(
+        improved_rest, paper_rest,
+        "{name}: {fragment} moved a node outside {movers:?}"
+    );
+    assert!(
+        improved_moved.is_disjoint(&paper_moved),
+        "{name}: {fragment} left {movers:?} unchanged"
+    );
+    assert_eq!(improved_moved, measured_moved, "{name}: {fragment}");
+    improved
+}
+
 #[test]
 fn the_improved_dual_fragment_changes_only_dual_and_is_what_the_study_measured() {
     let tmp = tempfile::tempdir().unwrap();
     let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
-    let measured_sets: Vec<String> = IMPROVED_DUAL_SETS.iter().map(|s| s.to_string()).collect();
     for (name, _, _) in SCENES {
         if !data_present(name) {
             continue;
         }
-        let file = extended(tmp.path(), name, &["fragments/improved_dual"]);
-        let paper = engine.load(&pipeline(name), &[]).unwrap();
-        let improved = engine
-            .load(&file, &[])
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
-        let measured = engine.load(&pipeline(name), &measured_sets).unwrap();
-        let (paper_dual, paper_rest) = sids_by_dual(&paper);
-        let (improved_dual, improved_rest) = sids_by_dual(&improved);
-        let (measured_dual, _) = sids_by_dual(&measured);
-        // Everything but Dual keeps its key (a finished paper run is reused) …
-        assert_eq!(improved_rest, paper_rest, "{name}: a non-Dual node moved");
-        assert!(
-            improved_dual.is_disjoint(&paper_dual),
-            "{name}: Dual unchanged"
+        let improved = check_fragment(
+            &engine,
+            tmp.path(),
+            name,
+            "fragments/improved_dual",
+            &IMPROVED_DUAL_SETS,
+            &["dual", "eval_dual", "report"],
         );
-        // … and Dual is exactly the configuration whose figures the results page reports.
-        assert_eq!(improved_dual, measured_dual, "{name}");
-        let dual = improved
-            .comps
-            .iter()
-            .find(|c| improved.instances[c.instances[0]].base == "dual")
-            .unwrap();
-        let a = &dual.args_json;
+        let a = args_of(&improved, "dual");
         assert_eq!(a["densify"]["reset"], "Never", "{name}: {a}");
         assert_eq!(a["densify"]["prune_extent"], "Content", "{name}: {a}");
         assert_eq!(a["synthetic"]["unweighted_stats"], true, "{name}: {a}");
@@ -218,10 +232,6 @@ const IMPROVED_BASELINE_SETS: [&str; 2] = [
 fn the_improved_baseline_fragment_reruns_only_what_reads_the_baseline() {
     let tmp = tempfile::tempdir().unwrap();
     let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
-    let measured_sets: Vec<String> = IMPROVED_BASELINE_SETS
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
     // The baseline, and what reads its curve: every evaluation ("at the baseline's best
     // step") and the report.
     let readers = [
@@ -235,27 +245,15 @@ fn the_improved_baseline_fragment_reruns_only_what_reads_the_baseline() {
         if !data_present(name) {
             continue;
         }
-        let paper = engine.load(&pipeline(name), &[]).unwrap();
-        let file = extended(tmp.path(), name, &["fragments/improved_baseline"]);
-        let improved = engine
-            .load(&file, &[])
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
-        let measured = engine.load(&pipeline(name), &measured_sets).unwrap();
-        let (paper_named, paper_rest) = sids_by(&paper, &readers);
-        let (improved_named, improved_rest) = sids_by(&improved, &readers);
-        let (measured_named, _) = sids_by(&measured, &readers);
-        assert_eq!(
-            improved_rest, paper_rest,
-            "{name}: Staged, Dual or upstream moved"
+        let improved = check_fragment(
+            &engine,
+            tmp.path(),
+            name,
+            "fragments/improved_baseline",
+            &IMPROVED_BASELINE_SETS,
+            &readers,
         );
-        assert!(improved_named.is_disjoint(&paper_named), "{name}");
-        assert_eq!(improved_named, measured_named, "{name}");
-        let baseline = improved
-            .comps
-            .iter()
-            .find(|c| improved.instances[c.instances[0]].base == "baseline")
-            .unwrap();
-        let d = &baseline.args_json["densify"];
+        let d = &args_of(&improved, "baseline")["densify"];
         assert_eq!(d["reset"], "Never", "{name}: {d}");
         assert_eq!(d["prune_extent"], "Content", "{name}: {d}");
         // With both fragments, the improved Dual is the one measured alone.
@@ -288,42 +286,24 @@ fn the_improved_staged_fragment_changes_only_staged_and_is_what_the_study_measur
     let tmp = tempfile::tempdir().unwrap();
     let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
     let measured_sets: Vec<String> = IMPROVED_STAGED_SETS.iter().map(|s| s.to_string()).collect();
-    let readers = ["staged", "eval_staged", "report"];
     for (name, _, _) in SCENES {
         if !data_present(name) {
             continue;
         }
-        let paper = engine.load(&pipeline(name), &[]).unwrap();
-        let file = extended(tmp.path(), name, &["fragments/improved_staged"]);
-        let improved = engine
-            .load(&file, &[])
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
-        let measured = engine.load(&pipeline(name), &measured_sets).unwrap();
-        let (paper_named, paper_rest) = sids_by(&paper, &readers);
-        let (improved_named, improved_rest) = sids_by(&improved, &readers);
-        let (measured_named, _) = sids_by(&measured, &readers);
-        // Everything but Staged keeps its key (a finished paper run is reused) …
-        assert_eq!(
-            improved_rest, paper_rest,
-            "{name}: a node other than Staged moved"
+        let improved = check_fragment(
+            &engine,
+            tmp.path(),
+            name,
+            "fragments/improved_staged",
+            &IMPROVED_STAGED_SETS,
+            &["staged", "eval_staged", "report"],
         );
-        assert!(
-            improved_named.is_disjoint(&paper_named),
-            "{name}: Staged unchanged"
-        );
-        // … and Staged is exactly the configuration whose figures the results page reports.
-        assert_eq!(improved_named, measured_named, "{name}");
-        let staged = improved
-            .comps
-            .iter()
-            .find(|c| improved.instances[c.instances[0]].base == "staged")
-            .unwrap();
-        let a = &staged.args_json;
+        let a = args_of(&improved, "staged");
         assert_eq!(a["densify"]["reset"], "Never", "{name}: {a}");
         assert_eq!(a["densify"]["prune_extent"], "Content", "{name}: {a}");
         // Still the paper's Staged schedule (its switch and the reset there).
         assert!(a["schedule"]["Staged"].is_object(), "{name}: {a}");
-        // With all three improved presets, each method is the one measured alone.
+        // With all three improved presets, Staged is the one measured alone.
         let all = extended(
             tmp.path(),
             name,
@@ -334,6 +314,7 @@ fn the_improved_staged_fragment_changes_only_staged_and_is_what_the_study_measur
             ],
         );
         let all = engine.load(&all, &[]).unwrap();
+        let measured = engine.load(&pipeline(name), &measured_sets).unwrap();
         let staged_of = |p: &augsplat_graph::Plan| sids_by(p, &["staged"]).0;
         assert_eq!(staged_of(&all), staged_of(&measured), "{name}");
     }

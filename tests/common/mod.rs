@@ -56,3 +56,14 @@ pub fn node<'a>(nodes: &'a [Value], name: &str) -> &'a Value {
         .find(|n| n["name"] == name)
         .unwrap_or_else(|| panic!("no node {name}"))
 }
+
+/// The resolved arguments of the computation of node `base` in `plan` (the first instance
+/// when a sweep has several).
+pub fn args_of<'a>(plan: &'a augsplat_graph::Plan, base: &str) -> &'a Value {
+    &plan
+        .comps
+        .iter()
+        .find(|c| plan.instances[c.instances[0]].base == base)
+        .unwrap_or_else(|| panic!("no computation of node {base}"))
+        .args_json
+}
