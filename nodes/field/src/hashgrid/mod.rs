@@ -10,8 +10,13 @@
 //! The level kernels work on blocks of 16 points: corner indices and weights of the next block
 //! are computed (and, on hashed levels, prefetched) while the current block is gathered or
 //! scattered. The level kernels are compiled for the portable tier and for AVX2 and chosen by
-//! [`augsplat_core::simd::active`]; in the AVX2 tier, two-feature levels gather with AVX2,
-//! with the same operation order as the scalar loop (the bits do not change).
+//! [`augsplat_core::simd::active`]; in the AVX2 tier the corners of every level are computed,
+//! and two-feature levels blended, by the 8-lane twins in `hashgrid/avx2.rs`, with the same
+//! operations in the same order as the scalar loops (the bits do not change; the tests compare
+//! them).
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 
 use crate::error::FieldError;
 use serde::{Deserialize, Serialize};
@@ -107,8 +112,9 @@ fn corners_block<const DENSE: bool>(
             (crate::constants::HASH_PRIMES[a], 0)
         };
         for l in 0..BLOCK {
-            // max/min also map NaN to 0 (f32::max returns the non-NaN operand).
-            let x = (pos[a][l] * r).max(0.0).min(r);
+            // Clamped to [0, r]; NaN, negatives and −0 become +0 (as the AVX2 twin).
+            let x = pos[a][l] * r;
+            let x = if x > 0.0 { x.min(r) } else { 0.0 };
             // x ∈ [0, r] is finite and non-negative: truncation is floor; keep one cell below r.
             let i0 = x as u32;
             let i0 = if i0 >= res { res - 1 } else { i0 };
@@ -164,48 +170,51 @@ fn prefetch_block<const F: usize>(t: &[f32], idx: &[[u32; BLOCK]; 8], cnt: usize
     let _ = (t, idx, cnt);
 }
 
-/// Two-feature levels on AVX2: the 8 corner entries of 16 points are fetched with 4-entry
-/// 64-bit gathers (one entry = both features). The index vectors are interleaved
-/// (`i0 i1 i4 i5` / `i2 i3 i6 i7`) so that one in-lane shuffle de-interleaves the two features
-/// in point order; blending is the same separate multiply and add, in the same corner order,
-/// as the scalar loop (so the bits match it).
-///
-/// # Safety
-/// AVX2 must be available; `idx` entries must be `< t.len() / 2`; `out` must hold rows `0`
-/// and `1` (stride `ld`) up to column `start + 16`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
-unsafe fn gather2_block(
-    t: &[f32],
-    idx: &[[u32; BLOCK]; 8],
-    w: &[[f32; BLOCK]; 8],
-    out: &mut [f32],
-    ld: usize,
-    start: usize,
-) {
-    use std::arch::x86_64::*;
-    let base = t.as_ptr() as *const f64;
-    for h in 0..BLOCK / 8 {
-        let mut a0 = _mm256_setzero_ps();
-        let mut a1 = _mm256_setzero_ps();
-        for c in 0..8 {
-            let p = idx[c].as_ptr().add(8 * h) as *const __m128i;
-            let (q0, q1) = (_mm_loadu_si128(p), _mm_loadu_si128(p.add(1)));
-            // Entries of points 0, 1, 4, 5 and 2, 3, 6, 7 (two floats each).
-            let g0 = _mm256_castpd_ps(_mm256_i32gather_pd::<8>(base, _mm_unpacklo_epi64(q0, q1)));
-            let g1 = _mm256_castpd_ps(_mm256_i32gather_pd::<8>(base, _mm_unpackhi_epi64(q0, q1)));
-            let f0 = _mm256_shuffle_ps::<0x88>(g0, g1);
-            let f1 = _mm256_shuffle_ps::<0xDD>(g0, g1);
-            let wc = _mm256_loadu_ps(w[c].as_ptr().add(8 * h));
-            a0 = _mm256_add_ps(a0, _mm256_mul_ps(wc, f0));
-            a1 = _mm256_add_ps(a1, _mm256_mul_ps(wc, f1));
-        }
-        _mm256_storeu_ps(out.as_mut_ptr().add(start + 8 * h), a0);
-        _mm256_storeu_ps(out.as_mut_ptr().add(ld + start + 8 * h), a1);
+/// Whether a level may use the AVX2 block kernels of [`avx2`]: `allowed` (false in the
+/// portable twins the tests compare with), the AVX2 tier, and a resolution whose cell
+/// indices convert through `i32` exactly.
+#[inline(always)]
+fn simd_blocks(allowed: bool, res: u32) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        allowed
+            && res < (1 << 24)
+            && augsplat_core::simd::active() == augsplat_core::simd::Isa::Avx2
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (allowed, res);
+        false
     }
 }
 
-/// The encode kernel with the SIMD gathers of two-feature levels in the AVX2 tier.
+/// [`corners_block`], through its AVX2 twin when `simd` (from [`simd_blocks`]).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn corners<const DENSE: bool>(
+    simd: bool,
+    res: u32,
+    size: usize,
+    px: &[f32],
+    py: &[f32],
+    pz: &[f32],
+    start: usize,
+    n: usize,
+    idx: &mut [[u32; BLOCK]; 8],
+    w: &mut [[f32; BLOCK]; 8],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if simd {
+        // SAFETY: `simd_blocks` allows it only in the AVX2 tier and for `res < 2²⁴`; the
+        // callers pass `start < n` and `n` points.
+        unsafe { avx2::corners_block::<DENSE>(res, size, px, py, pz, start, n, idx, w) };
+        return;
+    }
+    let _ = simd;
+    corners_block::<DENSE>(res, size, px, py, pz, start, n, idx, w)
+}
+
+/// The encode kernel with the AVX2 block kernels in the AVX2 tier.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn encode_level_body<const F: usize, const DENSE: bool>(
@@ -222,8 +231,8 @@ fn encode_level_body<const F: usize, const DENSE: bool>(
     encode_level_impl::<F, DENSE, true>(t, res, size, px, py, pz, n, ld, out)
 }
 
-/// Encodes one level; `GATHER` allows the SIMD gathers (`false`: the scalar loop only, the
-/// portable twin the tests compare them with).
+/// Encodes one level; `GATHER` allows the AVX2 block kernels (`false`: the scalar loops only,
+/// the portable twin the tests compare them with).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
@@ -238,12 +247,9 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
     out: &mut [f32],
 ) {
     let t = &t[..size * F];
+    let simd = simd_blocks(GATHER, res);
     #[cfg(target_arch = "x86_64")]
-    let gather2 = GATHER
-        && F == 2
-        && BLOCK == 16
-        && ld >= BLOCK
-        && augsplat_core::simd::active() == augsplat_core::simd::Isa::Avx2;
+    let gather2 = simd && F == 2 && BLOCK == 16 && ld >= BLOCK;
     // Double-buffered corners: block b + 1 is computed and prefetched while block b is
     // gathered.
     let mut idx = [[[0u32; BLOCK]; 8]; 2];
@@ -251,7 +257,7 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
     if n == 0 {
         return;
     }
-    corners_block::<DENSE>(res, size, px, py, pz, 0, n, &mut idx[0], &mut w[0]);
+    corners::<DENSE>(simd, res, size, px, py, pz, 0, n, &mut idx[0], &mut w[0]);
     let mut cur = 0;
     for start in (0..n).step_by(BLOCK) {
         let next = start + BLOCK;
@@ -263,7 +269,7 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
             } else {
                 (&mut a[0], &mut wa[0])
             };
-            corners_block::<DENSE>(res, size, px, py, pz, next, n, ni, nw);
+            corners::<DENSE>(simd, res, size, px, py, pz, next, n, ni, nw);
             if !DENSE {
                 prefetch_block::<F>(t, ni, (n - next).min(BLOCK));
             }
@@ -272,10 +278,10 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
         let cnt = (n - start).min(BLOCK);
         #[cfg(target_arch = "x86_64")]
         if gather2 {
-            // SAFETY: `active` returns `Avx2` only on CPUs with its features; every index is a
+            // SAFETY: `simd` is set only in the AVX2 tier; every index is a
             // valid entry (< size) and the output rows hold `start + BLOCK ≤ ld` columns
             // (`start` is a multiple of BLOCK < n).
-            unsafe { gather2_block(t, idx, w, out, ld, start) };
+            unsafe { avx2::gather2_block(t, idx, w, out, ld, start) };
             cur ^= 1;
             continue;
         }
@@ -298,7 +304,7 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn backward_level_body<const F: usize, const DENSE: bool>(
+fn backward_level_body<const F: usize, const DENSE: bool, const SIMD: bool>(
     grad: &mut [f32],
     res: u32,
     size: usize,
@@ -310,6 +316,7 @@ fn backward_level_body<const F: usize, const DENSE: bool>(
     d_out: &[f32],
 ) {
     let grad = &mut grad[..size * F];
+    let simd = simd_blocks(SIMD, res);
     let mut idx = [[[0u32; BLOCK]; 8]; 2];
     let mut w = [[[0f32; BLOCK]; 8]; 2];
     let live = |start: usize| {
@@ -331,7 +338,18 @@ fn backward_level_body<const F: usize, const DENSE: bool>(
     if start >= n {
         return;
     }
-    corners_block::<DENSE>(res, size, px, py, pz, start, n, &mut idx[0], &mut w[0]);
+    corners::<DENSE>(
+        simd,
+        res,
+        size,
+        px,
+        py,
+        pz,
+        start,
+        n,
+        &mut idx[0],
+        &mut w[0],
+    );
     let mut cur = 0;
     while start < n {
         let next = next_live(start + BLOCK);
@@ -343,7 +361,7 @@ fn backward_level_body<const F: usize, const DENSE: bool>(
             } else {
                 (&mut a[0], &mut wa[0])
             };
-            corners_block::<DENSE>(res, size, px, py, pz, next, n, ni, nw);
+            corners::<DENSE>(simd, res, size, px, py, pz, next, n, ni, nw);
             if !DENSE {
                 prefetch_block::<F>(grad, ni, (n - next).min(BLOCK));
             }
@@ -408,7 +426,7 @@ macro_rules! level_kernel {
         encode_level_body::<F, DENSE>($a, $res, $size, $px, $py, $pz, $n, $ld, $b)
     };
     (@call backward_level_body, $a:expr, $res:expr, $size:expr, $px:expr, $py:expr, $pz:expr, $n:expr, $ld:expr, $b:expr) => {
-        backward_level_body::<F, DENSE>($b, $res, $size, $px, $py, $pz, $n, $ld, $a)
+        backward_level_body::<F, DENSE, true>($b, $res, $size, $px, $py, $pz, $n, $ld, $a)
     };
 }
 
@@ -610,7 +628,16 @@ mod tests {
     fn points(rng: &mut Rng, n: usize) -> [Vec<f32>; 3] {
         let mut p: [Vec<f32>; 3] =
             std::array::from_fn(|_| (0..n).map(|_| rng.next_f32()).collect());
-        let special = [0.0f32, 1.0, -0.25, 1.5, f32::NAN, 0.999_999_9];
+        let special = [
+            0.0f32,
+            1.0,
+            -0.25,
+            1.5,
+            f32::NAN,
+            0.999_999_9,
+            -0.0,
+            f32::INFINITY,
+        ];
         for (k, &v) in special.iter().enumerate() {
             if 3 * k + 2 < n {
                 p[k % 3][3 * k + 2] = v;
@@ -619,10 +646,10 @@ mod tests {
         p
     }
 
-    /// The dispatched level kernels of every tier (in the AVX2 tier: AVX2 gathers and
-    /// AVX2-compiled bodies) give exactly the bits of the portable scalar kernels, on dense and
-    /// hashed levels with 1, 2, 4 and 8 features, batches that end inside a block, and padded
-    /// rows.
+    /// The dispatched level kernels of every tier (in the AVX2 tier: the AVX2 corner and blend
+    /// kernels and AVX2-compiled bodies) give exactly the bits of the portable scalar kernels,
+    /// on dense and hashed levels with 1, 2, 4 and 8 features, batches that end inside a
+    /// block, padded rows, and points on the faces, outside, infinite, NaN and −0.
     #[test]
     fn simd_level_kernels_match_portable_bitwise() {
         augsplat_core::simd::for_each_isa(
@@ -708,11 +735,11 @@ mod tests {
                     macro_rules! bwd {
                         ($f:literal) => {
                             if dense {
-                                backward_level_body::<$f, true>(
+                                backward_level_body::<$f, true, false>(
                                     &mut g2, res, size, &px, &py, &pz, n, ld, d,
                                 )
                             } else {
-                                backward_level_body::<$f, false>(
+                                backward_level_body::<$f, false, false>(
                                     &mut g2, res, size, &px, &py, &pz, n, ld, d,
                                 )
                             }
