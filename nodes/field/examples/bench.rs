@@ -5,7 +5,8 @@
 //!   and mean of `steps` timed steps (default 10), chunks of `chunk rays` (default 64);
 //! - `kernels`: per-kernel timings on one chunk (best of 30);
 //! - `mlp`: GFLOP/s of the dense-layer kernels (forward, weight gradient, input gradient) on
-//!   chunk-sized batches, best of 300, next to a register-only FMA peak probe.
+//!   chunk-sized batches, best of 300, next to a register-only FMA peak probe (one thread, then
+//!   `threads` threads at once: the machine's ceiling for the dense layers).
 #![allow(clippy::needless_range_loop)]
 
 use augsplat_core::{Camera, Rng};
@@ -91,7 +92,7 @@ fn main() {
     println!("threads {threads}; params {}", field.n_params);
     pool.install(|| match what.as_str() {
         "kernels" => kernels(&field),
-        "mlp" => mlp_kernels(),
+        "mlp" => mlp_kernels(threads),
         _ => {
             for rays in [1024u32, 4096] {
                 let opts = TrainOptions {
@@ -241,8 +242,9 @@ fn kernels(field: &Field) {
     );
 }
 
-/// GFLOP/s of the three dense-layer kernels on one thread (64-wide layers, a chunk-sized batch).
-fn mlp_kernels() {
+/// GFLOP/s of the three dense-layer kernels on one thread (64-wide layers, a chunk-sized batch),
+/// after the FMA peak on one thread and on `threads` threads.
+fn mlp_kernels(threads: usize) {
     use augsplat_field::mlp::{
         linear_backward_input, linear_backward_weights, linear_forward, padded,
     };
@@ -259,6 +261,22 @@ fn mlp_kernels() {
         "FMA peak probe: {:.1} GFLOP/s (checksum {})",
         (iters * 24 * 16 * 2) as f64 / cpu / 1e9,
         acc.iter().flatten().sum::<f32>()
+    );
+    // The same probe on `threads` threads at once, by the wall clock.
+    let threads = threads.max(1);
+    let t0 = Instant::now();
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            s.spawn(|| {
+                let mut acc = [[0f32; 16]; 24];
+                peak(&mut acc, iters);
+                std::hint::black_box(acc);
+            });
+        }
+    });
+    println!(
+        "FMA peak probe, {threads} threads at once: {:.1} GFLOP/s",
+        (threads * iters * 24 * 16 * 2) as f64 / t0.elapsed().as_secs_f64() / 1e9
     );
     let mut rng = Rng::new(9);
     for (inp, out) in [(32usize, 64usize), (64, 64), (64, 16), (64, 3)] {
