@@ -170,7 +170,7 @@ fn prefetch_block<const F: usize>(t: &[f32], idx: &[[u32; BLOCK]; 8], cnt: usize
     let _ = (t, idx, cnt);
 }
 
-/// Whether a level may use the AVX2 block kernels of [`avx2`]: `allowed` (false in the
+/// Whether a level may use the AVX2 block kernels of `hashgrid/avx2.rs`: `allowed` (false in the
 /// portable twins the tests compare with), the AVX2 tier, and a resolution whose cell
 /// indices convert through `i32` exactly.
 #[inline(always)]
