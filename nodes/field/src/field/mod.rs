@@ -210,7 +210,10 @@ pub struct ChunkState {
     wt: Vec<f32>,
     d_sigma: Vec<f32>,
     d_cin: Vec<f32>,
-    seg_ids: Vec<u32>,
+    /// Each active ray's sample range of the current segment round.
+    seg_ranges: Vec<(usize, usize)>,
+    /// Runs of consecutive coloured samples: (first column, first sample, length).
+    alive_runs: Vec<(usize, usize, usize)>,
     seg_px: Vec<f32>,
     seg_py: Vec<f32>,
     seg_pz: Vec<f32>,
@@ -445,14 +448,16 @@ impl Field {
         while !st.active.is_empty() {
             let seg = 16usize << round.min(3);
             round += 1;
-            st.seg_ids.clear();
+            // Each active ray's next samples are one contiguous range of the chunk's arrays:
+            // positions are gathered and outputs scattered range by range.
+            st.seg_ranges.clear();
             for &r in &st.active {
                 let r = r as usize;
                 let a = st.ray_cursor[r];
                 let b = (a + seg).min(st.ray_start[r + 1]);
-                st.seg_ids.extend(a as u32..b as u32);
+                st.seg_ranges.push((a, b));
             }
-            let nb = st.seg_ids.len();
+            let nb: usize = st.seg_ranges.iter().map(|&(a, b)| b - a).sum();
             st.counters.density += nb as u64;
             let ldb = padded(nb);
             for (dst, src) in [
@@ -461,7 +466,9 @@ impl Field {
                 (&mut st.seg_pz, &st.pz),
             ] {
                 dst.clear();
-                dst.extend(st.seg_ids.iter().map(|&i| src[i as usize]));
+                for &(a, b) in &st.seg_ranges {
+                    dst.extend_from_slice(&src[a..b]);
+                }
             }
             st.enc.resize(lf * ldb, 0.0);
             self.grid.encode(
@@ -477,8 +484,10 @@ impl Field {
             let out = &st.dens_acts[st.dens_acts.len() - 1];
             for k in 0..rows {
                 let dst = &mut st.seg_out[k * ld_all..(k + 1) * ld_all];
-                for (j, &i) in st.seg_ids.iter().enumerate() {
-                    dst[i as usize] = out[k * ldb + j];
+                let mut j = k * ldb;
+                for &(a, b) in &st.seg_ranges {
+                    dst[a..b].copy_from_slice(&out[j..j + (b - a)]);
+                    j += b - a;
                 }
             }
             // Transmittance along each active ray's new samples (as `weights_forward`).
@@ -639,12 +648,25 @@ impl Field {
         // filling column by column): geometry features gathered from the density output,
         // then each ray's view-direction encoding and embedding over its coloured samples.
         {
+            // The coloured samples come in runs of consecutive indices (usually one per
+            // ray): rows are copied run by run.
+            st.alive_runs.clear();
+            let mut j = 0;
+            while j < nc {
+                let first = st.alive[j] as usize;
+                let mut len = 1;
+                while j + len < nc && st.alive[j + len] as usize == first + len {
+                    len += 1;
+                }
+                st.alive_runs.push((j, first, len));
+                j += len;
+            }
             let (geo, rest) = st.col_in.split_at_mut(GEO_FEAT_DIM * ldc);
             for k in 0..GEO_FEAT_DIM {
                 let src = &dout[(1 + k) * ld..(2 + k) * ld];
                 let dst = &mut geo[k * ldc..k * ldc + nc];
-                for (d, &i) in dst.iter_mut().zip(&st.alive) {
-                    *d = src[i as usize];
+                for &(j, first, len) in &st.alive_runs {
+                    dst[j..j + len].copy_from_slice(&src[first..first + len]);
                 }
             }
             let mut j = 0;
