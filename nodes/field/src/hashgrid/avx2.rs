@@ -10,7 +10,7 @@
 //!   docs/benchmarks.md, session 24) and blended with a separate multiply and add in corner
 //!   order, as the scalar loop does.
 
-use super::BLOCK;
+use super::{block_positions, BLOCK};
 use crate::constants::HASH_PRIMES;
 use std::arch::x86_64::*;
 
@@ -34,16 +34,7 @@ pub(super) unsafe fn corners_block<const DENSE: bool>(
     idx: &mut [[u32; BLOCK]; 8],
     w: &mut [[f32; BLOCK]; 8],
 ) {
-    let cnt = (n - start).min(BLOCK);
-    let mut pos = [[0f32; BLOCK]; 3];
-    for (dst, src) in pos.iter_mut().zip([px, py, pz]) {
-        if cnt == BLOCK {
-            // A fixed-size copy: register moves, not a libc call per block.
-            *dst = src[start..start + BLOCK].try_into().expect("block");
-        } else {
-            dst[..cnt].copy_from_slice(&src[start..start + cnt]);
-        }
-    }
+    let (pos, cnt) = block_positions(px, py, pz, start, n);
     let r = _mm256_set1_ps(res as f32);
     let zero = _mm256_setzero_ps();
     let one = _mm256_set1_ps(1.0);

@@ -67,6 +67,34 @@ pub struct HashGrid {
 /// first (branch-free, vectorisable), then the table is gathered or scattered.
 const BLOCK: usize = 16;
 
+/// The coordinates of points `start..start + BLOCK` (zeros past `n`) and how many are real.
+#[inline(always)]
+fn block_positions(
+    px: &[f32],
+    py: &[f32],
+    pz: &[f32],
+    start: usize,
+    n: usize,
+) -> ([[f32; BLOCK]; 3], usize) {
+    let mut pos = [[0f32; BLOCK]; 3];
+    let cnt = (n - start).min(BLOCK);
+    if cnt == BLOCK {
+        // Fixed-size copies compile to register moves (no libc memmove call per block).
+        pos[0] = px[start..start + BLOCK].try_into().expect("block");
+        pos[1] = py[start..start + BLOCK].try_into().expect("block");
+        pos[2] = pz[start..start + BLOCK].try_into().expect("block");
+    } else {
+        // A plain loop: `copy_from_slice` of a variable length becomes a libc call.
+        #[allow(clippy::manual_memcpy)]
+        for l in 0..cnt {
+            pos[0][l] = px[start + l];
+            pos[1][l] = py[start + l];
+            pos[2][l] = pz[start + l];
+        }
+    }
+    (pos, cnt)
+}
+
 /// Corner indices (entry numbers, not floats) and trilinear weights of up to [`BLOCK`] points
 /// `start..start + BLOCK` (points past `n` get index 0 and weight 0).
 #[inline(always)]
@@ -85,22 +113,7 @@ fn corners_block<const DENSE: bool>(
     let r = res as f32;
     let stride = res + 1;
     let mask = size as u32 - 1;
-    let mut pos = [[0f32; BLOCK]; 3];
-    let cnt = (n - start).min(BLOCK);
-    if cnt == BLOCK {
-        // Fixed-size copies compile to register moves (no libc memmove call per block).
-        pos[0] = px[start..start + BLOCK].try_into().expect("block");
-        pos[1] = py[start..start + BLOCK].try_into().expect("block");
-        pos[2] = pz[start..start + BLOCK].try_into().expect("block");
-    } else {
-        // A plain loop: `copy_from_slice` of a variable length becomes a libc call.
-        #[allow(clippy::manual_memcpy)]
-        for l in 0..cnt {
-            pos[0][l] = px[start + l];
-            pos[1][l] = py[start + l];
-            pos[2][l] = pz[start + l];
-        }
-    }
+    let (pos, cnt) = block_positions(px, py, pz, start, n);
     let valid: [f32; BLOCK] = std::array::from_fn(|l| if l < cnt { 1.0 } else { 0.0 });
     let mut lo = [[0u32; BLOCK]; 3];
     let mut hi = [[0u32; BLOCK]; 3];
@@ -262,13 +275,7 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
     for start in (0..n).step_by(BLOCK) {
         let next = start + BLOCK;
         if next < n {
-            let (a, b) = idx.split_at_mut(1);
-            let (wa, wb) = w.split_at_mut(1);
-            let (ni, nw) = if cur == 0 {
-                (&mut b[0], &mut wb[0])
-            } else {
-                (&mut a[0], &mut wa[0])
-            };
+            let (ni, nw) = (&mut idx[cur ^ 1], &mut w[cur ^ 1]);
             corners::<DENSE>(simd, res, size, px, py, pz, next, n, ni, nw);
             if !DENSE {
                 prefetch_block::<F>(t, ni, (n - next).min(BLOCK));
@@ -354,13 +361,7 @@ fn backward_level_body<const F: usize, const DENSE: bool, const SIMD: bool>(
     while start < n {
         let next = next_live(start + BLOCK);
         if next < n {
-            let (a, b) = idx.split_at_mut(1);
-            let (wa, wb) = w.split_at_mut(1);
-            let (ni, nw) = if cur == 0 {
-                (&mut b[0], &mut wb[0])
-            } else {
-                (&mut a[0], &mut wa[0])
-            };
+            let (ni, nw) = (&mut idx[cur ^ 1], &mut w[cur ^ 1]);
             corners::<DENSE>(simd, res, size, px, py, pz, next, n, ni, nw);
             if !DENSE {
                 prefetch_block::<F>(grad, ni, (n - next).min(BLOCK));
