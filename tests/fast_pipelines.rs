@@ -2,7 +2,8 @@
 //! sweeps in `docs/benchmarks.md`: each plans to exactly the computations of its scene's
 //! pipeline with the bench's `--set`s, so `augsplat run pipelines/bonsai_fast.ron` after the
 //! bench (or the bench after it) recomputes nothing, and the figures quoted in its header are
-//! the ones its run reproduces. Also which pipelines are long enough for the opacity reset and
+//! the ones its run reproduces. The fast-prior fragment likewise plans, at the reduced bonsai
+//! sizes, exactly the run its header quotes. Also which pipelines are long enough for the opacity reset and
 //! the large-Gaussian prune to act. Real captures need the shared data folder (skipped without
 //! it outside CI).
 
@@ -55,6 +56,94 @@ fn each_fast_pipeline_is_its_scenes_knee_configuration() {
         assert_ne!(f, s, "{scene}_fast is {scene}.ron");
         let field = args_of(&fast, "field");
         assert_eq!(field["steps"], 200, "{scene}: {}", field);
+    }
+}
+
+/// `--set`s of the fast-prior run whose figures `pipelines/fragments/fast_prior.ron` and
+/// docs/benchmarks.md quote: the README's reduced bonsai run with 600-step, 48-step fields.
+const FAST_PRIOR_SETS: [&str; 4] = [
+    "field.steps=600",
+    "params.gs_steps=1500",
+    "params.max_gaussians=60000",
+    "field.march_steps=48",
+];
+
+#[test]
+fn the_fast_prior_fragment_changes_the_fields_and_is_what_was_measured() {
+    let tmp = tempfile::tempdir().unwrap();
+    let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines");
+    for scene in ["demo", "bonsai"] {
+        if scene != "demo"
+            && augsplat_testkit::data::shared_data("fragments/fast_prior.ron", "lpips").is_none()
+        {
+            continue;
+        }
+        let mixed = tmp.path().join(format!("{scene}+fast_prior.ron"));
+        std::fs::write(
+            &mixed,
+            format!(
+                "(extends: [{:?}, {:?}])",
+                pipeline(scene).display().to_string(),
+                root.join("fragments/fast_prior.ron").display().to_string()
+            ),
+        )
+        .unwrap();
+        let sized: Vec<String> = FAST_PRIOR_SETS[..3].iter().map(|s| s.to_string()).collect();
+        let fast = engine
+            .load(&mixed, &sized)
+            .unwrap_or_else(|e| panic!("{scene} + fast_prior: {e}"));
+        let plain = engine.load(&pipeline(scene), &sized).unwrap();
+        // Every member marches 48 steps; nothing upstream of the fields moves.
+        let members: Vec<_> = fast
+            .comps
+            .iter()
+            .filter(|c| c.node.kind() == "TrainField")
+            .collect();
+        assert!(!members.is_empty(), "{scene}: no fields");
+        for c in &members {
+            assert_eq!(c.args_json["march_steps"], 48, "{scene}: {}", c.args_json);
+            assert_eq!(c.args_json["steps"], 600, "{scene}: {}", c.args_json);
+        }
+        for base in ["scene", "baseline", "eval_baseline"] {
+            let (a, b) = (
+                fast.comps
+                    .iter()
+                    .find(|c| fast.instances[c.instances[0]].base == base),
+                plain
+                    .comps
+                    .iter()
+                    .find(|c| plain.instances[c.instances[0]].base == base),
+            );
+            if let (Some(a), Some(b)) = (a, b) {
+                assert_eq!(a.sid, b.sid, "{scene}: the fast prior moved {base}");
+            }
+        }
+        for base in ["field", "render", "staged", "dual"] {
+            let moved = |p: &augsplat_graph::Plan| -> BTreeSet<[u8; 32]> {
+                p.comps
+                    .iter()
+                    .filter(|c| p.instances[c.instances[0]].base == base)
+                    .map(|c| c.sid)
+                    .collect()
+            };
+            let (a, b) = (moved(&fast), moved(&plain));
+            assert!(!a.is_empty(), "{scene}: no {base}");
+            assert!(
+                a.is_disjoint(&b),
+                "{scene}: {base} unchanged by the fast prior"
+            );
+        }
+        if scene == "bonsai" {
+            // The measured run: the same computations as the `--set`s quoted in the fragment.
+            let all: Vec<String> = FAST_PRIOR_SETS.iter().map(|s| s.to_string()).collect();
+            let measured = engine.load(&pipeline(scene), &all).unwrap();
+            assert_eq!(
+                sids(&fast),
+                sids(&measured),
+                "the fast prior is not the measured run"
+            );
+        }
     }
 }
 
