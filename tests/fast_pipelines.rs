@@ -1,11 +1,11 @@
 //! The `*_fast.ron` pipelines are the knee configurations of the run-time-against-error
-//! sweeps in `docs/benchmarks.md`: each plans to exactly the computations of its scene's
-//! pipeline with the bench's `--set`s, so `augsplat run pipelines/bonsai_fast.ron` after the
-//! bench (or the bench after it) recomputes nothing, and the figures quoted in its header are
-//! the ones its run reproduces. The fast-prior fragment likewise plans, at the reduced bonsai
-//! sizes, exactly the run its header quotes. Also which pipelines are long enough for the opacity reset and
-//! the large-Gaussian prune to act. Real captures need the shared data folder (skipped without
-//! it outside CI).
+//! sweeps in `docs/benchmarks.md`, with the fast prior: each plans to exactly the
+//! computations of its scene's pipeline with the benches' `--set`s, so `augsplat run
+//! pipelines/bonsai_fast.ron` after the bench (or the bench after it) recomputes nothing, and
+//! the figures quoted in its header are the ones its run reproduces. The fast-prior fragment
+//! likewise plans, at the reduced bonsai sizes, exactly the run its header quotes. Also which
+//! pipelines are long enough for the opacity reset and the large-Gaussian prune to act. Real
+//! captures need the shared data folder (skipped without it outside CI).
 
 mod common;
 
@@ -14,9 +14,11 @@ use common::args_of;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-/// The knee of each sweep, as the bench's configuration label and `--set`s.
-const KNEE_SETS: [&str; 3] = [
-    "field.steps=200",
+/// The knee of each sweep with the fast prior (48 marching steps, 1.5 times the knee's 200
+/// field steps), as the `--set`s of the benches its header quotes.
+const KNEE_SETS: [&str; 4] = [
+    "field.steps=300",
+    "field.march_steps=48",
     "params.gs_steps=1500",
     "params.max_gaussians=60000",
 ];
@@ -55,7 +57,8 @@ fn each_fast_pipeline_is_its_scenes_knee_configuration() {
         );
         assert_ne!(f, s, "{scene}_fast is {scene}.ron");
         let field = args_of(&fast, "field");
-        assert_eq!(field["steps"], 200, "{scene}: {}", field);
+        assert_eq!(field["steps"], 300, "{scene}: {}", field);
+        assert_eq!(field["march_steps"], 48, "{scene}: {}", field);
     }
 }
 
