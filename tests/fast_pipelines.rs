@@ -10,9 +10,8 @@
 mod common;
 
 use augsplat_graph::Engine;
-use common::args_of;
+use common::{args_of, extended, pipeline, sids_of};
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
 
 /// The knee of each sweep with the fast prior (48 marching steps, 1.5 times the knee's 200
 /// field steps), as the `--set`s of the benches its header quotes.
@@ -22,12 +21,6 @@ const KNEE_SETS: [&str; 4] = [
     "params.gs_steps=1500",
     "params.max_gaussians=60000",
 ];
-
-fn pipeline(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("pipelines")
-        .join(format!("{name}.ron"))
-}
 
 fn sids(plan: &augsplat_graph::Plan) -> BTreeSet<[u8; 32]> {
     plan.comps.iter().map(|c| c.sid).collect()
@@ -75,23 +68,13 @@ const FAST_PRIOR_SETS: [&str; 4] = [
 fn the_fast_prior_fragment_changes_the_fields_and_is_what_was_measured() {
     let tmp = tempfile::tempdir().unwrap();
     let engine = Engine::new(augsplat::builtin_registry(), tmp.path().join("cache")).unwrap();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines");
     for scene in ["demo", "bonsai"] {
         if scene != "demo"
             && augsplat_testkit::data::shared_data("fragments/fast_prior.ron", "lpips").is_none()
         {
             continue;
         }
-        let mixed = tmp.path().join(format!("{scene}+fast_prior.ron"));
-        std::fs::write(
-            &mixed,
-            format!(
-                "(extends: [{:?}, {:?}])",
-                pipeline(scene).display().to_string(),
-                root.join("fragments/fast_prior.ron").display().to_string()
-            ),
-        )
-        .unwrap();
+        let mixed = extended(tmp.path(), scene, &["fragments/fast_prior"]);
         let sized: Vec<String> = FAST_PRIOR_SETS[..3].iter().map(|s| s.to_string()).collect();
         let fast = engine
             .load(&mixed, &sized)
@@ -109,28 +92,14 @@ fn the_fast_prior_fragment_changes_the_fields_and_is_what_was_measured() {
             assert_eq!(c.args_json["steps"], 600, "{scene}: {}", c.args_json);
         }
         for base in ["scene", "baseline", "eval_baseline"] {
-            let (a, b) = (
-                fast.comps
-                    .iter()
-                    .find(|c| fast.instances[c.instances[0]].base == base),
-                plain
-                    .comps
-                    .iter()
-                    .find(|c| plain.instances[c.instances[0]].base == base),
+            assert_eq!(
+                sids_of(&fast, base),
+                sids_of(&plain, base),
+                "{scene}: the fast prior moved {base}"
             );
-            if let (Some(a), Some(b)) = (a, b) {
-                assert_eq!(a.sid, b.sid, "{scene}: the fast prior moved {base}");
-            }
         }
         for base in ["field", "render", "staged", "dual"] {
-            let moved = |p: &augsplat_graph::Plan| -> BTreeSet<[u8; 32]> {
-                p.comps
-                    .iter()
-                    .filter(|c| p.instances[c.instances[0]].base == base)
-                    .map(|c| c.sid)
-                    .collect()
-            };
-            let (a, b) = (moved(&fast), moved(&plain));
+            let (a, b) = (sids_of(&fast, base), sids_of(&plain, base));
             assert!(!a.is_empty(), "{scene}: no {base}");
             assert!(
                 a.is_disjoint(&b),

@@ -7,10 +7,10 @@
 mod common;
 
 use augsplat_graph::Engine;
-use common::{args_of, augsplat, output_dir, run_with_summary};
+use common::{args_of, augsplat, extended, output_dir, pipeline, run_with_summary};
 use serde_json::Value;
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const SCENES: &[(&str, usize, usize)] = &[
     ("paper_generated", 26, 4),
@@ -19,12 +19,6 @@ const SCENES: &[(&str, usize, usize)] = &[
     ("paper_horns", 26, 4),
     ("paper_dtu_scan24", 26, 4),
 ];
-
-fn pipeline(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("pipelines")
-        .join(format!("{name}.ron"))
-}
 
 /// Whether the shared data folder is there (its absence is reported as a skip).
 fn data_present(name: &str) -> bool {
@@ -144,20 +138,6 @@ fn sids_by(
         }
     }
     (named, rest)
-}
-
-/// A one-line pipeline extending the scene's paper pipeline with `fragments`.
-fn extended(dir: &Path, name: &str, fragments: &[&str]) -> PathBuf {
-    let mut parts = vec![format!("{:?}", pipeline(name).display().to_string())];
-    parts.extend(
-        fragments
-            .iter()
-            .map(|f| format!("{:?}", pipeline(f).display().to_string())),
-    );
-    let tag: Vec<String> = fragments.iter().map(|f| f.replace('/', "_")).collect();
-    let file = dir.join(format!("{name}+{}.ron", tag.join("+")));
-    std::fs::write(&file, format!("(extends: [{}])", parts.join(", "))).unwrap();
-    file
 }
 
 /// Plans the scene's paper pipeline, the pipeline extended with `fragment`, and the paper

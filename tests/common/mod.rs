@@ -1,5 +1,6 @@
-//! Helpers shared by the CLI tests of this folder: run `augsplat` with a run summary, and
-//! find a computation's output folder in the store by its key.
+//! Helpers shared by the CLI tests of this folder: run `augsplat` with a run summary, find a
+//! computation's output folder in the store by its key, and name the ready pipelines and
+//! their computations.
 #![allow(dead_code)]
 
 use augsplat_graph::store::unhex;
@@ -66,4 +67,35 @@ pub fn args_of<'a>(plan: &'a augsplat_graph::Plan, base: &str) -> &'a Value {
         .find(|c| plan.instances[c.instances[0]].base == base)
         .unwrap_or_else(|| panic!("no computation of node {base}"))
         .args_json
+}
+
+/// `pipelines/NAME.ron` of this repository (`NAME` may name a fragment, `fragments/…`).
+pub fn pipeline(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("pipelines")
+        .join(format!("{name}.ron"))
+}
+
+/// A one-line pipeline in `dir` extending `pipelines/NAME.ron` with `fragments` (names as
+/// [`pipeline`] takes them).
+pub fn extended(dir: &Path, name: &str, fragments: &[&str]) -> PathBuf {
+    let mut parts = vec![format!("{:?}", pipeline(name).display().to_string())];
+    parts.extend(
+        fragments
+            .iter()
+            .map(|f| format!("{:?}", pipeline(f).display().to_string())),
+    );
+    let tag: Vec<String> = fragments.iter().map(|f| f.replace('/', "_")).collect();
+    let file = dir.join(format!("{name}+{}.ron", tag.join("+")));
+    std::fs::write(&file, format!("(extends: [{}])", parts.join(", "))).unwrap();
+    file
+}
+
+/// The computation ids of every instance of node `base` in `plan`.
+pub fn sids_of(plan: &augsplat_graph::Plan, base: &str) -> std::collections::BTreeSet<[u8; 32]> {
+    plan.comps
+        .iter()
+        .filter(|c| plan.instances[c.instances[0]].base == base)
+        .map(|c| c.sid)
+        .collect()
 }
