@@ -37,6 +37,17 @@ impl Engine {
             store: Store::open(cache)?,
         })
     }
+    /// An engine over the existing store at `cache`: creates nothing, and a path that holds
+    /// no store is [`EngineError::NoStore`] (every command but `run` opens its store so).
+    pub fn open_existing(
+        registry: Registry,
+        cache: impl Into<PathBuf>,
+    ) -> Result<Engine, EngineError> {
+        Ok(Engine {
+            registry,
+            store: Store::open_existing(cache)?,
+        })
+    }
     /// The registry.
     pub fn registry(&self) -> &Registry {
         &self.registry

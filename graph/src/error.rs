@@ -134,6 +134,10 @@ pub enum EngineError {
     /// The store is busy (e.g. `gc` while a run uses it).
     #[error("{0}")]
     Busy(String),
+    /// A command that reads a store was pointed at a path that holds none (only `run`
+    /// creates a store).
+    #[error("{} holds no augsplat store (check --cache or AUGSPLAT_CACHE; `augsplat run` creates a store)", .0.display())]
+    NoStore(std::path::PathBuf),
     /// Anything else, explained.
     #[error("{0}")]
     Other(String),

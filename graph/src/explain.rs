@@ -290,6 +290,10 @@ fn explain(
                             short(old_m),
                             &hex(hash)[..16]
                         );
+                        let old_links = old_list.get(j).map(|x| &x["links"]);
+                        for line in moved_links(path, old_links) {
+                            let _ = writeln!(out, "{pad}    {line}");
+                        }
                     }
                 }
                 Source::Node { comp: up, output } => match &keys[*up] {
@@ -334,6 +338,39 @@ fn explain(
             if same_key { " (same key)" } else { "" }
         );
     }
+}
+
+/// The symbolic links below external input `path` whose target differs from the previous
+/// run's record `old` (a map of relative path to target), in words.
+fn moved_links(path: &std::path::Path, old: Option<&serde_json::Value>) -> Vec<String> {
+    let now = crate::store::links_within(path);
+    let was: std::collections::BTreeMap<String, String> = old
+        .and_then(|v| serde_json::from_value(v.clone()).ok())
+        .unwrap_or_default();
+    let name = |rel: &str| {
+        if rel.is_empty() {
+            path.display().to_string()
+        } else {
+            path.join(rel).display().to_string()
+        }
+    };
+    let mut lines = Vec::new();
+    for (rel, target) in &now {
+        match was.get(rel) {
+            Some(t) if t != target => lines.push(format!(
+                "the link {} now points to {target} (was {t})",
+                name(rel)
+            )),
+            None => lines.push(format!("{} is now a link to {target}", name(rel))),
+            _ => {}
+        }
+    }
+    for (rel, t) in &was {
+        if !now.contains_key(rel) {
+            lines.push(format!("{} is no longer a link (was to {t})", name(rel)));
+        }
+    }
+    lines
 }
 
 fn short(h: &str) -> &str {

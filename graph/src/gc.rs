@@ -38,7 +38,7 @@ impl Store {
         let mut keep_keys: BTreeSet<String> = BTreeSet::new();
         for dir in ["runs/latest", "pins"] {
             for f in list_dir(&root.join(dir)) {
-                let v = fs::read(&f)
+                let v = crate::verify::read_plain(&f)
                     .ok()
                     .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
                 let Some(v) = v else {
@@ -65,7 +65,7 @@ impl Store {
                     drop_actions.push(f);
                     continue;
                 }
-                match fs::read(&f)
+                match crate::verify::read_plain(&f)
                     .ok()
                     .and_then(|b| serde_json::from_slice::<ActionEntry>(&b).ok())
                 {
@@ -94,7 +94,7 @@ impl Store {
                 drop_manifests.push(f);
                 continue;
             }
-            match fs::read(&f)
+            match crate::verify::read_plain(&f)
                 .ok()
                 .and_then(|b| serde_json::from_slice::<Manifest>(&b).ok())
             {
@@ -165,6 +165,32 @@ impl Store {
                 && !root.join("manifests").join(format!("{name}.json")).exists()
             {
                 rep.scratch_removed += 1;
+                if !dry_run {
+                    remove_tree(&d);
+                }
+            }
+        }
+        // Checkpoints of a key that has its entry, or that no root and no run's status names
+        // (no pipeline will resume it): the interrupted run they belong to is gone.
+        let mut resumable = keep_keys.clone();
+        for f in list_dir(&root.join("runs/status")) {
+            if let Some(v) = crate::verify::read_plain(&f)
+                .ok()
+                .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            {
+                collect_keys(&v, &mut resumable);
+            }
+        }
+        for d in list_dir(&root.join("checkpoints")) {
+            let key = d
+                .file_name()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or_default();
+            let has_entry = crate::store::unhex(&key)
+                .map(|k| self.action_path(&k).exists())
+                .unwrap_or(false);
+            if has_entry || !resumable.contains(&key) {
+                rep.checkpoints_removed += 1;
                 if !dry_run {
                     remove_tree(&d);
                 }

@@ -162,12 +162,18 @@ pub struct Checkpoints {
     pub dir: PathBuf,
     /// Save every this many steps (0: never).
     pub every: u64,
+    /// The computation's key: written into each checkpoint, and a checkpoint made for another
+    /// key is ignored on load.
+    pub key: [u8; 32],
 }
 
 /// The file a checkpoint is saved in, inside [`Checkpoints::dir`].
 const CHECKPOINT_FILE: &str = "state.ckpt";
-/// The first bytes of a checkpoint file.
-const CHECKPOINT_MAGIC: &[u8; 8] = b"AUGCKPT1";
+/// The first bytes of a checkpoint file: magic, then the key it was made for, then the
+/// blake3 of the state, then the state.
+const CHECKPOINT_MAGIC: &[u8; 8] = b"AUGCKPT2";
+/// Where a checkpoint's state begins.
+const CHECKPOINT_HEADER: usize = 8 + 32 + 32;
 
 impl RunContext {
     /// Builds a context by hand, for running a node outside the engine (tests, benchmarks).
@@ -200,9 +206,11 @@ impl RunContext {
         })
     }
 
-    /// Keeps checkpoints in `dir` every `every` steps (a standalone context keeps none).
+    /// Keeps checkpoints in `dir` every `every` steps (a standalone context keeps none). The
+    /// checkpoints are tied to `dir` (its path stands in for the key the engine would give).
     pub fn with_checkpoints(mut self, dir: PathBuf, every: u64) -> Self {
-        self.checkpoints = Some(Checkpoints { dir, every });
+        let key = *blake3::hash(dir.to_string_lossy().as_bytes()).as_bytes();
+        self.checkpoints = Some(Checkpoints { dir, every, key });
         self
     }
 
@@ -231,8 +239,9 @@ impl RunContext {
         let tmp = c
             .dir
             .join(format!(".{CHECKPOINT_FILE}.{}", std::process::id()));
-        let mut data = Vec::with_capacity(bytes.len() + 40);
+        let mut data = Vec::with_capacity(bytes.len() + CHECKPOINT_HEADER);
         data.extend_from_slice(CHECKPOINT_MAGIC);
+        data.extend_from_slice(&c.key);
         data.extend_from_slice(blake3::hash(bytes).as_bytes());
         data.extend_from_slice(bytes);
         {
@@ -246,23 +255,39 @@ impl RunContext {
         std::fs::rename(&tmp, &dest).map_err(|e| err("renaming", &dest, e))
     }
 
-    /// The latest checkpoint saved by an earlier, interrupted run of this computation, if any
-    /// (a damaged one is reported in the log and ignored: the node starts afresh).
+    /// The latest checkpoint saved by an earlier, interrupted run of this computation, if any.
+    /// One that is damaged, made by an older format, or made for another computation (another
+    /// key: other args, inputs or seed) is reported in the log and ignored: the node starts
+    /// afresh.
     pub fn load_checkpoint(&self) -> Option<Vec<u8>> {
         let c = self.checkpoints.as_ref()?;
         let p = c.dir.join(CHECKPOINT_FILE);
         let data = std::fs::read(&p).ok()?;
-        let ok = data.len() >= 40
-            && &data[..8] == CHECKPOINT_MAGIC
-            && blake3::hash(&data[40..]).as_bytes() == &data[8..40];
-        if ok {
-            Some(data[40..].to_vec())
+        let h = CHECKPOINT_HEADER;
+        let problem = if data.len() < h || &data[..8] != CHECKPOINT_MAGIC {
+            Some("is damaged or from an older format".to_string())
+        } else if data[8..40] != c.key {
+            Some(format!(
+                "was made for another computation (key {}…, this one is {}…)",
+                crate::store::hex(&data[8..40].try_into().expect("32 bytes"))
+                    .get(..16)
+                    .unwrap_or(""),
+                crate::store::hex(&c.key).get(..16).unwrap_or("")
+            ))
+        } else if blake3::hash(&data[h..]).as_bytes() != &data[40..h] {
+            Some("is damaged".to_string())
         } else {
-            self.log(format!(
-                "ignoring the damaged checkpoint {} (starting afresh)",
-                p.display()
-            ));
             None
+        };
+        match problem {
+            None => Some(data[h..].to_vec()),
+            Some(why) => {
+                self.log(format!(
+                    "ignoring the checkpoint {}: it {why} (starting afresh)",
+                    p.display()
+                ));
+                None
+            }
         }
     }
 

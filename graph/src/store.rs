@@ -111,6 +111,12 @@ pub struct ActionEntry {
     /// them without breaking the outputs' byte identity.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub measures: BTreeMap<String, f64>,
+    /// What the node read: per input name, the content hash (hex) of each folder, checked by
+    /// hashing just before the node ran (an output manifest, or an external input's hash).
+    /// `verify` follows these records: an entry that read a damaged output, or an output of
+    /// a damaged or tainted entry, is tainted. Empty in entries written before it existed.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub inputs: BTreeMap<String, Vec<String>>,
 }
 
 pub use crate::claim::Claim;
@@ -138,6 +144,9 @@ pub struct GcReport {
     pub bytes_removed: u64,
     /// Scratch folders, stale claim files and half-written files removed.
     pub scratch_removed: usize,
+    /// Checkpoint folders removed: their key has its entry, or no root and no run's status
+    /// names it (no pipeline will resume it).
+    pub checkpoints_removed: usize,
     /// Kept entries that are broken (an output, manifest, file or blob is missing): the next
     /// run recomputes them. Each names the node, key and what is missing.
     pub broken: Vec<String>,
@@ -203,6 +212,19 @@ impl Store {
         // Absolute, so folders handed to nodes (and external programs run elsewhere) resolve.
         let root = fs::canonicalize(&root).map_err(io("opening store", &root))?;
         Ok(Store { root })
+    }
+    /// Opens the existing store at `root`; unlike [`Store::open`] it creates nothing, and a
+    /// path that holds no store is an error ([`EngineError::NoStore`]): a mistyped `--cache`
+    /// must not pass for an empty store.
+    pub fn open_existing(root: impl Into<PathBuf>) -> Result<Store, EngineError> {
+        let root = root.into();
+        let is_store = ["blobs", "manifests", "outputs", "actions"]
+            .iter()
+            .all(|d| root.join(d).is_dir());
+        if !is_store {
+            return Err(EngineError::NoStore(root));
+        }
+        Store::open(root)
     }
     /// The store root.
     pub fn root(&self) -> &Path {
@@ -322,54 +344,105 @@ impl Store {
     /// Moves a finished output folder into the store: every file becomes a blob (hard-linked
     /// back in place), the manifest is written, and the folder is renamed to `outputs/<hash>`.
     /// Returns the manifest hash.
+    ///
+    /// It heals what it finds damaged: an existing blob whose content does not match its name
+    /// is replaced by the new file, a manifest file that does not match its name is rewritten,
+    /// and an existing output folder that does not hold exactly its manifest's files is
+    /// replaced (by atomic rename) with the new one. A file with more than one hard link (a
+    /// program that linked a user's file into its output) is copied, never moved, so the
+    /// user's file is neither turned read-only nor tied to the store.
     pub fn promote(&self, folder: &Path) -> Result<Hash, EngineError> {
         let manifest = scan_folder(folder, |_rel, path, _size| hash_file(path))?;
         for e in manifest.entries.iter().filter(|e| !e.path.ends_with('/')) {
             let src = folder.join(&e.path);
-            let blob = self.blob_path(&e.hash);
-            if let Some(parent) = blob.parent() {
-                fs::create_dir_all(parent).map_err(io("creating", parent))?;
-            }
-            if blob.exists() {
-                fs::remove_file(&src).map_err(io("removing", &src))?;
-            } else {
-                set_readonly(&src, true);
-                fs::rename(&src, &blob).map_err(io("moving into the store", &src))?;
-            }
-            if fs::hard_link(&blob, &src).is_err() {
-                fs::copy(&blob, &src).map_err(io("copying blob to", &src))?;
-                set_readonly(&src, true);
-            }
+            self.store_blob(&src, &e.hash)?;
         }
         let mh = manifest.hash();
         let mpath = self
             .root
             .join("manifests")
             .join(format!("{}.json", hex(&mh)));
-        if !mpath.exists() {
+        if self.read_manifest(&mh).is_err() {
             self.write_atomic(
                 &mpath,
                 &serde_json::to_vec(&manifest).expect("manifest serialises"),
             )?;
         }
         let dest = self.output_dir(&mh);
-        if dest.is_dir() {
+        if dest.is_dir() && self.folder_damage(&mh, &manifest, &dest).is_none() {
             // Same content already materialised (by us or another process).
             remove_tree(folder);
-        } else {
-            match fs::rename(folder, &dest) {
-                Ok(()) => set_tree_readonly(&dest),
-                Err(_) if dest.is_dir() => remove_tree(folder),
-                Err(e) => {
+            return Ok(mh);
+        }
+        if dest.is_dir() {
+            // A damaged folder: set it aside (one rename), put the new one in its place.
+            let aside = self
+                .root
+                .join("tmp")
+                .join(format!("damaged-{}", unique_suffix()));
+            match fs::rename(&dest, &aside) {
+                Ok(()) => remove_tree(&aside),
+                Err(e) if dest.is_dir() => {
                     return Err(EngineError::Io {
-                        what: "promoting output to",
+                        what: "setting aside the damaged output folder",
                         path: dest,
                         source: e,
                     })
                 }
+                Err(_) => {} // another process moved it first
+            }
+        }
+        match fs::rename(folder, &dest) {
+            Ok(()) => set_tree_readonly(&dest),
+            Err(_) if dest.is_dir() => remove_tree(folder),
+            Err(e) => {
+                return Err(EngineError::Io {
+                    what: "promoting output to",
+                    path: dest,
+                    source: e,
+                })
             }
         }
         Ok(mh)
+    }
+
+    /// Makes `src` (a file of a folder being promoted, hashing to `hash`) a hard link to its
+    /// blob, creating or healing the blob from it.
+    fn store_blob(&self, src: &Path, hash: &str) -> Result<(), EngineError> {
+        let blob = self.blob_path(hash);
+        if let Some(parent) = blob.parent() {
+            fs::create_dir_all(parent).map_err(io("creating", parent))?;
+        }
+        let good_blob = fs::symlink_metadata(&blob)
+            .map(|m| m.is_file())
+            .unwrap_or(false)
+            && hash_file(&blob).ok().as_deref() == Some(hash);
+        if !good_blob {
+            if fs::symlink_metadata(&blob).is_ok() {
+                // Damaged (or not a plain file): replaced below by a good copy.
+                set_readonly(&blob, false);
+                remove_tree(&blob);
+            }
+            if link_count(src) > 1 {
+                // Another name shares this file's inode (a user's file): copy its bytes.
+                let tmp = self.root.join("tmp").join(format!("b-{}", unique_suffix()));
+                fs::copy(src, &tmp).map_err(io("copying into the store", src))?;
+                set_readonly(&tmp, true);
+                fs::rename(&tmp, &blob).map_err(io("moving into the store", &tmp))?;
+            } else {
+                set_readonly(src, true);
+                fs::rename(src, &blob).map_err(io("moving into the store", src))?;
+            }
+        }
+        if fs::symlink_metadata(src).is_ok() {
+            // Unlinking a name never changes the inode's other names or permissions.
+            fs::remove_file(src).map_err(io("removing", src))?;
+        }
+        if fs::hard_link(&blob, src).is_err() {
+            fs::copy(&blob, src).map_err(io("copying blob to", src))?;
+            set_readonly(src, true);
+        }
+        Ok(())
     }
 
     /// Writes an action entry (the commit point of a node run).
@@ -378,8 +451,10 @@ impl Store {
         self.write_atomic(&self.action_path(key), &bytes)
     }
 
-    /// The content hash of an external file or folder (same scheme as output manifests), cached
-    /// by path + size + mtime under `extcache/`.
+    /// The content hash of an external file or folder (same scheme as output manifests),
+    /// following symbolic links to what they point to; cached by path + size + mtime + inode
+    /// under `extcache/` (the pre-run check hashes again without the cache, see
+    /// [`Store::check_external`]).
     pub fn hash_external(&self, path: &Path) -> Result<Hash, EngineError> {
         let abs = fs::canonicalize(path).map_err(io("reading input", path))?;
         let id = blake3::hash(abs.to_string_lossy().as_bytes()).to_hex();
@@ -387,35 +462,36 @@ impl Store {
             .root
             .join("extcache")
             .join(format!("{}.json", &id[..32]));
-        type Cache = BTreeMap<String, (u64, i128, String)>;
-        let old: Cache = fs::read(&cpath)
+        let old: ExtCache = fs::read(&cpath)
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok())
             .unwrap_or_default();
-        let mut new: Cache = BTreeMap::new();
-        let meta = fs::metadata(&abs).map_err(io("reading input", &abs))?;
-        if !meta.is_file() && !meta.is_dir() {
-            return Err(special_file_error(&abs, &meta.file_type()));
-        }
-        let manifest = if meta.is_file() {
-            let h = cached_hash(&old, &mut new, "", &abs, &meta)?;
-            Manifest {
-                entries: vec![ManifestEntry {
-                    path: String::new(),
-                    size: meta.len(),
-                    hash: h,
-                }],
-            }
-        } else {
-            scan_folder(&abs, |rel, p, _| {
-                let m = fs::metadata(p).map_err(io("reading input", p))?;
-                cached_hash(&old, &mut new, rel, p, &m)
-            })?
-        };
+        let mut new: ExtCache = BTreeMap::new();
+        let manifest = external_manifest(&abs, |rel, p| {
+            let m = fs::metadata(p).map_err(io("reading input", p))?;
+            cached_hash(&old, &mut new, rel, p, &m)
+        })?;
         if old != new {
             let _ = self.write_atomic(&cpath, &serde_json::to_vec(&new).expect("cache serialises"));
         }
         Ok(manifest.hash())
+    }
+
+    /// Hashes external input `path` afresh (no cache) and checks it against `expected`, the
+    /// hash its key was computed with: what a node is about to read is what its key names.
+    pub fn check_external(&self, path: &Path, expected: &Hash) -> Result<(), String> {
+        let m = external_manifest(path, |_, p| hash_file(p)).map_err(|e| e.to_string())?;
+        if m.hash() == *expected {
+            Ok(())
+        } else {
+            Err(format!(
+                "{} changed after the pipeline was loaded (its content now hashes to {}, the \
+                 key was computed for {})",
+                path.display(),
+                &hex(&m.hash())[..16],
+                &hex(expected)[..16]
+            ))
+        }
     }
 
     /// Writes the record of the latest run of pipeline `id`.
@@ -498,20 +574,93 @@ pub(crate) fn mtime_ns(meta: &fs::Metadata) -> i128 {
         .unwrap_or(-1)
 }
 
+/// The hash cache of one external input: relative path -> (size, mtime ns, inode, hash).
+type ExtCache = BTreeMap<String, (u64, i128, u64, String)>;
+
+/// The manifest of external input `abs` (a file or a folder, links followed), hashing each
+/// file with `hash(rel, path)`.
+fn external_manifest(
+    abs: &Path,
+    mut hash: impl FnMut(&str, &Path) -> Result<String, EngineError>,
+) -> Result<Manifest, EngineError> {
+    let meta = fs::metadata(abs).map_err(io("reading input", abs))?;
+    if !meta.is_file() && !meta.is_dir() {
+        return Err(special_file_error(abs, &meta.file_type()));
+    }
+    if meta.is_file() {
+        let h = hash("", abs)?;
+        Ok(Manifest {
+            entries: vec![ManifestEntry {
+                path: String::new(),
+                size: meta.len(),
+                hash: h,
+            }],
+        })
+    } else {
+        scan_tree(abs, Links::Follow, |rel, p, _| hash(rel, p))
+    }
+}
+
 fn cached_hash(
-    old: &BTreeMap<String, (u64, i128, String)>,
-    new: &mut BTreeMap<String, (u64, i128, String)>,
+    old: &ExtCache,
+    new: &mut ExtCache,
     rel: &str,
     path: &Path,
     meta: &fs::Metadata,
 ) -> Result<String, EngineError> {
     let mtime = mtime_ns(meta);
+    #[cfg(unix)]
+    let ino = {
+        use std::os::unix::fs::MetadataExt;
+        meta.ino()
+    };
+    #[cfg(not(unix))]
+    let ino = 0u64;
     let h = match old.get(rel) {
-        Some((s, m, h)) if *s == meta.len() && *m == mtime && mtime >= 0 => h.clone(),
+        Some((s, m, i, h)) if *s == meta.len() && *m == mtime && *i == ino && mtime >= 0 => {
+            h.clone()
+        }
         _ => hash_file(path)?,
     };
-    new.insert(rel.to_string(), (meta.len(), mtime, h.clone()));
+    new.insert(rel.to_string(), (meta.len(), mtime, ino, h.clone()));
     Ok(h)
+}
+
+/// The symbolic links met below external input `abs` (its own path first, when it is one):
+/// each link's path relative to `abs` (empty for `abs` itself) and its target as written.
+/// `why` compares them between runs to say which link now points elsewhere.
+pub fn links_within(abs: &Path) -> BTreeMap<String, String> {
+    fn walk(dir: &Path, prefix: &str, depth: usize, out: &mut BTreeMap<String, String>) {
+        if depth > 64 {
+            return;
+        }
+        for p in list_dir(dir) {
+            let name = p
+                .file_name()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or_default();
+            let rel = format!("{prefix}{name}");
+            let Ok(meta) = fs::symlink_metadata(&p) else {
+                continue;
+            };
+            if meta.file_type().is_symlink() {
+                if let Ok(t) = fs::read_link(&p) {
+                    out.insert(rel.clone(), t.display().to_string());
+                }
+            }
+            if fs::metadata(&p).map(|m| m.is_dir()).unwrap_or(false) {
+                walk(&p, &format!("{rel}/"), depth + 1, out);
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    if let Ok(t) = fs::read_link(abs) {
+        out.insert(String::new(), t.display().to_string());
+    }
+    if fs::metadata(abs).map(|m| m.is_dir()).unwrap_or(false) {
+        walk(abs, "", 0, &mut out);
+    }
+    out
 }
 
 /// Hashes a file with blake3 (memory-mapped and multi-threaded on the current rayon pool for
@@ -555,52 +704,117 @@ fn special_file_error(p: &Path, ft: &fs::FileType) -> EngineError {
     ))
 }
 
+/// How [`scan_tree`] treats symbolic links.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Links {
+    /// Refused: a node's output holds plain files and folders only.
+    Refuse,
+    /// Followed to the file or folder they point to (external inputs, as make, Bazel and
+    /// Snakemake do); a link that leads back into a folder it lies in is a cycle and refused,
+    /// as is a dangling one.
+    Follow,
+}
+
 /// Lists a folder recursively (sorted, `/`-separated, folders end with `/`), hashing each file
-/// with `hash(rel, path, size)`. Symbolic links are refused.
+/// with `hash(rel, path, size)`. Symbolic links are refused (see [`scan_tree`] to follow them).
 pub fn scan_folder(
     root: &Path,
+    hash: impl FnMut(&str, &Path, u64) -> Result<String, EngineError>,
+) -> Result<Manifest, EngineError> {
+    scan_tree(root, Links::Refuse, hash)
+}
+
+/// [`scan_folder`] with a choice of how symbolic links are treated. FIFOs, sockets and device
+/// files are refused either way and never opened.
+pub fn scan_tree(
+    root: &Path,
+    links: Links,
     mut hash: impl FnMut(&str, &Path, u64) -> Result<String, EngineError>,
 ) -> Result<Manifest, EngineError> {
     let mut entries = Vec::new();
-    let mut stack = vec![(root.to_path_buf(), String::new())];
-    while let Some((dir, prefix)) = stack.pop() {
-        let mut items: Vec<_> = fs::read_dir(&dir)
-            .map_err(io("listing", &dir))?
-            .map(|e| e.map_err(io("listing", &dir)))
-            .collect::<Result<_, _>>()?;
-        items.sort_by_key(|e| e.file_name());
-        for e in items {
-            let name = e.file_name().to_string_lossy().to_string();
-            let p = e.path();
-            let ft = e.file_type().map_err(io("reading", &p))?;
-            let rel = format!("{prefix}{name}");
-            if ft.is_symlink() {
-                return Err(EngineError::Other(format!(
-                    "{} is a symbolic link; outputs and inputs must hold plain files",
-                    p.display()
-                )));
-            } else if !ft.is_dir() && !ft.is_file() {
-                return Err(special_file_error(&p, &ft));
-            } else if ft.is_dir() {
-                entries.push(ManifestEntry {
-                    path: format!("{rel}/"),
-                    size: 0,
-                    hash: String::new(),
-                });
-                stack.push((p, format!("{rel}/")));
-            } else {
-                let size = e.metadata().map_err(io("reading", &p))?.len();
-                let h = hash(&rel, &p, size)?;
-                entries.push(ManifestEntry {
-                    path: rel,
-                    size,
-                    hash: h,
-                });
-            }
-        }
-    }
+    // Canonical paths of the folders from the root down to the one being listed: a link to
+    // any of them is a cycle.
+    let mut ancestors: Vec<PathBuf> = Vec::new();
+    scan_dir(root, "", links, &mut ancestors, &mut hash, &mut entries)?;
     entries.sort_by(|a, b| a.path.cmp(&b.path));
     Ok(Manifest { entries })
+}
+
+/// How deep [`scan_tree`] descends (a guard against link chains that never repeat a folder).
+const MAX_SCAN_DEPTH: usize = 256;
+
+fn scan_dir(
+    dir: &Path,
+    prefix: &str,
+    links: Links,
+    ancestors: &mut Vec<PathBuf>,
+    hash: &mut impl FnMut(&str, &Path, u64) -> Result<String, EngineError>,
+    entries: &mut Vec<ManifestEntry>,
+) -> Result<(), EngineError> {
+    if ancestors.len() >= MAX_SCAN_DEPTH {
+        return Err(EngineError::Other(format!(
+            "{} lies more than {MAX_SCAN_DEPTH} folders deep; refusing to descend further",
+            dir.display()
+        )));
+    }
+    let canonical = fs::canonicalize(dir).map_err(io("reading", dir))?;
+    ancestors.push(canonical);
+    let mut items: Vec<_> = fs::read_dir(dir)
+        .map_err(io("listing", dir))?
+        .map(|e| e.map_err(io("listing", dir)))
+        .collect::<Result<_, _>>()?;
+    items.sort_by_key(|e| e.file_name());
+    for e in items {
+        let name = e.file_name().to_string_lossy().to_string();
+        let p = e.path();
+        let mut ft = e.file_type().map_err(io("reading", &p))?;
+        let rel = format!("{prefix}{name}");
+        if ft.is_symlink() {
+            if links == Links::Refuse {
+                return Err(EngineError::Other(format!(
+                    "{} is a symbolic link; a node's outputs must hold plain files",
+                    p.display()
+                )));
+            }
+            let meta = fs::metadata(&p).map_err(|e| {
+                EngineError::Other(format!(
+                    "{} is a symbolic link whose target cannot be read ({e})",
+                    p.display()
+                ))
+            })?;
+            ft = meta.file_type();
+            if ft.is_dir() {
+                let target = fs::canonicalize(&p).map_err(io("reading", &p))?;
+                if ancestors.contains(&target) {
+                    return Err(EngineError::Other(format!(
+                        "{} is a symbolic link to {}, a folder it lies in: a cycle",
+                        p.display(),
+                        target.display()
+                    )));
+                }
+            }
+        }
+        if !ft.is_dir() && !ft.is_file() {
+            return Err(special_file_error(&p, &ft));
+        } else if ft.is_dir() {
+            entries.push(ManifestEntry {
+                path: format!("{rel}/"),
+                size: 0,
+                hash: String::new(),
+            });
+            scan_dir(&p, &format!("{rel}/"), links, ancestors, hash, entries)?;
+        } else {
+            let size = fs::metadata(&p).map_err(io("reading", &p))?.len();
+            let h = hash(&rel, &p, size)?;
+            entries.push(ManifestEntry {
+                path: rel,
+                size,
+                hash: h,
+            });
+        }
+    }
+    ancestors.pop();
+    Ok(())
 }
 
 /// Sets or clears the write bits of a file or folder (best effort).
@@ -616,6 +830,20 @@ pub(crate) fn set_readonly(p: &Path, ro: bool) {
         #[cfg(not(unix))]
         perm.set_readonly(ro);
         let _ = fs::set_permissions(p, perm);
+    }
+}
+
+/// The number of hard links to a file (1 where unknown).
+pub(crate) fn link_count(p: &Path) -> u64 {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        fs::symlink_metadata(p).map(|m| m.nlink()).unwrap_or(1)
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = p;
+        1
     }
 }
 

@@ -4,19 +4,22 @@
 //!   output it names has its manifest, its folder, every file and every blob; an entry that
 //!   exists but lacks any of these is *broken* (reported by `plan`, recomputed by `run` with a
 //!   warning), never "cached".
-//! - [`Store::check_output`]: before a node reads a stored output, each of its files is
-//!   checked against the output's manifest (size, and the blake3 hash unless the file's size,
-//!   modification time and inode equal a *verified-at stamp* written by an earlier check, so a
-//!   steady-state rerun hashes nothing).
+//! - [`Store::check_output`]: before a node reads a stored output, the output folder must hold
+//!   exactly the files and folders its manifest lists (an extra, missing or special file is
+//!   damage) and each file is hashed with blake3 against the manifest: bit rot that keeps a
+//!   file's size, modification time and inode is found before a node computes on it.
 //! - [`Store::verify`]: `augsplat verify` re-hashes every blob against its name and every
 //!   output folder against its manifest, and names each damaged action entry by node, key and
-//!   file; with `repair` it removes the damaged entries, manifests, output folders and blobs
-//!   (a blob whose content does not match its name is not a good blob) so the next run
-//!   recomputes them. It never removes a blob whose content matches its name.
+//!   file. An entry whose recorded inputs ([`ActionEntry::inputs`]) include a damaged output,
+//!   or an output of a damaged or tainted entry, is *tainted*: it computed on bytes that are
+//!   not what its key names. With `repair` it removes the damaged and tainted entries (with
+//!   their descendants), damaged manifests, output folders and blobs (a blob whose content
+//!   does not match its name is not a good blob) so the next run recomputes them. It never
+//!   removes a blob whose content matches its name, and never opens a special file.
 
 use crate::error::EngineError;
 use crate::store::{
-    hash_file, hex, list_dir, mtime_ns, remove_tree, unhex, ActionEntry, Hash, Manifest, Store,
+    hash_file, hex, list_dir, remove_tree, unhex, ActionEntry, Hash, Manifest, ManifestEntry, Store,
 };
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
@@ -92,19 +95,43 @@ impl VerifyReport {
     }
 }
 
-/// Size, modification time (ns) and inode of a file: the verified-at stamp of one file.
-type FileStamp = (u64, i128, u64);
-
-fn file_stamp(meta: &fs::Metadata) -> FileStamp {
-    let mtime = mtime_ns(meta);
+/// The inode of a file (0 where unknown): a file that shares a good blob's inode is that blob.
+fn inode(meta: &fs::Metadata) -> u64 {
     #[cfg(unix)]
-    let ino = {
+    {
         use std::os::unix::fs::MetadataExt;
         meta.ino()
-    };
+    }
     #[cfg(not(unix))]
-    let ino = 0;
-    (meta.len(), mtime, ino)
+    {
+        let _ = meta;
+        0
+    }
+}
+
+/// Every file, folder and special file below `dir` (links not followed), by `/`-separated
+/// path relative to it (folders end with `/`), with its metadata.
+fn list_tree(dir: &Path) -> Result<Vec<(String, PathBuf, fs::Metadata)>, String> {
+    let mut out = Vec::new();
+    let mut stack = vec![(dir.to_path_buf(), String::new())];
+    while let Some((d, prefix)) = stack.pop() {
+        let rd = fs::read_dir(&d).map_err(|e| format!("{} cannot be listed ({e})", d.display()))?;
+        for e in rd {
+            let e = e.map_err(|e| format!("{} cannot be listed ({e})", d.display()))?;
+            let p = e.path();
+            let meta = fs::symlink_metadata(&p)
+                .map_err(|e| format!("{} unreadable ({e})", p.display()))?;
+            let name = e.file_name().to_string_lossy().to_string();
+            if meta.is_dir() {
+                stack.push((p.clone(), format!("{prefix}{name}/")));
+                out.push((format!("{prefix}{name}/"), p, meta));
+            } else {
+                out.push((format!("{prefix}{name}"), p, meta));
+            }
+        }
+    }
+    out.sort_by(|a, b| a.0.cmp(&b.0));
+    Ok(out)
 }
 
 impl Store {
@@ -114,17 +141,11 @@ impl Store {
             .join(format!("{}.json", hex(m)))
     }
 
-    fn stamp_path(&self, m: &Hash) -> PathBuf {
-        self.root()
-            .join("verified")
-            .join(format!("{}.json", hex(m)))
-    }
-
     /// Reads manifest `m` and checks that its content hashes to its name.
     pub fn read_manifest(&self, m: &Hash) -> Result<Manifest, String> {
         let p = self.manifest_path(m);
         let bytes =
-            fs::read(&p).map_err(|e| format!("manifest {} is unreadable ({e})", p.display()))?;
+            read_plain(&p).map_err(|e| format!("manifest {} is unreadable ({e})", p.display()))?;
         let manifest: Manifest = serde_json::from_slice(&bytes)
             .map_err(|e| format!("manifest {} does not parse ({e})", p.display()))?;
         if manifest.hash() != *m {
@@ -141,7 +162,7 @@ impl Store {
     /// that every file and blob exists; hashes nothing).
     pub fn action_state(&self, key: &Hash) -> Result<EntryState, EngineError> {
         let p = self.action_path(key);
-        let bytes = match fs::read(&p) {
+        let bytes = match read_plain(&p) {
             Ok(b) => b,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(EntryState::Absent),
             Err(e) => {
@@ -203,65 +224,27 @@ impl Store {
         None
     }
 
-    /// Checks the stored output `m` against its manifest before a node reads it: every file
-    /// present with its size, and its blake3 hash unless a verified-at stamp (size, mtime,
-    /// inode) from an earlier check still matches. On success the stamp is refreshed.
+    /// Checks the stored output `m` against its manifest before a node reads it: the folder
+    /// holds exactly the manifest's files and folders, and every file hashes to its manifest
+    /// hash (in parallel on the current rayon pool).
     pub fn check_output(&self, m: &Hash) -> Result<(), String> {
         let manifest = self.read_manifest(m)?;
         let dir = self.output_dir(m);
-        let stamp_path = self.stamp_path(m);
-        let old: BTreeMap<String, FileStamp> = fs::read(&stamp_path)
-            .ok()
-            .and_then(|b| serde_json::from_slice(&b).ok())
-            .unwrap_or_default();
-        let files: Vec<_> = manifest
-            .entries
-            .iter()
-            .filter(|e| !e.path.ends_with('/'))
-            .collect();
-        let checked: Vec<Result<(String, FileStamp, bool), String>> = files
-            .par_iter()
-            .map(|e| {
-                let p = dir.join(&e.path);
-                let meta = fs::metadata(&p).map_err(|_| format!("{} is missing", p.display()))?;
-                if meta.len() != e.size {
-                    return Err(format!(
-                        "{} holds {} bytes; its manifest says {}",
-                        p.display(),
-                        meta.len(),
-                        e.size
-                    ));
-                }
-                let stamp = file_stamp(&meta);
-                if old.get(&e.path) == Some(&stamp) && stamp.1 >= 0 {
-                    return Ok((e.path.clone(), stamp, false));
-                }
-                let h = hash_file(&p).map_err(|x| x.to_string())?;
-                if h != e.hash {
-                    return Err(format!(
-                        "{} does not match its manifest (blake3 {h}, expected {})",
-                        p.display(),
-                        e.hash
-                    ));
-                }
-                Ok((e.path.clone(), stamp, true))
-            })
-            .collect();
-        let mut new = BTreeMap::new();
-        let mut hashed = false;
-        for r in checked {
-            let (path, stamp, h) = r?;
-            hashed |= h;
-            new.insert(path, stamp);
+        match self.folder_damage(m, &manifest, &dir) {
+            None => Ok(()),
+            Some((path, detail)) => Err(format!("{}: {detail}", path.display())),
         }
-        if hashed || new.len() != old.len() {
-            // A stamp that cannot be written only costs a re-hash next time.
-            let _ = self.write_atomic(
-                &stamp_path,
-                &serde_json::to_vec(&new).expect("stamp serialises"),
-            );
-        }
-        Ok(())
+    }
+
+    /// The first damage of output folder `dir` against `manifest` (see
+    /// [`Store::folder_damage_with`]), hashing every file.
+    pub(crate) fn folder_damage(
+        &self,
+        _m: &Hash,
+        manifest: &Manifest,
+        dir: &Path,
+    ) -> Option<(PathBuf, String)> {
+        folder_damage_with(manifest, dir, |_, _| false)
     }
 
     /// The manifest hash of `folder` when it is a stored output folder (`outputs/<hash>`).
@@ -310,13 +293,16 @@ impl Store {
                     .file_name()
                     .map(|s| s.to_string_lossy().to_string())
                     .unwrap_or_default();
-                let size = fs::metadata(p).map(|m| m.len()).unwrap_or(0);
-                (
-                    p.clone(),
-                    name,
-                    hash_file(p).map_err(|e| e.to_string()),
-                    size,
-                )
+                let meta = fs::symlink_metadata(p);
+                let size = meta.as_ref().map(|m| m.len()).unwrap_or(0);
+                let h = match meta {
+                    // Never open a FIFO, socket, device or link: reading one may block.
+                    Ok(m) if !m.file_type().is_file() => {
+                        Err("not a plain file (a link, FIFO, socket or device)".to_string())
+                    }
+                    _ => hash_file(p).map_err(|e| e.to_string()),
+                };
+                (p.clone(), name, h, size)
             })
             .collect();
         let mut bad_blobs: BTreeSet<String> = BTreeSet::new();
@@ -327,7 +313,7 @@ impl Store {
             match h {
                 Ok(h) if h == name => {
                     if let Ok(meta) = fs::metadata(&p) {
-                        good_blob_inodes.insert(name, file_stamp(&meta).2);
+                        good_blob_inodes.insert(name, inode(&meta));
                     }
                 }
                 Ok(h) => {
@@ -379,6 +365,7 @@ impl Store {
 
         // 3. Every action entry.
         let mut bad_actions: Vec<PathBuf> = Vec::new();
+        let mut sound: Vec<(PathBuf, String, ActionEntry)> = Vec::new();
         for sub in list_dir(&self.root().join("actions")) {
             for ap in list_dir(&sub) {
                 rep.actions += 1;
@@ -386,7 +373,7 @@ impl Store {
                     .file_stem()
                     .map(|s| s.to_string_lossy().to_string())
                     .unwrap_or_default();
-                let entry = match fs::read(&ap).map_err(|e| e.to_string()).and_then(|b| {
+                let entry = match read_plain(&ap).map_err(|e| e.to_string()).and_then(|b| {
                     serde_json::from_slice::<ActionEntry>(&b).map_err(|e| e.to_string())
                 }) {
                     Ok(e) => e,
@@ -434,8 +421,23 @@ impl Store {
                         detail,
                     });
                     bad_actions.push(ap);
+                } else {
+                    sound.push((ap, key, entry));
                 }
             }
+        }
+
+        // 3b. Taint: an entry that read a damaged output, or an output that only damaged or
+        // tainted entries produced, computed on bytes its key does not name; so did every
+        // entry downstream of it.
+        for (ap, key, entry, detail) in tainted_entries(&sound, &bad_manifests) {
+            rep.broken_actions.push(Problem {
+                path: ap.clone(),
+                node: Some(entry.name.clone()),
+                key: Some(key.clone()),
+                detail,
+            });
+            bad_actions.push(ap.clone());
         }
 
         // 4. Repair: damaged entries, manifests, folders and blobs go; good blobs stay.
@@ -469,8 +471,9 @@ impl Store {
         Ok(rep)
     }
 
-    /// The first damage of manifest `h`'s output folder: a missing or damaged blob, a missing
-    /// file, a wrong size, or (for a file that is not the blob itself) a wrong hash.
+    /// The first damage of manifest `h`'s output folder: a missing or damaged blob, a missing,
+    /// extra or special file, a wrong size, or (for a file that is not the blob itself) a
+    /// wrong hash.
     fn manifest_damage(
         &self,
         h: &Hash,
@@ -478,7 +481,6 @@ impl Store {
         bad_blobs: &BTreeSet<String>,
         good_blob_inodes: &BTreeMap<String, u64>,
     ) -> Option<(PathBuf, String)> {
-        let dir = self.output_dir(h);
         for e in m.entries.iter().filter(|e| !e.hash.is_empty()) {
             let blob = self.blob_path(&e.hash);
             if bad_blobs.contains(&e.hash) {
@@ -487,34 +489,188 @@ impl Store {
             if !blob.is_file() {
                 return Some((blob, format!("blob of {} is missing", e.path)));
             }
-            if !dir.is_dir() {
-                // No folder: nothing hands it to a node (an entry naming it is broken).
-                continue;
-            }
-            let f = dir.join(&e.path);
-            let Ok(meta) = fs::metadata(&f) else {
-                return Some((f, "file is missing".into()));
-            };
-            if meta.len() != e.size {
-                return Some((
-                    f,
-                    format!("holds {} bytes; the manifest says {}", meta.len(), e.size),
-                ));
-            }
-            if good_blob_inodes.get(&e.hash) == Some(&file_stamp(&meta).2) {
-                continue; // the blob itself, hashed above
-            }
-            match hash_file(&f) {
-                Ok(x) if x == e.hash => {}
-                Ok(x) => {
-                    return Some((
-                        f,
-                        format!("content hashes to {x}, the manifest says {}", e.hash),
-                    ))
+        }
+        let dir = self.output_dir(h);
+        if !dir.is_dir() {
+            // No folder: nothing hands it to a node (an entry naming it is broken).
+            return None;
+        }
+        // A file that is the blob itself (same inode) was hashed with the blobs.
+        folder_damage_with(m, &dir, |e, meta| {
+            good_blob_inodes.get(&e.hash) == Some(&inode(meta))
+        })
+    }
+
+    /// Sets aside stored output `m` (its folder, and every blob of it whose content does not
+    /// match its name) after a pre-run check found it damaged, so that its entry is broken and
+    /// the next run recomputes it. Returns whether the folder was set aside.
+    pub(crate) fn set_aside_damaged_output(&self, m: &Hash) -> bool {
+        if let Ok(manifest) = self.read_manifest(m) {
+            for e in manifest.entries.iter().filter(|e| !e.hash.is_empty()) {
+                let blob = self.blob_path(&e.hash);
+                let good = fs::symlink_metadata(&blob)
+                    .map(|x| x.is_file())
+                    .unwrap_or(false)
+                    && hash_file(&blob).ok().as_deref() == Some(e.hash.as_str());
+                if !good {
+                    remove_tree(&blob);
                 }
-                Err(err) => return Some((f, format!("unreadable: {err}"))),
             }
         }
-        None
+        let dir = self.output_dir(m);
+        let aside = self
+            .root()
+            .join("tmp")
+            .join(format!("damaged-{}", crate::store::unique_suffix()));
+        if fs::rename(&dir, &aside).is_ok() {
+            remove_tree(&aside);
+            true
+        } else {
+            false
+        }
     }
+}
+
+/// Reads a file that must be a plain file (never opens a FIFO, socket or device, which could
+/// block forever).
+pub(crate) fn read_plain(p: &Path) -> std::io::Result<Vec<u8>> {
+    let meta = fs::symlink_metadata(p)?;
+    if !meta.file_type().is_file() {
+        return Err(std::io::Error::other(
+            "not a plain file (a link, FIFO, socket or device)",
+        ));
+    }
+    fs::read(p)
+}
+
+/// The first damage of output folder `dir` against `manifest`: anything in the folder that
+/// the manifest does not list, a link, FIFO, socket or device file (never opened), a listed
+/// file or folder that is missing, a wrong size, or a file whose blake3 differs (files for
+/// which `skip_hash` says so are not hashed; the others are hashed in parallel).
+pub(crate) fn folder_damage_with(
+    manifest: &Manifest,
+    dir: &Path,
+    skip_hash: impl Fn(&ManifestEntry, &fs::Metadata) -> bool + Sync,
+) -> Option<(PathBuf, String)> {
+    let listed = match list_tree(dir) {
+        Ok(l) => l,
+        Err(e) => return Some((dir.to_path_buf(), e)),
+    };
+    let expected: BTreeMap<&str, &ManifestEntry> = manifest
+        .entries
+        .iter()
+        .map(|e| (e.path.as_str(), e))
+        .collect();
+    let mut present: BTreeMap<&str, &fs::Metadata> = BTreeMap::new();
+    for (rel, p, meta) in &listed {
+        let ft = meta.file_type();
+        if !ft.is_file() && !ft.is_dir() {
+            return Some((
+                p.clone(),
+                "is not a plain file or folder (a link, FIFO, socket or device); an output \
+                 folder holds exactly its manifest's files"
+                    .into(),
+            ));
+        }
+        if !expected.contains_key(rel.as_str()) {
+            return Some((
+                p.clone(),
+                "is not in the output's manifest: an output folder holds exactly its \
+                 manifest's files"
+                    .into(),
+            ));
+        }
+        present.insert(rel.as_str(), meta);
+    }
+    let mut to_hash: Vec<(&ManifestEntry, PathBuf)> = Vec::new();
+    for e in &manifest.entries {
+        let p = dir.join(&e.path);
+        let Some(meta) = present.get(e.path.as_str()) else {
+            return Some((p, "is missing".into()));
+        };
+        if e.path.ends_with('/') {
+            continue;
+        }
+        if !meta.is_file() {
+            return Some((p, "is a folder; its manifest lists a file".into()));
+        }
+        if meta.len() != e.size {
+            return Some((
+                p,
+                format!("holds {} bytes; the manifest says {}", meta.len(), e.size),
+            ));
+        }
+        if !skip_hash(e, meta) {
+            to_hash.push((e, p));
+        }
+    }
+    to_hash
+        .par_iter()
+        .map(|(e, p)| match hash_file(p) {
+            Ok(x) if x == e.hash => None,
+            Ok(x) => Some((
+                p.clone(),
+                format!("content hashes to {x}, the manifest says {}", e.hash),
+            )),
+            Err(err) => Some((p.clone(), format!("unreadable: {err}"))),
+        })
+        .find_first(|r| r.is_some())
+        .flatten()
+}
+
+/// The sound entries that are tainted, with why: an entry whose recorded inputs include a
+/// damaged manifest, or a manifest that only tainted entries produced; repeated until nothing
+/// changes, so descendants follow. (An entry that is broken for another reason, a missing
+/// log say, taints nothing: what its dependants read was checked when they read it.)
+#[allow(clippy::type_complexity)]
+fn tainted_entries<'a>(
+    sound: &'a [(PathBuf, String, ActionEntry)],
+    bad_manifests: &BTreeMap<String, String>,
+) -> Vec<(&'a PathBuf, &'a String, &'a ActionEntry, String)> {
+    // Manifest -> the keys of the entries that produced it.
+    let mut producers: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+    for (_, key, e) in sound {
+        for m in e.outputs.values() {
+            producers.entry(m.as_str()).or_default().push(key.as_str());
+        }
+    }
+    let mut bad: BTreeSet<&str> = BTreeSet::new();
+    let mut out = Vec::new();
+    let mut tainted: BTreeSet<usize> = BTreeSet::new();
+    loop {
+        let mut changed = false;
+        for (i, (ap, key, e)) in sound.iter().enumerate() {
+            if tainted.contains(&i) {
+                continue;
+            }
+            let why = e.inputs.iter().find_map(|(slot, ms)| {
+                ms.iter().find_map(|m| {
+                    if let Some(d) = bad_manifests.get(m) {
+                        return Some(format!(
+                            "tainted: it read input `{slot}` from a damaged output ({d})"
+                        ));
+                    }
+                    let prods = producers.get(m.as_str())?;
+                    let all_bad = prods.iter().all(|k| bad.contains(*k));
+                    (all_bad && !prods.is_empty()).then(|| {
+                        format!(
+                            "tainted: it read input `{slot}` from an output of the tainted \
+                             entry {}…",
+                            &prods[0][..prods[0].len().min(16)]
+                        )
+                    })
+                })
+            });
+            if let Some(why) = why {
+                tainted.insert(i);
+                bad.insert(key.as_str());
+                out.push((ap, key, e, why));
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+    out
 }

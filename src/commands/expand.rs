@@ -14,7 +14,7 @@ pub struct Args {
 
 /// Runs `augsplat expand`.
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
-    let (_engine, plan) = args.pipeline.load(registry)?;
+    let (_engine, plan, _scratch) = args.pipeline.load_anywhere(registry)?;
     print!("{}", augsplat_graph::expand_text(&plan));
     Ok(())
 }

@@ -1,6 +1,6 @@
 //! `augsplat gc`: remove what no root needs.
 
-use super::run::open_engine;
+use super::run::open_existing_engine;
 use super::CmdResult;
 use augsplat_graph::Registry;
 use std::path::PathBuf;
@@ -22,7 +22,7 @@ pub struct Args {
 
 /// Runs `augsplat gc`.
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
-    let engine = open_engine(registry, args.cache)?;
+    let engine = open_existing_engine(registry, args.cache)?;
     let r = engine
         .gc(args.dry_run, args.repair)
         .map_err(|e| e.to_string())?;
@@ -56,12 +56,14 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
         }
     }
     println!(
-        "{verb}: {} actions, {} outputs, {} blobs ({:.1} MiB), {} scratch/claim files",
+        "{verb}: {} actions, {} outputs, {} blobs ({:.1} MiB), {} scratch/claim files, {} \
+         checkpoints no pipeline will resume",
         r.actions_removed,
         r.outputs_removed,
         r.blobs_removed,
         r.bytes_removed as f64 / (1024.0 * 1024.0),
-        r.scratch_removed
+        r.scratch_removed,
+        r.checkpoints_removed
     );
     Ok(())
 }

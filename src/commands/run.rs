@@ -59,7 +59,7 @@ pub struct Args {
 
 /// Runs `augsplat run`.
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
-    let (engine, plan) = args.pipeline.load(registry)?;
+    let (engine, plan) = args.pipeline.load_creating(registry)?;
     let mut opts = RunOptions {
         targets: args.targets.clone(),
         progress: !args.quiet && std::io::stderr().is_terminal(),
@@ -108,6 +108,17 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
     if let Some(dir) = &args.out {
         for (inst, output, from) in &results {
             let to = dir.join(inst).join(output);
+            // Never hand a user a damaged result: the copy is checked like a node's input.
+            if let Some(m) = engine.store().output_of_folder(from) {
+                engine.store().check_output(&m).map_err(|damage| {
+                    format!(
+                        "not copying {inst}.{output} to {}: its stored output is damaged \
+                         ({damage}); run `augsplat verify --repair`, then run again to \
+                         recompute it",
+                        to.display()
+                    )
+                })?;
+            }
             copy_output(from, &to)
                 .map_err(|e| format!("copying {} to {}: {e}", from.display(), to.display()))?;
         }
@@ -179,9 +190,37 @@ pub struct PipelineArgs {
 }
 
 impl PipelineArgs {
-    /// Opens the store and resolves the pipeline.
+    /// Opens the store, creating it when the path holds none (only `run` and `bench` do), and
+    /// resolves the pipeline.
+    pub fn load_creating(&self, registry: &Registry) -> Result<(Engine, Plan), String> {
+        self.resolve(open_engine(registry, self.cache.clone())?)
+    }
+
+    /// Opens the existing store (a path that holds none is an error, never a new empty store)
+    /// and resolves the pipeline.
     pub fn load(&self, registry: &Registry) -> Result<(Engine, Plan), String> {
-        let engine = open_engine(registry, self.cache.clone())?;
+        self.resolve(open_existing_engine(registry, self.cache.clone())?)
+    }
+
+    /// Resolves the pipeline against the existing store, or, where the path holds no store,
+    /// against a scratch store that is removed afterwards (`expand` needs a store only to
+    /// hash external inputs). The scratch store's folder comes back with the plan.
+    pub fn load_anywhere(
+        &self,
+        registry: &Registry,
+    ) -> Result<(Engine, Plan, Option<ScratchStore>), String> {
+        match open_existing_engine(registry, self.cache.clone()) {
+            Ok(engine) => self.resolve(engine).map(|(e, p)| (e, p, None)),
+            Err(_) => {
+                let scratch = ScratchStore::new()?;
+                let engine =
+                    Engine::new(registry.clone(), &scratch.0).map_err(|e| e.to_string())?;
+                self.resolve(engine).map(|(e, p)| (e, p, Some(scratch)))
+            }
+        }
+    }
+
+    fn resolve(&self, engine: Engine) -> Result<(Engine, Plan), String> {
         let plan = engine
             .load(&self.file, &self.sets)
             .map_err(|e| e.to_string())?;
@@ -192,10 +231,40 @@ impl PipelineArgs {
     }
 }
 
-/// Opens the store at `cache` (or the default).
+/// A temporary store under the system's temporary folder, removed when dropped.
+pub struct ScratchStore(PathBuf);
+
+impl ScratchStore {
+    fn new() -> Result<ScratchStore, String> {
+        let p = std::env::temp_dir().join(format!(
+            "augsplat-scratch-store-{}-{}",
+            std::process::id(),
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_nanos())
+                .unwrap_or(0)
+        ));
+        Ok(ScratchStore(p))
+    }
+}
+
+impl Drop for ScratchStore {
+    fn drop(&mut self) {
+        augsplat_graph::store::remove_tree(&self.0);
+    }
+}
+
+/// Opens the store at `cache` (or the default), creating it if the path holds none.
 pub fn open_engine(registry: &Registry, cache: Option<PathBuf>) -> Result<Engine, String> {
     let cache = cache.unwrap_or_else(default_cache_dir);
     Engine::new(registry.clone(), cache).map_err(|e| e.to_string())
+}
+
+/// Opens the existing store at `cache` (or the default); a path that holds no store is an
+/// error naming it.
+pub fn open_existing_engine(registry: &Registry, cache: Option<PathBuf>) -> Result<Engine, String> {
+    let cache = cache.unwrap_or_else(default_cache_dir);
+    Engine::open_existing(registry.clone(), cache).map_err(|e| e.to_string())
 }
 
 /// Copies the output folder `from` (read-only files in the store) to `to` as ordinary

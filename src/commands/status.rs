@@ -20,7 +20,7 @@ pub struct Args {
 
 /// Runs `augsplat status`.
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
-    let engine = super::run::open_engine(registry, args.cache)?;
+    let engine = super::run::open_existing_engine(registry, args.cache)?;
     let Some(st) = latest_status(engine.store()).map_err(|e| e.to_string())? else {
         return Err(format!(
             "no run has been recorded in {} yet",

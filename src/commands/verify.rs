@@ -1,6 +1,6 @@
 //! `augsplat verify`: prove what the store holds.
 
-use super::run::open_engine;
+use super::run::open_existing_engine;
 use super::CmdResult;
 use augsplat_graph::Registry;
 use std::path::PathBuf;
@@ -20,7 +20,7 @@ pub struct Args {
 /// Runs `augsplat verify`: exit status 0 when the store is sound (or was repaired), 1 when
 /// damage was found and left in place.
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
-    let engine = open_engine(registry, args.cache)?;
+    let engine = open_existing_engine(registry, args.cache)?;
     let r = engine.verify(args.repair).map_err(|e| e.to_string())?;
     println!(
         "checked {} blobs ({:.1} MiB), {} manifests, {} action entries in {:.2} s",

@@ -262,12 +262,13 @@ pub fn compute_by_key(
                 store.root().display()
             ))
         })?;
-    let folders = input_folders(plan, store, &keys, c)?;
+    let (folders, hashes) = input_folders(plan, store, &keys, c)?;
     let job = run::Job {
         comp: c,
         name: plan.comps[c].display_name(plan).to_string(),
         key: want,
         inputs: folders,
+        input_hashes: hashes,
         threads: threads.max(1),
         bar: None,
         checkpoint_every,
@@ -276,19 +277,26 @@ pub fn compute_by_key(
     Ok(job.run(plan, store))
 }
 
-/// Computation `c`'s input folders, from its upstream computations' entries in `keys`.
+/// Computation `c`'s input folders and their content hashes (per slot, in the same order),
+/// from its upstream computations' entries in `keys`.
+#[allow(clippy::type_complexity)]
 fn input_folders(
     plan: &Plan,
     store: &Store,
     keys: &PlannedKeys,
     c: usize,
-) -> Result<Vec<(String, Vec<std::path::PathBuf>)>, EngineError> {
+) -> Result<(Vec<(String, Vec<std::path::PathBuf>)>, Vec<Vec<Hash>>), EngineError> {
     let mut out = Vec::new();
+    let mut hashes = Vec::new();
     for slot in &plan.comps[c].inputs {
         let mut f = Vec::new();
+        let mut h = Vec::new();
         for (s, _) in &slot.sources {
             match s {
-                Source::External { path, .. } => f.push(path.clone()),
+                Source::External { path, hash } => {
+                    f.push(path.clone());
+                    h.push(*hash);
+                }
                 Source::Node { comp: up, output } => {
                     let m = keys[*up]
                         .as_ref()
@@ -301,10 +309,12 @@ fn input_folders(
                             ))
                         })?;
                     f.push(store.output_dir(&m));
+                    h.push(m);
                 }
             }
         }
         out.push((slot.name.clone(), f));
+        hashes.push(h);
     }
-    Ok(out)
+    Ok((out, hashes))
 }

@@ -284,7 +284,15 @@ pub fn instance_record(
                             .and_then(|r| r.outputs.get(output))
                             .map(hex),
                     };
-                    serde_json::json!({ "from": shown, "manifest": m })
+                    match s {
+                        // The links it went through, so `why` can say which one moved.
+                        Source::External { path, .. } => serde_json::json!({
+                            "from": shown,
+                            "manifest": m,
+                            "links": crate::store::links_within(path),
+                        }),
+                        Source::Node { .. } => serde_json::json!({ "from": shown, "manifest": m }),
+                    }
                 })
                 .collect();
             (slot.name.clone(), v)

@@ -73,6 +73,10 @@ pub(super) struct Job {
     pub(super) key: Hash,
     /// Its input folders, per input name.
     pub(super) inputs: Vec<(String, Vec<PathBuf>)>,
+    /// The content hash of each input folder (output manifest or external input hash), in
+    /// the order of `inputs`: what its key was computed with, checked before the node runs
+    /// and recorded in its entry.
+    pub(super) input_hashes: Vec<Vec<Hash>>,
     /// Its thread budget (the size of its rayon pool).
     pub(super) threads: usize,
     /// Its progress bar, when bars are drawn.
@@ -155,23 +159,32 @@ fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
     }
 }
 
-/// Checks every stored output the job reads against its manifest (cheap when a verified-at
-/// stamp still matches, see [`Store::check_output`]); a damaged one fails the node before it
-/// runs, naming the file and the repair command.
+/// Hashes everything the job reads and checks it against what its key was computed with: a
+/// stored output against its manifest (exactly its files, each file's blake3), an external
+/// input against its content hash. A damaged stored output is set aside, so that the next run
+/// finds its entry broken and recomputes it; the node fails before it runs, naming the file.
 fn check_inputs(store: &Store, job: &Job) -> Result<(), String> {
-    for (name, folders) in &job.inputs {
-        for folder in folders {
-            let Some(m) = store.output_of_folder(folder) else {
-                continue;
-            };
-            store.check_output(&m).map_err(|damage| {
-                format!(
-                    "input `{name}` comes from a damaged store entry ({}): {damage}. Run \
-                     `augsplat verify --repair` to remove the damaged entries, then run again \
-                     to recompute them",
-                    folder.display()
-                )
-            })?;
+    for ((name, folders), hashes) in job.inputs.iter().zip(&job.input_hashes) {
+        for (folder, hash) in folders.iter().zip(hashes) {
+            if let Some(m) = store.output_of_folder(folder) {
+                store.check_output(&m).map_err(|damage| {
+                    let healed = store.set_aside_damaged_output(&m);
+                    format!(
+                        "input `{name}` comes from a damaged store entry ({}): {damage}. {}",
+                        folder.display(),
+                        if healed {
+                            "The damaged output was set aside: run again to recompute it"
+                        } else {
+                            "Run `augsplat verify --repair` to remove the damaged entries, \
+                             then run again to recompute them"
+                        }
+                    )
+                })?;
+            } else {
+                store.check_external(folder, hash).map_err(|m| {
+                    format!("input `{name}`: {m}; run again to use its new content")
+                })?;
+            }
         }
     }
     Ok(())
@@ -247,6 +260,7 @@ fn run_in_scratch(
         name,
         key,
         inputs,
+        input_hashes,
         threads,
         bar,
         checkpoint_every,
@@ -274,6 +288,11 @@ fn run_in_scratch(
     // gate's slot.
     let gated = crate::gate::skip_reason(&comp.node.inputs(&comp.args), &inputs)
         .map_err(|m| (format!("node `{name}` ({}): {m}", comp.node.kind()), 0.0))?;
+    let consumed: BTreeMap<String, Vec<String>> = inputs
+        .iter()
+        .zip(&input_hashes)
+        .map(|((n, _), hs)| (n.clone(), hs.iter().map(hex).collect()))
+        .collect();
     let mut inputs = inputs;
     inputs.retain(|(n, _)| n != crate::gate::GATE_SLOT);
     // What the node's inputs look like now; a node that changes them fails (below).
@@ -289,6 +308,7 @@ fn run_in_scratch(
         checkpoints: Some(crate::node::Checkpoints {
             dir: store.checkpoint_dir(&key),
             every: checkpoint_every,
+            key,
         }),
         measures: BTreeMap::new(),
     };
@@ -373,6 +393,7 @@ fn run_in_scratch(
         threads,
         log,
         measures: std::mem::take(&mut ctx.measures),
+        inputs: consumed,
     };
     store
         .write_action(&key, &entry)

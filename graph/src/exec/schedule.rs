@@ -236,6 +236,7 @@ impl<'a> Scheduler<'a> {
                 name: self.plan.comps[c].display_name(self.plan).to_string(),
                 key,
                 inputs: folders,
+                input_hashes: manifests,
                 threads: want,
                 checkpoint_every: self.checkpoint_every,
                 echo_log: self.echo_log,

@@ -1,0 +1,96 @@
+//! The store through the `augsplat` binary: a mistyped `--cache` is never taken for an empty
+//! store, and `run --out` never hands the user a damaged result.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_augsplat");
+
+fn augsplat(dir: &Path, args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .current_dir(dir)
+        .env_remove("AUGSPLAT_CACHE")
+        .output()
+        .unwrap()
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+const PIPELINE: &str = r#"(nodes: { "hello": (kind: "Command", args: (program: "sh", args: ["-c", "echo hello > {out:out}/greeting.txt"])) })"#;
+
+#[test]
+fn commands_other_than_run_refuse_a_path_that_holds_no_store() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("p.ron");
+    std::fs::write(&p, PIPELINE).unwrap();
+    let ps = p.to_str().unwrap();
+    for args in [
+        vec!["verify", "--cache", "cahce"],
+        vec!["status", "--cache", "cahce"],
+        vec!["gc", "--cache", "cahce"],
+        vec!["plan", ps, "--cache", "cahce"],
+        vec!["why", ps, "hello", "--cache", "cahce"],
+    ] {
+        let out = augsplat(dir.path(), &args);
+        assert!(!out.status.success(), "{args:?} succeeded: {}", text(&out));
+        assert!(
+            text(&out).contains("holds no augsplat store"),
+            "{args:?}: {}",
+            text(&out)
+        );
+        assert!(
+            !dir.path().join("cahce").exists(),
+            "{args:?} created a store"
+        );
+    }
+    // `expand` needs no store; `run` creates one.
+    let out = augsplat(dir.path(), &["expand", ps, "--cache", "cahce"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(!dir.path().join("cahce").exists());
+    let out = augsplat(dir.path(), &["run", ps, "--cache", "store"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let out = augsplat(dir.path(), &["verify", "--cache", "store"]);
+    assert!(out.status.success(), "{}", text(&out));
+}
+
+#[test]
+fn run_out_never_copies_a_damaged_cached_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("p.ron");
+    std::fs::write(&p, PIPELINE).unwrap();
+    let ps = p.to_str().unwrap();
+    let out = augsplat(dir.path(), &["run", ps, "--cache", "store"]);
+    assert!(out.status.success(), "{}", text(&out));
+    // Damage the stored file in place (same size).
+    let outputs = dir.path().join("store/outputs");
+    let folder = std::fs::read_dir(&outputs)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap();
+    let f = folder.path().join("greeting.txt");
+    let mut perm = std::fs::metadata(&f).unwrap().permissions();
+    #[allow(clippy::permissions_set_readonly_false)]
+    perm.set_readonly(false);
+    std::fs::set_permissions(&f, perm).unwrap();
+    std::fs::write(&f, b"HELLO\n").unwrap();
+
+    let out = augsplat(
+        dir.path(),
+        &["run", ps, "--cache", "store", "--out", "results"],
+    );
+    assert!(
+        !out.status.success(),
+        "copied a damaged output: {}",
+        text(&out)
+    );
+    assert!(text(&out).contains("damaged"), "{}", text(&out));
+    assert!(!dir.path().join("results/hello/out/greeting.txt").exists());
+}
