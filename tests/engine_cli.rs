@@ -361,9 +361,21 @@ fn plan_why_expand_gc_commands() {
         t.contains("// sweep point version=1") && t.contains("gen[1]"),
         "{t}"
     );
+    // Before the first run there is no store: `plan` says so (a mistyped --cache looks the
+    // same) and creates none.
+    let out = env.run(&["plan", fs]);
+    assert!(!out.status.success());
+    assert!(
+        text(&out).contains("holds no augsplat store"),
+        "{}",
+        text(&out)
+    );
+    assert!(!env.path("cache").exists());
+    let out = env.run(&["run", fs, "--target", "gen"]);
+    assert!(out.status.success(), "{}", text(&out));
     let t = text(&env.run(&["plan", fs]));
     assert!(
-        t.contains("version=1: 3 new, 0 cached") && t.contains("version=2: 3 new, 0 cached"),
+        t.contains("version=1: 1 new, 2 cached") && t.contains("version=2: 1 new, 2 cached"),
         "{t}"
     );
     let out = env.run(&["run", fs]);
