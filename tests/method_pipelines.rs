@@ -281,6 +281,8 @@ fn real_data_pipelines_plan_and_their_sweeps_share_the_ensemble() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let cache = tmp.path().join("cache");
+    // An empty store (only `run` creates one; `plan` refuses a path that holds none).
+    Store::open(&cache).unwrap();
     let unique = |text: &str| -> usize {
         let line = text
             .lines()
