@@ -117,6 +117,9 @@ pub struct ActionEntry {
     /// a damaged or tainted entry, is tainted. Empty in entries written before it existed.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub inputs: BTreeMap<String, Vec<String>>,
+    /// Wall seconds the pre-run check spent hashing those inputs (not part of `seconds`).
+    #[serde(default)]
+    pub check_seconds: f64,
 }
 
 pub use crate::claim::Claim;

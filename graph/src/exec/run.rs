@@ -143,14 +143,16 @@ fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
         Ok(None) => {}
         Err(e) => return fail(e.to_string(), 0.0),
     }
+    let checked = Instant::now();
     if let Err(m) = check_inputs(store, &job) {
         return fail(m, 0.0);
     }
+    let check_seconds = checked.elapsed().as_secs_f64();
     let scratch = match store.new_scratch(&key) {
         Ok(s) => s,
         Err(e) => return fail(e.to_string(), 0.0),
     };
-    let result = run_in_scratch(plan, store, job, &scratch);
+    let result = run_in_scratch(plan, store, job, &scratch, check_seconds);
     remove_tree(&scratch);
     drop(claim);
     match result {
@@ -254,6 +256,7 @@ fn run_in_scratch(
     store: &Store,
     job: Job,
     scratch: &std::path::Path,
+    check_seconds: f64,
 ) -> Result<CompResult, (String, f64)> {
     let Job {
         comp: c,
@@ -394,6 +397,7 @@ fn run_in_scratch(
         log,
         measures: std::mem::take(&mut ctx.measures),
         inputs: consumed,
+        check_seconds,
     };
     store
         .write_action(&key, &entry)
