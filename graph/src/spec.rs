@@ -25,15 +25,38 @@ pub const TOP_FIELDS: &[&str] = &["extends", "params", "nodes", "sweep", "resour
 /// The fields a node may have.
 pub const NODE_FIELDS: &[&str] = &["kind", "args", "inputs", "repeat", "gate"];
 
-/// Reads a pipeline file and everything it extends, merged.
+/// How deep a chain of `extends` may go (a file that extends a file that extends ...).
+pub const MAX_EXTENDS_DEPTH: usize = 64;
+
+/// Reads a pipeline file and everything it extends, merged. Each file is read and merged once
+/// (a file named twice, or by two bases, is reused), and the chain is at most
+/// [`MAX_EXTENDS_DEPTH`] files deep.
 pub fn load_document(path: &Path) -> Result<Value, Diagnostic> {
     let mut chain = Vec::new();
-    load_rec(path, &mut chain)
+    let mut loaded = std::collections::HashMap::new();
+    load_rec(path, &mut chain, &mut loaded)
 }
 
-fn load_rec(path: &Path, chain: &mut Vec<PathBuf>) -> Result<Value, Diagnostic> {
+fn load_rec(
+    path: &Path,
+    chain: &mut Vec<PathBuf>,
+    loaded: &mut std::collections::HashMap<PathBuf, Value>,
+) -> Result<Value, Diagnostic> {
     let canon = std::fs::canonicalize(path)
         .map_err(|e| Diagnostic::bare(format!("cannot open pipeline {}: {e}", path.display())))?;
+    if let Some(doc) = loaded.get(&canon) {
+        return Ok(doc.clone());
+    }
+    if chain.len() >= MAX_EXTENDS_DEPTH {
+        let names: Vec<String> = chain.iter().map(|p| p.display().to_string()).collect();
+        return Err(Diagnostic::bare(format!(
+            "`extends` goes more than {MAX_EXTENDS_DEPTH} files deep: {} -> ... -> {} -> {}",
+            names[..3.min(names.len())].join(" -> "),
+            names[names.len().saturating_sub(2)..].join(" -> "),
+            canon.display()
+        ))
+        .hint("a pipeline extends a few bases; flatten the chain"));
+    }
     if chain.contains(&canon) {
         let names: Vec<String> = chain.iter().map(|p| p.display().to_string()).collect();
         return Err(Diagnostic::bare(format!(
@@ -79,7 +102,7 @@ fn load_rec(path: &Path, chain: &mut Vec<PathBuf>) -> Result<Value, Diagnostic> 
                     )
                     .hint("the path is relative to the file that writes it"));
                 }
-                let doc_i = load_rec(&base_path, chain)?;
+                let doc_i = load_rec(&base_path, chain, loaded)?;
                 base = Some(match base {
                     None => doc_i,
                     Some(b) => merge_documents(b, doc_i),
@@ -90,6 +113,9 @@ fn load_rec(path: &Path, chain: &mut Vec<PathBuf>) -> Result<Value, Diagnostic> 
         }
     };
     chain.pop();
+    if let Ok(doc) = &result {
+        loaded.insert(canon, doc.clone());
+    }
     result
 }
 
