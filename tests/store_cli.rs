@@ -94,3 +94,60 @@ fn run_out_never_copies_a_damaged_cached_output() {
     assert!(text(&out).contains("damaged"), "{}", text(&out));
     assert!(!dir.path().join("results/hello/out/greeting.txt").exists());
 }
+
+#[test]
+fn run_out_writes_only_below_its_folder_whatever_a_swept_value_holds() {
+    let dir = tempfile::tempdir().unwrap();
+    let marker = format!("augsplat_escape_{}", std::process::id());
+    let escape = format!("{}{marker}", "/..".repeat(40));
+    let p = dir.path().join("p.ron");
+    std::fs::write(
+        &p,
+        format!(
+            r#"(nodes: {{ "n": (kind: "Command", args: (program: "sh", args: ["-c", "echo hi > {{out:out}}/x"])) }},
+               sweep: Grid({{ "n.args": [["-c", "echo a > {{out:out}}/x", "{escape}"], ["-c", "echo b > {{out:out}}/x", "{escape}/"]] }}))"#
+        ),
+    )
+    .unwrap();
+    let out = augsplat(
+        dir.path(),
+        &[
+            "run",
+            p.to_str().unwrap(),
+            "--cache",
+            "store",
+            "--out",
+            "res",
+        ],
+    );
+    assert!(out.status.success(), "{}", text(&out));
+    let escaped: Vec<_> = std::fs::read_dir("/")
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with(&marker))
+        .collect();
+    for e in &escaped {
+        let _ = std::fs::remove_dir_all(e.path());
+    }
+    assert!(escaped.is_empty(), "wrote outside --out: {escaped:?}");
+    let mut names: Vec<String> = std::fs::read_dir(dir.path().join("res"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names.len(),
+        2,
+        "two points, two distinct folders: {names:?}"
+    );
+    for n in &names {
+        assert!(!n.contains('/') && !n.contains(".."), "{n}");
+        let x = dir.path().join("res").join(n).join("out/x");
+        assert!(x.is_file(), "{}", x.display());
+    }
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        3,
+        "only p.ron, store/ and res/ in the folder"
+    );
+}

@@ -124,3 +124,31 @@ pub fn pipeline_id(file: &Path) -> String {
     let abs = std::fs::canonicalize(file).unwrap_or_else(|_| file.to_path_buf());
     blake3::hash(abs.to_string_lossy().as_bytes()).to_hex()[..32].to_string()
 }
+
+/// `name` (an instance or output name, which may hold a sweep value) as one safe folder name:
+/// path separators, control characters and `..` become `_`, a leading `.` gets a `_` before
+/// it, and when anything changed a short hash of the original keeps distinct names distinct.
+/// `run --out` writes only below its folder whatever a swept string holds.
+pub fn safe_folder_name(name: &str) -> String {
+    let mut s: String = name
+        .chars()
+        .map(|c| {
+            if c == '/' || c == '\\' || c.is_control() {
+                '_'
+            } else {
+                c
+            }
+        })
+        .collect();
+    while s.contains("..") {
+        s = s.replace("..", "__");
+    }
+    if s.is_empty() || s.starts_with('.') {
+        s.insert(0, '_');
+    }
+    if s != name {
+        s.push('-');
+        s.push_str(&blake3::hash(name.as_bytes()).to_hex()[..8]);
+    }
+    s
+}

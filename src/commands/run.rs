@@ -107,7 +107,7 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
     }
     if let Some(dir) = &args.out {
         for (inst, output, from) in &results {
-            let to = dir.join(inst).join(output);
+            let to = out_path(dir, inst, output);
             // Never hand a user a damaged result: the copy is checked like a node's input.
             if let Some(m) = engine.store().output_of_folder(from) {
                 engine.store().check_output(&m).map_err(|damage| {
@@ -127,7 +127,7 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
         println!("results:");
         for (inst, output, from) in &results {
             let shown = match &args.out {
-                Some(dir) => dir.join(inst).join(output),
+                Some(dir) => out_path(dir, inst, output),
                 None => from.clone(),
             };
             println!("  {inst}.{output}  {}", shown.display());
@@ -265,6 +265,14 @@ pub fn open_engine(registry: &Registry, cache: Option<PathBuf>) -> Result<Engine
 pub fn open_existing_engine(registry: &Registry, cache: Option<PathBuf>) -> Result<Engine, String> {
     let cache = cache.unwrap_or_else(default_cache_dir);
     Engine::open_existing(registry.clone(), cache).map_err(|e| e.to_string())
+}
+
+/// Where `--out DIR` puts output `output` of instance `inst`: `DIR/<inst>/<output>/`, each name
+/// made a safe folder name (a swept string may hold `/` or `..`), so nothing lands outside DIR.
+fn out_path(dir: &std::path::Path, inst: &str, output: &str) -> PathBuf {
+    use augsplat_graph::key::safe_folder_name;
+    dir.join(safe_folder_name(inst))
+        .join(safe_folder_name(output))
 }
 
 /// Copies the output folder `from` (read-only files in the store) to `to` as ordinary
