@@ -151,3 +151,82 @@ fn run_out_writes_only_below_its_folder_whatever_a_swept_value_holds() {
         "only p.ron, store/ and res/ in the folder"
     );
 }
+
+#[test]
+fn a_run_waiting_on_another_drivers_claim_says_whom_it_waits_for() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("p.ron");
+    std::fs::write(&p, PIPELINE).unwrap();
+    let ps = p.to_str().unwrap();
+    let summary = dir.path().join("s.json");
+    let out = augsplat(
+        dir.path(),
+        &[
+            "run",
+            ps,
+            "--cache",
+            "store",
+            "--summary-json",
+            summary.to_str().unwrap(),
+        ],
+    );
+    assert!(out.status.success(), "{}", text(&out));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+    let key = v["nodes"][0]["key"].as_str().unwrap().to_string();
+    // Its entry goes, and another driver (on another host) claims the key.
+    let store = dir.path().join("store");
+    std::fs::remove_file(
+        store
+            .join("actions")
+            .join(&key[..2])
+            .join(format!("{key}.json")),
+    )
+    .unwrap();
+    let claim = store.join("locks").join(format!("{key}.claim"));
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs();
+    std::fs::write(
+        &claim,
+        format!(
+            r#"{{"host":"another-host","pid":4242,"start_ticks":0,"slurm_job":null,"since_unix":{now},"token":"t"}}"#
+        ),
+    )
+    .unwrap();
+    let child = Command::new(BIN)
+        .args(["run", ps, "--cache", "store"])
+        .current_dir(dir.path())
+        .env("AUGSPLAT_CLAIM_STALE_SECS", "600")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // `status` shows the node waiting for that driver.
+    let t = std::time::Instant::now();
+    let status = loop {
+        let s = augsplat(dir.path(), &["status", "--cache", "store"]);
+        let s = text(&s);
+        if s.contains("waiting") && s.contains("another-host") {
+            break s;
+        }
+        assert!(
+            t.elapsed().as_secs() < 30,
+            "status never showed the wait:\n{s}"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    assert!(status.contains("pid 4242 on another-host"), "{status}");
+    // The other driver goes away without a result: the run computes it itself.
+    std::fs::remove_file(&claim).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("waiting: `hello` is being computed by pid 4242 on another-host"),
+        "{err}"
+    );
+    let s = text(&augsplat(dir.path(), &["status", "--cache", "store"]));
+    assert!(!s.contains("another-host"), "{s}");
+}

@@ -8,6 +8,12 @@
 //! A claim is **stale**, and is taken over, when
 //! - its heartbeat is older than [`ClaimPolicy::stale_after`] (the holder died on another
 //!   machine, or hangs), or
+//! - its modification time lies further in the future than [`ClaimPolicy::stale_after`] (the
+//!   holder's clock is ahead of ours, as between NFS hosts with skewed clocks, or the time was
+//!   set by hand): the mtime says nothing then, and the claim is judged by its heartbeat's
+//!   *content* instead — the holder also rewrites a beat file `locks/<key>.claim.beat` with a
+//!   counter at each heartbeat, and a waiter that sees neither it nor the mtime change for
+//!   `stale_after` on its own clock takes the claim over, or
 //! - its holder ran on this host and that process no longer exists (pid gone, or reused by a
 //!   process that started at another time): a killed local run is taken over at once, or
 //! - a caller that knows the holder's Slurm job has ended breaks it ([`break_claim_of_job`]).
@@ -144,6 +150,7 @@ impl Drop for Claim {
         }
         if read_holder(&self.path).is_some_and(|h| h.token == self.token) {
             let _ = fs::remove_file(&self.path);
+            let _ = fs::remove_file(beat_path(&self.path));
         }
     }
 }
@@ -185,14 +192,7 @@ pub fn stale_reason_in_job(
         // by its age only.
         None => (age > policy.stale_after).then(|| {
             (
-                ClaimHolder {
-                    host: "?".into(),
-                    pid: 0,
-                    start_ticks: 0,
-                    slurm_job: None,
-                    since_unix: 0,
-                    token: String::new(),
-                },
+                unknown_holder(),
                 format!("unreadable, last touched {:.0} s ago", age.as_secs_f64()),
             )
         }),
@@ -211,6 +211,9 @@ pub fn stale_reason_in_job(
             let why = format!("its holder, {}, is no longer running", h.describe());
             Some((h, why))
         }
+        // A time in the future: only the waiter's watch of its heartbeat can tell (see
+        // `acquire`).
+        Some(_) if mtime_in_future(path, policy) => None,
         Some(h) if age > policy.stale_after => {
             let why = format!(
                 "its holder, {}, has not renewed it for {:.0} s",
@@ -220,6 +223,57 @@ pub fn stale_reason_in_job(
             Some((h, why))
         }
         Some(_) => None,
+    }
+}
+
+/// The beat file beside claim file `path`: its holder's token and a counter, rewritten at
+/// every heartbeat (what a waiter watches when the claim's mtime cannot be trusted).
+pub fn beat_path(path: &Path) -> PathBuf {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(".beat");
+    path.with_file_name(name)
+}
+
+/// Whether the claim file's modification time lies more than `policy.stale_after` in the
+/// future (clock skew between hosts, or a time set by hand): then only its heartbeat's content
+/// tells whether its holder lives.
+pub fn mtime_in_future(path: &Path, policy: &ClaimPolicy) -> bool {
+    fs::metadata(path)
+        .ok()
+        .and_then(|m| m.modified().ok())
+        .and_then(|m| m.duration_since(SystemTime::now()).ok())
+        .is_some_and(|ahead| ahead > policy.stale_after)
+}
+
+/// What a waiter last saw of a claim whose mtime cannot be trusted, measured on its own clock.
+struct BeatWatch {
+    /// The claim's holder token, its beat file's content and its mtime when last seen.
+    seen: (Option<String>, Option<Vec<u8>>, Option<SystemTime>),
+    /// When that was first seen.
+    since: std::time::Instant,
+}
+
+impl BeatWatch {
+    fn look(path: &Path) -> (Option<String>, Option<Vec<u8>>, Option<SystemTime>) {
+        (
+            read_holder(path).map(|h| h.token),
+            fs::read(beat_path(path)).ok(),
+            fs::metadata(path).ok().and_then(|m| m.modified().ok()),
+        )
+    }
+    /// How long nothing of the claim has changed (own clock).
+    fn unchanged_for(watch: &mut Option<BeatWatch>, path: &Path) -> Duration {
+        let now = BeatWatch::look(path);
+        match watch {
+            Some(w) if w.seen == now => w.since.elapsed(),
+            _ => {
+                *watch = Some(BeatWatch {
+                    seen: now,
+                    since: std::time::Instant::now(),
+                });
+                Duration::ZERO
+            }
+        }
     }
 }
 
@@ -249,6 +303,27 @@ fn try_create(path: &Path, holder: &ClaimHolder) -> Result<bool, EngineError> {
     };
     let _ = fs::remove_file(&tmp);
     Ok(linked)
+}
+
+/// Rewrites the beat file of claim `path` (atomically: written beside it, then renamed).
+fn write_beat(path: &Path, token: &str, beats: u64) {
+    let beat = beat_path(path);
+    let tmp = beat.with_extension(format!("beat.{}", crate::store::unique_suffix()));
+    if fs::write(&tmp, format!("{token} {beats}")).is_ok() && fs::rename(&tmp, &beat).is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+}
+
+/// The holder of a claim file that cannot be read.
+fn unknown_holder() -> ClaimHolder {
+    ClaimHolder {
+        host: "?".into(),
+        pid: 0,
+        start_ticks: 0,
+        slurm_job: None,
+        since_unix: 0,
+        token: String::new(),
+    }
 }
 
 #[cfg(unix)]
@@ -284,23 +359,64 @@ fn take_over(path: &Path, stale: &ClaimHolder) -> bool {
 /// Claims the key whose claim file is `path`: returns at once when nobody holds it, else
 /// waits until the holder releases it or its claim is stale (and then takes it over).
 pub fn acquire(path: &Path, policy: &ClaimPolicy) -> Result<Claim, EngineError> {
+    acquire_reporting(path, policy, &|_| {})
+}
+
+/// [`acquire`], calling `on_wait` with `Some(holder)` each time the claim turns out to be
+/// held by someone new (so a run can say whom it waits for), and with `None` once it holds the
+/// claim after having waited.
+pub fn acquire_reporting(
+    path: &Path,
+    policy: &ClaimPolicy,
+    on_wait: &dyn Fn(Option<&ClaimHolder>),
+) -> Result<Claim, EngineError> {
     let holder = ClaimHolder::this_process();
     let mut waited = false;
     let mut took_over = None;
     let mut pause = Duration::from_millis(50);
+    let mut reported: Option<String> = None;
+    let mut watch: Option<BeatWatch> = None;
     loop {
         if try_create(path, &holder)? {
             break;
         }
-        if let Some((stale, _why)) = stale_reason(path, policy) {
+        let stale = stale_reason(path, policy).or_else(|| {
+            // A claim dated in the future: stale when nothing of it changed for the bound.
+            if !mtime_in_future(path, policy) {
+                watch = None;
+                return None;
+            }
+            let quiet = BeatWatch::unchanged_for(&mut watch, path);
+            (quiet > policy.stale_after).then(|| {
+                let h = read_holder(path).unwrap_or_else(unknown_holder);
+                let why = format!(
+                    "its holder, {}, dated it in the future and its heartbeat has not \
+                     changed for {:.0} s",
+                    h.describe(),
+                    quiet.as_secs_f64()
+                );
+                (h, why)
+            })
+        });
+        if let Some((stale, _why)) = stale {
             if take_over(path, &stale) {
                 took_over = Some(stale);
+                watch = None;
                 continue;
+            }
+        }
+        if let Some(h) = read_holder(path) {
+            if reported.as_deref() != Some(h.token.as_str()) {
+                on_wait(Some(&h));
+                reported = Some(h.token.clone());
             }
         }
         waited = true;
         std::thread::sleep(pause);
         pause = (pause * 2).min(Duration::from_secs(1));
+    }
+    if reported.is_some() {
+        on_wait(None);
     }
     let stop = Arc::new(AtomicBool::new(false));
     let heartbeat = {
@@ -310,6 +426,7 @@ pub fn acquire(path: &Path, policy: &ClaimPolicy) -> Result<Claim, EngineError> 
             stop.clone(),
             policy.heartbeat,
         );
+        let mut beats: u64 = 0;
         std::thread::Builder::new()
             .name("claim-heartbeat".into())
             .spawn(move || loop {
@@ -323,6 +440,8 @@ pub fn acquire(path: &Path, policy: &ClaimPolicy) -> Result<Claim, EngineError> 
                 if let Ok(f) = fs::OpenOptions::new().append(true).open(&path) {
                     let _ = f.set_modified(SystemTime::now());
                 }
+                beats += 1;
+                write_beat(&path, &token, beats);
             })
             .ok()
     };
@@ -423,6 +542,78 @@ mod tests {
         assert!(c.waited && c.took_over.is_some());
         assert!(waited >= Duration::from_millis(700), "{waited:?}");
         assert!(waited < Duration::from_secs(5), "{waited:?}");
+    }
+
+    #[test]
+    fn a_claim_dated_in_the_future_is_judged_by_its_heartbeat() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = claim_path(dir.path(), "89");
+        let mut remote = ClaimHolder::this_process();
+        remote.host = "host-with-a-fast-clock".into();
+        assert!(try_create(&p, &remote).unwrap());
+        let future = SystemTime::now() + Duration::from_secs(3600);
+        fs::File::options()
+            .append(true)
+            .open(&p)
+            .unwrap()
+            .set_modified(future)
+            .unwrap();
+        let pol = policy(600);
+        assert!(mtime_in_future(&p, &pol));
+        assert!(
+            stale_reason(&p, &pol).is_none(),
+            "the mtime alone decides nothing"
+        );
+        // Nobody renews it: taken over once nothing changed for the bound, on our clock.
+        let seen = std::sync::Mutex::new(Vec::new());
+        let t = std::time::Instant::now();
+        let c = acquire_reporting(&p, &pol, &|h| {
+            if let Some(h) = h {
+                seen.lock().unwrap().push(h.host.clone())
+            }
+        })
+        .unwrap();
+        let waited = t.elapsed();
+        assert!(c.took_over.is_some());
+        assert!(waited >= Duration::from_millis(500), "{waited:?}");
+        assert!(waited < Duration::from_secs(10), "{waited:?}");
+        assert_eq!(
+            *seen.lock().unwrap(),
+            ["host-with-a-fast-clock"],
+            "whom it waited for"
+        );
+    }
+
+    #[test]
+    fn a_live_claim_dated_in_the_future_is_not_taken_over() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = claim_path(dir.path(), "8a");
+        let pol = policy(600);
+        let held = acquire(&p, &pol).unwrap();
+        // The holder's clock is an hour ahead: each heartbeat dates the claim in the future.
+        let stop = Arc::new(AtomicBool::new(false));
+        let skew = {
+            let (p, stop) = (p.clone(), stop.clone());
+            std::thread::spawn(move || {
+                while !stop.load(Ordering::Relaxed) {
+                    if let Ok(f) = fs::File::options().append(true).open(&p) {
+                        let _ = f.set_modified(SystemTime::now() + Duration::from_secs(3600));
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+            })
+        };
+        let p2 = p.clone();
+        let waiter = std::thread::spawn(move || acquire(&p2, &pol).unwrap().took_over.is_some());
+        std::thread::sleep(Duration::from_millis(2000));
+        assert!(p.exists() && read_holder(&p).is_some());
+        drop(held);
+        stop.store(true, Ordering::Relaxed);
+        skew.join().unwrap();
+        assert!(
+            !waiter.join().unwrap(),
+            "a live holder's claim was never taken over"
+        );
     }
 
     #[test]

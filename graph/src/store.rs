@@ -298,7 +298,21 @@ impl Store {
     /// process finishes, dies or stops renewing its claim (see [`crate::claim`]: claim files,
     /// not OS locks, so that a store on NFS or Lustre works).
     pub fn claim(&self, key: &Hash) -> Result<Claim, EngineError> {
-        crate::claim::acquire(&self.claim_path(key), &crate::claim::ClaimPolicy::default())
+        self.claim_reporting(key, &|_| {})
+    }
+
+    /// [`Store::claim`], calling `on_wait` with the holder whenever it starts waiting for a
+    /// new one, and with `None` once it holds the claim after waiting.
+    pub fn claim_reporting(
+        &self,
+        key: &Hash,
+        on_wait: &dyn Fn(Option<&crate::claim::ClaimHolder>),
+    ) -> Result<Claim, EngineError> {
+        crate::claim::acquire_reporting(
+            &self.claim_path(key),
+            &crate::claim::ClaimPolicy::default(),
+            on_wait,
+        )
     }
 
     /// The claim file of `key`.

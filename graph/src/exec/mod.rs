@@ -216,7 +216,11 @@ fn run_local(
                 let tx = tx.clone();
                 scope.spawn(move || {
                     let c = job.comp;
-                    let _ = tx.send(Msg::Done(c, job.run(plan, store)));
+                    let waiting = tx.clone();
+                    let on_wait = move |h: Option<&crate::claim::ClaimHolder>| {
+                        let _ = waiting.send(Msg::Waiting(c, h.cloned()));
+                    };
+                    let _ = tx.send(Msg::Done(c, job.run(plan, store, &on_wait)));
                 });
             })?;
             // One write per start or finish: cheap beside any node.
@@ -274,7 +278,12 @@ pub fn compute_by_key(
         checkpoint_every,
         echo_log: false,
     };
-    Ok(job.run(plan, store))
+    let name = plan.comps[c].display_name(plan).to_string();
+    Ok(job.run(plan, store, &|h| {
+        if let Some(h) = h {
+            eprintln!("{}", schedule::waiting_line(&name, h))
+        }
+    }))
 }
 
 /// Computation `c`'s input folders and their content hashes (per slot, in the same order),

@@ -89,9 +89,14 @@ pub(super) struct Job {
 
 impl Job {
     /// Runs the computation (on a worker thread) and clears its progress bar.
-    pub(super) fn run(self, plan: &Plan, store: &Store) -> CompResult {
+    pub(super) fn run(
+        self,
+        plan: &Plan,
+        store: &Store,
+        on_wait: &dyn Fn(Option<&crate::claim::ClaimHolder>),
+    ) -> CompResult {
         let bar = self.bar.clone();
-        let r = run_one(plan, store, self);
+        let r = run_one(plan, store, self, on_wait);
         if let Some(b) = bar {
             b.finish_and_clear();
         }
@@ -109,7 +114,12 @@ pub(super) fn gated_outputs(store: &Store, outputs: &BTreeMap<String, Hash>) -> 
 
 /// Claims the job's key, finds it cached if another process finished it meanwhile, and
 /// otherwise runs it in a fresh scratch folder (removed afterwards).
-fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
+fn run_one(
+    plan: &Plan,
+    store: &Store,
+    job: Job,
+    on_wait: &dyn Fn(Option<&crate::claim::ClaimHolder>),
+) -> CompResult {
     let key = job.key;
     let fail = |m: String, secs: f64| CompResult {
         status: Status::Failed(m),
@@ -120,7 +130,7 @@ fn run_one(plan: &Plan, store: &Store, job: Job) -> CompResult {
         waited: false,
         gated: None,
     };
-    let claim = match store.claim(&key) {
+    let claim = match store.claim_reporting(&key, on_wait) {
         Ok(c) => c,
         Err(e) => return fail(e.to_string(), 0.0),
     };

@@ -25,6 +25,19 @@ use std::time::Duration;
 pub(super) enum Msg {
     /// Computation `.0` finished with result `.1`.
     Done(usize, CompResult),
+    /// Computation `.0` waits for another process, `.1`, that holds its key's claim (`None`:
+    /// it no longer waits).
+    Waiting(usize, Option<crate::claim::ClaimHolder>),
+}
+
+/// The line a run prints when a node waits for another process computing the same key.
+pub(super) fn waiting_line(name: &str, h: &crate::claim::ClaimHolder) -> String {
+    format!(
+        "waiting: `{name}` is being computed by {}, which claimed it {} s ago; its result \
+         will be used when it finishes (a claim whose holder died is taken over)",
+        h.describe(),
+        crate::store::now_unix().saturating_sub(h.since_unix)
+    )
 }
 
 /// The overall progress bar and, when drawn, one spinner per running computation.
@@ -101,6 +114,8 @@ pub(super) struct Scheduler<'a> {
     progress: Progress,
     /// Computations whose broken cache entry was already reported.
     warned_broken: BTreeSet<usize>,
+    /// Running computations that wait for another process's claim on their key: whom.
+    waiting_for: BTreeMap<usize, crate::claim::ClaimHolder>,
     /// The checkpoint cadence handed to each job.
     pub(super) checkpoint_every: u64,
     /// Whether each job echoes its log lines to stderr.
@@ -159,6 +174,7 @@ impl<'a> Scheduler<'a> {
             running_keys: BTreeMap::new(),
             progress: Progress::new(show_progress, total),
             warned_broken: BTreeSet::new(),
+            waiting_for: BTreeMap::new(),
             checkpoint_every: super::DEFAULT_CHECKPOINT_EVERY,
             echo_log: false,
             unbounded: false,
@@ -248,7 +264,24 @@ impl<'a> Scheduler<'a> {
     /// Takes a worker's message: frees the computation's threads, reports a failure, records
     /// the result and readies the dependents.
     pub(super) fn on_message(&mut self, msg: Msg) {
-        let Msg::Done(c, r) = msg;
+        let (c, r) = match msg {
+            Msg::Done(c, r) => (c, r),
+            Msg::Waiting(c, None) => {
+                self.waiting_for.remove(&c);
+                return;
+            }
+            Msg::Waiting(c, Some(holder)) => {
+                let name = self.plan.comps[c].display_name(self.plan);
+                let line = waiting_line(name, &holder);
+                let _ = self.progress.multi.println(&line);
+                if self.progress.multi.is_hidden() {
+                    eprintln!("{line}");
+                }
+                self.waiting_for.insert(c, holder);
+                return;
+            }
+        };
+        self.waiting_for.remove(&c);
         let held = self.running.remove(&c).unwrap_or(0);
         if !self.unbounded {
             self.free += held;
@@ -317,6 +350,14 @@ impl<'a> Scheduler<'a> {
                     Status::Failed(m) => st.message = Some(m.clone()),
                     Status::Skipped => {}
                 }
+            } else if let Some(h) = self.waiting_for.get(&c) {
+                st.state = "waiting".into();
+                st.key = self.running_keys.get(&c).map(hex);
+                st.message = Some(format!(
+                    "for {}, which computes the same key (claimed at Unix time {})",
+                    h.describe(),
+                    h.since_unix
+                ));
             } else if self.running.contains_key(&c) {
                 st.state = "running".into();
                 st.key = self.running_keys.get(&c).map(hex);
