@@ -154,3 +154,36 @@ fn capture_runs_on_an_llff_folder() {
     // 504×378 photos, at most 48 px: downscaled by 11 → 45 px wide.
     assert_eq!(imported_width(tmp.path()), 504 / 11);
 }
+
+/// An LLFF folder that ships `images_4/` only (no `images_8/`, the importer's default factor)
+/// imports through `capture.ron` unchanged: the folder whose image count matches the poses is
+/// read, and the log says so.
+#[test]
+fn capture_runs_on_an_llff_folder_with_only_images_4() {
+    let Some(data) = augsplat_testkit::data::shared_data("capture on LLFF images_4", "fern") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let src = tmp.path().join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    std::fs::copy(
+        data.join("fern/poses_bounds.npy"),
+        src.join("poses_bounds.npy"),
+    )
+    .unwrap();
+    augsplat_testkit::copy_dir(&data.join("fern/images_8"), &src.join("images_4"));
+    let nodes = run_capture(tmp.path());
+    assert_eq!(imported_width(tmp.path()), 504 / 11);
+    let scene = nodes.iter().find(|n| n["name"] == "scene").unwrap();
+    let key = scene["key"].as_str().unwrap();
+    let store = augsplat_graph::Store::open(tmp.path().join("cache")).unwrap();
+    let entry = store
+        .action(&augsplat_graph::store::unhex(key).unwrap())
+        .unwrap()
+        .unwrap();
+    let log = std::fs::read_to_string(store.blob(&entry.log.expect("a log")).unwrap()).unwrap();
+    assert!(
+        log.contains("images_8") && log.contains("images_4"),
+        "{log}"
+    );
+}

@@ -231,25 +231,12 @@ fn inspect_transforms(file: &Path) -> Result<Report> {
 }
 
 fn inspect_llff(dir: &Path) -> Result<Report> {
-    // Use the smallest images_N folder whose image count matches the poses, else images/.
+    // Use the most downscaled images_N folder whose image count matches the poses (as the
+    // importer does when its `images_<llff_factor>` is absent).
     let npy = dir.join("poses_bounds.npy");
     let (shape, _) = augsplat_core::image::read_npy_array(&npy)?;
     let rows = shape.first().copied().unwrap_or(0);
-    let mut folders: Vec<(u32, std::path::PathBuf)> = std::fs::read_dir(dir)
-        .map_err(|e| SceneError::io(dir, e))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_dir())
-        .filter_map(|p| {
-            let name = p.file_name()?.to_str()?.to_string();
-            let f = if name == "images" {
-                1
-            } else {
-                name.strip_prefix("images_")?.parse().ok()?
-            };
-            Some((f, p))
-        })
-        .collect();
-    folders.sort();
+    let folders = crate::source::llff_image_folders(dir)?;
     let mut notes = Vec::new();
     for (f, p) in &folders {
         notes.push(format!(

@@ -196,11 +196,12 @@ pub fn read_source(source: &Path, args: &ImportSceneArgs) -> Result<RawScene, Sc
             Ok(raw)
         }
         SourceFormat::Llff => {
-            let images = images.unwrap_or_else(|| match args.llff_factor {
-                0 | 1 => source.join("images"),
-                f => source.join(format!("images_{f}")),
-            });
+            let (images, note) = match images {
+                Some(i) => (i, None),
+                None => crate::source::choose_llff_images(source, args.llff_factor)?,
+            };
             let mut raw = load_llff(source, &images)?;
+            raw.warnings.extend(note);
             raw.source = format!("LLFF poses_bounds.npy with images {}", rel(source, &images));
             Ok(raw)
         }

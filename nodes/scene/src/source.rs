@@ -447,6 +447,91 @@ fn matrix4(v: &serde_json::Value) -> std::result::Result<Mat4, String> {
     Ok(m)
 }
 
+/// The `images` and `images_N` folders of LLFF folder `dir`, by factor (1 for `images`).
+pub fn llff_image_folders(dir: &Path) -> Result<Vec<(u32, PathBuf)>> {
+    let mut folders: Vec<(u32, PathBuf)> = std::fs::read_dir(dir)
+        .map_err(|e| SceneError::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .filter_map(|p| {
+            let name = p.file_name()?.to_str()?.to_string();
+            let f = if name == "images" {
+                1
+            } else {
+                name.strip_prefix("images_")?.parse().ok()?
+            };
+            Some((f, p))
+        })
+        .collect();
+    folders.sort();
+    Ok(folders)
+}
+
+/// The last component of `p`, for messages that must not depend on where a capture lies.
+fn folder_name(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_default()
+}
+
+/// The images folder of LLFF folder `dir` to read: `images_<factor>` (`images` for factor 1)
+/// when it exists, else the folder whose image count matches the poses (the most downscaled
+/// one when several do), with a note saying so. An error lists the folders and their counts
+/// when none matches.
+pub fn choose_llff_images(dir: &Path, factor: u32) -> Result<(PathBuf, Option<String>)> {
+    let wanted = match factor {
+        0 | 1 => dir.join("images"),
+        f => dir.join(format!("images_{f}")),
+    };
+    if wanted.is_dir() {
+        return Ok((wanted, None));
+    }
+    let npy = dir.join("poses_bounds.npy");
+    if !npy.is_file() {
+        return Err(SceneError::missing(&npy, "LLFF poses file"));
+    }
+    let (shape, _) = augsplat_core::image::read_npy_array(&npy)?;
+    let rows = shape.first().copied().unwrap_or(0);
+    let folders = llff_image_folders(dir)?;
+    let counted: Vec<(u32, PathBuf, usize)> = folders
+        .into_iter()
+        .map(|(f, p)| {
+            let n = list_images(&p).map(|v| v.len()).unwrap_or(0);
+            (f, p, n)
+        })
+        .collect();
+    match counted.iter().rev().find(|(_, _, n)| *n == rows) {
+        Some((_, p, _)) => Ok((
+            p.clone(),
+            Some(format!(
+                "{} not found; reading {}, whose {rows} images match poses_bounds.npy \
+                 (set `llff_factor` or `images` to choose another)",
+                folder_name(&wanted),
+                folder_name(p)
+            )),
+        )),
+        None => {
+            let seen: Vec<String> = counted
+                .iter()
+                .map(|(_, p, n)| format!("{} ({n} images)", p.display()))
+                .collect();
+            Err(SceneError::format(
+                dir,
+                format!(
+                    "{} not found, and no images folder holds the {rows} images \
+                     poses_bounds.npy describes (found: {})",
+                    wanted.display(),
+                    if seen.is_empty() {
+                        "none".to_string()
+                    } else {
+                        seen.join(", ")
+                    }
+                ),
+            ))
+        }
+    }
+}
+
 /// Reads an LLFF folder: `poses_bounds.npy` and the images folder `images_dir`.
 pub fn load_llff(dir: &Path, images_dir: &Path) -> Result<RawScene> {
     let npy = dir.join("poses_bounds.npy");
