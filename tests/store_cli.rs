@@ -230,3 +230,39 @@ fn a_run_waiting_on_another_drivers_claim_says_whom_it_waits_for() {
     let s = text(&augsplat(dir.path(), &["status", "--cache", "store"]));
     assert!(!s.contains("another-host"), "{s}");
 }
+
+#[test]
+fn status_all_lists_the_last_runs_newest_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("p.ron");
+    std::fs::write(&p, PIPELINE).unwrap();
+    let q = dir.path().join("q.ron");
+    std::fs::write(&q, PIPELINE.replace("hello", "bye")).unwrap();
+    for f in [&p, &q] {
+        let out = augsplat(
+            dir.path(),
+            &["run", f.to_str().unwrap(), "--cache", "store", "-q"],
+        );
+        assert!(out.status.success(), "{}", text(&out));
+        // Run ids hold the start second: keep the runs' order unambiguous.
+        std::thread::sleep(std::time::Duration::from_millis(1100));
+    }
+    let latest = text(&augsplat(dir.path(), &["status", "--cache", "store"]));
+    assert!(
+        latest.contains("q.ron") && !latest.contains("p.ron"),
+        "{latest}"
+    );
+    let out = augsplat(dir.path(), &["status", "--all", "--cache", "store"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let t = String::from_utf8_lossy(&out.stdout).to_string();
+    let lines: Vec<&str> = t.lines().collect();
+    assert_eq!(lines.len(), 2, "{t}");
+    assert!(
+        lines[0].contains("q.ron") && lines[0].contains("finished"),
+        "{t}"
+    );
+    assert!(
+        lines[1].contains("p.ron") && lines[1].contains("1 ran"),
+        "{t}"
+    );
+}

@@ -16,11 +16,33 @@ pub struct Args {
     /// Print the status file (JSON) instead of the table.
     #[arg(long)]
     pub json: bool,
+    /// List the last runs the store keeps (newest first), one line each.
+    #[arg(long)]
+    pub all: bool,
 }
 
 /// Runs `augsplat status`.
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
     let engine = super::run::open_existing_engine(registry, args.cache)?;
+    if args.all {
+        let runs = augsplat_graph::exec::status::recent_statuses(engine.store());
+        if args.json {
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&runs).map_err(|e| e.to_string())?
+            );
+        } else if runs.is_empty() {
+            return Err(format!(
+                "no run has been recorded in {} yet",
+                engine.store().root().display()
+            ));
+        } else {
+            for st in &runs {
+                println!("{}", format_run_line(st, driver_alive(st)));
+            }
+        }
+        return Ok(());
+    }
     let Some(st) = latest_status(engine.store()).map_err(|e| e.to_string())? else {
         return Err(format!(
             "no run has been recorded in {} yet",
@@ -44,6 +66,38 @@ fn driver_alive(st: &RunStatus) -> Option<bool> {
         return None;
     }
     Some(std::path::Path::new(&format!("/proc/{}", st.pid)).exists())
+}
+
+/// One run in a line: its id, when it started, its pipeline, its outcome and its node counts.
+pub fn format_run_line(st: &RunStatus, alive: Option<bool>) -> String {
+    let now = augsplat_graph::store::now_unix();
+    let outcome = if st.finished {
+        if st.nodes.iter().any(|n| n.state == "failed") {
+            "finished with failures"
+        } else {
+            "finished"
+        }
+    } else {
+        match alive {
+            Some(false) => "interrupted",
+            Some(true) => "in progress",
+            None => "in progress (driver on another host)",
+        }
+    };
+    let mut counts = std::collections::BTreeMap::new();
+    for n in &st.nodes {
+        *counts.entry(n.state.as_str()).or_insert(0usize) += 1;
+    }
+    let counts: Vec<String> = counts.iter().map(|(k, v)| format!("{v} {k}")).collect();
+    format!(
+        "{}  {} s ago  {}  {} ({} executor): {}",
+        st.run_id,
+        now.saturating_sub(st.started_unix),
+        st.pipeline,
+        outcome,
+        st.executor,
+        counts.join(", ")
+    )
 }
 
 /// The status as a table.

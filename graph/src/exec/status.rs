@@ -127,9 +127,48 @@ impl<'a> StatusWriter<'a> {
             let latest = self.path.with_file_name("latest");
             self.store
                 .write_atomic(&latest, self.status.run_id.as_bytes())?;
+            prune_statuses(self.store, KEPT_STATUSES);
         }
         Ok(())
     }
+}
+
+/// How many runs' status files a store keeps (`augsplat status --all` lists them).
+pub const KEPT_STATUSES: usize = 20;
+
+/// The status files of `store`'s runs, newest first (by start time, then run id).
+fn status_files(store: &Store) -> Vec<(u64, String, PathBuf)> {
+    let dir = store.root().join("runs").join("status");
+    let mut v: Vec<(u64, String, PathBuf)> = crate::store::list_dir(&dir)
+        .into_iter()
+        .filter(|p| p.extension().is_some_and(|e| e == "json"))
+        .filter_map(|p| {
+            let id = p.file_stem()?.to_string_lossy().to_string();
+            let started = id.split('-').next()?.parse().ok()?;
+            Some((started, id, p))
+        })
+        .collect();
+    v.sort_by(|a, b| (b.0, &b.1).cmp(&(a.0, &a.1)));
+    v
+}
+
+/// Removes all but the newest `keep` status files.
+fn prune_statuses(store: &Store, keep: usize) {
+    for (_, _, p) in status_files(store).into_iter().skip(keep) {
+        let _ = std::fs::remove_file(p);
+    }
+}
+
+/// The status of every run the store keeps ([`KEPT_STATUSES`] at most), newest first; a file
+/// that cannot be read is skipped.
+pub fn recent_statuses(store: &Store) -> Vec<RunStatus> {
+    status_files(store)
+        .into_iter()
+        .filter_map(|(_, _, p)| {
+            let bytes = crate::verify::read_plain(&p).ok()?;
+            serde_json::from_slice(&bytes).ok()
+        })
+        .collect()
 }
 
 /// The status of the latest run on `store` (the one `runs/status/latest` names), if any.
