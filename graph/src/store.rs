@@ -386,7 +386,7 @@ impl Store {
             )?;
         }
         let dest = self.output_dir(&mh);
-        if dest.is_dir() && self.folder_damage(&mh, &manifest, &dest).is_none() {
+        if dest.is_dir() && crate::verify::folder_damage(&manifest, &dest).is_none() {
             // Same content already materialised (by us or another process).
             remove_tree(folder);
             return Ok(mh);

@@ -230,21 +230,10 @@ impl Store {
     pub fn check_output(&self, m: &Hash) -> Result<(), String> {
         let manifest = self.read_manifest(m)?;
         let dir = self.output_dir(m);
-        match self.folder_damage(m, &manifest, &dir) {
+        match folder_damage(&manifest, &dir) {
             None => Ok(()),
             Some((path, detail)) => Err(format!("{}: {detail}", path.display())),
         }
-    }
-
-    /// The first damage of output folder `dir` against `manifest` (see
-    /// [`Store::folder_damage_with`]), hashing every file.
-    pub(crate) fn folder_damage(
-        &self,
-        _m: &Hash,
-        manifest: &Manifest,
-        dir: &Path,
-    ) -> Option<(PathBuf, String)> {
-        folder_damage_with(manifest, dir, |_, _| false)
     }
 
     /// The manifest hash of `folder` when it is a stored output folder (`outputs/<hash>`).
@@ -541,6 +530,12 @@ pub(crate) fn read_plain(p: &Path) -> std::io::Result<Vec<u8>> {
         ));
     }
     fs::read(p)
+}
+
+/// The first damage of output folder `dir` against `manifest`, hashing every file (see
+/// [`folder_damage_with`]).
+pub(crate) fn folder_damage(manifest: &Manifest, dir: &Path) -> Option<(PathBuf, String)> {
+    folder_damage_with(manifest, dir, |_, _| false)
 }
 
 /// The first damage of output folder `dir` against `manifest`: anything in the folder that
