@@ -195,11 +195,15 @@ fn check_complete(path: &Path) -> Result<(), CoreError> {
             return truncated("PNG's IEND chunk");
         }
     } else if head.starts_with(&[0xff, 0xd8]) {
-        // Inside the entropy-coded data 0xFF is always followed by 0x00 or a restart marker,
-        // so an EOI near the end means the scan was written to its end.
         if !tail.windows(2).any(|w| w == [0xff, 0xd9]) {
             return truncated("JPEG end-of-image marker (FF D9)");
         }
+        // An end marker proves nothing by itself (one appended to a cut file looks the same):
+        // walk the compressed data and count its blocks.
+        let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
+        crate::jpeg_check::check_scans_complete(&bytes).map_err(|why| {
+            CoreError::format(path, format!("the JPEG is truncated or damaged: {why}"))
+        })?;
     }
     Ok(())
 }
@@ -520,6 +524,35 @@ mod tests {
             std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
             let err = read_rgb(&cut).unwrap_err().to_string();
             assert!(err.contains("cut.") && err.contains("truncated"), "{err}");
+        }
+    }
+
+    #[test]
+    fn a_truncated_jpeg_with_an_end_marker_appended_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        for (w, h) in [(96, 64), (61, 37)] {
+            let img = ramp(w, h, 3);
+            let rgb8: Vec<u8> = img.data.iter().map(|&v| to_u8(v)).collect();
+            let mut jpeg = Vec::new();
+            ::image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
+                .encode(&rgb8, w as u32, h as u32, ::image::ExtendedColorType::Rgb8)
+                .unwrap();
+            let whole = dir.path().join("whole.jpg");
+            std::fs::write(&whole, &jpeg).unwrap();
+            assert_eq!(read_rgb(&whole).map(|i| i.width).ok(), Some(w as u32));
+            // Cut at 60 %, then append the end-of-image marker by hand.
+            let mut cut = jpeg[..jpeg.len() * 6 / 10].to_vec();
+            cut.extend_from_slice(&[0xff, 0xd9]);
+            let p = dir.path().join("mended.jpg");
+            std::fs::write(&p, &cut).unwrap();
+            let err = match read_rgb(&p) {
+                Ok(_) => panic!("a cut {w}×{h} JPEG with an end marker was read"),
+                Err(e) => e.to_string(),
+            };
+            assert!(
+                err.contains("mended.jpg") && err.contains("cut short"),
+                "{err}"
+            );
         }
     }
 

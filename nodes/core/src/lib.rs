@@ -15,6 +15,7 @@ pub mod camera;
 pub mod cputime;
 pub mod error;
 pub mod image;
+pub mod jpeg_check;
 pub mod linalg;
 pub mod rng;
 pub mod scene;
