@@ -535,11 +535,11 @@ mod tests {
             let rgb8: Vec<u8> = img.data.iter().map(|&v| to_u8(v)).collect();
             let mut jpeg = Vec::new();
             ::image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
-                .encode(&rgb8, w as u32, h as u32, ::image::ExtendedColorType::Rgb8)
+                .encode(&rgb8, w, h, ::image::ExtendedColorType::Rgb8)
                 .unwrap();
             let whole = dir.path().join("whole.jpg");
             std::fs::write(&whole, &jpeg).unwrap();
-            assert_eq!(read_rgb(&whole).map(|i| i.width).ok(), Some(w as u32));
+            assert_eq!(read_rgb(&whole).map(|i| i.width).ok(), Some(w));
             // Cut at 60 %, then append the end-of-image marker by hand.
             let mut cut = jpeg[..jpeg.len() * 6 / 10].to_vec();
             cut.extend_from_slice(&[0xff, 0xd9]);
