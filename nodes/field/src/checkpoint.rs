@@ -26,10 +26,13 @@ pub(crate) struct FieldLoop {
     pub(crate) loss_acc: (f64, u32),
 }
 
-pub(crate) fn write_field_checkpoint(state: &TrainState, l: &FieldLoop) -> Vec<u8> {
+/// A checkpoint of a run of `steps` steps: the step count it was made for and the step it
+/// reached come first, so a checkpoint of another run is refused before anything is used.
+pub(crate) fn write_field_checkpoint(state: &TrainState, l: &FieldLoop, steps: u32) -> Vec<u8> {
     use augsplat_core::state::{write_curve, StateWriter};
     let mut w = StateWriter::new();
-    w.tag("field-train");
+    w.tag("field-train-2");
+    w.u32(steps);
     w.u32(l.step);
     w.f32s(&state.params);
     w.u32(state.occupancy.res);
@@ -51,11 +54,18 @@ pub(crate) fn read_field_checkpoint(
     bytes: &[u8],
     n_params: usize,
     res: u32,
+    steps: u32,
 ) -> Result<(TrainState, FieldLoop), augsplat_core::state::StateError> {
     use augsplat_core::state::{read_curve, StateError, StateReader};
     let mut r = StateReader::new(bytes);
-    r.tag("field-train")?;
+    r.tag("field-train-2")?;
+    let made_for = r.u32()?;
     let step = r.u32()?;
+    if made_for != steps || step > steps {
+        return Err(StateError(format!(
+            "it was made at step {step} of a {made_for}-step run, and this run has {steps} steps"
+        )));
+    }
     let params = r.f32s()?;
     let occ_res = r.u32()?;
     let ema = r.f32s()?;

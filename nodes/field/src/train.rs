@@ -636,7 +636,12 @@ pub fn train_resumable(
     let mut ckpt = checkpoints;
     if let Some(c) = ckpt.as_mut() {
         if let Some(bytes) = c.resume.take() {
-            match read_field_checkpoint(&bytes, field.n_params, field.config.occupancy_resolution) {
+            match read_field_checkpoint(
+                &bytes,
+                field.n_params,
+                field.config.occupancy_resolution,
+                opts.steps,
+            ) {
                 Ok((s, l)) => {
                     state = s;
                     lp = l;
@@ -710,7 +715,7 @@ pub fn train_resumable(
         if let Some(c) = ckpt.as_mut() {
             if c.every > 0 && (done as u64).is_multiple_of(c.every) && done < opts.steps {
                 lp.step = done;
-                match (c.save)(write_field_checkpoint(&state, &lp)) {
+                match (c.save)(write_field_checkpoint(&state, &lp, opts.steps)) {
                     Ok(()) => (c.log)(format!("checkpoint at step {done}")),
                     Err(e) => (c.log)(format!(
                         "warning: could not save the checkpoint at step {done}: {e}"

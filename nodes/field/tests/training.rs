@@ -456,16 +456,30 @@ fn training_continued_from_a_checkpoint_is_bit_identical() {
     assert!(ckpt.join("state.ckpt").is_file());
     let b = node(&args, &ckpt, "b");
     assert_eq!(dir_bytes(&a), dir_bytes(&b));
-    // Another seed's checkpoint is read (the weights change), so the first was not ignored.
+    // A checkpoint in the node's own folder is read: one that another seed's run left there
+    // changes the weights. The same bytes moved into another computation's folder are
+    // ignored (checkpoints carry the key they were made for: here, their folder).
     let mut other = args.clone();
     other.seed = 6;
-    let other_ckpt = root.join("other");
-    node(&other, &other_ckpt, "o");
-    std::fs::copy(other_ckpt.join("state.ckpt"), ckpt.join("state.ckpt")).unwrap();
-    let d = node(&args, &ckpt, "d");
-    assert_ne!(
+    let shared = root.join("shared");
+    node(&other, &shared, "o");
+    let moved = root.join("moved");
+    std::fs::create_dir_all(&moved).unwrap();
+    std::fs::copy(shared.join("state.ckpt"), moved.join("state.ckpt")).unwrap();
+    let d = node(&args, &shared, "d");
+    assert_ne!(dir_bytes(&a), dir_bytes(&d), "the checkpoint was not read");
+    let e = node(&args, &moved, "e");
+    assert_eq!(dir_bytes(&a), dir_bytes(&e), "a moved checkpoint was read");
+    // A checkpoint made for a longer run (step 56 of 60) is refused: the node starts afresh
+    // and stores what an uninterrupted run stores.
+    let mut longer = args.clone();
+    longer.steps = 60;
+    let long_dir = root.join("long");
+    node(&longer, &long_dir, "l");
+    let f = node(&args, &long_dir, "f");
+    assert_eq!(
         dir_bytes(&a),
-        dir_bytes(&d),
-        "the planted checkpoint was not read"
+        dir_bytes(&f),
+        "a longer run's checkpoint was used"
     );
 }

@@ -324,10 +324,14 @@ struct LoopState {
     loss_n: u64,
 }
 
-fn write_checkpoint(trainer: &mut Trainer<'_>, st: &LoopState) -> Vec<u8> {
+/// A checkpoint of a run of `steps` steps: the step count it was made for and the step it
+/// reached come first, so a checkpoint of another run is refused before anything is restored.
+fn write_checkpoint(trainer: &mut Trainer<'_>, st: &LoopState, steps: u64) -> Vec<u8> {
     use augsplat_core::state::StateWriter;
     let mut w = StateWriter::new();
-    w.tag("fit");
+    w.tag("fit-2");
+    w.u64(steps);
+    w.u64(trainer.steps_done());
     augsplat_core::state::write_curve(&mut w, &st.curve);
     w.u64(st.since_best as u64);
     w.f64(st.loss_acc);
@@ -344,10 +348,19 @@ fn write_checkpoint(trainer: &mut Trainer<'_>, st: &LoopState) -> Vec<u8> {
 fn read_checkpoint(
     bytes: &[u8],
     trainer: &mut Trainer<'_>,
+    steps: u64,
 ) -> Result<LoopState, augsplat_core::state::StateError> {
-    use augsplat_core::state::{read_curve, read_point, StateReader};
+    use augsplat_core::state::{read_curve, read_point, StateError, StateReader};
     let mut r = StateReader::new(bytes);
-    r.tag("fit")?;
+    r.tag("fit-2")?;
+    let made_for = r.u64()?;
+    let reached = r.u64()?;
+    if made_for != steps || reached > steps {
+        return Err(StateError(format!(
+            "it was made at step {reached} of a {made_for}-step run, and this run has {steps} \
+             steps"
+        )));
+    }
     let curve = read_curve(&mut r)?;
     let since_best = r.u64()? as u32;
     let loss_acc = r.f64()?;
@@ -442,7 +455,7 @@ pub fn fit(
     let (every, mut save) = match checkpoints {
         Some(c) => {
             if let Some(bytes) = c.resume {
-                match read_checkpoint(&bytes, &mut trainer) {
+                match read_checkpoint(&bytes, &mut trainer, a.steps) {
                     Ok(s) => {
                         st = s;
                         on_event(FitEvent::Log(format!(
@@ -551,7 +564,7 @@ pub fn fit(
         }
         if let Some(save) = save.as_mut() {
             if every > 0 && done.is_multiple_of(every) && done < a.steps {
-                match save(write_checkpoint(&mut trainer, &st)) {
+                match save(write_checkpoint(&mut trainer, &st, a.steps)) {
                     Ok(()) => on_event(FitEvent::Log(format!("checkpoint at step {done}"))),
                     Err(e) => on_event(FitEvent::Log(format!(
                         "warning: could not save the checkpoint at step {done}: {e}"

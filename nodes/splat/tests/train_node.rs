@@ -487,8 +487,9 @@ fn fit_continued_from_a_checkpoint_is_bit_identical() {
 }
 
 /// Through the node: a run that finds a checkpoint in its folder continues from it with the
-/// same outputs; a checkpoint of other data is read (the outputs change, so it was not
-/// ignored); a damaged checkpoint is ignored.
+/// same outputs; a checkpoint another seed's run left in that folder is read (the outputs
+/// change, so it was not ignored), while the same bytes moved into another computation's
+/// folder, a checkpoint made for a longer run, and a damaged checkpoint are ignored.
 #[test]
 fn node_resumes_from_its_checkpoint_folder() {
     let tmp = tempfile::tempdir().unwrap();
@@ -512,18 +513,28 @@ fn node_resumes_from_its_checkpoint_folder() {
         "the last checkpoint (step 45) is kept by a standalone run"
     );
     let b = run(&args, &ckpt, "b");
-    // Another seed's checkpoint at step 45: the run continues from it, so its outputs differ.
+    let saved = std::fs::read(&state).unwrap();
+    // Another seed's checkpoint at step 45 in the folder: the run continues from it, so its
+    // outputs differ; moved into another folder (another key), it is ignored.
     let mut other = args.clone();
     other.seed += 1;
-    let other_ckpt = tmp.path().join("other");
-    run(&other, &other_ckpt, "o");
-    let saved = std::fs::read(&state).unwrap();
-    std::fs::copy(other_ckpt.join("state.ckpt"), &state).unwrap();
-    let d = run(&args, &ckpt, "d");
+    let shared = tmp.path().join("shared");
+    run(&other, &shared, "o");
+    let moved = tmp.path().join("moved");
+    std::fs::create_dir_all(&moved).unwrap();
+    std::fs::copy(shared.join("state.ckpt"), moved.join("state.ckpt")).unwrap();
+    let d = run(&args, &shared, "d");
     assert!(
         std::fs::read(a.join("final.ply")).unwrap() != std::fs::read(d.join("final.ply")).unwrap(),
-        "the planted checkpoint was not read"
+        "the checkpoint in the folder was not read"
     );
+    let e = run(&args, &moved, "e");
+    // A checkpoint of a longer run (its steps differ) is ignored too.
+    let mut longer = args.clone();
+    longer.steps += 30;
+    let long_dir = tmp.path().join("long");
+    run(&longer, &long_dir, "l");
+    let from_longer = run(&args, &long_dir, "f");
     let mut bytes = saved;
     let n = bytes.len();
     bytes[n - 5] ^= 0x40;
@@ -535,6 +546,14 @@ fn node_resumes_from_its_checkpoint_folder() {
         assert!(
             x == std::fs::read(c.join(f)).unwrap(),
             "{f} after a damaged checkpoint"
+        );
+        assert!(
+            x == std::fs::read(e.join(f)).unwrap(),
+            "{f} after a moved checkpoint"
+        );
+        assert!(
+            x == std::fs::read(from_longer.join(f)).unwrap(),
+            "{f} after a longer run's checkpoint"
         );
     }
 }
