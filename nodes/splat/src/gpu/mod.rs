@@ -78,6 +78,14 @@ pub enum GpuError {
         /// What the search found, in words.
         found: String,
     },
+    /// `WGPU_ADAPTER_NAME` names no adapter on this machine.
+    #[error("WGPU_ADAPTER_NAME={wanted:?} matches no GPU adapter (adapters here: {found}); set it to part of one of these names, or unset it")]
+    NoNamedAdapter {
+        /// The variable's value.
+        wanted: String,
+        /// The adapters found, in words.
+        found: String,
+    },
     /// The device could not be created, was lost, or reported an error.
     #[error("GPU device error on {adapter}: {message}")]
     Device {
@@ -160,34 +168,70 @@ struct Kernels {
     rasterize_backward_atomic: wgpu::ComputePipeline,
 }
 
+/// The adapter wgpu prefers (high-performance first), or an error naming what was found.
+fn default_adapter(instance: &wgpu::Instance) -> Result<wgpu::Adapter, GpuError> {
+    pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        force_fallback_adapter: false,
+        compatible_surface: None,
+        apply_limit_buckets: false,
+    }))
+    .map_err(|e| {
+        let all = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+        let found = if all.is_empty() {
+            format!("no adapter on any backend: {e}")
+        } else {
+            all.iter()
+                .map(|a| {
+                    let i = a.get_info();
+                    format!("{} ({:?}) unusable", i.name, i.backend)
+                })
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        GpuError::NoAdapter { found }
+    })
+}
+
+/// The first adapter (in wgpu's order, on the backends `WGPU_BACKEND` allows) whose name
+/// contains `wanted`, case-insensitively.
+fn named_adapter(instance: &wgpu::Instance, wanted: &str) -> Result<wgpu::Adapter, GpuError> {
+    let all = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+    let needle = wanted.trim().to_lowercase();
+    let names: Vec<String> = all
+        .iter()
+        .map(|a| {
+            let i = a.get_info();
+            format!("{} ({:?})", i.name, i.backend)
+        })
+        .collect();
+    all.into_iter()
+        .find(|a| a.get_info().name.to_lowercase().contains(&needle))
+        .ok_or_else(|| GpuError::NoNamedAdapter {
+            wanted: wanted.to_string(),
+            found: if names.is_empty() {
+                "none".into()
+            } else {
+                names.join(", ")
+            },
+        })
+}
+
 impl GpuContext {
-    /// Opens the first adapter wgpu finds (high-performance preferred; the `WGPU_BACKEND`
-    /// and `WGPU_ADAPTER_NAME` environment variables narrow the search, as in wgpu), with
-    /// the adapter's own limits, and compiles the kernels.
+    /// Opens the first adapter wgpu finds (high-performance preferred; `WGPU_BACKEND` narrows
+    /// the backends, and `WGPU_ADAPTER_NAME` picks the first adapter whose name contains its
+    /// value, case-insensitively — one that matches none is an error listing the adapters,
+    /// never a fall-back), with the adapter's own limits, and compiles the kernels.
     pub fn new() -> Result<GpuContext, GpuError> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            force_fallback_adapter: false,
-            compatible_surface: None,
-            apply_limit_buckets: false,
-        }))
-        .map_err(|e| {
-            let all = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
-            let found = if all.is_empty() {
-                format!("no adapter on any backend: {e}")
-            } else {
-                all.iter()
-                    .map(|a| {
-                        let i = a.get_info();
-                        format!("{} ({:?}) unusable", i.name, i.backend)
-                    })
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            };
-            GpuError::NoAdapter { found }
-        })?;
+        let adapter = match std::env::var("WGPU_ADAPTER_NAME")
+            .ok()
+            .filter(|v| !v.trim().is_empty())
+        {
+            Some(wanted) => named_adapter(&instance, &wanted)?,
+            None => default_adapter(&instance)?,
+        };
         let info = adapter.get_info();
         let summary = AdapterSummary {
             name: info.name.clone(),
