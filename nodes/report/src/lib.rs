@@ -47,18 +47,23 @@ pub fn register(registry: &mut augsplat_graph::Registry) {
 }
 
 /// Where LPIPS weights are installed: the file or folder `AUGSPLAT_LPIPS_WEIGHTS` names, else
-/// the default folder (`augsplat weights status` shows it) when it holds a weight file.
+/// the default folder when it holds a weight file, else the folder of the weights that ship with
+/// the project (LPIPS-alex in float16, [`augsplat_metrics::lpips::bundled_dir`]).
+/// `augsplat weights status` shows which.
 pub fn installed_lpips() -> Option<std::path::PathBuf> {
-    use augsplat_metrics::lpips::{default_dir, Backbone, WEIGHTS_ENV};
+    use augsplat_metrics::lpips::{bundled_dir, default_dir, Backbone, WEIGHTS_ENV};
+    let holds_weights = |d: &std::path::Path| {
+        [Backbone::Alex, Backbone::Vgg]
+            .iter()
+            .any(|b| d.join(b.file_name()).is_file())
+    };
     if let Some(v) = std::env::var_os(WEIGHTS_ENV).filter(|v| !v.is_empty()) {
         let p = std::path::PathBuf::from(v);
         if p.exists() {
             return Some(p);
         }
     }
-    default_dir().filter(|d| {
-        [Backbone::Alex, Backbone::Vgg]
-            .iter()
-            .any(|b| d.join(b.file_name()).is_file())
-    })
+    default_dir()
+        .filter(|d| holds_weights(d))
+        .or_else(|| Some(bundled_dir()).filter(|d| holds_weights(d)))
 }

@@ -9,8 +9,10 @@
 //! images, apply the 1×1 linear head, average over the pixels; the distance is the sum over taps.
 //!
 //! Weights: torch names and OIHW layout, `features.{i}.weight|bias` and
-//! `lin{0..4}.model.1.weight` (shape [1, C, 1, 1]), float32. The backbone is recognised from the
-//! tensor names. [`find_weights`] locates the files; `augsplat weights import-lpips` makes them.
+//! `lin{0..4}.model.1.weight` (shape [1, C, 1, 1]), float32 or float16 (upcast to float32 on
+//! load). The backbone is recognised from the tensor names. [`find_weights`] locates the files;
+//! `augsplat weights import-lpips` makes them. The AlexNet weights ship with the project in
+//! float16 ([`bundled_dir`]); VGG16 is an install.
 
 mod net;
 
@@ -86,7 +88,8 @@ impl Lpips {
         Self::from_safetensors(&bytes).map_err(|m| MetricsError::format(path, m))
     }
 
-    /// Builds the model from the bytes of a safetensors file.
+    /// Builds the model from the bytes of a safetensors file. Tensors may be F32 or F16; F16
+    /// values are upcast to f32 exactly.
     pub fn from_safetensors(bytes: &[u8]) -> Result<Lpips, String> {
         let st = safetensors::SafeTensors::deserialize(bytes)
             .map_err(|e| format!("not a safetensors file: {e}"))?;
@@ -94,14 +97,19 @@ impl Lpips {
             let t = st
                 .tensor(name)
                 .map_err(|_| format!("missing tensor {name:?}"))?;
-            if t.dtype() != safetensors::Dtype::F32 {
-                return Err(format!("tensor {name:?} is {:?}, expected F32", t.dtype()));
-            }
-            let data = t
-                .data()
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect();
+            let data = match t.dtype() {
+                safetensors::Dtype::F32 => t
+                    .data()
+                    .chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                    .collect(),
+                safetensors::Dtype::F16 => t
+                    .data()
+                    .chunks_exact(2)
+                    .map(|c| crate::float16::to_f32(u16::from_le_bytes([c[0], c[1]])))
+                    .collect(),
+                other => return Err(format!("tensor {name:?} is {other:?}, expected F32 or F16")),
+            };
             Ok((t.shape().to_vec(), data))
         };
         let names: Vec<String> = st.names().into_iter().map(|s| s.to_string()).collect();
@@ -179,31 +187,79 @@ pub fn default_dir() -> Option<PathBuf> {
         .map(|h| PathBuf::from(h).join(".local/share/augsplat/lpips"))
 }
 
+/// The folder of the weights that ship with the project (`nodes/metrics/weights` of the
+/// source tree this binary was built from): `lpips_alex_v0.1.safetensors` in float16 and its
+/// `LICENSE.md`. It holds no VGG16 weights.
+pub fn bundled_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("weights")
+}
+
+/// The shipped weight file of `backbone`, when there is one and it exists (AlexNet only).
+pub fn bundled_weights(backbone: Backbone) -> Option<PathBuf> {
+    let f = bundled_dir().join(backbone.file_name());
+    f.is_file().then_some(f)
+}
+
+/// Where weights found without an explicit path come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WeightSource {
+    /// The file or folder `AUGSPLAT_LPIPS_WEIGHTS` names.
+    Env,
+    /// The user's [`default_dir`].
+    DefaultDir,
+    /// The weights shipped with the project ([`bundled_dir`]).
+    Bundled,
+}
+
+impl std::fmt::Display for WeightSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            WeightSource::Env => WEIGHTS_ENV,
+            WeightSource::DefaultDir => "the default folder",
+            WeightSource::Bundled => "shipped with augsplat, float16",
+        })
+    }
+}
+
+/// Locates the weight file for `backbone` without an explicit path, and says where it was
+/// found: `AUGSPLAT_LPIPS_WEIGHTS` (file or folder), then [`default_dir`], then the shipped
+/// weights ([`bundled_weights`]).
+pub fn locate_weights(backbone: Backbone) -> Option<(PathBuf, WeightSource)> {
+    if let Some(v) = std::env::var_os(WEIGHTS_ENV).filter(|v| !v.is_empty()) {
+        if let Some(f) = in_path(Path::new(&v), backbone) {
+            return Some((f, WeightSource::Env));
+        }
+    }
+    if let Some(f) = default_dir()
+        .map(|d| d.join(backbone.file_name()))
+        .filter(|f| f.is_file())
+    {
+        return Some((f, WeightSource::DefaultDir));
+    }
+    bundled_weights(backbone).map(|f| (f, WeightSource::Bundled))
+}
+
+/// `p` itself when it is a file, else the weight file of `backbone` inside folder `p`.
+fn in_path(p: &Path, backbone: Backbone) -> Option<PathBuf> {
+    if p.is_file() {
+        Some(p.to_path_buf())
+    } else if p.is_dir() {
+        let f = p.join(backbone.file_name());
+        f.is_file().then_some(f)
+    } else {
+        None
+    }
+}
+
 /// Locates the weight file for `backbone`: first `explicit` (a file, or a folder holding
 /// `lpips_{alex,vgg}_v0.1.safetensors`), then `AUGSPLAT_LPIPS_WEIGHTS` (file or folder), then
-/// [`default_dir`]. A file given explicitly or by the variable is returned as is (loading checks
-/// its backbone). `None` when nothing exists.
+/// [`default_dir`], then the shipped weights (see [`locate_weights`]). A file given explicitly
+/// or by the variable is returned as is (loading checks its backbone). An explicit path that
+/// holds nothing gives `None` (it is never replaced by another file); so does a backbone found
+/// nowhere.
 pub fn find_weights(explicit: Option<&Path>, backbone: Backbone) -> Option<PathBuf> {
-    let from = |p: &Path| -> Option<PathBuf> {
-        if p.is_file() {
-            Some(p.to_path_buf())
-        } else if p.is_dir() {
-            let f = p.join(backbone.file_name());
-            f.is_file().then_some(f)
-        } else {
-            None
-        }
-    };
-    if let Some(p) = explicit {
-        return from(p);
+    match explicit {
+        Some(p) => in_path(p, backbone),
+        None => locate_weights(backbone).map(|(f, _)| f),
     }
-    if let Some(v) = std::env::var_os(WEIGHTS_ENV).filter(|v| !v.is_empty()) {
-        if let Some(f) = from(Path::new(&v)) {
-            return Some(f);
-        }
-    }
-    default_dir().and_then(|d| {
-        let f = d.join(backbone.file_name());
-        f.is_file().then_some(f)
-    })
 }
