@@ -7,7 +7,8 @@
 //! metrics; the 3-D viewer (every evaluated model side by side on one camera, the cameras as
 //! frusta, the ground truth at held-out cameras; see [`crate::viewer`]); training curves (PSNR, SSIM, LPIPS, average error vs step); ground truth vs methods
 //! side by side with zoomed crops where the first method errs most; synthetic views with their
-//! confidence maps; wall time per stage; run time vs error across runs with the Pareto front.
+//! confidence maps; wall time per stage and run time vs error across runs with the Pareto front
+//! (when the evaluations carry their wall times, see [`TIMES_ELSEWHERE`]).
 
 use crate::compare::display_labels;
 use crate::evalset::{EvalDir, MetricKey, Metrics};
@@ -101,6 +102,9 @@ pub fn build_report(
     let mut per_method: Vec<(&str, &str)> = Vec::new();
     let mut without_lpips: Vec<&str> = Vec::new();
     let mut lpips_off_by_choice = true;
+    // When no evaluation carries wall times, the wall-time section says so once: the
+    // methods' "not recorded" notes would repeat it.
+    let times_recorded = any_times(evals);
     for (e, label) in evals.iter().zip(&labels) {
         let no_lpips = e.metrics.lpips_net.is_none();
         if no_lpips {
@@ -108,7 +112,9 @@ pub fn build_report(
             lpips_off_by_choice &= e.metrics.notes.iter().any(|n| n.contains("(lpips: None)"));
         }
         for n in &e.metrics.notes {
-            if !(no_lpips && is_lpips_note(n)) {
+            let said_once = (no_lpips && is_lpips_note(n))
+                || (!times_recorded && n.contains("wall time not recorded"));
+            if !said_once {
                 per_method.push((label, n));
             }
         }
@@ -645,13 +651,37 @@ fn synthetic_section(opts: &ReportOptions, dir: &Path) -> Result<String, ReportE
     Ok(out)
 }
 
+/// Whether any evaluation carries a wall time (training or evaluation).
+fn any_times(evals: &[EvalDir]) -> bool {
+    evals
+        .iter()
+        .any(|e| e.metrics.train_seconds.is_some() || e.metrics.eval_seconds.is_some())
+}
+
+/// What the report says about wall time when no evaluation carries it.
+pub const TIMES_ELSEWHERE: &str = "Wall times are not in this report, so that it is the same byte for byte on every run: `augsplat status` (and `augsplat run --summary-json`) lists the seconds each node took as the store recorded them. `record_wall_time: true` on OptimizeSplats and Evaluate writes them into their outputs instead, and this section then plots them.";
+
+/// The wall-time section: bars per stage, run time vs error and error vs training time, and a
+/// Markdown table, from the seconds the evaluations carry (`record_wall_time: true`); when none
+/// does, only a note saying where the times are.
 fn time_section(evals: &[EvalDir], labels: &[String], md: &mut String) -> String {
     let mut out = String::from("<h2 id=\"time\">Wall time</h2>");
-    let recorded = evals
-        .iter()
-        .any(|e| e.metrics.train_seconds.is_some() || e.metrics.eval_seconds.is_some());
-    if !recorded {
-        out.push_str("<p class=\"note\">No wall times were recorded: set <code>record_wall_time: true</code> on OptimizeSplats and Evaluate (off by default so that outputs are byte-identical).</p>");
+    if !any_times(evals) {
+        // The store records each node's seconds beside its outputs, never in them: a report
+        // holding them would differ from run to run. So the page says where to read them.
+        out.push_str("<p class=\"note\">");
+        // `code` spans of the Markdown become <code> elements.
+        for (i, part) in TIMES_ELSEWHERE.split('`').enumerate() {
+            if i % 2 == 1 {
+                let _ = write!(out, "<code>{}</code>", escape(part));
+            } else {
+                out.push_str(&escape(part));
+            }
+        }
+        out.push_str("</p>");
+        let _ = write!(md, "## Wall time\n\n{TIMES_ELSEWHERE}\n\n");
+        md.push_str("Plots, images and synthetic views: see `index.html`.\n");
+        return out;
     }
     out.push_str("<div class=\"plots\">");
     let train: Vec<f64> = evals

@@ -62,7 +62,9 @@ impl Node for ReportNode {
     // 3: the page embeds the 3-D viewer; 4: gated evaluations and the scene gate's section.
     // 5: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
     // versions parsed some one ulp off, which could change outputs in the last bits.
-    const VERSION: u32 = 5;
+    // 6: without recorded wall times, a note where to read them instead of a table of dashes
+    // and empty plots; the LPIPS install hint names the shipped weights.
+    const VERSION: u32 = 6;
     type Args = ReportArgs;
 
     fn inputs(_args: &ReportArgs) -> Vec<InputDecl> {

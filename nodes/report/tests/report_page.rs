@@ -191,6 +191,47 @@ fn same_inputs_give_the_same_page_apart_from_measured_times() {
     assert_eq!(run("a"), run("b"));
 }
 
+/// Without recorded wall times (the default: outputs stay byte-identical) the report has no
+/// table of dashes and no empty time plots, only a note saying where the store's times are.
+#[test]
+fn unrecorded_wall_times_leave_a_note_not_a_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let evals: Vec<_> = make_evals(dir.path())
+        .iter()
+        .map(|p| {
+            let mut e = augsplat_report::evalset::EvalDir::load(p).unwrap();
+            e.metrics.train_seconds = None;
+            e.metrics.eval_seconds = None;
+            e.metrics.notes.push(
+                "training wall time not recorded (OptimizeSplats `record_wall_time: true` \
+                 records it)"
+                    .into(),
+            );
+            if let Some(c) = &mut e.curve {
+                c.points.iter_mut().for_each(|p| p.seconds = 0.0);
+            }
+            e
+        })
+        .collect();
+    let opts = augsplat_report::report::ReportOptions {
+        viewer: false,
+        ..Default::default()
+    };
+    let built = augsplat_report::report::build_report(&opts, &evals, None).unwrap();
+    let note = augsplat_report::report::TIMES_ELSEWHERE;
+    assert!(built
+        .markdown
+        .contains(&format!("## Wall time\n\n{note}\n")));
+    assert!(!built.markdown.contains("training s"), "{}", built.markdown);
+    // Said once, not once per method.
+    assert_eq!(built.markdown.matches("record_wall_time").count(), 1);
+    assert!(built.html.contains("<code>augsplat status</code>"));
+    assert!(!built.html.contains("Wall time per stage"));
+    // The four training curves only.
+    assert_eq!(built.html.matches("<svg").count(), 4);
+    check_well_formed(&built.html).unwrap();
+}
+
 #[test]
 fn report_errors_are_clear() {
     let dir = tempfile::tempdir().unwrap();
