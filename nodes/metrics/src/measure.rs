@@ -29,7 +29,8 @@ pub struct Measurement {
 
 /// Measures `render` against `gt` (same size, values in [0, 1]; callers clamp renders first,
 /// as gsplat's evaluation does): MSE, SSIM, PSNR from the MSE, and LPIPS and the average error
-/// when `lpips` is given.
+/// when `lpips` is given and the images are large enough for it ([`Lpips::accepts`]; smaller
+/// ones have no LPIPS, as without weights — never a made-up number).
 pub fn measure(
     render: &ImageF32,
     gt: &ImageF32,
@@ -38,8 +39,10 @@ pub fn measure(
     let mse = crate::mse(render, gt)?;
     let ssim = crate::ssim(render, gt)?;
     let lp = match lpips {
-        Some(m) => Some(m.distance(render, gt)?),
-        None => None,
+        Some(m) if m.accepts(gt.width as usize, gt.height as usize) => {
+            Some(m.distance(render, gt)?)
+        }
+        _ => None,
     };
     Ok(Measurement {
         psnr: crate::psnr_from_mse(mse),

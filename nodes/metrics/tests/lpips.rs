@@ -407,3 +407,19 @@ fn shipped_weights_load() {
     assert_eq!(bundled_weights(Backbone::Vgg), None);
     assert!(bundled_dir().join("LICENSE.md").is_file());
 }
+
+/// Images too small for the backbone have no LPIPS (nor average error) in a measurement, as
+/// without weights, instead of failing the node that measures them.
+#[test]
+fn images_too_small_for_the_backbone_have_no_lpips() {
+    let f = bundled_weights(Backbone::Alex).expect("nodes/metrics/weights holds the alex file");
+    let m = Lpips::load(&f).unwrap();
+    assert!(!m.accepts(32, 24) && m.accepts(64, 64));
+    let (a, b) = (noise(32, 24, 1), noise(32, 24, 2));
+    let small = augsplat_metrics::measure::measure(&a, &b, Some(&m)).unwrap();
+    assert_eq!((small.lpips, small.avg_error), (None, None));
+    assert!(small.psnr.is_finite());
+    let (a, b) = (noise(64, 64, 1), noise(64, 64, 2));
+    let big = augsplat_metrics::measure::measure(&a, &b, Some(&m)).unwrap();
+    assert!(big.lpips.is_some() && big.avg_error.is_some());
+}

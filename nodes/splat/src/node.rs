@@ -82,6 +82,21 @@ impl Node for OptimizeSplats {
             Some(d) => Some(fit::load_lpips(d, &a.lpips_net)?),
             None => None,
         };
+        // Held-out views too small for the backbone have no LPIPS: as without weights, the
+        // best checkpoint is chosen by PSNR.
+        let lpips = match (lpips, test.first()) {
+            (Some(m), Some(v)) if !m.accepts(v.camera.width as usize, v.camera.height as usize) => {
+                ctx.log(format!(
+                    "the held-out views ({}×{}) are too small for LPIPS-{}: LPIPS and the \
+                     average error are unavailable; the best checkpoint is chosen by PSNR",
+                    v.camera.width,
+                    v.camera.height,
+                    m.backbone()
+                ));
+                None
+            }
+            (m, _) => m,
+        };
         let cams: Vec<&augsplat_core::Camera> = real.views.iter().map(|v| &v.camera).collect();
         let sscale = a.scene_scale.unwrap_or_else(|| scene_scale(&cams));
         let scene = Scene::load(&train_dir)?;

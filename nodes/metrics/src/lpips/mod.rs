@@ -139,6 +139,13 @@ impl Lpips {
         &self.net
     }
 
+    /// Whether an image of `w × h` pixels is large enough for the backbone (every layer keeps
+    /// at least one pixel; AlexNet needs about 31×31, VGG16 16×16). LPIPS of a smaller image is
+    /// undefined: callers report it as unavailable.
+    pub fn accepts(&self, w: usize, h: usize) -> bool {
+        self.net.check_size(w, h).is_ok()
+    }
+
     /// LPIPS distance between two RGB images with values in [0, 1].
     ///
     /// Errors on mismatched sizes, non-finite values, images that are not 3-channel, or images
