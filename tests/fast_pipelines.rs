@@ -1,5 +1,5 @@
 //! The `*_fast.ron` pipelines are the knee configurations of the run-time-against-error
-//! sweeps in `docs/benchmarks.md`, with the fast prior: each plans to exactly the
+//! sweeps in `docs/notes/benchmarks.md`, with the fast prior: each plans to exactly the
 //! computations of its scene's pipeline with the benches' `--set`s, so `augsplat run
 //! pipelines/bonsai_fast.ron` after the bench (or the bench after it) recomputes nothing, and
 //! the figures quoted in its header are the ones its run reproduces. The fast-prior fragment
@@ -56,7 +56,7 @@ fn each_fast_pipeline_is_its_scenes_knee_configuration() {
 }
 
 /// `--set`s of the fast-prior run whose figures `pipelines/fragments/fast_prior.ron` and
-/// docs/benchmarks.md quote: the README's reduced bonsai run with 600-step, 48-step fields.
+/// docs/notes/benchmarks.md quote: the README's reduced bonsai run with 600-step, 48-step fields.
 const FAST_PRIOR_SETS: [&str; 4] = [
     "field.steps=600",
     "params.gs_steps=1500",

@@ -7,7 +7,7 @@
 //!   operations in the same order: the same bits.
 //! - [`gather2_block`]: the two-feature blend. Each corner entry (both features, 8 bytes) is
 //!   read with a plain 64-bit load (faster than `vgatherdpd` on the project's AMD Zen 4 host:
-//!   docs/benchmarks.md, entry of 2026-11-27 on the hash encoding) and blended with a separate multiply and add in corner
+//!   docs/notes/benchmarks.md, entry of 2026-11-27 on the hash encoding) and blended with a separate multiply and add in corner
 //!   order, as the scalar loop does.
 
 use super::{block_positions, BLOCK};
