@@ -107,3 +107,38 @@ pub(crate) fn read_field_checkpoint(
         },
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use augsplat_core::state::StateWriter;
+
+    /// The header of a checkpoint: its format tag, the run's step count and the step reached.
+    fn header(tag: &str, made_for: u32, step: u32) -> Vec<u8> {
+        let mut w = StateWriter::new();
+        w.tag(tag);
+        w.u32(made_for);
+        w.u32(step);
+        w.finish()
+    }
+
+    #[test]
+    fn another_runs_step_count_or_an_older_format_is_refused() {
+        let err = |bytes: &[u8]| match read_field_checkpoint(bytes, 4, 2, 1000) {
+            Ok(_) => panic!("a foreign checkpoint was read"),
+            Err(e) => e.to_string(),
+        };
+        // A step-1,800 checkpoint of an 1,800-step run, in a 1,000-step run.
+        let e = err(&header("field-train-2", 1800, 1800));
+        assert!(e.contains("1800") && e.contains("1000"), "{e}");
+        // Made for 2,000 steps, stopped at 500: within this run's steps, still another run.
+        let e = err(&header("field-train-2", 2000, 500));
+        assert!(e.contains("2000-step"), "{e}");
+        // A past step for the right count (a damaged header).
+        let e = err(&header("field-train-2", 1000, 1200));
+        assert!(e.contains("1200"), "{e}");
+        // The earlier format, which did not record the step count.
+        let e = err(&header("field-train", 1000, 500));
+        assert!(e.contains("field-train-2"), "{e}");
+    }
+}
