@@ -455,6 +455,13 @@ pub fn fit(
     let (every, mut save) = match checkpoints {
         Some(c) => {
             if let Some(bytes) = c.resume {
+                // The trainer's own state as it starts: a checkpoint refused after its trainer
+                // part was read must not leave the trainer half-restored.
+                let pristine = {
+                    let mut w = augsplat_core::state::StateWriter::new();
+                    trainer.write_state(&mut w);
+                    w.finish()
+                };
                 match read_checkpoint(&bytes, &mut trainer, a.steps) {
                     Ok(s) => {
                         st = s;
@@ -463,9 +470,15 @@ pub fn fit(
                             trainer.steps_done()
                         )));
                     }
-                    Err(e) => on_event(FitEvent::Log(format!(
-                        "cannot continue from the saved checkpoint ({e}); starting afresh"
-                    ))),
+                    Err(e) => {
+                        // Its own state, written a moment ago: reading it back cannot fail.
+                        trainer
+                            .restore_state(&mut augsplat_core::state::StateReader::new(&pristine))
+                            .expect("a trainer reads back the state it wrote");
+                        on_event(FitEvent::Log(format!(
+                            "cannot continue from the saved checkpoint ({e}); starting afresh"
+                        )))
+                    }
                 }
             }
             (c.every, Some(c.save))
