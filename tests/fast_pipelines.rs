@@ -144,7 +144,7 @@ fn schedules(
 /// The 1,500-step pipelines (the knees and `capture.ron`) end refinement before the scaled
 /// schedule's first opacity reset, so the improved presets' `reset: Never` and
 /// `prune_extent: Content` cannot change them (measured on fern through `capture.ron`: the
-/// same bytes; docs/results.md, *The large-Gaussian prune*); the 3,000-step paper pipelines
+/// same bytes; docs/notes/results.md, *The large-Gaussian prune*); the 3,000-step paper pipelines
 /// reach it, which is where those presets matter.
 #[test]
 fn which_pipelines_reach_the_first_opacity_reset() {

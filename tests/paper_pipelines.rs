@@ -254,7 +254,7 @@ fn the_improved_baseline_fragment_reruns_only_what_reads_the_baseline() {
     }
 }
 
-/// The `--set`s of the improved-Staged runs whose figures docs/results.md reports (*Staged
+/// The `--set`s of the improved-Staged runs whose figures docs/notes/results.md reports (*Staged
 /// with the improved baseline's settings*).
 const IMPROVED_STAGED_SETS: [&str; 2] = [
     "staged.densify.reset=Never",

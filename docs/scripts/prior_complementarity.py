@@ -11,7 +11,7 @@ the share of pixels where the prior is closer to the ground truth, and the "orac
 error left if each pixel (or each 16 × 16 patch) took whichever of the two is closer, as a
 fraction of the baseline's — each the mean over the baseline seeds given (min–max beside).
 
-This reads held-out views: it is an analysis of finished runs (docs/results.md, *What does
+This reads held-out views: it is an analysis of finished runs (docs/notes/results.md, *What does
 not explain which scenes gain*), never an input to a run or to the scene gate. Needs numpy
 and Pillow.
 """

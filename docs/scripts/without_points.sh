@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Reruns docs/results.md's *Initialising from the prior's depth*: the 3DGS baseline started from random
+# Reruns docs/results.md's *Without SfM points*: the 3DGS baseline started from random
 # points between the scene's bounds against the same baseline started from the radiance-field
 # prior's depth (pipelines/fragments/depth_init.ron: field[0]'s renders at the training
 # views), on fern (LLFF: no SfM points, bounds from poses_bounds.npy) and on dtu_scan24 with
