@@ -152,6 +152,7 @@ impl Store {
             if !dry_run {
                 remove_tree(&root.join("outputs").join(stem(f)));
                 let _ = fs::remove_file(f);
+                // A verified-at stamp that older versions kept beside the manifest.
                 let _ = fs::remove_file(root.join("verified").join(format!("{}.json", stem(f))));
             }
         }

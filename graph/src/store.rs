@@ -581,8 +581,8 @@ pub(crate) fn list_dir(p: &Path) -> Vec<PathBuf> {
     v
 }
 
-/// A file's modification time in nanoseconds since the epoch (−1 when unknown): with its size,
-/// what the hash caches and verified-at stamps compare.
+/// A file's modification time in nanoseconds since the epoch (−1 when unknown): with its size
+/// and inode, what the external inputs' hash cache compares.
 pub(crate) fn mtime_ns(meta: &fs::Metadata) -> i128 {
     meta.modified()
         .ok()

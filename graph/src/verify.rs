@@ -446,6 +446,7 @@ impl Store {
                 if fs::remove_file(&mp).is_ok() {
                     rep.removed.push(rel(&mp));
                 }
+                // A verified-at stamp that older versions kept beside the manifest.
                 let _ = fs::remove_file(self.root().join("verified").join(format!("{stem}.json")));
             }
             for name in &bad_blobs {
