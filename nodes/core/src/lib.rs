@@ -14,6 +14,7 @@ pub mod artifacts;
 pub mod camera;
 pub mod cputime;
 pub mod error;
+pub mod float16;
 pub mod image;
 pub mod jpeg_check;
 pub mod linalg;

@@ -15,7 +15,9 @@
 //! Images are [`augsplat_core::ImageF32`] (interleaved, values in [0, 1]).
 
 mod error;
-pub mod float16;
+/// Float16 conversions (the weights ship in float16): the project's one implementation, in
+/// `augsplat_core`.
+pub use augsplat_core::float16;
 pub mod gemm;
 pub mod import;
 pub mod lpips;

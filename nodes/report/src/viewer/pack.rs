@@ -30,38 +30,10 @@ pub struct PackedModel {
     pub payload: Vec<u8>,
 }
 
-/// IEEE 754 binary16 bits of `v`, rounded to nearest even; overflow gives ±∞ and NaN a quiet
-/// NaN (the packer never stores either: it drops Gaussians with non-finite values).
+/// IEEE 754 binary16 bits of `v`, rounded to nearest even (overflow gives ±∞; the packer never
+/// stores a non-finite value: it drops Gaussians with one).
 pub fn f16_bits(v: f32) -> u16 {
-    let bits = v.to_bits();
-    let sign = ((bits >> 16) & 0x8000) as u16;
-    let exp = ((bits >> 23) & 0xff) as i32;
-    let man = bits & 0x007f_ffff;
-    if exp == 0xff {
-        return sign | 0x7c00 | if man != 0 { 0x0200 } else { 0 };
-    }
-    let e = exp - 127 + 15;
-    if e >= 0x1f {
-        return sign | 0x7c00;
-    }
-    if e <= 0 {
-        // Subnormal half (or zero): shift the full mantissa with its implicit bit.
-        if e < -10 {
-            return sign;
-        }
-        let m = man | 0x0080_0000;
-        let shift = (14 - e) as u32;
-        let half = m >> shift;
-        let rem = m & ((1 << shift) - 1);
-        let mid = 1 << (shift - 1);
-        let round = rem > mid || (rem == mid && half & 1 == 1);
-        return sign | (half + u32::from(round)) as u16;
-    }
-    let half = ((e as u32) << 10) | (man >> 13);
-    let rem = man & 0x1fff;
-    let round = rem > 0x1000 || (rem == 0x1000 && half & 1 == 1);
-    // A carry out of the mantissa correctly bumps the exponent (up to ∞).
-    sign | (half + u32::from(round)) as u16
+    augsplat_core::float16::from_f32(v)
 }
 
 /// The value of binary16 bits (for tests and the f64 reference of the viewer's decode).

@@ -1,4 +1,5 @@
-//! IEEE 754 binary16 (half precision) conversions, for weights stored in float16.
+//! IEEE 754 binary16 (half precision) conversions: the LPIPS weights stored in float16 and the
+//! report viewer's packed splats.
 //!
 //! [`to_f32`] is exact (every float16 value is a float32 value); [`from_f32`] rounds to the
 //! nearest float16, ties to even, as numpy's `astype(float16)` and torch's `.half()` do:
