@@ -132,7 +132,7 @@ fn symmetric_min_eigenvalue(m: &[[f64; 3]; 3]) -> f64 {
 }
 
 /// Solves `m x = b` by Cramer's rule (`None` when `m` is singular).
-fn solve3(m: &[[f64; 3]; 3], b: Vec3) -> Option<Vec3> {
+pub(crate) fn solve3(m: &[[f64; 3]; 3], b: Vec3) -> Option<Vec3> {
     let det = linalg::det3(m);
     if det.abs() < 1e-300 || !det.is_finite() {
         return None;

@@ -11,6 +11,8 @@
 //! - [`split`]: the paper's sparse-view split;
 //! - [`depth`]: DS-NeRF-style sparse depth and dense depth maps;
 //! - [`synthetic`]: the exactly ray-traced default scene;
+//! - [`triangulate`]: sparse points from the photos and known poses (features, epipolar
+//!   matching, tracks, triangulation);
 //! - [`export`]: COLMAP text and transforms.json export;
 //! - [`inspect`]: the report behind `augsplat inspect`;
 //! - [`node`]: the node kinds (`ImportScene`, `SyntheticScene`, `SplitScene`, `SparseDepth`,
@@ -28,6 +30,7 @@ pub mod node;
 pub mod source;
 pub mod split;
 pub mod synthetic;
+pub mod triangulate;
 
 pub use error::SceneError;
 pub use node::register;
