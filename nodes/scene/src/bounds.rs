@@ -16,7 +16,8 @@
 //! forward-facing capture: they converge nowhere), or when the focus lies behind a camera.
 
 use augsplat_core::linalg::{self, Vec3};
-use augsplat_core::Camera;
+use augsplat_core::{Camera, PointCloud};
+use serde::{Deserialize, Serialize};
 
 /// The axes must spread by at least this angle (degrees) for their meeting point to mean
 /// anything: the smallest eigenvalue of `Σ (I − a aᵀ)` per camera must reach `sin²` of it.
@@ -110,6 +111,58 @@ pub fn from_cameras(cams: &[Camera]) -> Result<CameraBounds, String> {
         focus,
         radius,
         focus_depths: (dmin, dmax),
+    })
+}
+
+/// Near/far from sparse points, per view as COLMAP's `poses_bounds` are made: the depths of
+/// the points each view observes, `near = 0.8 ×` their 0.5th percentile and `far = 1.2 ×` their
+/// 99.5th (the import's rule for a whole scene, applied per view); the scene's bounds are the
+/// smallest near and the largest far.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PointBounds {
+    /// Per view (`None` for a view that observes no point in front of it).
+    pub per_view: Vec<Option<(f64, f64)>>,
+    /// Smallest near over the views.
+    pub near: f64,
+    /// Largest far over the views.
+    pub far: f64,
+}
+
+/// Bounds from the points' tracks (see [`PointBounds`]); `None` when no view observes a point.
+pub fn from_points(cams: &[Camera], cloud: &PointCloud) -> Option<PointBounds> {
+    let mut depths: Vec<Vec<f64>> = vec![Vec::new(); cams.len()];
+    for i in 0..cloud.len() {
+        let p = cloud.positions[i].map(f64::from);
+        for &v in cloud.track(i) {
+            if let Some(cam) = cams.get(v as usize) {
+                let z = cam.to_camera(p)[2];
+                if z > 0.0 {
+                    depths[v as usize].push(z);
+                }
+            }
+        }
+    }
+    let per_view: Vec<Option<(f64, f64)>> = depths
+        .into_iter()
+        .map(|mut d| {
+            if d.is_empty() {
+                return None;
+            }
+            d.sort_by(f64::total_cmp);
+            let q = |f: f64| d[((d.len() - 1) as f64 * f).round() as usize];
+            Some((0.8 * q(0.005), 1.2 * q(0.995)))
+        })
+        .collect();
+    let near = per_view
+        .iter()
+        .flatten()
+        .map(|b| b.0)
+        .fold(f64::INFINITY, f64::min);
+    let far = per_view.iter().flatten().map(|b| b.1).fold(0.0, f64::max);
+    (near.is_finite() && far > near).then_some(PointBounds {
+        per_view,
+        near,
+        far,
     })
 }
 
@@ -219,6 +272,41 @@ mod tests {
         let e = from_cameras(&cams).unwrap_err();
         assert!(e.contains("behind camera"), "{e}");
         assert!(from_cameras(&cams[..1]).is_err());
+    }
+
+    #[test]
+    fn point_bounds_are_per_view_depth_quantiles() {
+        let cams = [
+            look_at([0.0, 0.0, -2.0], [0.0, 0.0, 0.0], 100, 100, 100.0),
+            look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], 100, 100, 100.0),
+            look_at([0.0, 0.0, -3.0], [0.0, 0.0, 0.0], 100, 100, 100.0),
+        ];
+        // Points at z = −0.5 … 0.5 seen by views 0 and 1; view 2 sees none.
+        let mut cloud = PointCloud {
+            track_offsets: vec![0],
+            ..PointCloud::default()
+        };
+        for k in 0..=10 {
+            cloud.positions.push([0.0, 0.0, -0.5 + 0.1 * k as f32]);
+            cloud.colors.push([0.5; 3]);
+            cloud.errors.push(0.0);
+            cloud.track_views.extend([0, 1]);
+            cloud.track_offsets.push(cloud.track_views.len() as u32);
+        }
+        let b = from_points(&cams, &cloud).unwrap();
+        let (n0, f0) = b.per_view[0].unwrap();
+        assert!(
+            (n0 - 0.8 * 1.5).abs() < 1e-6 && (f0 - 1.2 * 2.5).abs() < 1e-6,
+            "{b:?}"
+        );
+        let (n1, f1) = b.per_view[1].unwrap();
+        assert!(
+            (n1 - 0.8 * 3.5).abs() < 1e-6 && (f1 - 1.2 * 4.5).abs() < 1e-6,
+            "{b:?}"
+        );
+        assert_eq!(b.per_view[2], None);
+        assert_eq!((b.near, b.far), (n0, f1));
+        assert!(from_points(&cams, &PointCloud::default()).is_none());
     }
 
     #[test]

@@ -7,7 +7,8 @@
 //!   stores no keypoints), so their reprojection error is 0 by construction while the point's
 //!   stored `ERROR` field keeps the value the scene had.
 //! - transforms.json: camera-to-world in OpenGL axes, per-frame `fl_x fl_y cx cy w h`,
-//!   `file_path` = `images/<name>.png`, plus `images/`.
+//!   `file_path` = `images/<name>.png`, plus `images/`, and the points (when the scene has
+//!   any) as nerfstudio keeps them: `sparse_pc.ply` named by `ply_file_path`.
 
 use crate::colmap::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint};
 use crate::error::{Result, SceneError};
@@ -17,6 +18,9 @@ use augsplat_core::linalg;
 use augsplat_core::{PointCloud, Scene};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+
+/// The points' file of a transforms.json export (nerfstudio's name).
+pub const SPARSE_PLY: &str = "sparse_pc.ply";
 
 /// Export formats.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -166,10 +170,21 @@ pub fn export_scene(src: &Path, out: &Path, format: ExportFormat) -> Result<()> 
                     })
                 })
                 .collect();
-            let json = serde_json::json!({
+            let mut json = serde_json::json!({
                 "camera_model": "OPENCV",
                 "frames": frames,
             });
+            if !cloud.is_empty() {
+                // The points as nerfstudio keeps them: a PLY in the transforms' frame.
+                let positions: Vec<[f64; 3]> = cloud
+                    .positions
+                    .iter()
+                    .map(|q| n.invert(q.map(f64::from)))
+                    .collect();
+                let ply = out.join(SPARSE_PLY);
+                crate::ply_points::write_points_ply(&ply, &positions, &cloud.colors)?;
+                json["ply_file_path"] = serde_json::json!(SPARSE_PLY);
+            }
             let path = out.join("transforms.json");
             let text = serde_json::to_string_pretty(&json).expect("JSON values serialise");
             std::fs::write(&path, text).map_err(|e| SceneError::io(&path, e))

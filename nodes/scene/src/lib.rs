@@ -8,6 +8,7 @@
 //! - [`import`]: normalisation, near/far bounds and writing the scene artifact
 //!   ([`augsplat_core::scene`]);
 //! - [`bounds`]: near/far from the cameras alone (where the optical axes converge);
+//! - [`ply_points`]: points kept in a PLY beside a capture (nerfstudio's `sparse_pc.ply`);
 //! - [`split`]: the paper's sparse-view split;
 //! - [`depth`]: DS-NeRF-style sparse depth and dense depth maps;
 //! - [`synthetic`]: the exactly ray-traced default scene;
@@ -27,6 +28,7 @@ pub mod import;
 pub mod inspect;
 pub mod intrinsics;
 pub mod node;
+pub mod ply_points;
 pub mod source;
 pub mod split;
 pub mod synthetic;

@@ -5,6 +5,7 @@
 //! | `ImportScene` | `source` (COLMAP / transforms.json / LLFF folder) | `scene` |
 //! | `SyntheticScene` | — | `scene` (plus `exact_depth/`) |
 //! | `SplitScene` | `scene` | `train`, `test` |
+//! | `TriangulatePoints` | `scene` | `scene` (with `points3D` from its photos) |
 //! | `SparseDepth` | `scene`, optional `dense` (folder of per-view depth maps) | `scene` |
 //! | `ExportScene` | `scene` | `export` |
 
@@ -15,6 +16,9 @@ use crate::import::{check_scene, copy_scene, import_scene, ImportOptions, Normal
 use crate::source::{load_colmap, load_llff, load_transforms, RawScene};
 use crate::split::{split_indices, subset};
 use crate::synthetic::{generate, SyntheticParams};
+use crate::triangulate::matching::MatchRules;
+use crate::triangulate::solve::SolveRules;
+use crate::triangulate::{triangulate_scene, TriangulateOptions};
 use augsplat_core::Scene;
 use augsplat_graph::{InputDecl, Node, NodeError, Registry, RunContext, Threads};
 use rayon::prelude::*;
@@ -28,6 +32,7 @@ pub fn register(registry: &mut Registry) {
         .register::<SyntheticScene>()
         .register::<SplitScene>()
         .register::<SparseDepth>()
+        .register::<TriangulatePoints>()
         .register::<ExportScene>();
 }
 
@@ -522,6 +527,188 @@ impl Node for SparseDepth {
     }
 }
 
+/// When [`TriangulatePoints`] triangulates.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TriangulateWhen {
+    /// Only when the scene has no points (else the folder passes through unchanged).
+    #[default]
+    Missing,
+    /// Always, replacing any points the scene has.
+    Always,
+    /// Never: the folder passes through unchanged, and Gaussians without points start at
+    /// random in the frusta.
+    Never,
+}
+
+/// Args of [`TriangulatePoints`] (see [`crate::triangulate`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TriangulatePointsArgs {
+    /// When to triangulate.
+    pub when: TriangulateWhen,
+    /// Keypoints per view at most.
+    pub max_features: u32,
+    /// Views each view is matched with (nearest centres among those looking the same way).
+    pub neighbours: u32,
+    /// Largest angle between two matched views' optical axes, degrees.
+    pub max_axis_angle_deg: f64,
+    /// Largest distance of a match from its epipolar line, pixels.
+    pub epipolar_px: f64,
+    /// Largest Hamming distance of a match (of 256 bits).
+    pub max_hamming: u32,
+    /// Ratio test: the best distance below this multiple of the second best.
+    pub ratio: f64,
+    /// Largest reprojection error of an observation kept, pixels.
+    pub max_reprojection_px: f64,
+    /// Fewest views a point keeps.
+    pub min_track: u32,
+    /// Smallest angle between a point's rays, degrees.
+    pub min_angle_deg: f64,
+    /// Neighbours of the isolation test (0: keep isolated points).
+    pub outlier_neighbours: u32,
+    /// Isolation: mean neighbour distance above this multiple of the median.
+    pub outlier_ratio: f64,
+    /// Seed of BRIEF's test pairs.
+    pub seed: u64,
+    /// Fewer points than this is reported as a failed triangulation (terminal, log, record).
+    pub min_points: u32,
+}
+
+impl Default for TriangulatePointsArgs {
+    fn default() -> Self {
+        let o = TriangulateOptions::default();
+        TriangulatePointsArgs {
+            when: TriangulateWhen::Missing,
+            max_features: o.max_features as u32,
+            neighbours: o.neighbours as u32,
+            max_axis_angle_deg: o.max_axis_angle_deg,
+            epipolar_px: o.matching.epipolar_px,
+            max_hamming: o.matching.max_hamming,
+            ratio: o.matching.ratio,
+            max_reprojection_px: o.solve.max_reprojection_px,
+            min_track: o.solve.min_track as u32,
+            min_angle_deg: o.solve.min_angle_deg,
+            outlier_neighbours: o.outlier_neighbours as u32,
+            outlier_ratio: o.outlier_ratio,
+            seed: o.seed,
+            min_points: 1000,
+        }
+    }
+}
+
+impl TriangulatePointsArgs {
+    /// The library's options.
+    pub fn options(&self) -> TriangulateOptions {
+        TriangulateOptions {
+            max_features: self.max_features as usize,
+            neighbours: self.neighbours as usize,
+            max_axis_angle_deg: self.max_axis_angle_deg,
+            matching: MatchRules {
+                epipolar_px: self.epipolar_px,
+                max_hamming: self.max_hamming,
+                ratio: self.ratio,
+            },
+            solve: SolveRules {
+                max_reprojection_px: self.max_reprojection_px,
+                min_track: self.min_track as usize,
+                min_angle_deg: self.min_angle_deg,
+            },
+            outlier_neighbours: self.outlier_neighbours as usize,
+            outlier_ratio: self.outlier_ratio,
+            seed: self.seed,
+        }
+    }
+}
+
+/// `TriangulatePoints`: sparse points from the photos and known poses of a scene without
+/// them (COLMAP's `point_triangulator`), with near/far from the points; `triangulation.json`
+/// beside them says what was found at each stage.
+pub struct TriangulatePoints;
+
+impl Node for TriangulatePoints {
+    const KIND: &'static str = "TriangulatePoints";
+    const VERSION: u32 = 1;
+    type Args = TriangulatePointsArgs;
+
+    fn inputs(_: &Self::Args) -> Vec<InputDecl> {
+        vec![InputDecl::one("scene")]
+    }
+    fn outputs(_: &Self::Args) -> Vec<String> {
+        vec!["scene".into()]
+    }
+    fn threads(_: &Self::Args) -> Threads {
+        Threads::All
+    }
+    fn validate(a: &Self::Args) -> Result<(), String> {
+        let positive = [
+            ("max_axis_angle_deg", a.max_axis_angle_deg),
+            ("epipolar_px", a.epipolar_px),
+            ("max_reprojection_px", a.max_reprojection_px),
+            ("outlier_ratio", a.outlier_ratio),
+        ];
+        for (name, v) in positive {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(format!("{name} = {v} must be positive"));
+            }
+        }
+        if !(a.ratio > 0.0 && a.ratio <= 1.0) {
+            return Err(format!("ratio = {} must be within (0, 1]", a.ratio));
+        }
+        if !(a.min_angle_deg >= 0.0 && a.min_angle_deg < 90.0) {
+            return Err(format!(
+                "min_angle_deg = {} must be within [0, 90)",
+                a.min_angle_deg
+            ));
+        }
+        if a.max_features < 16 || a.neighbours == 0 || a.min_track < 2 || a.max_hamming > 256 {
+            return Err(format!(
+                "max_features ≥ 16, neighbours ≥ 1, min_track ≥ 2 and max_hamming ≤ 256 are needed                  (got {}, {}, {}, {})",
+                a.max_features, a.neighbours, a.min_track, a.max_hamming
+            ));
+        }
+        Ok(())
+    }
+    fn run(a: &Self::Args, ctx: &mut RunContext) -> Result<(), NodeError> {
+        let src = ctx.input("scene")?.to_path_buf();
+        let out = ctx.output("scene")?.to_path_buf();
+        let scene = Scene::load(&src)?;
+        let pass = match a.when {
+            TriangulateWhen::Never => Some("when: Never"),
+            TriangulateWhen::Missing if scene.has_points => Some("the scene has points"),
+            _ => None,
+        };
+        if let Some(why) = pass {
+            crate::triangulate::copy_tree(&src, &out)?;
+            ctx.log(format!("passed through unchanged ({why})"));
+            return Ok(());
+        }
+        let started = std::time::Instant::now();
+        let record = triangulate_scene(&src, &out, &a.options(), a.min_points as usize)?;
+        ctx.log(format!(
+            "{} in {:.2} s; near/far {:.4}–{:.4} (before {:.4}–{:.4})",
+            record.report.summary(),
+            started.elapsed().as_secs_f64(),
+            record
+                .bounds
+                .as_ref()
+                .map_or(record.bounds_before.0, |b| b.near),
+            record
+                .bounds
+                .as_ref()
+                .map_or(record.bounds_before.1, |b| b.far),
+            record.bounds_before.0,
+            record.bounds_before.1
+        ));
+        if let Some(w) = &record.warning {
+            let msg = format!("warning: TriangulatePoints: {w}");
+            // On the terminal as well as in the log: the run will start from poor points.
+            eprintln!("{msg}");
+            ctx.log(msg);
+        }
+        Ok(())
+    }
+}
+
 /// Args of [`ExportScene`].
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -535,9 +722,7 @@ pub struct ExportScene;
 
 impl Node for ExportScene {
     const KIND: &'static str = "ExportScene";
-    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
-    const VERSION: u32 = 2;
+    const VERSION: u32 = 3;
     type Args = ExportSceneArgs;
 
     fn inputs(_: &Self::Args) -> Vec<InputDecl> {

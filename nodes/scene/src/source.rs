@@ -402,10 +402,41 @@ pub fn load_transforms(file: &Path) -> Result<RawScene> {
         )));
     }
     sort_views(&mut views, file)?;
+    let points = match root.get("ply_file_path") {
+        None | Some(serde_json::Value::Null) => RawPoints::default(),
+        Some(v) => {
+            let rel = v
+                .as_str()
+                .ok_or_else(|| SceneError::format(file, "`ply_file_path` is not a string"))?;
+            let ply = base.join(rel);
+            if ply.is_file() {
+                let read = crate::ply_points::read_points_ply(&ply)?;
+                let tracks = crate::ply_points::tracks_by_visibility(&views, &read.positions);
+                warnings.push(format!(
+                    "{} points from {} (`ply_file_path`); which views see each is worked out \
+                     from visibility (a PLY has no observations)",
+                    read.positions.len(),
+                    ply.display()
+                ));
+                RawPoints {
+                    errors: vec![0.0; read.positions.len()],
+                    positions: read.positions,
+                    colors: read.colors,
+                    tracks,
+                }
+            } else {
+                warnings.push(format!(
+                    "`ply_file_path` names {}, which does not exist: no points from it",
+                    ply.display()
+                ));
+                RawPoints::default()
+            }
+        }
+    };
     Ok(RawScene {
         source: format!("transforms.json {}", file.display()),
         views,
-        points: RawPoints::default(),
+        points,
         warnings,
         missing_images,
     })

@@ -62,7 +62,7 @@ pub fn test_pairs(seed: u64) -> Vec<TestPair> {
     let mut rng = augsplat_core::Rng::new(seed);
     let centre = (PATCH_DIAMETER / 2) as f64 + 1.0;
     let mut pairs = Vec::with_capacity(DESCRIPTOR_BITS);
-    let mut coord = |rng: &mut augsplat_core::Rng| {
+    let coord = |rng: &mut augsplat_core::Rng| {
         let c = centre + 6.6 * rng.normal();
         (c >= 0.0 && c < PATCH_DIAMETER as f64).then_some(c as u32)
     };

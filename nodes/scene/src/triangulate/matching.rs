@@ -99,7 +99,7 @@ fn best_along_lines(
         let x = [from.u[i], from.v[i], 1.0];
         let l = linalg::mat3_vec(f, x);
         let norm = (l[0] * l[0] + l[1] * l[1]).sqrt();
-        if !(norm > 0.0) {
+        if norm.is_nan() || norm <= 0.0 {
             continue;
         }
         let band = rules.epipolar_px * norm;

@@ -24,11 +24,13 @@ pub mod tracks;
 
 use crate::error::{Result, SceneError};
 use augsplat_core::linalg;
-use augsplat_core::{Camera, ImageF32, PointCloud};
+use augsplat_core::scene::POINTS_FILE;
+use augsplat_core::{Camera, ImageF32, PointCloud, Scene};
 use matching::{match_pair, select_pairs, MatchRules};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use solve::{solve_track, Rejection, SolveRules};
+use std::path::Path;
 
 /// Settings of [`triangulate`].
 #[derive(Clone, Debug, PartialEq)]
@@ -162,7 +164,7 @@ fn check_inputs(cams: &[Camera], images: &[ImageF32], names: &[String]) -> Resul
         .map(|c| linalg::norm(c.center()))
         .fold(0.0, f64::max)
         .max(1.0);
-    if !(spread > 1e-9 * depth) {
+    if spread.is_nan() || spread <= 1e-9 * depth {
         return Err(SceneError::Invalid(format!(
             "all {} cameras are at one point ({:.4}, {:.4}, {:.4}): with no baseline between \
              the views nothing can be triangulated (a panorama or wrong poses?)",
@@ -286,3 +288,92 @@ pub fn triangulate(
 
 #[cfg(test)]
 mod tests;
+
+/// The record written beside the triangulated points.
+pub const RECORD_FILE: &str = "triangulation.json";
+
+/// What [`triangulate_scene`] did, as written to [`RECORD_FILE`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TriangulationRecord {
+    /// The stages' counts.
+    pub report: TriangulationReport,
+    /// The scene's near/far before (from the import: the cameras' axes, LLFF bounds or the
+    /// defaults).
+    pub bounds_before: (f64, f64),
+    /// Near/far from the triangulated points (per view and for the scene), when any.
+    pub bounds: Option<crate::bounds::PointBounds>,
+    /// Set when the cloud is too small to start from (fewer than the node's `min_points`).
+    pub warning: Option<String>,
+}
+
+/// Copies a folder tree (files and folders only).
+pub fn copy_tree(from: &Path, to: &Path) -> Result<()> {
+    std::fs::create_dir_all(to).map_err(|e| SceneError::io(to, e))?;
+    let mut entries: Vec<_> = std::fs::read_dir(from)
+        .map_err(|e| SceneError::io(from, e))?
+        .collect::<std::io::Result<_>>()
+        .map_err(|e| SceneError::io(from, e))?;
+    entries.sort_by_key(|e| e.file_name());
+    for e in entries {
+        let (src, dst) = (e.path(), to.join(e.file_name()));
+        if src.is_dir() {
+            copy_tree(&src, &dst)?;
+        } else {
+            std::fs::copy(&src, &dst).map_err(|e| SceneError::io(&src, e))?;
+        }
+    }
+    Ok(())
+}
+
+/// Triangulates the scene folder `src` into `out`: the folder copied, its points replaced by
+/// the triangulated ones, its near/far taken from them, and [`RECORD_FILE`] beside. A cloud of
+/// fewer than `min_points` points is kept but carries a warning (also in the record); with no
+/// points at all the scene stays without points and keeps its bounds.
+pub fn triangulate_scene(
+    src: &Path,
+    out: &Path,
+    opts: &TriangulateOptions,
+    min_points: usize,
+) -> Result<TriangulationRecord> {
+    let mut scene = Scene::load(src)?;
+    let cams: Vec<Camera> = scene.views.iter().map(|v| v.camera.clone()).collect();
+    let names: Vec<String> = scene.views.iter().map(|v| v.name.clone()).collect();
+    let images: Vec<ImageF32> = (0..scene.views.len())
+        .into_par_iter()
+        .map(|i| scene.load_image(src, i).map_err(SceneError::from))
+        .collect::<Result<_>>()?;
+    let (cloud, report) = triangulate(&cams, &images, &names, opts)?;
+    copy_tree(src, out)?;
+    let points_file = out.join(POINTS_FILE);
+    if points_file.exists() {
+        std::fs::remove_file(&points_file).map_err(|e| SceneError::io(&points_file, e))?;
+    }
+    let bounds_before = (scene.near, scene.far);
+    let bounds = crate::bounds::from_points(&cams, &cloud);
+    if let Some(b) = &bounds {
+        scene.near = b.near;
+        scene.far = b.far;
+    }
+    scene.has_points = !cloud.is_empty();
+    if scene.has_points {
+        cloud.save(&points_file)?;
+    }
+    scene.save(out)?;
+    let warning = (report.points < min_points).then(|| {
+        format!(
+            "triangulation found only {} points (fewer than {min_points}): {}. The Gaussians \
+             will start mostly from random positions between the bounds; check that the views \
+             overlap and the poses are right, or import a model with SfM points",
+            report.points,
+            report.summary()
+        )
+    });
+    let record = TriangulationRecord {
+        report,
+        bounds_before,
+        bounds,
+        warning,
+    };
+    augsplat_core::artifacts::write_json(&out.join(RECORD_FILE), &record)?;
+    Ok(record)
+}

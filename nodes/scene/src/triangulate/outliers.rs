@@ -107,7 +107,9 @@ pub fn isolated(points: &[Vec3], k: usize, ratio: f64) -> Vec<bool> {
     let mut sorted = dist.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
-    dist.iter().map(|&d| !(d <= ratio * median)).collect()
+    dist.iter()
+        .map(|&d| d.is_nan() || d > ratio * median)
+        .collect()
 }
 
 #[cfg(test)]

@@ -39,6 +39,11 @@ pub struct Solved {
     pub mean_error: f64,
 }
 
+/// Whether a camera-space depth is not in front of the camera (NaN included).
+fn behind(z: f64) -> bool {
+    z.is_nan() || z <= 0.0
+}
+
 /// Midpoint of the rays through the observations: minimises `Σ ‖(I − d dᵀ)(x − c)‖²`.
 fn midpoint(rays: &[(Vec3, Vec3)]) -> Option<Vec3> {
     let mut a = [[0f64; 3]; 3];
@@ -60,7 +65,7 @@ fn midpoint(rays: &[(Vec3, Vec3)]) -> Option<Vec3> {
 fn residual(cam: &Camera, x: Vec3, uv: (f64, f64)) -> Option<([f64; 2], [Vec3; 2])> {
     let (r, t) = linalg::rt_from_mat4(&cam.world_to_camera);
     let p = linalg::add(linalg::mat3_vec(&r, x), t);
-    if !(p[2] > 0.0) {
+    if behind(p[2]) {
         return None;
     }
     let iz = 1.0 / p[2];
@@ -96,7 +101,7 @@ fn refine(cams: &[&Camera], obs: &[(f64, f64)], mut x: Vec3) -> Vec3 {
             return x;
         };
         let next = linalg::add(x, step);
-        if !next.iter().all(|v| v.is_finite()) || cams.iter().any(|c| !(c.to_camera(next)[2] > 0.0))
+        if !next.iter().all(|v| v.is_finite()) || cams.iter().any(|c| behind(c.to_camera(next)[2]))
         {
             return x;
         }
@@ -128,7 +133,7 @@ pub fn solve_track(
         };
         // Observations behind their camera at the midpoint go first, then the worst
         // reprojection error above the bound, one at a time.
-        if let Some(behind) = kc.iter().position(|c| !(c.to_camera(x0)[2] > 0.0)) {
+        if let Some(behind) = kc.iter().position(|c| behind(c.to_camera(x0)[2])) {
             kept.remove(behind);
             continue;
         }
@@ -146,7 +151,7 @@ pub fn solve_track(
             .copied()
             .enumerate()
             .fold((0, -1.0), |m, (i, e)| if e > m.1 { (i, e) } else { m });
-        if !(err <= rules.max_reprojection_px) {
+        if err.is_nan() || err > rules.max_reprojection_px {
             kept.remove(worst);
             continue;
         }
