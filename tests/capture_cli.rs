@@ -69,8 +69,9 @@ fn generated_export(dir: &Path, format: &str) {
     augsplat_testkit::copy_dir(&dir.join("exported/export/export"), &dir.join("src"));
 }
 
-/// Runs the user's two-line pipeline on `dir/src`; returns the summary's nodes.
-fn run_capture(dir: &Path) -> Vec<Value> {
+/// Runs the user's two-line pipeline on `dir/src`; returns the summary's nodes and what the
+/// run printed.
+fn run_capture(dir: &Path) -> (Vec<Value>, String) {
     let capture = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/capture.ron");
     let mine = dir.join("my_capture.ron");
     std::fs::write(
@@ -103,7 +104,7 @@ fn run_capture(dir: &Path) -> Vec<Value> {
     let report = std::fs::read_to_string(dir.join("res/report/report/summary.md")).unwrap();
     assert!(report.contains("## Gate: "), "{report}");
     assert_eq!(report.contains("## Gate: skip"), gated, "{report}");
-    nodes
+    (nodes, out)
 }
 
 /// The imported scene's image width: any scene folder in the store that the generated scene
@@ -139,8 +140,24 @@ fn capture_runs_on_a_generated_transforms_json_export() {
     let tmp = tempfile::tempdir().unwrap();
     generated_export(tmp.path(), "Transforms");
     assert!(tmp.path().join("src/transforms.json").is_file());
-    run_capture(tmp.path());
+    // The export keeps its points as nerfstudio does: the import reads them, so the
+    // triangulation passes the scene through.
+    assert!(tmp.path().join("src/sparse_pc.ply").is_file());
+    let (nodes, _) = run_capture(tmp.path());
     assert_eq!(imported_width(tmp.path()), 32);
+    assert!(nodes.iter().any(|n| n["name"] == "points"));
+    // The evaluations measured the training views too.
+    let (ok, out) = run(
+        tmp.path(),
+        &tmp.path().join("my_capture.ron"),
+        &["--target", "eval_baseline", "--out", "res2"],
+    );
+    assert!(ok, "{out}");
+    let m: Value = serde_json::from_str(
+        &std::fs::read_to_string(tmp.path().join("res2/eval_baseline/eval/metrics.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(m["train_psnr"].as_f64().is_some_and(|p| p > 0.0), "{m}");
 }
 
 #[test]
@@ -150,9 +167,20 @@ fn capture_runs_on_an_llff_folder() {
     };
     let tmp = tempfile::tempdir().unwrap();
     augsplat_testkit::copy_dir(&data.join("fern"), &tmp.path().join("src"));
-    run_capture(tmp.path());
+    let (_, out) = run_capture(tmp.path());
     // 504×378 photos, at most 48 px: downscaled by 11 → 45 px wide.
     assert_eq!(imported_width(tmp.path()), 504 / 11);
+    // LLFF has no points: at 45 px the triangulation finds (next to) none, and says so on
+    // the terminal and in the report.
+    assert!(
+        out.contains("warning: TriangulatePoints: triangulation found only"),
+        "{out}"
+    );
+    let report = std::fs::read_to_string(tmp.path().join("res/report/report/summary.md")).unwrap();
+    assert!(
+        report.contains("**Warnings**") && report.contains("triangulation found only"),
+        "{report}"
+    );
 }
 
 /// An LLFF folder that ships `images_4/` only (no `images_8/`, the importer's default factor)
@@ -172,7 +200,7 @@ fn capture_runs_on_an_llff_folder_with_only_images_4() {
     )
     .unwrap();
     augsplat_testkit::copy_dir(&data.join("fern/images_8"), &src.join("images_4"));
-    let nodes = run_capture(tmp.path());
+    let (nodes, _) = run_capture(tmp.path());
     assert_eq!(imported_width(tmp.path()), 504 / 11);
     let scene = nodes.iter().find(|n| n["name"] == "scene").unwrap();
     let key = scene["key"].as_str().unwrap();

@@ -14,6 +14,7 @@ fn eval_dir(dir: &Path, label: &str, psnr: f64, ssim: f64, lpips: Option<f64>, s
         label: label.into(),
         checkpoint: "best".into(),
         checkpoint_step: Some(300),
+        train_psnr: None,
         lpips_net: lpips.map(|_| "alex".into()),
         mean: Metrics {
             psnr,

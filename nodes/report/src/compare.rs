@@ -344,6 +344,7 @@ mod tests {
                 label: label.into(),
                 checkpoint: "best".into(),
                 checkpoint_step: Some(300),
+                train_psnr: None,
                 lpips_net: Some("alex".into()),
                 mean: Metrics {
                     psnr,

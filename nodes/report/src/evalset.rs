@@ -281,6 +281,42 @@ pub struct EvalMetrics {
     /// Remarks for readers (missing LPIPS weights, fallbacks taken).
     #[serde(default)]
     pub notes: Vec<String>,
+    /// Mean PSNR over the training views (dB), when `Evaluate` had the `train` input: with
+    /// the held-out PSNR it shows a run that fits its photos but not the scene.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_psnr: Option<f64>,
+}
+
+/// Held-out PSNR below which a reconstruction is taken to have failed, dB.
+pub const FAILED_PSNR_DB: f64 = 12.0;
+/// Training PSNR this far above the held-out PSNR is taken as a failure to generalise, dB.
+pub const OVERFIT_GAP_DB: f64 = 10.0;
+
+/// Signs that a run has gone wrong, in words with the likely causes: held-out PSNR below
+/// [`FAILED_PSNR_DB`], or training PSNR more than [`OVERFIT_GAP_DB`] above it. Empty for a
+/// healthy run.
+pub fn failure_signs(m: &EvalMetrics) -> Vec<String> {
+    let mut signs = Vec::new();
+    let psnr = m.mean.psnr;
+    if psnr < FAILED_PSNR_DB {
+        signs.push(format!(
+            "held-out PSNR {psnr:.2} dB is below {FAILED_PSNR_DB} dB: the reconstruction has \
+             failed. Likely causes: no sparse points to start from (see the import's and \
+             TriangulatePoints' messages), near/far bounds that miss the scene, or wrong poses"
+        ));
+    }
+    if let Some(t) = m.train_psnr {
+        if t - psnr > OVERFIT_GAP_DB {
+            signs.push(format!(
+                "training PSNR {t:.2} dB is {:.1} dB above the held-out {psnr:.2} dB: the \
+                 Gaussians fit the training photos but not the scene. Likely causes: wrong \
+                 poses, no sparse points (Gaussians placed in front of the cameras), or bounds \
+                 that miss the scene",
+                t - psnr
+            ));
+        }
+    }
+    signs
 }
 
 impl EvalMetrics {
@@ -467,6 +503,7 @@ mod tests {
             label: "a,b".into(),
             checkpoint: "best".into(),
             checkpoint_step: Some(3),
+            train_psnr: None,
             lpips_net: None,
             mean: m(f64::INFINITY, None),
             views: vec![ViewMetrics {

@@ -90,8 +90,10 @@ impl Default for EvaluateArgs {
 
 /// `Evaluate`: inputs `model` (an `OptimizeSplats` model folder: `best.ply`, `final.ply`,
 /// `best.json`, `curve.json`), `test` (a scene folder of held-out views), optional `lpips`
-/// (a weights file or folder; otherwise `AUGSPLAT_LPIPS_WEIGHTS` or the default location) and
-/// optional `baseline` (the baseline method's model folder); output `eval`.
+/// (a weights file or folder; otherwise `AUGSPLAT_LPIPS_WEIGHTS` or the default location),
+/// optional `baseline` (the baseline method's model folder) and optional `train` (the training
+/// scene: its mean PSNR is recorded as `train_psnr`); output `eval`. A run that shows
+/// [`evalset::failure_signs`] gets a warning on the terminal and in the log.
 pub struct EvaluateNode;
 
 /// How to get LPIPS weights, for messages.
@@ -119,6 +121,7 @@ impl Node for EvaluateNode {
             InputDecl::one("test"),
             InputDecl::optional("lpips"),
             InputDecl::optional("baseline"),
+            InputDecl::optional("train"),
         ]
     }
     fn outputs(_args: &EvaluateArgs) -> Vec<String> {
@@ -145,6 +148,7 @@ impl Node for EvaluateNode {
         let test = ctx.input("test")?.to_path_buf();
         let lpips_input = ctx.optional_input("lpips").map(Path::to_path_buf);
         let baseline = ctx.optional_input("baseline").map(Path::to_path_buf);
+        let train = ctx.optional_input("train").map(Path::to_path_buf);
         let out = ctx.output("eval")?.to_path_buf();
 
         let ply = model.join(args.checkpoint.file());
@@ -209,9 +213,20 @@ impl Node for EvaluateNode {
             device: gpu.as_ref().map(|(c, _)| c.adapter().clone()),
         };
         let started = Instant::now();
-        let metrics = evaluate(&context, &test, &out, render, &|done, total| {
+        let mut metrics = evaluate(&context, &test, &out, render, &|done, total| {
             ctx.progress(done, total, "views")
         })?;
+        if let Some(train) = &train {
+            metrics.train_psnr = Some(train_psnr(train, render)?).filter(|p| p.is_finite());
+            let path = out.join(files::METRICS);
+            augsplat_core::artifacts::write_json(&path, &metrics)?;
+        }
+        for sign in evalset::failure_signs(&metrics) {
+            // On the terminal as well as in the log: a failed run must not pass unnoticed.
+            let msg = format!("warning: {}: {sign}", metrics.label);
+            eprintln!("{msg}");
+            ctx.log(msg);
+        }
         // The evaluated checkpoint beside its renders, for the report's 3-D viewer (the store
         // keeps one blob for both copies).
         let copy = out.join(files::MODEL);
@@ -329,6 +344,33 @@ pub fn measure(
     lpips: Option<&Lpips>,
 ) -> Result<Metrics, ReportError> {
     Ok(augsplat_metrics::measure::measure(render, gt, lpips)?.into())
+}
+
+/// Mean PSNR of `render` over the views of the scene folder `train` (renders clamped to
+/// [0, 1], as for the held-out views).
+pub fn train_psnr<R>(train: &Path, render: R) -> Result<f64, ReportError>
+where
+    R: Fn(&Camera) -> Result<ImageF32, ReportError>,
+{
+    let scene = Scene::load(train)?;
+    if scene.views.is_empty() {
+        return Err(ReportError::invalid(
+            train,
+            "the training scene has no views",
+        ));
+    }
+    let mut sum = 0.0;
+    for (i, view) in scene.views.iter().enumerate() {
+        let gt = scene.load_image(train, i)?;
+        let cam = view.camera.resized(gt.width, gt.height);
+        let mut img = render(&cam)?;
+        for v in &mut img.data {
+            *v = v.clamp(0.0, 1.0);
+        }
+        sum += augsplat_metrics::psnr(&img, &gt)
+            .map_err(|e| ReportError::Message(format!("training view {:?}: {e}", view.name)))?;
+    }
+    Ok(sum / scene.views.len() as f64)
 }
 
 /// Evaluates every view of the scene folder `test` with `render` (camera at the ground-truth
@@ -502,6 +544,7 @@ where
         eval_seconds: cx.record_wall_time.then(|| start.elapsed().as_secs_f64()),
         device: cx.device.clone(),
         notes,
+        train_psnr: None,
     };
     artifacts::write_json(&out.join(files::METRICS), &metrics)?;
     artifacts::write_json(&out.join(files::CAMERAS), &cameras)?;

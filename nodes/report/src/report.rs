@@ -11,7 +11,7 @@
 //! (when the evaluations carry their wall times, see [`TIMES_ELSEWHERE`]).
 
 use crate::compare::display_labels;
-use crate::evalset::{EvalDir, MetricKey, Metrics};
+use crate::evalset::{failure_signs, EvalDir, MetricKey, Metrics};
 use crate::html::{self, escape, MetricRow, MetricTable};
 use crate::svg::{self, Chart, LabeledPoint, Series};
 use crate::ReportError;
@@ -76,7 +76,7 @@ h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:4px;margin-top
 table.metrics{border-collapse:collapse;margin:12px 0}table.metrics caption{text-align:left;font-weight:bold;margin-bottom:4px}\
 table.metrics th,table.metrics td{border:1px solid #ccc;padding:4px 10px;text-align:right}\
 table.metrics th[scope=row],table.metrics thead th:first-child{text-align:left}td.best{background:#e6f4e6}.detail{color:#777;font-weight:normal;font-size:.9em}\
-.plots{display:flex;flex-wrap:wrap;gap:12px}.note{color:#555;font-size:.92em}\
+.plots{display:flex;flex-wrap:wrap;gap:12px}.note{color:#555;font-size:.92em}.warning{border:2px solid #c60;background:#fff4e5;padding:4px 12px;margin:8px 0}\
 figure{margin:0;display:inline-block;vertical-align:top;text-align:center}figcaption{font-size:.85em;color:#444}\
 .row{display:flex;flex-wrap:wrap;gap:8px;align-items:flex-start;margin-bottom:8px}img.px{image-rendering:pixelated}";
 
@@ -92,9 +92,43 @@ pub fn build_report(
             "a report needs at least one evaluation (input `evals` is empty)".into(),
         ));
     }
-    let labels = display_labels(evals);
+    // A run that shows signs of failure is marked in every table and explained at the top.
+    let labels: Vec<String> = display_labels(evals)
+        .into_iter()
+        .zip(evals)
+        .map(|(l, e)| {
+            if failure_signs(&e.metrics).is_empty() {
+                l
+            } else {
+                format!("⚠ {l}")
+            }
+        })
+        .collect();
     let mut body = String::new();
     let mut md = format!("# {}\n\n", opts.title.replace('\n', " "));
+    let mut warnings: Vec<String> = evals
+        .iter()
+        .zip(&labels)
+        .flat_map(|(e, l)| {
+            failure_signs(&e.metrics)
+                .into_iter()
+                .map(move |s| format!("{l}: {s}"))
+        })
+        .collect();
+    let triangulation = opts.train_scene.as_deref().and_then(triangulation_record);
+    if let Some(w) = triangulation.as_ref().and_then(|r| r.warning.clone()) {
+        warnings.insert(0, w);
+    }
+    if !warnings.is_empty() {
+        body.push_str("<div class=\"warning\" id=\"warnings\"><h2>Warnings</h2><ul>");
+        md.push_str("**Warnings**\n\n");
+        for w in &warnings {
+            let _ = write!(body, "<li>{}</li>", escape(w));
+            let _ = writeln!(md, "- ⚠ {w}");
+        }
+        body.push_str("</ul></div>");
+        md.push('\n');
+    }
 
     // --- notes -----------------------------------------------------------------------------
     // An evaluation without LPIPS says so in up to three notes (no weights, hence no average
@@ -127,6 +161,12 @@ pub fn build_report(
         }
     }
     let mut notes = Vec::new();
+    if let Some(r) = &triangulation {
+        notes.push(format!(
+            "Sparse points triangulated from the training photos: {}",
+            r.report.summary()
+        ));
+    }
     if !without_lpips.is_empty() {
         notes.push(lpips_line(&without_lpips, lpips_off_by_choice));
     }
@@ -801,9 +841,76 @@ pub fn group_notes(per_method: &[(&str, &str)]) -> Vec<String> {
         .collect()
 }
 
+/// The triangulation record beside a training scene's points, when the points were
+/// triangulated (`TriangulatePoints`); an unreadable record is left out.
+fn triangulation_record(train: &Path) -> Option<augsplat_scene::triangulate::TriangulationRecord> {
+    let path = train.join(augsplat_scene::triangulate::RECORD_FILE);
+    path.is_file()
+        .then(|| artifacts::read_json(&path).ok())
+        .flatten()
+}
+
 #[cfg(test)]
 mod tests {
-    use super::group_notes;
+    use super::*;
+    use crate::evalset::{EvalMetrics, FORMAT_VERSION};
+
+    fn eval(label: &str, psnr: f64, train_psnr: Option<f64>) -> EvalDir {
+        EvalDir {
+            dir: std::path::PathBuf::from(format!("/evals/{label}")),
+            metrics: EvalMetrics {
+                format: FORMAT_VERSION,
+                label: label.into(),
+                checkpoint: "best".into(),
+                checkpoint_step: Some(100),
+                lpips_net: None,
+                mean: Metrics {
+                    psnr,
+                    ssim: 0.5,
+                    lpips: None,
+                    mse: 10f64.powf(-psnr / 10.0),
+                    avg_error: None,
+                },
+                views: vec![],
+                best: None,
+                at_baseline: None,
+                train_seconds: None,
+                primitives: None,
+                eval_seconds: None,
+                device: None,
+                notes: vec![],
+                train_psnr,
+            },
+            curve: None,
+        }
+    }
+
+    #[test]
+    fn failed_runs_are_marked_and_explained() {
+        let opts = ReportOptions {
+            viewer: false,
+            ..ReportOptions::default()
+        };
+        let healthy = [eval("3DGS", 22.0, Some(28.0)), eval("Dual", 23.0, None)];
+        let built = build_report(&opts, &healthy, None).unwrap();
+        assert!(!built.markdown.contains("Warnings") && !built.markdown.contains('⚠'));
+        // Below 12 dB held out; 12.5 dB held out but 25 dB on the training views.
+        let failed = [
+            eval("3DGS", 9.7, Some(14.0)),
+            eval("Dual", 12.5, Some(25.0)),
+        ];
+        let built = build_report(&opts, &failed, None).unwrap();
+        let md = &built.markdown;
+        assert!(md.contains("**Warnings**"), "{md}");
+        assert!(md.contains("| ⚠ 3DGS") && md.contains("| ⚠ Dual"), "{md}");
+        assert!(md.contains("held-out PSNR 9.70 dB is below 12 dB"), "{md}");
+        assert!(
+            md.contains("training PSNR 25.00 dB is 12.5 dB above"),
+            "{md}"
+        );
+        assert!(md.contains("no sparse points"), "{md}");
+        assert!(built.html.contains("id=\"warnings\""));
+    }
 
     #[test]
     fn the_same_note_of_several_methods_is_one_line() {
