@@ -564,7 +564,8 @@ pub struct TriangulatePointsArgs {
     pub min_track: u32,
     /// Smallest angle between a point's rays, degrees.
     pub min_angle_deg: f64,
-    /// Neighbours of the isolation test (0: keep isolated points).
+    /// Neighbours of the isolation test (0, the default: keep isolated points, which are often
+    /// a capture's sparse background).
     pub outlier_neighbours: u32,
     /// Isolation: mean neighbour distance above this multiple of the median.
     pub outlier_ratio: f64,

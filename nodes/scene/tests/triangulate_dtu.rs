@@ -110,6 +110,8 @@ fn dtu_triangulated_points_agree_with_its_sfm_points() {
         100.0 * median / extent,
         dist[dist.len() * 9 / 10]
     );
+    // Measured: 12,585 points, median 0.71 % of the extent (0.00634 of 0.8884). The defaults
+    // were chosen on this scene's training views.
     assert!(cloud.len() >= 5000, "{}", report.summary());
     assert!(
         median < 0.01 * extent,

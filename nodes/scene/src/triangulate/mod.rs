@@ -45,7 +45,8 @@ pub struct TriangulateOptions {
     pub matching: MatchRules,
     /// Point checks.
     pub solve: SolveRules,
-    /// Neighbours of the isolation test (0: keep every point).
+    /// Neighbours of the isolation test (0, the default: keep every point — the test also
+    /// drops a capture's sparse background, whose points the Gaussians need).
     pub outlier_neighbours: usize,
     /// A point is isolated when its mean neighbour distance exceeds this multiple of the
     /// cloud's median.
@@ -57,7 +58,7 @@ pub struct TriangulateOptions {
 impl Default for TriangulateOptions {
     fn default() -> Self {
         TriangulateOptions {
-            max_features: 8000,
+            max_features: 16000,
             neighbours: 6,
             max_axis_angle_deg: 60.0,
             matching: MatchRules {
@@ -70,7 +71,7 @@ impl Default for TriangulateOptions {
                 min_track: 2,
                 min_angle_deg: 1.5,
             },
-            outlier_neighbours: 6,
+            outlier_neighbours: 0,
             outlier_ratio: 3.0,
             seed: 0,
         }

@@ -74,7 +74,7 @@ fn points_of_the_generated_scene_lie_on_its_surfaces() {
     let topts = TriangulateOptions::default();
     let (cloud, report) = triangulate(&cams, &images, &names, &topts).unwrap();
     eprintln!("{}", report.summary());
-    // Measured: 1,886 points, relative depth error median 0.26 %, 90th percentile 5.1 %.
+    // Measured: 2,339 points, relative depth error median 0.35 %, 75th percentile 2.3 %.
     assert!(report.points >= 1000, "{}", report.summary());
     assert_eq!(cloud.len(), report.points);
     assert!(report.mean_error_px < 1.0, "{}", report.summary());
@@ -89,9 +89,9 @@ fn points_of_the_generated_scene_lie_on_its_surfaces() {
     );
     assert!(q(0.5) < 0.005, "median relative depth error {}", q(0.5));
     assert!(
-        q(0.9) < 0.08,
-        "90th percentile relative depth error {}",
-        q(0.9)
+        q(0.75) < 0.05,
+        "75th percentile relative depth error {}",
+        q(0.75)
     );
     // Colours are the photos' (in [0, 1]), tracks name real views.
     for (i, c) in cloud.colors.iter().enumerate() {
@@ -108,6 +108,26 @@ fn points_of_the_generated_scene_lie_on_its_surfaces() {
         .install(|| triangulate(&cams, &images, &names, &TriangulateOptions::default()))
         .unwrap();
     assert_eq!(one, cloud);
+    // The isolation filter (off by default: it also drops a capture's sparse background,
+    // which the Gaussians need) removes most wrong two-view points. Measured: 1,886 points,
+    // 90th percentile 5.1 %.
+    let filtered = TriangulateOptions {
+        outlier_neighbours: 6,
+        ..TriangulateOptions::default()
+    };
+    let (cloud, report) = triangulate(&cams, &images, &names, &filtered).unwrap();
+    assert!(
+        report.rejected_isolated > 0 && cloud.len() >= 1000,
+        "{}",
+        report.summary()
+    );
+    let errs = depth_errors(dir.path(), &scene, &cloud);
+    let q = |f: f64| errs[((errs.len() - 1) as f64 * f) as usize];
+    assert!(
+        q(0.9) < 0.08,
+        "90th percentile relative depth error {}",
+        q(0.9)
+    );
 }
 
 #[test]
