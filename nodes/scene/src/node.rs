@@ -564,11 +564,13 @@ pub struct TriangulatePointsArgs {
     pub min_track: u32,
     /// Smallest angle between a point's rays, degrees.
     pub min_angle_deg: f64,
-    /// Neighbours of the isolation test (0, the default: keep isolated points, which are often
-    /// a capture's sparse background).
+    /// Neighbours of the isolation test (isolated points never set the bounds).
     pub outlier_neighbours: u32,
     /// Isolation: mean neighbour distance above this multiple of the median.
     pub outlier_ratio: f64,
+    /// Drop isolated points (off: they are often a capture's sparse background, which the
+    /// Gaussians need).
+    pub drop_isolated: bool,
     /// Seed of BRIEF's test pairs.
     pub seed: u64,
     /// Fewer points than this is reported as a failed triangulation (terminal, log, record).
@@ -591,6 +593,7 @@ impl Default for TriangulatePointsArgs {
             min_angle_deg: o.solve.min_angle_deg,
             outlier_neighbours: o.outlier_neighbours as u32,
             outlier_ratio: o.outlier_ratio,
+            drop_isolated: o.drop_isolated,
             seed: o.seed,
             min_points: 1000,
         }
@@ -616,6 +619,7 @@ impl TriangulatePointsArgs {
             },
             outlier_neighbours: self.outlier_neighbours as usize,
             outlier_ratio: self.outlier_ratio,
+            drop_isolated: self.drop_isolated,
             seed: self.seed,
         }
     }

@@ -8,7 +8,7 @@ use augsplat_core::{PointCloud, Scene};
 use augsplat_scene::import::{import_scene, ImportOptions};
 use augsplat_scene::node::{read_source, ImportSceneArgs};
 use augsplat_scene::split::{split_indices, subset};
-use augsplat_scene::triangulate::{triangulate, TriangulateOptions};
+use augsplat_scene::triangulate::{triangulate, TriangulateOptions, Triangulated};
 use common::data_dir;
 
 /// Distance from each point of `a` to its nearest point of `b` (a uniform grid of cell `cell`).
@@ -80,7 +80,7 @@ fn dtu_triangulated_points_agree_with_its_sfm_points() {
         .collect();
     let t0 = std::time::Instant::now();
     let topts = TriangulateOptions::default();
-    let (cloud, report) = triangulate(&cams, &images, &names, &topts).unwrap();
+    let Triangulated { cloud, report, .. } = triangulate(&cams, &images, &names, &topts).unwrap();
     eprintln!(
         "{} in {:.2} s",
         report.summary(),

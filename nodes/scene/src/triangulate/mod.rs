@@ -10,7 +10,8 @@
 //!    error), observations beyond the reprojection bound or behind a camera dropped, and the
 //!    point kept when enough views remain and the rays meet at a large enough angle.
 //!
-//! 5. [`outliers`]: points far from every other point dropped (two-view wrong matches).
+//! 5. [`outliers`]: points far from every other point (wrong two-view matches, or a sparse
+//!    background) found; they are kept (dropped only on request) but never set the bounds.
 //!
 //! Colours are the mean of the photos at the kept observations. Every stage runs in parallel
 //! over views, pairs or tracks and collects in order, so the cloud is the same bytes for any
@@ -45,12 +46,15 @@ pub struct TriangulateOptions {
     pub matching: MatchRules,
     /// Point checks.
     pub solve: SolveRules,
-    /// Neighbours of the isolation test (0, the default: keep every point — the test also
-    /// drops a capture's sparse background, whose points the Gaussians need).
+    /// Neighbours of the isolation test. Isolated points never set the bounds; they are
+    /// dropped from the cloud only with `drop_isolated`.
     pub outlier_neighbours: usize,
     /// A point is isolated when its mean neighbour distance exceeds this multiple of the
     /// cloud's median.
     pub outlier_ratio: f64,
+    /// Drop isolated points (off by default: they are often a capture's sparse background,
+    /// whose points the Gaussians need).
+    pub drop_isolated: bool,
     /// Seed of BRIEF's test pairs.
     pub seed: u64,
 }
@@ -71,8 +75,9 @@ impl Default for TriangulateOptions {
                 min_track: 2,
                 min_angle_deg: 1.5,
             },
-            outlier_neighbours: 0,
+            outlier_neighbours: 6,
             outlier_ratio: 3.0,
+            drop_isolated: false,
             seed: 0,
         }
     }
@@ -102,7 +107,9 @@ pub struct TriangulationReport {
     pub rejected_few_views: usize,
     /// Tracks whose rays meet at too small an angle.
     pub rejected_small_angle: usize,
-    /// Points dropped as isolated.
+    /// Points found isolated (dropped only with `drop_isolated`; never used for the bounds).
+    pub isolated: usize,
+    /// Isolated points dropped.
     pub rejected_isolated: usize,
     /// Points kept.
     pub points: usize,
@@ -118,7 +125,7 @@ impl TriangulationReport {
         format!(
             "{} points from {} views: {} keypoints (fewest in a view {}, {} low-contrast views), \
              {} view pairs, {} matches ({} refused as conflicting), {} tracks; rejected {} with too few \
-             views, {} with too small an angle, {} isolated; {:.2} views per point, mean reprojection error \
+             views, {} with too small an angle; {} isolated ({} dropped); {:.2} views per point, mean reprojection error \
              {:.3} px",
             self.points,
             self.views,
@@ -131,11 +138,23 @@ impl TriangulationReport {
             self.tracks,
             self.rejected_few_views,
             self.rejected_small_angle,
+            self.isolated,
             self.rejected_isolated,
             self.mean_track,
             self.mean_error_px
         )
     }
+}
+
+/// The result of [`triangulate`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Triangulated {
+    /// The points with their colours, mean reprojection errors and tracks.
+    pub cloud: PointCloud,
+    /// The stages' counts.
+    pub report: TriangulationReport,
+    /// Per point of the cloud: whether it is isolated (kept, but not used for the bounds).
+    pub isolated: Vec<bool>,
 }
 
 /// Checks the inputs: at least two views, images the size their cameras say, cameras not all
@@ -187,7 +206,7 @@ pub fn triangulate(
     images: &[ImageF32],
     names: &[String],
     opts: &TriangulateOptions,
-) -> Result<(PointCloud, TriangulationReport)> {
+) -> Result<Triangulated> {
     check_inputs(cams, images, names)?;
     let pairs_tests = features::test_pairs(opts.seed);
     let min_features = (opts.max_features / 4).max(1);
@@ -247,8 +266,10 @@ pub fn triangulate(
         .iter()
         .filter_map(|r| r.as_ref().ok().map(|(s, _)| s.position))
         .collect();
-    let mut isolated =
-        outliers::isolated(&positions, opts.outlier_neighbours, opts.outlier_ratio).into_iter();
+    let flags = outliers::isolated(&positions, opts.outlier_neighbours, opts.outlier_ratio);
+    report.isolated = flags.iter().filter(|&&f| f).count();
+    let mut flags = flags.into_iter();
+    let mut isolated = Vec::new();
     let mut cloud = PointCloud::default();
     cloud.track_offsets.push(0);
     let (mut sum_track, mut sum_err) = (0usize, 0f64);
@@ -256,8 +277,13 @@ pub fn triangulate(
         match r {
             Err(Rejection::TooFewViews) => report.rejected_few_views += 1,
             Err(Rejection::SmallAngle) => report.rejected_small_angle += 1,
-            Ok(_) if isolated.next() == Some(true) => report.rejected_isolated += 1,
             Ok((s, views)) => {
+                let iso = flags.next() == Some(true);
+                if iso && opts.drop_isolated {
+                    report.rejected_isolated += 1;
+                    continue;
+                }
+                isolated.push(iso);
                 let mut rgb = [0f64; 3];
                 for &i in &s.kept {
                     let (v, k) = t[i];
@@ -284,7 +310,11 @@ pub fn triangulate(
         report.mean_track = sum_track as f64 / report.points as f64;
         report.mean_error_px = sum_err / report.points as f64;
     }
-    Ok((cloud, report))
+    Ok(Triangulated {
+        cloud,
+        report,
+        isolated,
+    })
 }
 
 #[cfg(test)]
@@ -343,14 +373,29 @@ pub fn triangulate_scene(
         .into_par_iter()
         .map(|i| scene.load_image(src, i).map_err(SceneError::from))
         .collect::<Result<_>>()?;
-    let (cloud, report) = triangulate(&cams, &images, &names, opts)?;
+    let Triangulated {
+        cloud,
+        report,
+        isolated,
+    } = triangulate(&cams, &images, &names, opts)?;
     copy_tree(src, out)?;
     let points_file = out.join(POINTS_FILE);
     if points_file.exists() {
         std::fs::remove_file(&points_file).map_err(|e| SceneError::io(&points_file, e))?;
     }
     let bounds_before = (scene.near, scene.far);
-    let bounds = crate::bounds::from_points(&cams, &cloud);
+    // Bounds from the points that are not isolated: a few wrong two-view points far behind
+    // the scene would otherwise set the far bound.
+    let mut dense = PointCloud {
+        track_offsets: vec![0],
+        ..PointCloud::default()
+    };
+    for i in (0..cloud.len()).filter(|&i| !isolated[i]) {
+        dense.positions.push(cloud.positions[i]);
+        dense.track_views.extend_from_slice(cloud.track(i));
+        dense.track_offsets.push(dense.track_views.len() as u32);
+    }
+    let bounds = crate::bounds::from_points(&cams, &dense);
     if let Some(b) = &bounds {
         scene.near = b.near;
         scene.far = b.far;

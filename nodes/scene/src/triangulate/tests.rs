@@ -72,7 +72,7 @@ fn points_of_the_generated_scene_lie_on_its_surfaces() {
     let dir = tempfile::tempdir().unwrap();
     let (scene, cams, images, names) = generated(dir.path(), 30);
     let topts = TriangulateOptions::default();
-    let (cloud, report) = triangulate(&cams, &images, &names, &topts).unwrap();
+    let Triangulated { cloud, report, .. } = triangulate(&cams, &images, &names, &topts).unwrap();
     eprintln!("{}", report.summary());
     // Measured: 2,339 points, relative depth error median 0.35 %, 75th percentile 2.3 %.
     assert!(report.points >= 1000, "{}", report.summary());
@@ -104,18 +104,19 @@ fn points_of_the_generated_scene_lie_on_its_surfaces() {
         .num_threads(1)
         .build()
         .unwrap();
-    let (one, _) = pool
+    let one = pool
         .install(|| triangulate(&cams, &images, &names, &TriangulateOptions::default()))
         .unwrap();
-    assert_eq!(one, cloud);
+    assert_eq!(one.cloud, cloud);
     // The isolation filter (off by default: it also drops a capture's sparse background,
     // which the Gaussians need) removes most wrong two-view points. Measured: 1,886 points,
     // 90th percentile 5.1 %.
     let filtered = TriangulateOptions {
-        outlier_neighbours: 6,
+        drop_isolated: true,
         ..TriangulateOptions::default()
     };
-    let (cloud, report) = triangulate(&cams, &images, &names, &filtered).unwrap();
+    let Triangulated { cloud, report, .. } =
+        triangulate(&cams, &images, &names, &filtered).unwrap();
     assert!(
         report.rejected_isolated > 0 && cloud.len() >= 1000,
         "{}",
@@ -161,7 +162,7 @@ fn bad_captures_get_clear_errors_or_an_explained_empty_cloud() {
         let r = linalg::axis_angle([0.0, 1.0, 0.0], i as f64 * std::f64::consts::FRAC_PI_2);
         c.world_to_camera = linalg::mat4_from_rt(&r, [0.0, 0.0, -(i as f64) - 1.0]);
     }
-    let (cloud, report) = triangulate(&apart, &images, &names, &opts).unwrap();
+    let Triangulated { cloud, report, .. } = triangulate(&apart, &images, &names, &opts).unwrap();
     assert!(cloud.is_empty());
     assert_eq!((report.pairs, report.points), (0, 0), "{report:?}");
     assert!(report.keypoints > 0);
