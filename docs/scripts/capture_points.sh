@@ -6,6 +6,8 @@
 # (`"points": (args: (when: Never))`, what capture.ron did before it triangulated). Prints a
 # Markdown table: held-out PSNR / SSIM / LPIPS / average error of 3DGS, Staged and Dual (a
 # dash where the scene gate skipped them), the start's point count and the triangulation time.
+# Rows `triangulated, gate forced` run Staged and Dual whatever the gate says
+# (`--set gate.force=Some(true)`), to show what the gate skipped.
 #
 #   bash docs/scripts/capture_points.sh
 #
@@ -34,27 +36,32 @@ printf '# 3D point list with one line of data per point:\n# Number of points: 0\
 runs=(
   "dtu_scan24|$data/dtu_scan24|sfm"
   "dtu_scan24_nopoints|$nop|triangulated"
+  "dtu_scan24_nopoints|$nop|forced"
   "dtu_scan24_nopoints|$nop|random"
   "fern|$data/fern|triangulated"
+  "fern|$data/fern|forced"
   "fern|$data/fern|random"
   "horns|$data/horns|triangulated"
+  "horns|$data/horns|forced"
   "horns|$data/horns|random"
 )
 for r in "${runs[@]}"; do
   IFS='|' read -r scene src start <<<"$r"
   extra=""
+  sets=()
   [ "$start" = random ] && extra=', "points": (args: (when: Never))'
+  [ "$start" = forced ] && sets=(--set 'gate.force=Some(true)')
   name="${scene}_$start"
   p="$out/$name.ron"
   printf '(extends: "%s/pipelines/capture.ron", nodes: { "scene": (inputs: { "source": Path("%s") })%s })\n' \
     "$root" "$src" "$extra" >"$p"
   echo "== $name $(date -u +%FT%TZ)" >&2
   rm -rf "${out:?}/$name"
-  "$bin" run "$p" -q --log --out "$out/$name" --summary-json "$out/$name.summary.json" \
+  "$bin" run "$p" -q --log "${sets[@]}" --out "$out/$name" --summary-json "$out/$name.summary.json" \
     >"$out/$name.log" 2>&1 || { echo "run of $name failed: see $out/$name.log" >&2; exit 1; }
   # The per-method evaluations (the report is the pipeline's only leaf).
   for m in baseline staged dual; do
-    "$bin" run "$p" -q --target "eval_$m" --out "$out/$name" >/dev/null 2>&1 || true
+    "$bin" run "$p" -q "${sets[@]}" --target "eval_$m" --out "$out/$name" >/dev/null 2>&1 || true
   done
 done
 
@@ -81,7 +88,9 @@ for r in sys.argv[2:]:
     if t:
         points, secs = f"{int(t.group(1)):,}", t.group(2)
     else:
+        # Reused from the store (same key as an earlier row): no log lines.
         s = re.search(r"\[baseline [^\]]*\] .*?(\d+) initial Gaussians", log)
-        points, secs = (f"{int(s.group(1)):,}" if s else "?"), "—"
-    print(f"| {scene} | {start} | {points} | {secs} | " + " | ".join(cells) + " |")
+        points, secs = (f"{int(s.group(1)):,}" if s else "(as above)"), "—"
+    label = {"forced": "triangulated, gate forced", "sfm": "SfM points"}.get(start, start)
+    print(f"| {scene} | {label} | {points} | {secs} | " + " | ".join(cells) + " |")
 EOF
