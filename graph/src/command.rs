@@ -289,22 +289,25 @@ impl Node for Command {
     }
 }
 
-/// Copies an input file or folder to `dest/<its name>` (files by `fs::copy`, which clones
-/// extents where the filesystem can) and returns the copy's path.
-fn copy_input(src: &Path, dest: &Path) -> std::io::Result<PathBuf> {
-    fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
-        if from.is_dir() {
-            std::fs::create_dir_all(to)?;
-            for e in std::fs::read_dir(from)? {
-                let e = e?;
-                copy_tree(&e.path(), &to.join(e.file_name()))?;
-            }
-        } else {
-            std::fs::copy(from, to)?;
-            // Copies of read-only blobs stay read-only; nothing relies on it (root ignores it).
+/// Copies a file or a folder tree from `from` to `to` (files by `fs::copy`, which clones
+/// extents where the filesystem can). Copies of read-only blobs stay read-only: a node that
+/// rewrites a copied file removes it first.
+pub fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
+    if from.is_dir() {
+        std::fs::create_dir_all(to)?;
+        for e in std::fs::read_dir(from)? {
+            let e = e?;
+            copy_tree(&e.path(), &to.join(e.file_name()))?;
         }
-        Ok(())
+    } else {
+        std::fs::copy(from, to)?;
     }
+    Ok(())
+}
+
+/// Copies an input file or folder to `dest/<its name>` ([`copy_tree`]) and returns the copy's
+/// path.
+fn copy_input(src: &Path, dest: &Path) -> std::io::Result<PathBuf> {
     std::fs::create_dir_all(dest)?;
     let name = src
         .file_name()

@@ -337,23 +337,9 @@ pub struct TriangulationRecord {
     pub warning: Option<String>,
 }
 
-/// Copies a folder tree (files and folders only).
+/// Copies a scene folder (the engine's [`augsplat_graph::command::copy_tree`]).
 pub fn copy_tree(from: &Path, to: &Path) -> Result<()> {
-    std::fs::create_dir_all(to).map_err(|e| SceneError::io(to, e))?;
-    let mut entries: Vec<_> = std::fs::read_dir(from)
-        .map_err(|e| SceneError::io(from, e))?
-        .collect::<std::io::Result<_>>()
-        .map_err(|e| SceneError::io(from, e))?;
-    entries.sort_by_key(|e| e.file_name());
-    for e in entries {
-        let (src, dst) = (e.path(), to.join(e.file_name()));
-        if src.is_dir() {
-            copy_tree(&src, &dst)?;
-        } else {
-            std::fs::copy(&src, &dst).map_err(|e| SceneError::io(&src, e))?;
-        }
-    }
-    Ok(())
+    augsplat_graph::command::copy_tree(from, to).map_err(|e| SceneError::io(from, e))
 }
 
 /// Triangulates the scene folder `src` into `out`: the folder copied, its points replaced by
@@ -379,9 +365,15 @@ pub fn triangulate_scene(
         isolated,
     } = triangulate(&cams, &images, &names, opts)?;
     copy_tree(src, out)?;
+    // The copies of the files rewritten below may be read-only (store blobs): removed first.
     let points_file = out.join(POINTS_FILE);
-    if points_file.exists() {
-        std::fs::remove_file(&points_file).map_err(|e| SceneError::io(&points_file, e))?;
+    for f in [
+        points_file.clone(),
+        out.join(augsplat_core::scene::SCENE_FILE),
+    ] {
+        if f.exists() {
+            std::fs::remove_file(&f).map_err(|e| SceneError::io(&f, e))?;
+        }
     }
     let bounds_before = (scene.near, scene.far);
     // Bounds from the points that are not isolated: a few wrong two-view points far behind
