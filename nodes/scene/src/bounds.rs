@@ -128,6 +128,18 @@ pub struct PointBounds {
     pub far: f64,
 }
 
+/// Near/far from the depths of point observations: `0.8 ×` the 0.5th percentile and `1.2 ×`
+/// the 99.5th (sorts `depths`); `None` when there are none. The import's rule for a scene with
+/// points, and [`from_points`]'s per view.
+pub fn depth_range(depths: &mut [f64]) -> Option<(f64, f64)> {
+    if depths.is_empty() {
+        return None;
+    }
+    depths.sort_by(f64::total_cmp);
+    let q = |f: f64| depths[((depths.len() - 1) as f64 * f).round() as usize];
+    Some((0.8 * q(0.005), 1.2 * q(0.995)))
+}
+
 /// Bounds from the points' tracks (see [`PointBounds`]); `None` when no view observes a point.
 pub fn from_points(cams: &[Camera], cloud: &PointCloud) -> Option<PointBounds> {
     let mut depths: Vec<Vec<f64>> = vec![Vec::new(); cams.len()];
@@ -142,17 +154,7 @@ pub fn from_points(cams: &[Camera], cloud: &PointCloud) -> Option<PointBounds> {
             }
         }
     }
-    let per_view: Vec<Option<(f64, f64)>> = depths
-        .into_iter()
-        .map(|mut d| {
-            if d.is_empty() {
-                return None;
-            }
-            d.sort_by(f64::total_cmp);
-            let q = |f: f64| d[((d.len() - 1) as f64 * f).round() as usize];
-            Some((0.8 * q(0.005), 1.2 * q(0.995)))
-        })
-        .collect();
+    let per_view: Vec<Option<(f64, f64)>> = depths.iter_mut().map(|d| depth_range(d)).collect();
     let near = per_view
         .iter()
         .flatten()

@@ -162,10 +162,8 @@ pub fn build_scene(raw: &RawScene, opts: &ImportOptions) -> Result<(Scene, Point
         cloud.track_views.extend_from_slice(&track);
         cloud.track_offsets.push(cloud.track_views.len() as u32);
     }
-    let (near, far) = if !depths.is_empty() {
-        depths.sort_by(f64::total_cmp);
-        let q = |f: f64| depths[((depths.len() - 1) as f64 * f).round() as usize];
-        (0.8 * q(0.005), 1.2 * q(0.995))
+    let (near, far) = if let Some(range) = crate::bounds::depth_range(&mut depths) {
+        range
     } else if raw.views.iter().all(|v| v.bounds.is_some()) {
         let near = raw
             .views
