@@ -170,6 +170,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             primitives: Some(n as u64),
             record_wall_time: true,
             device: None,
+            train: None,
         };
         let t = Instant::now();
         let gg = &g;

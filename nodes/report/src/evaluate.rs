@@ -211,16 +211,12 @@ impl Node for EvaluateNode {
             primitives: Some(gaussians.len() as u64),
             record_wall_time: args.record_wall_time,
             device: gpu.as_ref().map(|(c, _)| c.adapter().clone()),
+            train,
         };
         let started = Instant::now();
-        let mut metrics = evaluate(&context, &test, &out, render, &|done, total| {
+        let metrics = evaluate(&context, &test, &out, render, &|done, total| {
             ctx.progress(done, total, "views")
         })?;
-        if let Some(train) = &train {
-            metrics.train_psnr = Some(train_psnr(train, render)?).filter(|p| p.is_finite());
-            let path = out.join(files::METRICS);
-            augsplat_core::artifacts::write_json(&path, &metrics)?;
-        }
         for sign in evalset::failure_signs(&metrics) {
             // On the terminal as well as in the log: a failed run must not pass unnoticed.
             let msg = format!("warning: {}: {sign}", metrics.label);
@@ -314,6 +310,8 @@ pub struct EvalContext<'a> {
     pub record_wall_time: bool,
     /// The GPU adapter that rendered, if one did.
     pub device: Option<augsplat_splat::gpu::AdapterSummary>,
+    /// The training scene, whose mean PSNR is recorded as `train_psnr` when given.
+    pub train: Option<PathBuf>,
 }
 
 fn read_curve(dir: &Path) -> Result<Option<TrainingCurve>, ReportError> {
@@ -529,6 +527,10 @@ where
         let dst = out.join(files::CURVE);
         std::fs::copy(&src, &dst).map_err(|e| ReportError::io(&src, e))?;
     }
+    let train_psnr = match &cx.train {
+        Some(dir) => Some(train_psnr(dir, &render)?).filter(|p| p.is_finite()),
+        None => None,
+    };
     let metrics = EvalMetrics {
         format: FORMAT_VERSION,
         label,
@@ -544,7 +546,7 @@ where
         eval_seconds: cx.record_wall_time.then(|| start.elapsed().as_secs_f64()),
         device: cx.device.clone(),
         notes,
-        train_psnr: None,
+        train_psnr,
     };
     artifacts::write_json(&out.join(files::METRICS), &metrics)?;
     artifacts::write_json(&out.join(files::CAMERAS), &cameras)?;

@@ -24,6 +24,7 @@ fn context(model: &std::path::Path, baseline: Option<&std::path::Path>) -> EvalC
         primitives: Some(7),
         record_wall_time: false,
         device: None,
+        train: None,
     }
 }
 

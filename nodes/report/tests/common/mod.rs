@@ -202,6 +202,7 @@ pub fn make_evals(root: &Path) -> Vec<PathBuf> {
             primitives: Some(1234 + k as u64),
             record_wall_time: true,
             device: None,
+            train: None,
         };
         let render = degrading_renderer(gts.clone(), cams.clone(), *amp, k as u64 + 1);
         evaluate(&cx, &test, &eval_dir, render, &|_, _| {}).unwrap();
