@@ -7,7 +7,7 @@ use augsplat_core::Scene;
 use augsplat_scene::export::{export_scene, ExportFormat, SPARSE_PLY};
 use augsplat_scene::import::{import_scene, ImportOptions};
 use augsplat_scene::node::{read_source, ImportSceneArgs};
-use augsplat_scene::synthetic::{generate, SyntheticParams};
+use augsplat_scene::synthetic::{generate, surface_error, SyntheticParams};
 
 #[test]
 fn transforms_ply_points_import_onto_the_surfaces() {
@@ -50,27 +50,20 @@ fn transforms_ply_points_import_onto_the_surfaces() {
             assert!((a[k] - b[k]).abs() < 1e-4, "{a:?} {b:?}");
         }
     }
+    let depths: Vec<Vec<f32>> = scene
+        .views
+        .iter()
+        .map(|view| {
+            let exr = read_exr(&gen.join(format!("exact_depth/{}.exr", view.name))).unwrap();
+            exr.channel("Z").unwrap().to_vec()
+        })
+        .collect();
     let (mut on_surface, mut observations) = (0, 0);
     for i in 0..cloud.len() {
         let p = cloud.positions[i].map(f64::from);
         for &v in cloud.track(i) {
             let view = &scene.views[v as usize];
-            let depth = read_exr(&gen.join(format!("exact_depth/{}.exr", view.name))).unwrap();
-            let z_map = depth.channel("Z").unwrap();
-            let (u, w, z) = view.camera.project(p);
-            let (x, y) = (u.floor() as i64, w.floor() as i64);
-            let mut best = f64::INFINITY;
-            for (dx, dy) in (-1..=1).flat_map(|dx| (-1..=1).map(move |dy| (dx, dy))) {
-                let (px, py) = (x + dx, y + dy);
-                if px >= 0
-                    && py >= 0
-                    && px < view.camera.width as i64
-                    && py < view.camera.height as i64
-                {
-                    let exact = z_map[(py * view.camera.width as i64 + px) as usize] as f64;
-                    best = best.min((z - exact).abs() / exact);
-                }
-            }
+            let best = surface_error(&depths[v as usize], &view.camera, p).unwrap_or(f64::INFINITY);
             observations += 1;
             on_surface += (best < 0.02) as usize;
         }

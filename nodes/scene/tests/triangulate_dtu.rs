@@ -8,49 +8,22 @@ use augsplat_core::{PointCloud, Scene};
 use augsplat_scene::import::{import_scene, ImportOptions};
 use augsplat_scene::node::{read_source, ImportSceneArgs};
 use augsplat_scene::split::{split_indices, subset};
+use augsplat_scene::triangulate::outliers::Grid;
 use augsplat_scene::triangulate::{triangulate, TriangulateOptions, Triangulated};
 use common::data_dir;
 
-/// Distance from each point of `a` to its nearest point of `b` (a uniform grid of cell `cell`).
+/// Distance from each point of `a` to its nearest point of `b` (infinite beyond the grid's
+/// search, eight cells of `cell`).
 fn nearest_distances(a: &PointCloud, b: &PointCloud, cell: f64) -> Vec<f64> {
-    use std::collections::HashMap;
-    let key = |p: [f32; 3]| p.map(|x| (x as f64 / cell).floor() as i64);
-    let mut grid: HashMap<[i64; 3], Vec<[f32; 3]>> = HashMap::new();
-    for &p in &b.positions {
-        grid.entry(key(p)).or_default().push(p);
-    }
+    let to: Vec<[f64; 3]> = b.positions.iter().map(|p| p.map(f64::from)).collect();
+    let grid = Grid::new(&to, cell);
     a.positions
         .iter()
-        .map(|&p| {
-            let k = key(p);
-            let mut best = f64::INFINITY;
-            // Rings of cells until the ring is farther than the best found.
-            for r in 0..64i64 {
-                if (r - 1) as f64 * cell > best {
-                    break;
-                }
-                for dx in -r..=r {
-                    for dy in -r..=r {
-                        for dz in -r..=r {
-                            if dx.abs().max(dy.abs()).max(dz.abs()) != r {
-                                continue;
-                            }
-                            for q in grid
-                                .get(&[k[0] + dx, k[1] + dy, k[2] + dz])
-                                .into_iter()
-                                .flatten()
-                            {
-                                let d = (0..3)
-                                    .map(|i| (p[i] as f64 - q[i] as f64).powi(2))
-                                    .sum::<f64>()
-                                    .sqrt();
-                                best = best.min(d);
-                            }
-                        }
-                    }
-                }
-            }
-            best
+        .map(|p| {
+            grid.nearest(p.map(f64::from), 1, None)
+                .first()
+                .copied()
+                .unwrap_or(f64::INFINITY)
         })
         .collect()
 }

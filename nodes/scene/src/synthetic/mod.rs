@@ -294,6 +294,27 @@ pub fn generate(params: &SyntheticParams, out: &Path) -> Result<Scene> {
     Ok(scene)
 }
 
+/// Relative distance of `p` from the ray-traced surface a view sees: `|z − Z| / Z` for the
+/// point's depth `z` and the exact depth `Z` (`exact_depth/<name>.exr`, channel `Z`) at its
+/// pixel or one of the 8 around it, whichever is nearest (a point on a silhouette may round
+/// to the pixel across the edge); `None` outside the image.
+pub fn surface_error(depth: &[f32], cam: &Camera, p: Vec3) -> Option<f64> {
+    let (u, v, z) = cam.project(p);
+    let (x, y) = (u.floor() as i64, v.floor() as i64);
+    let (w, h) = (cam.width as i64, cam.height as i64);
+    if z.is_nan() || z <= 0.0 || x < 0 || y < 0 || x >= w || y >= h {
+        return None;
+    }
+    let mut best = f64::INFINITY;
+    for (px, py) in (-1..=1).flat_map(|dx| (-1..=1).map(move |dy| (x + dx, y + dy))) {
+        if px >= 0 && py >= 0 && px < w && py < h {
+            let exact = depth[(py * w + px) as usize] as f64;
+            best = best.min((z - exact).abs() / exact);
+        }
+    }
+    Some(best)
+}
+
 /// One accepted point sample: exact and noisy normalised positions, colour, track.
 type Sample = (Vec3, Vec3, Vec3, Vec<u32>);
 

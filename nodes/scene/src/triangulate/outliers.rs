@@ -15,14 +15,15 @@ use std::collections::HashMap;
 const SEARCH_RINGS: i64 = 8;
 
 /// A uniform grid over points for neighbour queries.
-struct Grid<'a> {
+pub struct Grid<'a> {
     points: &'a [Vec3],
     cell: f64,
     cells: HashMap<[i64; 3], Vec<u32>>,
 }
 
 impl<'a> Grid<'a> {
-    fn new(points: &'a [Vec3], cell: f64) -> Self {
+    /// The grid of `points` with cubic cells of side `cell`.
+    pub fn new(points: &'a [Vec3], cell: f64) -> Self {
         let mut cells: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
         for (i, p) in points.iter().enumerate() {
             cells.entry(Self::key(p, cell)).or_default().push(i as u32);
@@ -38,11 +39,9 @@ impl<'a> Grid<'a> {
         p.map(|x| (x / cell).floor() as i64)
     }
 
-    /// Mean distance from point `i` to its `k` nearest other points, searching rings of cells
-    /// until the ring is beyond the k-th distance; infinite when fewer than `k` lie within
-    /// [`SEARCH_RINGS`] cells.
-    fn mean_knn(&self, i: usize, k: usize) -> f64 {
-        let p = self.points[i];
+    /// Distances from `p` to its `k` nearest points (ascending; point `skip` left out), fewer
+    /// when fewer lie within [`SEARCH_RINGS`] cells.
+    pub fn nearest(&self, p: Vec3, k: usize, skip: Option<usize>) -> Vec<f64> {
         let c = Self::key(&p, self.cell);
         let mut best: Vec<f64> = Vec::with_capacity(k + 1);
         for r in 0..=SEARCH_RINGS {
@@ -59,7 +58,7 @@ impl<'a> Grid<'a> {
                             continue;
                         };
                         for &j in list {
-                            if j as usize == i {
+                            if Some(j as usize) == skip {
                                 continue;
                             }
                             let q = self.points[j as usize];
@@ -77,6 +76,13 @@ impl<'a> Grid<'a> {
                 }
             }
         }
+        best
+    }
+
+    /// Mean distance from point `i` to its `k` nearest other points; infinite when fewer than
+    /// `k` lie within [`SEARCH_RINGS`] cells.
+    fn mean_knn(&self, i: usize, k: usize) -> f64 {
+        let best = self.nearest(self.points[i], k, Some(i));
         if best.len() < k {
             return f64::INFINITY;
         }

@@ -46,21 +46,9 @@ fn depth_errors(dir: &std::path::Path, scene: &Scene, cloud: &PointCloud) -> Vec
         let p = cloud.positions[i].map(|x| x as f64);
         for &v in cloud.track(i) {
             let cam = &scene.views[v as usize].camera;
-            let (u, w, z) = cam.project(p);
-            let (x, y) = (u.floor() as i64, w.floor() as i64);
-            assert!(x >= 0 && y >= 0 && x < cam.width as i64 && y < cam.height as i64);
-            // The nearest surface among the pixel and its 8 neighbours: a corner on a
-            // silhouette may round to the pixel across the edge.
-            let mut best = f64::INFINITY;
-            for (dx, dy) in (-1..=1).flat_map(|dx| (-1..=1).map(move |dy| (dx, dy))) {
-                let (px, py) = (x + dx, y + dy);
-                if px < 0 || py < 0 || px >= cam.width as i64 || py >= cam.height as i64 {
-                    continue;
-                }
-                let exact = depths[v as usize][(py * cam.width as i64 + px) as usize] as f64;
-                best = best.min((z - exact).abs() / exact);
-            }
-            errs.push(best);
+            let e = crate::synthetic::surface_error(&depths[v as usize], cam, p)
+                .expect("a point projects into the views of its track");
+            errs.push(e);
         }
     }
     errs.sort_by(f64::total_cmp);
