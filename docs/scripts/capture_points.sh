@@ -22,16 +22,9 @@ out="$root/docs/scripts/out/capture_points"
 mkdir -p "$out"
 data="$root/../shared/data"
 
-# dtu_scan24 without its points: the same cameras and images, an empty points3D.txt and no
-# 2-D observations (each image's second line emptied), as a COLMAP export without SfM points.
+source "$root/docs/scripts/dtu_without_points.sh"
 nop="$out/dtu_scan24_nopoints"
-mkdir -p "$nop/sparse/0"
-cp "$data/dtu_scan24/sparse/0/cameras.txt" "$nop/sparse/0/cameras.txt"
-awk '/^#/ { print; next } { if (++n % 2 == 1) print; else print "" }' \
-  "$data/dtu_scan24/sparse/0/images.txt" >"$nop/sparse/0/images.txt"
-printf '# 3D point list with one line of data per point:\n# Number of points: 0\n' \
-  >"$nop/sparse/0/points3D.txt"
-[ -d "$nop/images" ] || cp -r "$data/dtu_scan24/images" "$nop/images"
+dtu_without_points "$data/dtu_scan24" "$nop"
 
 runs=(
   "dtu_scan24|$data/dtu_scan24|sfm"

@@ -19,17 +19,9 @@ bin="$root/target/release/augsplat"
 out="$root/docs/scripts/out/without_points"
 mkdir -p "$out"
 
-# dtu_scan24 without its points: the same cameras and images, an empty points3D.txt and no
-# 2-D observations (each image's second line emptied), as a COLMAP export without SfM points.
-src="$root/../shared/data/dtu_scan24"
+source "$root/docs/scripts/dtu_without_points.sh"
 nop="$out/dtu_scan24_nopoints"
-mkdir -p "$nop/sparse/0"
-cp "$src/sparse/0/cameras.txt" "$nop/sparse/0/cameras.txt"
-awk '/^#/ { print; next } { if (++n % 2 == 1) print; else print "" }' \
-  "$src/sparse/0/images.txt" >"$nop/sparse/0/images.txt"
-printf '# 3D point list with one line of data per point:\n# Number of points: 0\n' \
-  >"$nop/sparse/0/points3D.txt"
-[ -d "$nop/images" ] || cp -r "$src/images" "$nop/images"   # inputs must be plain files
+dtu_without_points "$root/../shared/data/dtu_scan24" "$nop"
 
 sizes=(--set field.steps=400 --set params.gs_steps=1500 --set params.max_gaussians=60000)
 for scene in fern dtu_scan24; do
