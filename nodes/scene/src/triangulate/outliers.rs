@@ -40,7 +40,7 @@ impl<'a> Grid<'a> {
     }
 
     /// Distances from `p` to its `k` nearest points (ascending; point `skip` left out), fewer
-    /// when fewer lie within [`SEARCH_RINGS`] cells.
+    /// when fewer lie within eight cells.
     pub fn nearest(&self, p: Vec3, k: usize, skip: Option<usize>) -> Vec<f64> {
         let c = Self::key(&p, self.cell);
         let mut best: Vec<f64> = Vec::with_capacity(k + 1);
