@@ -5,7 +5,7 @@
 use super::CmdResult;
 use augsplat_core::image::{read_npy, write_exr, write_npy, write_png};
 use augsplat_core::{Camera, ImageF32};
-use augsplat_splat::{backward, read_ply, render, write_ply, Gaussians, RenderSettings};
+use augsplat_splat::{read_ply, write_ply, Backend, Device, Gaussians, RenderSettings};
 use std::path::{Path, PathBuf};
 
 /// Arguments of `augsplat render`.
@@ -48,17 +48,13 @@ pub struct Args {
     pub grads_out: Option<PathBuf>,
     /// Where to render (and, with `--grads-out`, back-propagate): `cpu` (default) or `gpu`
     /// (wgpu: Vulkan, Metal, DX12 or GL; an error when the machine has no GPU adapter).
-    #[arg(long, value_enum, default_value_t = Backend::Cpu)]
+    #[arg(long, default_value_t = Backend::Cpu, value_parser = parse_backend)]
     pub backend: Backend,
 }
 
-/// Where `augsplat render` renders.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Backend {
-    /// The CPU kernels (all cores).
-    Cpu,
-    /// The GPU through wgpu.
-    Gpu,
+/// `--backend`: the names [`Backend`] accepts, listed in the help and in errors.
+fn parse_backend(s: &str) -> Result<Backend, String> {
+    s.parse()
 }
 
 pub(crate) fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
@@ -131,14 +127,6 @@ fn write_image(
     res.map_err(|e| e.to_string())
 }
 
-/// The image planes of a render, from either backend.
-struct Frame {
-    rgb: Vec<f32>,
-    alpha: Vec<f32>,
-    depth: Vec<f32>,
-    stats: augsplat_splat::RenderStats,
-}
-
 /// Runs `augsplat render`.
 pub fn run(args: Args) -> CmdResult {
     let g = read_ply(&args.splats).map_err(|e| e.to_string())?;
@@ -181,37 +169,12 @@ pub fn run(args: Args) -> CmdResult {
         }
         None => None,
     };
-    let gpu = match args.backend {
-        Backend::Cpu => None,
-        Backend::Gpu => {
-            let ctx = augsplat_splat::gpu::GpuContext::new().map_err(|e| e.to_string())?;
-            eprintln!("GPU: {}", ctx.adapter());
-            let scene =
-                augsplat_splat::gpu::GpuScene::upload(&ctx, &g).map_err(|e| e.to_string())?;
-            Some((ctx, scene))
-        }
-    };
-    let out = match &gpu {
-        None => {
-            let r = render(&g, &cam, &s);
-            Frame {
-                rgb: r.rgb,
-                alpha: r.alpha,
-                depth: r.depth,
-                stats: r.stats,
-            }
-        }
-        Some((ctx, scene)) => {
-            let f = augsplat_splat::gpu::render_scene(ctx, scene, &cam, &s)
-                .map_err(|e| e.to_string())?;
-            Frame {
-                rgb: f.rgb,
-                alpha: f.alpha,
-                depth: f.depth,
-                stats: f.stats,
-            }
-        }
-    };
+    let device = Device::open(args.backend).map_err(|e| e.to_string())?;
+    if let Some(adapter) = device.adapter() {
+        eprintln!("GPU: {adapter}");
+    }
+    let model = device.upload(&g).map_err(|e| e.to_string())?;
+    let out = model.render(&cam, &s).map_err(|e| e.to_string())?;
     let (w, h) = (cam.width, cam.height);
     write_image(&args.out, w, h, out.rgb.clone(), &["R", "G", "B"])?;
     if let Some(p) = &args.alpha_out {
@@ -248,15 +211,9 @@ pub fn run(args: Args) -> CmdResult {
             })
             .collect();
         loss /= n;
-        let gr = match &gpu {
-            None => {
-                let cpu = render(&g, &cam, &s);
-                backward(&g, &cam, &s, &cpu, &d_rgb, None, None)
-            }
-            Some((ctx, scene)) => augsplat_splat::gpu::backward_gpu(ctx, scene, &cam, &s, &d_rgb)
-                .map_err(|e| e.to_string())?
-                .into_gradients(),
-        };
+        let gr = model
+            .backward(&cam, &s, &d_rgb)
+            .map_err(|e| e.to_string())?;
         let gg = Gaussians {
             means: gr.means,
             log_scales: gr.log_scales,

@@ -71,7 +71,7 @@ pub struct EvaluateArgs {
     /// byte-identical for identical args and inputs; the time is always logged).
     pub record_wall_time: bool,
     /// Render on the CPU (default) or the GPU (the adapter is recorded in `metrics.json`).
-    pub backend: augsplat_splat::gpu::Backend,
+    pub backend: augsplat_splat::Backend,
 }
 
 impl Default for EvaluateArgs {
@@ -83,7 +83,7 @@ impl Default for EvaluateArgs {
             background: [0.0; 3],
             antialiased: false,
             record_wall_time: false,
-            backend: augsplat_splat::gpu::Backend::Cpu,
+            backend: augsplat_splat::Backend::Cpu,
         }
     }
 }
@@ -174,31 +174,20 @@ impl Node for EvaluateNode {
         if let Some(n) = &lpips_note {
             ctx.log(n);
         }
-        let gpu = match args.backend {
-            augsplat_splat::gpu::Backend::Cpu => None,
-            augsplat_splat::gpu::Backend::Gpu => {
-                let gpu_err =
-                    |e: augsplat_splat::gpu::GpuError| NodeError::new(format!("backend: Gpu: {e}"));
-                let c = augsplat_splat::gpu::GpuContext::new().map_err(gpu_err)?;
-                ctx.log(format!("rendering on the GPU: {}", c.adapter()));
-                // The model is uploaded once for every view.
-                let scene =
-                    augsplat_splat::gpu::GpuScene::upload(&c, &gaussians).map_err(gpu_err)?;
-                Some((c, scene))
-            }
-        };
+        let device = augsplat_splat::Device::open(args.backend)
+            .map_err(|e| NodeError::new(format!("backend: Gpu: {e}")))?;
+        if let Some(adapter) = device.adapter() {
+            ctx.log(format!("rendering on the GPU: {adapter}"));
+        }
+        // The model is uploaded once for every view.
+        let on_device = device
+            .upload(&gaussians)
+            .map_err(|e| NodeError::new(format!("backend: Gpu: {e}")))?;
         let render = |cam: &Camera| -> Result<ImageF32, ReportError> {
-            match &gpu {
-                None => {
-                    let r = augsplat_splat::render(&gaussians, cam, &settings);
-                    Ok(ImageF32::from_vec(r.width, r.height, 3, r.rgb))
-                }
-                Some((c, scene)) => {
-                    let r = augsplat_splat::gpu::render_scene(c, scene, cam, &settings)
-                        .map_err(|e| ReportError::Message(e.to_string()))?;
-                    Ok(ImageF32::from_vec(r.width, r.height, 3, r.rgb))
-                }
-            }
+            let r = on_device
+                .render(cam, &settings)
+                .map_err(|e| ReportError::Message(e.to_string()))?;
+            Ok(ImageF32::from_vec(r.width, r.height, 3, r.rgb))
         };
         let context = EvalContext {
             label: args.label.clone(),
@@ -210,7 +199,7 @@ impl Node for EvaluateNode {
             lpips_note,
             primitives: Some(gaussians.len() as u64),
             record_wall_time: args.record_wall_time,
-            device: gpu.as_ref().map(|(c, _)| c.adapter().clone()),
+            device: device.adapter().cloned(),
             train,
         };
         let started = Instant::now();

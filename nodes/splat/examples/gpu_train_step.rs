@@ -66,7 +66,7 @@ fn time_steps(
     };
     let mut trainer = Trainer::new(args, g, 1.0, &real, None);
     if let Some(gpu) = gpu {
-        trainer.use_gpu(gpu);
+        trainer.on_device(&augsplat_splat::Device::gpu(gpu));
     }
     let mut times = Vec::with_capacity(steps);
     for i in 0..steps + 3 {

@@ -385,8 +385,8 @@ fn read_checkpoint(
 /// Trains from `g0` on `real` (and `synthetic`, as the schedule of `args` mixes them) for
 /// `args.steps` steps, evaluating on `test` (with `lpips` when given) every `args.eval_every`
 /// steps and after the last one, keeping the best checkpoint and stopping early per
-/// `args.early_stop_patience` (see the module documentation). With `gpu`, each view's render
-/// and backward pass run there (`backend: Gpu`). `on_event` receives the log lines and
+/// `args.early_stop_patience` (see the module documentation), on `device` (the host
+/// evaluates). `on_event` receives the log lines and
 /// progress. The curve's label is [`TrainArgs::method_label`]. With `checkpoints`, the whole
 /// state is saved every `every` steps and a given checkpoint is continued from: the result is
 /// the same, bit for bit, as a run that never stopped.
@@ -399,7 +399,7 @@ pub fn fit(
     synthetic: Option<&SyntheticImages>,
     test: &[RealView],
     lpips: Option<&Lpips>,
-    gpu: Option<std::sync::Arc<crate::gpu::GpuContext>>,
+    device: &crate::Device,
     checkpoints: Option<FitCheckpoints<'_>>,
     on_event: &mut dyn FnMut(FitEvent),
 ) -> Result<Fitted, EvalError> {
@@ -432,16 +432,7 @@ pub fn fit(
     {
         on_event(FitEvent::Log(sched.short_run_note(a.steps)));
     }
-    // The fault tests' hook: destroy the GPU device after this many steps, as a driver
-    // reset would (`AUGSPLAT_TEST_LOSE_GPU_AFTER`; never set in real runs).
-    let lose_gpu = gpu.clone().zip(
-        std::env::var("AUGSPLAT_TEST_LOSE_GPU_AFTER")
-            .ok()
-            .and_then(|v| v.parse::<u64>().ok()),
-    );
-    if let Some(gpu) = gpu {
-        trainer.use_gpu(gpu);
-    }
+    trainer.on_device(device);
     let mut st = LoopState {
         curve: TrainingCurve {
             label: label.clone(),
@@ -495,11 +486,6 @@ pub fn fit(
     // Only Dual switches a branch off to save time; Staged's switch is its method.
     let dual = matches!(a.schedule, crate::train::Schedule::Dual { .. });
     while trainer.steps_done() < a.steps {
-        if let Some((gpu, after)) = &lose_gpu {
-            if trainer.steps_done() == *after {
-                gpu.destroy_device();
-            }
-        }
         let ts = std::time::Instant::now();
         let rep = trainer.step();
         let dt = ts.elapsed().as_secs_f64();

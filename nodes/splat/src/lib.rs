@@ -35,6 +35,7 @@ pub mod backward;
 mod buffers;
 pub mod constants;
 pub mod densify;
+pub mod device;
 pub mod error;
 pub mod fit;
 pub mod forward;
@@ -54,6 +55,7 @@ pub mod supervision;
 pub mod tiles;
 pub mod train;
 
+pub use device::{Backend, Device};
 pub use error::SplatError;
 pub use gaussians::Gaussians;
 pub use node::{register, OptimizeSplats};

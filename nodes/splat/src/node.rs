@@ -146,19 +146,13 @@ impl Node for OptimizeSplats {
             synth.as_ref().map_or(0, |s| s.views.len()),
             init.gaussians.len()
         ));
-        let gpu = match a.backend {
-            crate::gpu::Backend::Cpu => None,
-            crate::gpu::Backend::Gpu => {
-                let g = crate::gpu::GpuContext::new()
-                    .map_err(|e| NodeError::new(format!("backend: Gpu: {e}")))?;
-                ctx.log(format!(
-                    "rendering and back-propagating on the GPU: {}",
-                    g.adapter()
-                ));
-                Some(std::sync::Arc::new(g))
-            }
-        };
-        let device = gpu.as_ref().map(|g| g.adapter().clone());
+        let device = crate::Device::open(a.backend)
+            .map_err(|e| NodeError::new(format!("backend: Gpu: {e}")))?;
+        if let Some(adapter) = device.adapter() {
+            ctx.log(format!(
+                "rendering and back-propagating on the GPU: {adapter}"
+            ));
+        }
         let ctx_ref: &RunContext = ctx;
         let mut save = |bytes: Vec<u8>| {
             ctx_ref
@@ -178,7 +172,7 @@ impl Node for OptimizeSplats {
             synth.as_ref(),
             &test,
             lpips.as_ref(),
-            gpu,
+            &device,
             checkpoints,
             &mut |e| match e {
                 FitEvent::Log(line) => ctx_ref.log(line),
@@ -197,7 +191,7 @@ impl Node for OptimizeSplats {
         crate::write_ply(&out.join("best.ply"), &fitted.best)?;
         artifacts::write_json(&out.join(artifacts::files::CURVE), &fitted.curve)?;
         artifacts::write_json(&out.join("best.json"), &fitted.best_record())?;
-        if let Some(d) = &device {
+        if let Some(d) = device.adapter() {
             // The adapter that computed the renders and gradients.
             artifacts::write_json(&out.join("device.json"), d)?;
         }

@@ -64,7 +64,7 @@ fn gpu_training_and_rendering_memory_stays_flat() {
     args.densify.enabled = false;
     let g = Gaussians::random_cloud(2000, 0.02, 1);
     let mut t = Trainer::new(args, g, 1.0, &real, None);
-    t.use_gpu(gpu.clone());
+    t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
     let mut at = Vec::new();
     for step in 1..=250 {
         t.step();

@@ -129,7 +129,7 @@ fn train(
     let synth = synthetic.then_some(&c.synth as &dyn Supervision);
     let mut t = Trainer::new(args.clone(), c.init.clone(), c.scale, &c.real, synth);
     if let Some(g) = gpu {
-        t.use_gpu(g.clone());
+        t.on_device(&augsplat_splat::Device::gpu(g.clone()));
     }
     let reps = (0..args.steps).map(|_| t.step()).collect();
     (reps, t.into_gaussians())
@@ -319,7 +319,7 @@ fn gpu_training_follows_the_cpu_and_repeats_bit_for_bit() {
     let a = args(6, false);
     let host = HostLoss(&c.real);
     let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &host, None);
-    t.use_gpu(gpu.clone());
+    t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
     let host_reps: Vec<StepReport> = (0..a.steps).map(|_| t.step()).collect();
     let (cpu_reps, _) = train(&c, &a, false, None);
     same_losses(&cpu_reps, &host_reps, 1e-4, "host loss, 6 steps");
@@ -343,7 +343,7 @@ fn a_gpu_run_resumes_from_a_checkpoint_as_if_uninterrupted() {
     // Four steps, a checkpoint (the state comes back from the GPU), a fresh trainer restored
     // from it, three more steps.
     let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, None);
-    t.use_gpu(gpu.clone());
+    t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
     for _ in 0..4 {
         t.step();
     }
@@ -357,7 +357,7 @@ fn a_gpu_run_resumes_from_a_checkpoint_as_if_uninterrupted() {
     let bytes = w.finish();
     let mut r = augsplat_core::state::StateReader::new(&bytes);
     let mut resumed = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, None);
-    resumed.use_gpu(gpu.clone());
+    resumed.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
     resumed.restore_state(&mut r).unwrap();
     for _ in 4..7 {
         resumed.step();

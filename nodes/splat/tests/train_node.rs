@@ -324,7 +324,7 @@ fn fit_without_a_graph_matches_the_node() {
                 None,
                 &held_out,
                 None,
-                None,
+                &augsplat_splat::Device::cpu(),
                 None,
                 &mut |e| events.push(e),
             )
@@ -428,7 +428,7 @@ fn fit_continued_from_a_checkpoint_is_bit_identical() {
             Some(&synth),
             &held_out,
             None,
-            None,
+            &augsplat_splat::Device::cpu(),
             Some(FitCheckpoints {
                 every: 15,
                 resume,

@@ -50,25 +50,6 @@ pub(crate) use train::{GpuTarget, GpuTrainer, ViewLoss};
 
 use std::sync::mpsc;
 
-/// Where a node computes its splatting: part of the node's args, hence of its key.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum Backend {
-    /// The CPU kernels (all cores; identical bytes on every machine).
-    #[default]
-    Cpu,
-    /// The GPU through wgpu (identical bytes run to run on one adapter; an error when the
-    /// machine has no adapter, never a silent fall-back to the CPU).
-    Gpu,
-}
-
-impl Backend {
-    /// Whether this is the CPU (the default, left out of serialised args so that adding the
-    /// field kept every existing key).
-    pub fn is_cpu(&self) -> bool {
-        *self == Backend::Cpu
-    }
-}
-
 /// What can go wrong on the GPU.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
@@ -145,6 +126,11 @@ pub struct GpuContext {
     kernels: Kernels,
     /// Why the device was lost, once it was (set by wgpu's device-lost callback).
     lost: std::sync::Arc<std::sync::Mutex<Option<String>>>,
+    /// The fault tests' option: the device is destroyed when this many training steps have
+    /// begun on it (see [`GpuContext::lose_device_after`]).
+    lose_after_steps: Option<u64>,
+    /// Training steps begun on this context.
+    steps_begun: std::sync::atomic::AtomicU64,
 }
 
 /// The compiled compute pipelines.
@@ -290,7 +276,35 @@ impl GpuContext {
             limits,
             kernels,
             lost,
+            // The fault tests reach a node in a child process through the environment; never
+            // set in real runs.
+            lose_after_steps: std::env::var("AUGSPLAT_TEST_LOSE_GPU_AFTER")
+                .ok()
+                .and_then(|v| v.parse().ok()),
+            steps_begun: Default::default(),
         })
+    }
+
+    /// A test-only option: the device is destroyed, as a driver reset would, when `steps`
+    /// training steps have begun on this context (the step numbered `steps`, from 0, then
+    /// fails with the device's message). `AUGSPLAT_TEST_LOSE_GPU_AFTER=N` sets it for the
+    /// contexts [`GpuContext::new`] opens, so that the fault tests reach a node in a child
+    /// process.
+    #[doc(hidden)]
+    pub fn lose_device_after(mut self, steps: u64) -> GpuContext {
+        self.lose_after_steps = Some(steps);
+        self
+    }
+
+    /// Counts a training step beginning on this context (for
+    /// [`GpuContext::lose_device_after`]).
+    pub(crate) fn count_training_step(&self) {
+        let begun = self
+            .steps_begun
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        if self.lose_after_steps == Some(begun) {
+            self.destroy_device();
+        }
     }
 
     /// The adapter this context runs on.

@@ -123,8 +123,8 @@ pub struct TrainArgs {
     /// Where each view's render and backward pass run: `Cpu` (default) or `Gpu` (wgpu; the
     /// loss, Adam, densification and the held-out evaluations stay on the CPU). Left out of
     /// the serialised args when `Cpu`, so CPU keys did not change when it was added.
-    #[serde(skip_serializing_if = "crate::gpu::Backend::is_cpu")]
-    pub backend: crate::gpu::Backend,
+    #[serde(skip_serializing_if = "crate::Backend::is_cpu")]
+    pub backend: crate::Backend,
     /// Which Gaussians each Adam step updates: `Dense` (all of them, gsplat
     /// `simple_trainer`'s default, and ours) or `Selective` (the visible ones). Left out of
     /// the serialised args when `Dense`.
@@ -154,7 +154,7 @@ impl Default for TrainArgs {
             seed: 0,
             label: String::new(),
             record_wall_time: false,
-            backend: crate::gpu::Backend::Cpu,
+            backend: crate::Backend::Cpu,
             adam: crate::adam::AdamUpdates::Dense,
         }
     }
@@ -184,7 +184,7 @@ impl TrainArgs {
                 self.real_loss.ssim_lambda
             ));
         }
-        if self.backend == crate::gpu::Backend::Gpu && self.synthetic.skip_below > 0.0 {
+        if self.backend == crate::Backend::Gpu && self.synthetic.skip_below > 0.0 {
             return Err(format!(
                 "synthetic.skip_below = {} needs pixel masks, which the GPU backend does not have yet: use backend: Cpu, or skip_below: 0",
                 self.synthetic.skip_below

@@ -27,21 +27,22 @@
 //! Every random choice comes from [`Rng::stream`] keyed by the seed and the step, and every
 //! reduction has a fixed order, so a run is bit-identical for any thread count.
 //!
-//! With [`Trainer::use_gpu`] the same step runs on the GPU (`train/gpu.rs`): the state stays
-//! there between steps and comes back for densification, resets, evaluations and
-//! checkpoints. The arguments live in `train/args.rs`.
+//! The step is written once over the [`crate::device`] seam: [`Trainer::on_device`] moves
+//! the training to another [`Device`] (the GPU keeps the state there between steps and brings
+//! it back for densification, resets, evaluations and checkpoints). The arguments live in
+//! `train/args.rs`.
 
-use crate::adam::{Adam, ParamGrads};
+use crate::adam::Adam;
 use crate::densify::{self, Densifier, DensifySchedule, Extents, PruneExtent};
+use crate::device::{Device, TrainState, TrainingDevice, ViewTask};
 pub use crate::schedule::{dual_lambda, dual_raw_weight, Schedule, StepPlan};
 pub use crate::supervision::{RealImages, RealView, Supervision, SynthView, SyntheticImages};
-use crate::{Gaussians, Gradients, RenderOutput, RenderSettings};
+use crate::{Gaussians, RenderSettings};
 use augsplat_core::{Camera, Rng};
-use rayon::prelude::*;
 
 mod args;
-mod gpu;
 
+pub use crate::device::add_grads;
 pub use args::{RealLoss, SyntheticArgs, TrainArgs};
 
 /// What one step did.
@@ -120,96 +121,13 @@ pub fn content_extent(cameras: &[&Camera], means: &[[f32; 3]]) -> Option<f64> {
     (e.is_finite() && e > 0.0).then_some(e)
 }
 
-/// Gaussians per parallel chunk of the gradient sum.
-const ADD_CHUNK: usize = 1024;
-
-/// Adds one render's gradients into the step's sum: only the Gaussians visible in that
-/// render (the others have zero gradients) and only the first `sh_active` SH values of each
-/// (the rest are zero above the active degree). Element-wise, so the order of renders is the
-/// only order that matters, and it is fixed. (What [`crate::backward_add`] does without the
-/// render's own buffers.)
-pub fn add_grads(acc: &mut ParamGrads, g: &Gradients, sh_active: usize) {
-    let n = acc.len();
-    let k3 = acc.sh.len().checked_div(n).unwrap_or(0);
-    let sh_cols = sh_active.min(k3);
-    let with_sh = g.sh.len() == acc.sh.len();
-    let c = ADD_CHUNK;
-    acc.means
-        .par_chunks_mut(c)
-        .zip(acc.log_scales.par_chunks_mut(c))
-        .zip(acc.quats.par_chunks_mut(c))
-        .zip(acc.opacity_logits.par_chunks_mut(c))
-        .zip(acc.sh.par_chunks_mut(c * k3.max(1)))
-        .zip(acc.visible.par_chunks_mut(c))
-        .enumerate()
-        .for_each(|(ci, (((((me, ls), qu), op), sh), vi))| {
-            let first = ci * c;
-            for j in 0..me.len() {
-                let i = first + j;
-                if !g.visible[i] {
-                    continue;
-                }
-                vi[j] = true;
-                for (d, s) in me[j].iter_mut().zip(&g.means[i]) {
-                    *d += s;
-                }
-                for (d, s) in ls[j].iter_mut().zip(&g.log_scales[i]) {
-                    *d += s;
-                }
-                for (d, s) in qu[j].iter_mut().zip(&g.quats[i]) {
-                    *d += s;
-                }
-                op[j] += g.opacity_logits[i];
-                if with_sh {
-                    let dst = &mut sh[j * k3..j * k3 + sh_cols];
-                    let src = &g.sh[i * k3..i * k3 + sh_cols];
-                    for (d, s) in dst.iter_mut().zip(src) {
-                        *d += s;
-                    }
-                }
-            }
-        });
-}
-
-/// Folds one render's gradients into the step's sum: the first render's buffers become the
-/// sum (no copy, no zeroing), later ones are added with [`add_grads`]. A gradient of the
-/// wrong size (e.g. from an empty set) contributes nothing.
-fn merge_grads(acc: &mut Option<ParamGrads>, gr: Gradients, n: usize, k3: usize, sh_active: usize) {
-    let sized = gr.means.len() == n
-        && gr.log_scales.len() == n
-        && gr.quats.len() == n
-        && gr.opacity_logits.len() == n
-        && gr.visible.len() == n;
-    if !sized {
-        return;
-    }
-    match acc {
-        Some(a) => add_grads(a, &gr, sh_active),
-        None => {
-            let sh = if gr.sh.len() == n * k3 {
-                gr.sh
-            } else {
-                vec![0.0; n * k3]
-            };
-            *acc = Some(ParamGrads {
-                means: gr.means,
-                log_scales: gr.log_scales,
-                quats: gr.quats,
-                opacity_logits: gr.opacity_logits,
-                sh,
-                visible: gr.visible,
-                sh_active,
-            });
-        }
-    }
-}
-
 /// The training state.
 pub struct Trainer<'a> {
     args: TrainArgs,
-    g: Gaussians,
-    adam: Adam,
-    densifier: Densifier,
+    /// The Gaussians, the moments and the statistics (the device may hold newer values).
+    state: TrainState,
+    /// The device's half of the run.
+    device: Box<dyn TrainingDevice>,
     dsched: DensifySchedule,
     scene_scale: f64,
     /// The large-Gaussian prune's extent (`densify.prune_extent`), fixed from the start.
@@ -221,23 +139,18 @@ pub struct Trainer<'a> {
     real_pos: usize,
     epoch: u64,
     usable_synth: Vec<usize>,
-    d_rgb: Vec<f32>,
-    /// The GPU (with `backend: Gpu`), the training state on it, and whether that state is
-    /// newer than `g`, `adam` and `densifier` (which then hold the sizes but not the values).
-    gpu: Option<std::sync::Arc<crate::gpu::GpuContext>>,
-    gpu_state: Option<crate::gpu::GpuTrainer>,
-    gpu_ahead: bool,
-    /// The views' targets on the GPU, uploaded at their first use.
-    gpu_targets: GpuTargets,
 }
 
-/// Targets on the GPU by (synthetic?, view index).
-pub(super) type GpuTargets = std::collections::HashMap<(bool, usize), crate::gpu::GpuTarget>;
+/// A device failure in the middle of a step: the training cannot go on, and the engine
+/// reports the panic as the node's failure with the device's message.
+fn device_failed(e: crate::gpu::GpuError) -> ! {
+    panic!("backend: Gpu: {e}")
+}
 
 impl<'a> Trainer<'a> {
-    /// A trainer starting from `g`. The SH storage of `g` must be `args.sh_degree`. With
-    /// `densify.prune_extent: Content`, the prune's extent is measured here from `g` and the
-    /// real views' cameras (see [`content_extent`]).
+    /// A trainer on the CPU starting from `g`. The SH storage of `g` must be
+    /// `args.sh_degree`. With `densify.prune_extent: Content`, the prune's extent is measured
+    /// here from `g` and the real views' cameras (see [`content_extent`]).
     pub fn new(
         args: TrainArgs,
         g: Gaussians,
@@ -259,7 +172,12 @@ impl<'a> Trainer<'a> {
             }
         };
         Trainer {
-            densifier: Densifier::new(n),
+            state: TrainState {
+                g,
+                adam,
+                densifier: Densifier::new(n),
+            },
+            device: Device::cpu().training(),
             dsched,
             scene_scale,
             prune_extent,
@@ -270,29 +188,46 @@ impl<'a> Trainer<'a> {
             real_pos: 0,
             epoch: 0,
             usable_synth,
-            d_rgb: Vec::new(),
-            gpu: None,
-            gpu_state: None,
-            gpu_ahead: false,
-            gpu_targets: GpuTargets::new(),
-            adam,
-            g,
             args,
         }
     }
 
-    /// The current Gaussians (brought back from the GPU first when it trains there).
+    /// Trains on `device` from now on (the state moves there at the next step). A device
+    /// failure in a later step ends the training with the device's message (a panic the
+    /// engine reports as the node's failure).
+    pub fn on_device(&mut self, device: &Device) {
+        self.sync();
+        self.device.discard();
+        self.device = device.training();
+    }
+
+    /// Makes the host's state current.
+    fn sync(&mut self) {
+        self.device
+            .sync(&mut self.state)
+            .unwrap_or_else(|e| device_failed(e));
+    }
+
+    /// Brings the state back from the device, which drops its copy: the host is about to
+    /// change it.
+    fn release(&mut self) {
+        self.device
+            .release(&mut self.state)
+            .unwrap_or_else(|e| device_failed(e));
+    }
+
+    /// The current Gaussians (brought back from the device first).
     pub fn gaussians(&mut self) -> &Gaussians {
-        self.sync_from_gpu();
-        &self.g
+        self.sync();
+        &self.state.g
     }
 
     /// The densification statistics gathered since the last refinement: per Gaussian, the
     /// summed norm of its screen-space gradient and the number of renders that saw it
-    /// (brought back from the GPU first when it trains there).
+    /// (brought back from the device first).
     pub fn densify_statistics(&mut self) -> (&[f32], &[u32]) {
-        self.sync_from_gpu();
-        (&self.densifier.grad2d, &self.densifier.count)
+        self.sync();
+        (&self.state.densifier.grad2d, &self.state.densifier.count)
     }
 
     /// Steps taken so far.
@@ -318,8 +253,8 @@ impl<'a> Trainer<'a> {
     }
     /// The Gaussians, ending the training.
     pub fn into_gaussians(mut self) -> Gaussians {
-        self.sync_from_gpu();
-        self.g
+        self.sync();
+        self.state.g
     }
 
     /// Appends everything that the next steps depend on to a checkpoint: the Gaussians, the
@@ -327,17 +262,17 @@ impl<'a> Trainer<'a> {
     /// shuffled view order. (Every other random choice is drawn from a stream keyed by the
     /// step, so nothing else carries over.)
     pub fn write_state(&mut self, w: &mut augsplat_core::state::StateWriter) {
-        self.sync_from_gpu();
+        self.sync();
         w.tag("trainer");
         w.u64(self.step);
         w.u64(self.epoch);
         w.u64(self.real_pos as u64);
         w.usizes(&self.real_order);
         w.f64(self.scene_scale);
-        w.f32s(&self.densifier.grad2d);
-        w.u32s(&self.densifier.count);
-        self.adam.write_state(w);
-        self.g.write_state(w);
+        w.f32s(&self.state.densifier.grad2d);
+        w.u32s(&self.state.densifier.count);
+        self.state.adam.write_state(w);
+        self.state.g.write_state(w);
     }
 
     /// Continues from a state [`Trainer::write_state`] wrote for the same `args` and inputs.
@@ -374,15 +309,16 @@ impl<'a> Trainer<'a> {
         self.real_pos = real_pos;
         self.real_order = real_order;
         self.scene_scale = scene_scale;
-        self.densifier = Densifier { grad2d, count };
-        self.adam = adam;
-        self.g = g;
-        self.gpu_state = None;
-        self.gpu_ahead = false;
+        self.state = TrainState {
+            g,
+            adam,
+            densifier: Densifier { grad2d, count },
+        };
+        self.device.discard();
         Ok(())
     }
 
-    pub(super) fn next_real(&mut self) -> Option<usize> {
+    fn next_real(&mut self) -> Option<usize> {
         let n = self.real.len();
         if n == 0 {
             return None;
@@ -398,57 +334,24 @@ impl<'a> Trainer<'a> {
         Some(i)
     }
 
-    /// Renders view `i` of `src`, adds `scale · dL/drgb`, back-propagates. Returns
-    /// (unweighted-by-scale loss, the render's gradients, pairs).
-    fn render_and_backward(
-        &mut self,
-        src: &dyn Supervision,
-        i: usize,
-        scale: f64,
-        settings: &RenderSettings,
-    ) -> (f64, Gradients, u64) {
-        let cam = src.camera(i);
-        let out: RenderOutput = crate::render_masked(&self.g, cam, settings, src.mask(i));
-        self.d_rgb.clear();
-        self.d_rgb.resize(out.rgb.len(), 0.0);
-        let l = src.loss(i, &out.rgb, scale as f32, &mut self.d_rgb);
-        let gr = crate::backward(&self.g, cam, settings, &out, &self.d_rgb, None, None);
-        (l, gr, out.stats.pairs)
-    }
-
-    /// Renders view `i` of `src`, adds `scale · dL/drgb`, back-propagates into `acc`.
-    /// Returns (unweighted-by-scale loss, pairs).
-    fn render_and_add(
-        g: &Gaussians,
-        src: &dyn Supervision,
-        i: usize,
-        scale: f64,
-        settings: &RenderSettings,
-        d_rgb: &mut Vec<f32>,
-        acc: &mut ParamGrads,
-    ) -> (f64, u64) {
-        let cam = src.camera(i);
-        let out: RenderOutput = crate::render_masked(g, cam, settings, src.mask(i));
-        d_rgb.clear();
-        d_rgb.resize(out.rgb.len(), 0.0);
-        let l = src.loss(i, &out.rgb, scale as f32, d_rgb);
-        crate::backward_add(g, cam, &out, d_rgb, acc);
-        (l, out.stats.pairs)
+    /// Adds one view to the step on the device. Returns (unweighted loss, pairs).
+    fn add_view(&mut self, view: ViewTask<'_>, settings: &RenderSettings) -> (f64, u64) {
+        self.device
+            .add_view(&mut self.state, view, settings)
+            .unwrap_or_else(|e| device_failed(e))
     }
 
     /// One optimisation step.
     pub fn step(&mut self) -> StepReport {
-        if self.gpu.is_some() {
-            return self.step_gpu();
-        }
         let step = self.step;
         let plan = self.args.schedule.plan(step);
         self.reset_at_switch(&plan);
         let settings = self.args.render_settings(step);
-        let n = self.g.len();
-        let k3 = self.g.coeffs() * 3;
-        let sh_active = 3 * crate::gaussians::sh_coeffs(settings.sh_degree.min(self.g.sh_degree));
-        let mut acc: Option<ParamGrads> = None;
+        let sh_active =
+            3 * crate::gaussians::sh_coeffs(settings.sh_degree.min(self.state.g.sh_degree));
+        self.device
+            .begin_step(&mut self.state, sh_active)
+            .unwrap_or_else(|e| device_failed(e));
         let mut rep = StepReport {
             step,
             ..Default::default()
@@ -456,91 +359,68 @@ impl<'a> Trainer<'a> {
         let densify_on = self.args.densify.enabled && step < self.dsched.stop;
         if plan.real_weight > 0.0 {
             if let Some(i) = self.next_real() {
-                let src = self.real;
-                let (l, gr, pairs) = self.render_and_backward(src, i, plan.real_weight, &settings);
+                let view = ViewTask {
+                    source: self.real,
+                    index: i,
+                    synthetic: false,
+                    scale: plan.real_weight,
+                    stats: densify_on.then(|| self.args.synthetic.stat_factor(plan.real_weight)),
+                };
+                let (l, pairs) = self.add_view(view, &settings);
                 rep.real_loss = Some(l);
                 rep.loss += plan.real_weight * l;
                 rep.pairs += pairs;
-                if densify_on && gr.means2d_abs.len() == n && gr.visible.len() == n {
-                    let f = self.args.synthetic.stat_factor(plan.real_weight);
-                    self.densifier
-                        .accumulate_scaled(&gr.means2d_abs, &gr.visible, f);
-                }
-                merge_grads(&mut acc, gr, n, k3, sh_active);
             }
         }
-        if plan.synthetic_weight > 0.0 && plan.synthetic_batch > 0 {
-            if let Some(src) = self.synthetic {
-                let pool = &self.usable_synth;
-                let b = plan.synthetic_batch.min(pool.len());
-                if b > 0 {
-                    let ids = self.draw_synthetic(step, b);
-                    let scale = plan.synthetic_weight / b as f64;
-                    let mut sum = 0.0;
-                    let want_stat = densify_on && self.args.synthetic.densify_from_synthetic;
-                    for &i in &ids {
-                        if want_stat {
-                            let (l, gr, pairs) = self.render_and_backward(src, i, scale, &settings);
-                            sum += l;
-                            rep.pairs += pairs;
-                            if want_stat && gr.means2d_abs.len() == n && gr.visible.len() == n {
-                                // gsplat's `× n_cameras` for the batch, and the
-                                // weight's inverse when the statistic is unweighted.
-                                let f = b as f32
-                                    * self.args.synthetic.stat_factor(plan.synthetic_weight);
-                                self.densifier
-                                    .accumulate_scaled(&gr.means2d_abs, &gr.visible, f);
-                            }
-                            merge_grads(&mut acc, gr, n, k3, sh_active);
-                        } else {
-                            // No statistic wanted: add straight into the step's sum (the
-                            // same values as merging a fresh buffer, without N-sized
-                            // buffers per view).
-                            let a = acc.get_or_insert_with(|| ParamGrads {
-                                sh_active,
-                                ..ParamGrads::zeros(n, self.g.coeffs())
-                            });
-                            let (l, pairs) = Self::render_and_add(
-                                &self.g,
-                                src,
-                                i,
-                                scale,
-                                &settings,
-                                &mut self.d_rgb,
-                                a,
-                            );
-                            sum += l;
-                            rep.pairs += pairs;
-                        }
-                    }
-                    rep.synthetic_loss = Some(sum / b as f64);
-                    rep.loss += plan.synthetic_weight * sum / b as f64;
+        if let (true, Some(src)) = (
+            plan.synthetic_weight > 0.0 && plan.synthetic_batch > 0,
+            self.synthetic,
+        ) {
+            let b = plan.synthetic_batch.min(self.usable_synth.len());
+            if b > 0 {
+                let scale = plan.synthetic_weight / b as f64;
+                // gsplat's `× n_cameras` for the batch, and the weight's inverse when the
+                // statistic is unweighted.
+                let stats = (densify_on && self.args.synthetic.densify_from_synthetic)
+                    .then(|| b as f32 * self.args.synthetic.stat_factor(plan.synthetic_weight));
+                let mut sum = 0.0;
+                for i in self.draw_synthetic(step, b) {
+                    let view = ViewTask {
+                        source: src,
+                        index: i,
+                        synthetic: true,
+                        scale,
+                        stats,
+                    };
+                    let (l, pairs) = self.add_view(view, &settings);
+                    sum += l;
+                    rep.pairs += pairs;
                 }
+                rep.synthetic_loss = Some(sum / b as f64);
+                rep.loss += plan.synthetic_weight * sum / b as f64;
             }
         }
         let lr = self
             .args
             .learning_rates
             .means_at(step, self.args.steps, self.scene_scale);
-        let mut acc = acc.unwrap_or_else(|| ParamGrads {
-            sh_active,
-            ..ParamGrads::zeros(n, self.g.coeffs())
-        });
-        if self.args.adam == crate::adam::AdamUpdates::Dense {
-            // The densification statistics were gathered above; Adam now sees every Gaussian.
-            acc.visible.fill(true);
-        }
-        self.adam
-            .step(&mut self.g, &acc, &self.args.learning_rates, lr);
+        self.device
+            .adam_step(
+                &mut self.state,
+                &self.args.learning_rates,
+                lr,
+                self.args.adam.is_dense(),
+            )
+            .unwrap_or_else(|e| device_failed(e));
         rep.refine = self.post_update(step, &settings);
         self.step += 1;
-        rep.gaussians = self.g.len();
+        rep.gaussians = self.state.g.len();
         rep
     }
 
     /// Staged's opacity reset at its switch, or Dual's at its switch-off, when asked for
     /// (clears the moments and the densification statistics too).
-    pub(super) fn reset_at_switch(&mut self, plan: &crate::schedule::StepPlan) {
+    fn reset_at_switch(&mut self, plan: &crate::schedule::StepPlan) {
         if plan.switch {
             if let Schedule::Staged {
                 reset_at_switch: true,
@@ -550,17 +430,18 @@ impl<'a> Trainer<'a> {
                 reset_at_off: true, ..
             } = self.args.schedule
             {
-                self.take_back_from_gpu();
-                densify::reset_opacities(&mut self.g, &mut self.adam, 0.1);
-                self.adam.clear();
-                self.densifier.clear();
+                self.release();
+                let st = &mut self.state;
+                densify::reset_opacities(&mut st.g, &mut st.adam, 0.1);
+                st.adam.clear();
+                st.densifier.clear();
             }
         }
     }
 
     /// `b` synthetic views of the usable pool, drawn without replacement from a stream keyed
     /// by the step (partial Fisher–Yates on a copy).
-    pub(super) fn draw_synthetic(&self, step: u64, b: usize) -> Vec<usize> {
+    fn draw_synthetic(&self, step: u64, b: usize) -> Vec<usize> {
         let mut ids = self.usable_synth.clone();
         let mut rng = Rng::stream(self.args.seed ^ 0x5F17, step);
         for k in 0..b {
@@ -571,29 +452,26 @@ impl<'a> Trainer<'a> {
         ids
     }
 
-    /// Densification and opacity resets after the step's update (on the host: a GPU state is
-    /// brought back first, and uploaded again by the next step).
-    pub(super) fn post_update(
-        &mut self,
-        step: u64,
-        settings: &RenderSettings,
-    ) -> densify::RefineReport {
+    /// Densification and opacity resets after the step's update (on the host: the device's
+    /// state is brought back first, and uploaded again by the next step).
+    fn post_update(&mut self, step: u64, settings: &RenderSettings) -> densify::RefineReport {
         if !densify::acts_at(step, &self.dsched, &self.args.densify) {
             return Default::default();
         }
-        self.take_back_from_gpu();
+        self.release();
         // For a `KeepVisible` reset: each Gaussian's visibility in the real views.
         let real = self.real;
         let mut visibility = |g: &Gaussians| {
             let cams: Vec<&Camera> = (0..real.len()).map(|i| real.camera(i)).collect();
             densify::peak_alpha_ratios(g, &cams, settings.antialiased, settings.near as f64)
         };
-        self.densifier.step_post_update(
+        let st = &mut self.state;
+        st.densifier.step_post_update(
             step,
             &self.dsched,
             &self.args.densify,
-            &mut self.g,
-            &mut self.adam,
+            &mut st.g,
+            &mut st.adam,
             Extents {
                 scene: self.scene_scale,
                 prune: self.prune_extent,

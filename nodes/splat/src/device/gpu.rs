@@ -1,0 +1,167 @@
+//! The GPU device: the WGSL kernels through one shared [`GpuContext`], with the training state
+//! kept in GPU buffers between steps ([`crate::gpu::GpuTrainer`]).
+
+use super::{DeviceModel, Frame, SplatDevice, TrainState, TrainingDevice, ViewTask};
+use crate::adam::LearningRates;
+use crate::gpu::{
+    backward_gpu, render_scene, AdapterSummary, GpuContext, GpuError, GpuScene, GpuTarget,
+    GpuTrainer, ViewLoss,
+};
+use crate::{Gaussians, Gradients, RenderSettings};
+use augsplat_core::Camera;
+use std::collections::{hash_map::Entry, HashMap};
+use std::sync::Arc;
+
+/// A GPU behind its context.
+pub(super) struct GpuDevice(pub(super) Arc<GpuContext>);
+
+impl SplatDevice for GpuDevice {
+    fn adapter(&self) -> Option<&AdapterSummary> {
+        Some(self.0.adapter())
+    }
+    fn upload<'a>(&'a self, g: &'a Gaussians) -> Result<Box<dyn DeviceModel + 'a>, GpuError> {
+        Ok(Box::new(GpuModel {
+            ctx: &self.0,
+            scene: GpuScene::upload(&self.0, g)?,
+        }))
+    }
+    fn training(&self) -> Box<dyn TrainingDevice> {
+        Box::new(GpuTraining {
+            ctx: self.0.clone(),
+            state: None,
+            ahead: false,
+            targets: HashMap::new(),
+            sh_active: 0,
+        })
+    }
+}
+
+/// Gaussians uploaded once for many views.
+struct GpuModel<'a> {
+    ctx: &'a GpuContext,
+    scene: GpuScene,
+}
+
+impl DeviceModel for GpuModel<'_> {
+    fn render(&self, cam: &Camera, s: &RenderSettings) -> Result<Frame, GpuError> {
+        let f = render_scene(self.ctx, &self.scene, cam, s)?;
+        Ok(Frame {
+            width: f.width,
+            height: f.height,
+            rgb: f.rgb,
+            alpha: f.alpha,
+            depth: f.depth,
+            stats: f.stats,
+        })
+    }
+    fn backward(
+        &self,
+        cam: &Camera,
+        s: &RenderSettings,
+        d_rgb: &[f32],
+    ) -> Result<Gradients, GpuError> {
+        Ok(backward_gpu(self.ctx, &self.scene, cam, s, d_rgb)?.into_gradients())
+    }
+}
+
+/// A training run's GPU half.
+struct GpuTraining {
+    ctx: Arc<GpuContext>,
+    /// The state on the GPU, once uploaded.
+    state: Option<GpuTrainer>,
+    /// Whether the GPU's state is newer than the host's (which then holds the sizes but not
+    /// the values).
+    ahead: bool,
+    /// The views' targets, uploaded at their first use, by (synthetic?, view index).
+    targets: HashMap<(bool, usize), GpuTarget>,
+    /// The step's active SH width.
+    sh_active: usize,
+}
+
+impl GpuTraining {
+    /// The state on the GPU, uploaded from the host's when there is none.
+    fn state(&mut self, st: &TrainState) -> Result<&GpuTrainer, GpuError> {
+        if self.state.is_none() {
+            self.state = Some(GpuTrainer::upload(
+                &self.ctx,
+                &st.g,
+                &st.adam,
+                &st.densifier,
+            )?);
+        }
+        Ok(self.state.as_ref().expect("uploaded above"))
+    }
+}
+
+impl TrainingDevice for GpuTraining {
+    fn begin_step(&mut self, st: &mut TrainState, sh_active: usize) -> Result<(), GpuError> {
+        self.sh_active = sh_active;
+        self.ctx.count_training_step();
+        let ctx = self.ctx.clone();
+        self.state(st)?.begin_step(&ctx)
+    }
+
+    fn add_view(
+        &mut self,
+        st: &mut TrainState,
+        view: ViewTask<'_>,
+        s: &RenderSettings,
+    ) -> Result<(f64, u64), GpuError> {
+        let ctx = self.ctx.clone();
+        self.state(st)?;
+        let (src, i) = (view.source, view.index);
+        let sh_active = self.sh_active;
+        let mut host = |rgb: &[f32], grad: &mut [f32]| src.loss(i, rgb, view.scale as f32, grad);
+        let loss = match src.gpu_loss(i) {
+            Some(v) => {
+                let target = match self.targets.entry((view.synthetic, i)) {
+                    Entry::Occupied(e) => e.into_mut(),
+                    Entry::Vacant(e) => e.insert(GpuTarget::upload(&ctx, v.target, v.weights)?),
+                };
+                ViewLoss::Gpu {
+                    target,
+                    loss: v.loss,
+                    scale: view.scale as f32,
+                }
+            }
+            None => ViewLoss::Host(&mut host),
+        };
+        let state = self.state.as_ref().expect("uploaded above");
+        state.add_view(&ctx, src.camera(i), s, loss, view.stats, sh_active)
+    }
+
+    fn adam_step(
+        &mut self,
+        st: &mut TrainState,
+        lr: &LearningRates,
+        means_lr: f64,
+        dense: bool,
+    ) -> Result<(), GpuError> {
+        let ctx = self.ctx.clone();
+        let consts = st.adam.next_gpu_consts(self.sh_active, lr, means_lr);
+        self.state(st)?.adam_step(&ctx, &consts, dense)?;
+        self.ahead = true;
+        Ok(())
+    }
+
+    fn sync(&mut self, st: &mut TrainState) -> Result<(), GpuError> {
+        if self.ahead {
+            if let Some(gs) = &self.state {
+                gs.download(&self.ctx, &mut st.g, &mut st.adam, &mut st.densifier)?;
+            }
+            self.ahead = false;
+        }
+        Ok(())
+    }
+
+    fn release(&mut self, st: &mut TrainState) -> Result<(), GpuError> {
+        self.sync(st)?;
+        self.state = None;
+        Ok(())
+    }
+
+    fn discard(&mut self) {
+        self.state = None;
+        self.ahead = false;
+    }
+}

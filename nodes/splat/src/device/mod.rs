@@ -1,0 +1,233 @@
+//! The device seam: where splatting runs, behind one interface.
+//!
+//! [`Backend`] is what a node's args or the CLI ask for; [`Device::open`] turns it into a
+//! [`Device`] — the one place that chooses between the CPU kernels and the GPU's — and every
+//! caller after that speaks to the [`SplatDevice`] trait:
+//!
+//! - [`SplatDevice::upload`] puts a set of Gaussians on the device as a [`DeviceModel`] that
+//!   renders ([`DeviceModel::render`]) and back-propagates ([`DeviceModel::backward`]) any
+//!   number of views (the evaluation node and `augsplat render`);
+//! - [`SplatDevice::training`] starts a [`TrainingDevice`]: the device's half of one training
+//!   run. The [`crate::train::Trainer`] writes the step and every schedule once, in terms of
+//!   [`TrainingDevice::begin_step`], [`TrainingDevice::add_view`] (render, loss, gradient and
+//!   densification statistic of one view, summed into the step's gradients in a fixed order)
+//!   and [`TrainingDevice::adam_step`]; [`TrainingDevice::sync`] and
+//!   [`TrainingDevice::release`] bring the state back to the host where the host must see or
+//!   change it (densification, resets, evaluations, checkpoints).
+//!
+//! The CPU device (`device/cpu.rs`) keeps the state in the host's [`TrainState`] itself; the
+//! GPU device (`device/gpu.rs`) keeps a copy in GPU buffers between steps and holds one
+//! shared [`crate::gpu::GpuContext`] (adapter, limits, error scopes, kernels), which any
+//! other family's GPU path can share through [`Device::gpu_context`].
+
+mod cpu;
+mod gpu;
+
+pub use cpu::add_grads;
+
+use crate::adam::{Adam, LearningRates};
+use crate::densify::Densifier;
+use crate::gpu::{AdapterSummary, GpuContext, GpuError};
+use crate::supervision::Supervision;
+use crate::{Gaussians, Gradients, RenderSettings, RenderStats};
+use augsplat_core::Camera;
+use std::sync::Arc;
+
+/// Where a node computes its splatting: part of the node's args, hence of its key (left out
+/// when it is the CPU, so adding the field kept every existing key).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Backend {
+    /// The CPU kernels (all cores; identical bytes on every machine).
+    #[default]
+    Cpu,
+    /// The GPU through wgpu (identical bytes run to run on one adapter; an error when the
+    /// machine has no adapter, never a silent fall-back to the CPU).
+    Gpu,
+}
+
+impl Backend {
+    /// The names a command line accepts, in the order of the variants.
+    pub const NAMES: [&'static str; 2] = ["cpu", "gpu"];
+
+    /// Whether this is the CPU (the default, left out of serialised args).
+    pub fn is_cpu(&self) -> bool {
+        *self == Backend::Cpu
+    }
+}
+
+impl std::fmt::Display for Backend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(Backend::NAMES[*self as usize])
+    }
+}
+
+impl std::str::FromStr for Backend {
+    type Err = String;
+    /// `cpu` or `gpu`, in any case.
+    fn from_str(s: &str) -> Result<Backend, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "cpu" => Ok(Backend::Cpu),
+            "gpu" => Ok(Backend::Gpu),
+            _ => Err(format!(
+                "unknown backend {s:?}: expected one of {}",
+                Backend::NAMES.join(", ")
+            )),
+        }
+    }
+}
+
+/// One render: the image planes and the counters, on either device.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Colour, `height·width·3` interleaved, background composited.
+    pub rgb: Vec<f32>,
+    /// Accumulated alpha `1 − T`, `height·width`.
+    pub alpha: Vec<f32>,
+    /// Expected depth normalised by alpha (0 where alpha < 1e-6), `height·width`.
+    pub depth: Vec<f32>,
+    /// Counters, counted as the CPU renderer counts them.
+    pub stats: RenderStats,
+}
+
+/// A set of Gaussians on a device, rendered from any number of cameras.
+pub trait DeviceModel {
+    /// Renders the set from `cam`.
+    fn render(&self, cam: &Camera, s: &RenderSettings) -> Result<Frame, GpuError>;
+    /// The gradients of a loss whose gradient on the rendered colour is `d_rgb`
+    /// (`height·width·3`).
+    fn backward(
+        &self,
+        cam: &Camera,
+        s: &RenderSettings,
+        d_rgb: &[f32],
+    ) -> Result<Gradients, GpuError>;
+}
+
+/// The host's training state: the Gaussians, Adam's moments and the densification
+/// statistics. A [`TrainingDevice`] may hold a newer copy; [`TrainingDevice::sync`] brings it
+/// back.
+pub struct TrainState {
+    /// The Gaussians.
+    pub g: Gaussians,
+    /// The optimiser's moments.
+    pub adam: Adam,
+    /// The densification statistics.
+    pub densifier: Densifier,
+}
+
+/// One view of one training step, as [`TrainingDevice::add_view`] takes it.
+pub struct ViewTask<'a> {
+    /// The supervision source (real photos or synthetic targets).
+    pub source: &'a dyn Supervision,
+    /// The view's index in `source`.
+    pub index: usize,
+    /// Whether `source` is the synthetic one (a device may keep targets per source).
+    pub synthetic: bool,
+    /// The factor on the loss's gradient (the source's weight, ÷ the batch for a batch).
+    pub scale: f64,
+    /// With `Some(factor)`, the view's densification statistic (the screen-space mean
+    /// gradient × `factor`, as [`Densifier::accumulate_scaled`]) is added to the sums.
+    pub stats: Option<f32>,
+}
+
+/// The device's half of one training run (see the module documentation). Every method
+/// leaves the sums in the CPU trainer's order, so a step is the same maths on every device.
+pub trait TrainingDevice {
+    /// Starts a step: the step's gradient sums are cleared (`sh_active` is the number of
+    /// leading SH values per Gaussian whose gradient may be non-zero this step).
+    fn begin_step(&mut self, st: &mut TrainState, sh_active: usize) -> Result<(), GpuError>;
+    /// Renders the view, computes its loss and `scale · dL/d(rgb)`, back-propagates and adds
+    /// the gradients to the step's sums (and the densification statistic, when asked).
+    /// Returns (the loss without `scale`, composited pairs).
+    fn add_view(
+        &mut self,
+        st: &mut TrainState,
+        view: ViewTask<'_>,
+        s: &RenderSettings,
+    ) -> Result<(f64, u64), GpuError>;
+    /// One Adam step with the step's sums: over every Gaussian with `dense`, otherwise over
+    /// those some view of the step saw; `means_lr` is the means' rate at this step.
+    fn adam_step(
+        &mut self,
+        st: &mut TrainState,
+        lr: &LearningRates,
+        means_lr: f64,
+        dense: bool,
+    ) -> Result<(), GpuError>;
+    /// Makes `st` current (copies a newer device state back).
+    fn sync(&mut self, st: &mut TrainState) -> Result<(), GpuError>;
+    /// [`TrainingDevice::sync`], then drops the device's copy: the host is about to change
+    /// the state, and the next step uploads it again.
+    fn release(&mut self, st: &mut TrainState) -> Result<(), GpuError>;
+    /// Drops the device's copy without reading it (the host's state was replaced).
+    fn discard(&mut self);
+}
+
+/// What a device can do.
+pub trait SplatDevice: Send + Sync {
+    /// The GPU adapter that computes (`None` on the CPU), for the outputs' metadata.
+    fn adapter(&self) -> Option<&AdapterSummary>;
+    /// Puts `g` on the device for rendering.
+    fn upload<'a>(&'a self, g: &'a Gaussians) -> Result<Box<dyn DeviceModel + 'a>, GpuError>;
+    /// A training run's device half, starting with nothing on the device.
+    fn training(&self) -> Box<dyn TrainingDevice>;
+}
+
+/// An opened device: the CPU, or a GPU context (see the module documentation).
+#[derive(Clone)]
+pub struct Device {
+    inner: Arc<dyn SplatDevice>,
+    gpu: Option<Arc<GpuContext>>,
+}
+
+impl Device {
+    /// Opens the device `backend` names: the CPU always, a GPU when the machine has an adapter
+    /// (otherwise the [`GpuError`] that says what was found, never a fall-back).
+    pub fn open(backend: Backend) -> Result<Device, GpuError> {
+        match backend {
+            Backend::Cpu => Ok(Device::cpu()),
+            Backend::Gpu => Ok(Device::gpu(Arc::new(GpuContext::new()?))),
+        }
+    }
+
+    /// The CPU.
+    pub fn cpu() -> Device {
+        Device {
+            inner: Arc::new(cpu::CpuDevice),
+            gpu: None,
+        }
+    }
+
+    /// A GPU through an existing context (e.g. one with a lowered binding limit).
+    pub fn gpu(ctx: Arc<GpuContext>) -> Device {
+        Device {
+            inner: Arc::new(gpu::GpuDevice(ctx.clone())),
+            gpu: Some(ctx),
+        }
+    }
+
+    /// The GPU context, for other kernels that run on the same device.
+    pub fn gpu_context(&self) -> Option<&Arc<GpuContext>> {
+        self.gpu.as_ref()
+    }
+}
+
+impl std::ops::Deref for Device {
+    type Target = dyn SplatDevice;
+    fn deref(&self) -> &(dyn SplatDevice + 'static) {
+        &*self.inner
+    }
+}
+
+impl std::fmt::Debug for Device {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.adapter() {
+            Some(a) => write!(f, "Device(GPU: {a})"),
+            None => f.write_str("Device(CPU)"),
+        }
+    }
+}
