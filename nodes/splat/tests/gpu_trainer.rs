@@ -3,8 +3,9 @@
 //! the same losses step by step (on lavapipe within 5e-7 relative; asserted within 1e-4),
 //! every parameter within a small fraction of an Adam step, the same densification, Dual's
 //! synthetic batches, the losses on the GPU (`loss/loss.wgsl`) and on the host, selective
-//! Adam, checkpoints taken mid-run, and identical bytes on every run. Skips with a message when no GPU adapter is found (fails
-//! under `CI=true`, where `.ci/run` installs lavapipe).
+//! Adam, checkpoints taken mid-run, identical bytes on every run, and a 50-step Dual run
+//! written once and run through both devices of the seam. Skips with a message when no GPU
+//! adapter is found (fails under `CI=true`, where `.ci/run` installs lavapipe).
 
 mod train_util;
 
@@ -457,4 +458,79 @@ fn arrays_past_one_binding_run_in_chunks_with_the_same_bytes() {
             other.map(|f| f.width)
         ),
     }
+}
+
+#[test]
+fn a_50_step_dual_run_is_one_loop_over_either_device() {
+    let test = "a_50_step_dual_run_is_one_loop_over_either_device";
+    let Some(gpu) = context(test) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let c = case(tmp.path());
+    // Dual with densification (a refinement every 10 steps), its branch switched off at step 21 (w̃ = 2·4^(−t/20) < 0.5)
+    // with the opacity reset there: the state crosses to the host at every refinement and at
+    // the switch.
+    let mut a = args(50, true);
+    a.densify.every = 10;
+    a.densify.grad_threshold = 1e-4;
+    a.schedule = Schedule::Dual {
+        w_nerf0: 2.0,
+        w_real: 1.0,
+        quarter_decay: 20.0,
+        off_below: Some(0.5),
+        synthetic_batch: 3,
+        reset_at_off: true,
+    };
+    // The same code for both devices: only the device differs.
+    let runs: Vec<(Vec<StepReport>, Gaussians)> = [
+        augsplat_splat::Device::cpu(),
+        augsplat_splat::Device::gpu(gpu),
+    ]
+    .iter()
+    .map(|device| {
+        let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, Some(&c.synth));
+        t.on_device(device);
+        let reps = (0..a.steps).map(|_| t.step()).collect();
+        (reps, t.into_gaussians())
+    })
+    .collect();
+    let ((cpu, cpu_g), (gpu_reps, gpu_g)) = (&runs[0], &runs[1]);
+    let branch = |r: &[StepReport]| {
+        r.iter()
+            .map(|s| (s.real_loss.is_some(), s.synthetic_loss.is_some()))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(branch(cpu), branch(gpu_reps), "the schedule differs");
+    assert_eq!(
+        cpu.iter().position(|s| s.synthetic_loss.is_none()),
+        Some(21),
+        "Dual's branch must switch off at step 21"
+    );
+    assert!(
+        cpu.iter().any(|r| r.refine.cloned + r.refine.split > 0),
+        "the case must densify"
+    );
+    // The same refinements at the same steps, and the losses step by step.
+    let refine = |r: &[StepReport]| {
+        r.iter()
+            .map(|s| (s.refine, s.gaussians))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(refine(cpu), refine(gpu_reps));
+    let mut worst = 0.0f64;
+    for (x, y) in cpu.iter().zip(gpu_reps) {
+        let rel = (x.loss - y.loss).abs() / x.loss.abs().max(1e-12);
+        worst = worst.max(rel);
+        assert!(
+            rel <= 1e-3,
+            "step {}: CPU loss {} GPU loss {}",
+            x.step,
+            x.loss,
+            y.loss
+        );
+    }
+    eprintln!(
+        "{test}: losses within {worst:.2e} relative; {} Gaussians",
+        cpu_g.len()
+    );
+    assert_eq!(cpu_g.len(), gpu_g.len());
 }
