@@ -2,11 +2,8 @@
 //! `OptimizeSplats` node runs it — and as benches and library users can run it without a
 //! graph.
 //!
-//! - Inputs: [`load_real_views`] (a scene folder), [`load_synthetic`] (an `AggregateEnsemble`
-//!   output, read through
-//!   [`SyntheticView::read`](augsplat_core::artifacts::SyntheticView::read)), [`load_lpips`], and
-//!   [`check_supervision`] (the schedule's needs against what was connected). The initial
-//!   Gaussians come from [`crate::init::initial_gaussians`].
+//! - Inputs: [`crate::inputs`] loads them from folders ([`crate::inputs::TrainingInputs`]) and
+//!   chooses the initial Gaussians ([`crate::inputs::initial_state`]).
 //! - [`fit`]: steps the [`Trainer`]; evaluates the held-out views every `eval_every` steps and
 //!   after the last step ([`evaluate`], the metrics of `augsplat_metrics::measure`); keeps the
 //!   best checkpoint — the lowest average error when an LPIPS model is given, else the highest
@@ -17,118 +14,16 @@
 //! Wall-clock seconds enter the curve only with `record_wall_time`, so that a run's outputs
 //! are byte-identical for identical arguments and inputs.
 
-use crate::loss::WeightNorm;
 use crate::train::{
-    evaluate, EvalError, Evaluation, RealImages, RealView, Supervision, SynthView, SyntheticArgs,
-    SyntheticImages, TrainArgs, Trainer,
+    evaluate, EvalError, Evaluation, RealImages, RealView, Supervision, SyntheticImages, TrainArgs,
+    Trainer,
 };
 use crate::Gaussians;
-use augsplat_core::artifacts::{self, CurvePoint, SyntheticSet, TrainingCurve};
-use augsplat_core::Scene;
+use augsplat_core::artifacts::{self, CurvePoint, TrainingCurve};
 use augsplat_graph::NodeError;
-use augsplat_metrics::lpips::{self, Backbone, Lpips};
+use augsplat_metrics::lpips::Lpips;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-
-/// Loads the views of the scene folder `dir` as training or held-out images, checking each
-/// camera and that each image has its camera's size. `what` names the input in errors.
-pub fn load_real_views(dir: &Path, what: &str) -> Result<Vec<RealView>, NodeError> {
-    let scene =
-        Scene::load(dir).map_err(|e| NodeError::from(e).context(format!("input `{what}`")))?;
-    let mut out = Vec::with_capacity(scene.views.len());
-    for (i, v) in scene.views.iter().enumerate() {
-        v.camera
-            .validate()
-            .map_err(|m| NodeError::new(format!("input `{what}`: view {}: {m}", v.name)))?;
-        let img = scene
-            .load_image(dir, i)
-            .map_err(|e| NodeError::from(e).context(format!("input `{what}`")))?;
-        if (img.width, img.height) != (v.camera.width, v.camera.height) {
-            return Err(NodeError::new(format!(
-                "input `{what}`: image {} is {}×{} but its camera is {}×{}",
-                dir.join(&v.image).display(),
-                img.width,
-                img.height,
-                v.camera.width,
-                v.camera.height
-            )));
-        }
-        out.push(RealView {
-            name: v.name.clone(),
-            camera: v.camera.clone(),
-            image: img.data,
-        });
-    }
-    Ok(out)
-}
-
-/// Loads a synthetic set's folder (`synthetic.json` and each view's target and weights) as
-/// synthetic supervision with the options `opts` (skip threshold, normalisation).
-pub fn load_synthetic(dir: &Path, opts: &SyntheticArgs) -> Result<SyntheticImages, NodeError> {
-    let set: SyntheticSet = artifacts::read_json(&dir.join(artifacts::files::SYNTHETIC))
-        .map_err(|e| NodeError::from(e).context("input `synthetic`"))?;
-    let mut views = Vec::with_capacity(set.views.len());
-    for v in &set.views {
-        v.camera
-            .validate()
-            .map_err(|m| NodeError::new(format!("input `synthetic`: view {}: {m}", v.name)))?;
-        let px = v
-            .read(dir)
-            .map_err(|e| NodeError::from(e).context("input `synthetic`"))?;
-        views.push(SynthView::new(
-            v.name.clone(),
-            v.camera.clone(),
-            px.target.data,
-            px.weight,
-            opts.skip_below,
-        ));
-    }
-    Ok(SyntheticImages {
-        views,
-        norm: if opts.normalize_by_weight_sum {
-            WeightNorm::WeightSum
-        } else {
-            WeightNorm::PixelCount
-        },
-    })
-}
-
-/// Loads the LPIPS model of backbone `net` ("alex" or "vgg") from `dir`, a folder holding
-/// `lpips_{alex,vgg}_v0.1.safetensors` or the weights file itself.
-pub fn load_lpips(dir: &Path, net: &str) -> Result<Lpips, NodeError> {
-    let backbone: Backbone = net.parse().map_err(NodeError::new)?;
-    let path = lpips::find_weights(Some(dir), backbone).ok_or_else(|| {
-        NodeError::new(format!(
-            "input `lpips`: {} holds no {}",
-            dir.display(),
-            backbone.file_name()
-        ))
-    })?;
-    Ok(Lpips::load(&path)?)
-}
-
-/// Checks that the schedule of `args` has the synthetic supervision it needs: an error when
-/// it needs some and none is given, a warning (returned) when every synthetic view has zero
-/// weight.
-pub fn check_supervision(
-    args: &TrainArgs,
-    synthetic: Option<&SyntheticImages>,
-) -> Result<Option<String>, NodeError> {
-    if !args.schedule.needs_synthetic() {
-        return Ok(None);
-    }
-    match synthetic {
-        None => Err(NodeError::new(format!(
-            "schedule {} needs the `synthetic` input (an AggregateEnsemble output)",
-            args.schedule.name()
-        ))),
-        Some(s) if s.views.iter().all(|v| v.weight_sum <= 0.0) => Ok(Some(
-            "warning: every synthetic view has zero weight; synthetic supervision does nothing"
-                .into(),
-        )),
-        _ => Ok(None),
-    }
-}
 
 /// How a checkpoint is chosen: by [`fit`] for the model it keeps, and by the evaluation's
 /// best-step rule (serialised as `avg_error` / `psnr`).
@@ -234,6 +129,31 @@ pub struct StepTiming {
 }
 
 impl StepTiming {
+    /// Counts step `rep` that took `seconds`: real-only or with synthetic views, and for Dual
+    /// (`dual`) the step its synthetic branch went off (`had_synthetic` remembers whether a
+    /// synthetic step came before).
+    pub fn record(
+        &mut self,
+        rep: &crate::train::StepReport,
+        seconds: f64,
+        dual: bool,
+        had_synthetic: &mut bool,
+    ) {
+        self.last_step_synthetic = rep.synthetic_loss.is_some();
+        if rep.synthetic_loss.is_some() {
+            self.synthetic_steps += 1;
+            self.synthetic_seconds += seconds;
+            *had_synthetic = true;
+            self.synthetic_off_step = None;
+        } else {
+            self.real_only_steps += 1;
+            self.real_only_seconds += seconds;
+            if dual && *had_synthetic && self.synthetic_off_step.is_none() {
+                self.synthetic_off_step = Some(rep.step);
+            }
+        }
+    }
+
     /// `(name, value)` pairs for [`augsplat_graph::RunContext::measure`].
     pub fn measures(&self, steps_run: u64) -> Vec<(&'static str, f64)> {
         let mut m = vec![
@@ -417,20 +337,8 @@ pub fn fit(
         real,
         synthetic.map(|s| s as &dyn Supervision),
     );
-    if a.densify.prune_extent == crate::densify::PruneExtent::Content {
-        on_event(FitEvent::Log(format!(
-            "large-Gaussian prune against the content's extent {:.4} ({:.2} × the scene scale)",
-            trainer.prune_extent(),
-            trainer.prune_extent() / scene_scale
-        )));
-    }
-    let sched = a.densify.scaled(a.steps);
-    let defaults = crate::densify::DensifyArgs::default();
-    if a.densify.enabled
-        && !sched.reaches_reset()
-        && (a.densify.reset != defaults.reset || a.densify.prune_extent != defaults.prune_extent)
-    {
-        on_event(FitEvent::Log(sched.short_run_note(a.steps)));
+    for line in densify_notes(a, &trainer) {
+        on_event(FitEvent::Log(line));
     }
     trainer.on_device(device);
     let mut st = LoopState {
@@ -446,30 +354,8 @@ pub fn fit(
     let (every, mut save) = match checkpoints {
         Some(c) => {
             if let Some(bytes) = c.resume {
-                // The trainer's own state as it starts: a checkpoint refused after its trainer
-                // part was read must not leave the trainer half-restored.
-                let pristine = {
-                    let mut w = augsplat_core::state::StateWriter::new();
-                    trainer.write_state(&mut w);
-                    w.finish()
-                };
-                match read_checkpoint(&bytes, &mut trainer, a.steps) {
-                    Ok(s) => {
-                        st = s;
-                        on_event(FitEvent::Log(format!(
-                            "resumed from the checkpoint at step {}",
-                            trainer.steps_done()
-                        )));
-                    }
-                    Err(e) => {
-                        // Its own state, written a moment ago: reading it back cannot fail.
-                        trainer
-                            .restore_state(&mut augsplat_core::state::StateReader::new(&pristine))
-                            .expect("a trainer reads back the state it wrote");
-                        on_event(FitEvent::Log(format!(
-                            "cannot continue from the saved checkpoint ({e}); starting afresh"
-                        )))
-                    }
+                if let Some(resumed) = resume(&bytes, &mut trainer, a.steps, on_event) {
+                    st = resumed;
                 }
             }
             (c.every, Some(c.save))
@@ -488,87 +374,33 @@ pub fn fit(
     while trainer.steps_done() < a.steps {
         let ts = std::time::Instant::now();
         let rep = trainer.step();
-        let dt = ts.elapsed().as_secs_f64();
-        timing.last_step_synthetic = rep.synthetic_loss.is_some();
-        if rep.synthetic_loss.is_some() {
-            timing.synthetic_steps += 1;
-            timing.synthetic_seconds += dt;
-            had_synthetic = true;
-            timing.synthetic_off_step = None;
-        } else {
-            timing.real_only_steps += 1;
-            timing.real_only_seconds += dt;
-            if dual && had_synthetic && timing.synthetic_off_step.is_none() {
-                timing.synthetic_off_step = Some(trainer.steps_done() - 1);
-            }
-        }
+        timing.record(&rep, ts.elapsed().as_secs_f64(), dual, &mut had_synthetic);
         st.loss_acc += rep.loss;
         st.loss_n += 1;
         let done = trainer.steps_done();
-        if rep.refine.cloned + rep.refine.split + rep.refine.pruned > 0 || rep.refine.reset {
-            on_event(FitEvent::Log(format!(
-                "step {done}: cloned {}, split {}, pruned {}{} → {} Gaussians",
-                rep.refine.cloned,
-                rep.refine.split,
-                rep.refine.pruned,
-                if rep.refine.reset {
-                    ", opacity reset"
-                } else {
-                    ""
-                },
-                rep.gaussians
-            )));
+        if let Some(line) = refine_line(done, &rep) {
+            on_event(FitEvent::Log(line));
         }
         if done.is_multiple_of(a.eval_every) || done == a.steps {
-            let settings = a.render_settings(done);
-            let e = evaluate(trainer.gaussians(), test, &settings, lpips)?;
-            let secs = t0.elapsed().as_secs_f64();
-            let p = point(
-                done,
-                &e,
-                trainer.gaussians(),
-                if a.record_wall_time { secs } else { 0.0 },
-                st.loss_acc / st.loss_n.max(1) as f64,
-            );
-            st.loss_acc = 0.0;
-            st.loss_n = 0;
-            on_event(FitEvent::Log(format!(
-                "step {done}: PSNR {:.3} SSIM {:.4}{} loss {:.5} Gaussians {} ({secs:.1} s)",
-                p.psnr,
-                p.ssim,
-                p.lpips.map_or(String::new(), |l| format!(" LPIPS {l:.4}")),
-                p.loss,
-                p.primitives
-            )));
-            let better = match &st.best {
-                None => true,
-                Some((b, _)) => criterion.better(&p, b),
+            let eval = Evaluating {
+                args: a,
+                test,
+                lpips,
+                criterion,
+                started: t0,
             };
-            if better {
-                st.best = Some((p.clone(), trainer.gaussians().clone()));
-                st.since_best = 0;
-            } else {
-                st.since_best += 1;
-            }
-            st.curve.points.push(p);
-            if let Some(pat) = a.early_stop_patience {
-                if st.since_best >= pat && done < a.steps {
-                    on_event(FitEvent::Log(format!(
-                        "early stop at step {done}: no improvement in {pat} evaluations"
-                    )));
-                    early = true;
-                    break;
-                }
+            if eval.run(&mut trainer, &mut st, on_event)? {
+                early = true;
+                break;
             }
         }
         if let Some(save) = save.as_mut() {
             if every > 0 && done.is_multiple_of(every) && done < a.steps {
-                match save(write_checkpoint(&mut trainer, &st, a.steps)) {
-                    Ok(()) => on_event(FitEvent::Log(format!("checkpoint at step {done}"))),
-                    Err(e) => on_event(FitEvent::Log(format!(
-                        "warning: could not save the checkpoint at step {done}: {e}"
-                    ))),
-                }
+                let line = match save(write_checkpoint(&mut trainer, &st, a.steps)) {
+                    Ok(()) => format!("checkpoint at step {done}"),
+                    Err(e) => format!("warning: could not save the checkpoint at step {done}: {e}"),
+                };
+                on_event(FitEvent::Log(line));
             }
         }
         on_event(FitEvent::Progress {
@@ -603,4 +435,159 @@ pub fn fit(
         seconds: t0.elapsed().as_secs_f64(),
         timing,
     })
+}
+
+/// Writes a run's model folder `out`: `final.ply` (the last step's Gaussians), `best.ply`
+/// (the kept checkpoint), `curve.json`, `best.json` ([`BestRecord`]) and, when a GPU computed
+/// the renders and gradients, `device.json` (its adapter).
+pub fn write_model(
+    out: &Path,
+    fitted: &Fitted,
+    adapter: Option<&crate::gpu::AdapterSummary>,
+) -> Result<(), NodeError> {
+    crate::write_ply(&out.join("final.ply"), &fitted.last)?;
+    crate::write_ply(&out.join("best.ply"), &fitted.best)?;
+    artifacts::write_json(&out.join(artifacts::files::CURVE), &fitted.curve)?;
+    artifacts::write_json(&out.join("best.json"), &fitted.best_record())?;
+    if let Some(d) = adapter {
+        artifacts::write_json(&out.join("device.json"), d)?;
+    }
+    Ok(())
+}
+
+/// Continues from the checkpoint `bytes` when it fits this run (a log line says so), or
+/// leaves the trainer as it was and says why it starts afresh.
+fn resume(
+    bytes: &[u8],
+    trainer: &mut Trainer<'_>,
+    steps: u64,
+    on_event: &mut dyn FnMut(FitEvent),
+) -> Option<LoopState> {
+    // The trainer's own state as it starts: a checkpoint refused after its trainer part was
+    // read must not leave the trainer half-restored.
+    let pristine = {
+        let mut w = augsplat_core::state::StateWriter::new();
+        trainer.write_state(&mut w);
+        w.finish()
+    };
+    match read_checkpoint(bytes, trainer, steps) {
+        Ok(s) => {
+            on_event(FitEvent::Log(format!(
+                "resumed from the checkpoint at step {}",
+                trainer.steps_done()
+            )));
+            Some(s)
+        }
+        Err(e) => {
+            // Its own state, written a moment ago: reading it back cannot fail.
+            trainer
+                .restore_state(&mut augsplat_core::state::StateReader::new(&pristine))
+                .expect("a trainer reads back the state it wrote");
+            on_event(FitEvent::Log(format!(
+                "cannot continue from the saved checkpoint ({e}); starting afresh"
+            )));
+            None
+        }
+    }
+}
+
+/// The log line of a step that densified, pruned or reset opacities (`done` steps done).
+fn refine_line(done: u64, rep: &crate::train::StepReport) -> Option<String> {
+    let r = &rep.refine;
+    (r.cloned + r.split + r.pruned > 0 || r.reset).then(|| {
+        format!(
+            "step {done}: cloned {}, split {}, pruned {}{} → {} Gaussians",
+            r.cloned,
+            r.split,
+            r.pruned,
+            if r.reset { ", opacity reset" } else { "" },
+            rep.gaussians
+        )
+    })
+}
+
+/// One held-out evaluation during a run, and what it decides.
+struct Evaluating<'a> {
+    args: &'a TrainArgs,
+    test: &'a [RealView],
+    lpips: Option<&'a Lpips>,
+    criterion: Criterion,
+    started: std::time::Instant,
+}
+
+impl Evaluating<'_> {
+    /// Evaluates the trainer's Gaussians, adds the point to the curve, keeps them when they
+    /// are the best so far, and returns whether the patience ran out (stop early).
+    fn run(
+        &self,
+        trainer: &mut Trainer<'_>,
+        st: &mut LoopState,
+        on_event: &mut dyn FnMut(FitEvent),
+    ) -> Result<bool, EvalError> {
+        let (a, done) = (self.args, trainer.steps_done());
+        let (test, lpips, criterion) = (self.test, self.lpips, self.criterion);
+        let settings = a.render_settings(done);
+        let e = evaluate(trainer.gaussians(), test, &settings, lpips)?;
+        let secs = self.started.elapsed().as_secs_f64();
+        let p = point(
+            done,
+            &e,
+            trainer.gaussians(),
+            if a.record_wall_time { secs } else { 0.0 },
+            st.loss_acc / st.loss_n.max(1) as f64,
+        );
+        st.loss_acc = 0.0;
+        st.loss_n = 0;
+        on_event(FitEvent::Log(format!(
+            "step {done}: PSNR {:.3} SSIM {:.4}{} loss {:.5} Gaussians {} ({secs:.1} s)",
+            p.psnr,
+            p.ssim,
+            p.lpips.map_or(String::new(), |l| format!(" LPIPS {l:.4}")),
+            p.loss,
+            p.primitives
+        )));
+        let better = match &st.best {
+            None => true,
+            Some((b, _)) => criterion.better(&p, b),
+        };
+        if better {
+            st.best = Some((p.clone(), trainer.gaussians().clone()));
+            st.since_best = 0;
+        } else {
+            st.since_best += 1;
+        }
+        st.curve.points.push(p);
+        if let Some(pat) = a.early_stop_patience {
+            if st.since_best >= pat && done < a.steps {
+                on_event(FitEvent::Log(format!(
+                    "early stop at step {done}: no improvement in {pat} evaluations"
+                )));
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+}
+
+/// What a run's densification settings mean here, for the log: the content's extent when the
+/// large-Gaussian prune measures against it, and a note when a short run never reaches the
+/// opacity reset its non-default settings concern.
+fn densify_notes(a: &TrainArgs, trainer: &Trainer<'_>) -> Vec<String> {
+    let mut lines = Vec::new();
+    if a.densify.prune_extent == crate::densify::PruneExtent::Content {
+        lines.push(format!(
+            "large-Gaussian prune against the content's extent {:.4} ({:.2} × the scene scale)",
+            trainer.prune_extent(),
+            trainer.prune_extent() / trainer.scene_scale()
+        ));
+    }
+    let sched = a.densify.scaled(a.steps);
+    let defaults = crate::densify::DensifyArgs::default();
+    if a.densify.enabled
+        && !sched.reaches_reset()
+        && (a.densify.reset != defaults.reset || a.densify.prune_extent != defaults.prune_extent)
+    {
+        lines.push(sched.short_run_note(a.steps));
+    }
+    lines
 }

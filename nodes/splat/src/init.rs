@@ -441,6 +441,18 @@ pub struct Initial {
     pub warn: bool,
 }
 
+impl Initial {
+    /// The note with what to do about it, when the choice is a poor last resort
+    /// ([`Initial::warn`]).
+    pub fn terminal_warning(&self) -> Option<String> {
+        let note = self.note.as_ref().filter(|_| self.warn)?;
+        Some(format!(
+            "{note}; connect `init_depth` (a radiance field's renders at the training views) \
+             or give the scene SfM points or near/far bounds"
+        ))
+    }
+}
+
 /// The initialisation policy of a training run: the scene's sparse points when it has any
 /// ([`from_points`]); otherwise the prior's depth when given and it yields at least 1 % of
 /// `args.random_points` points ([`from_prior_depth`]); otherwise `args.random_points` random

@@ -42,6 +42,7 @@ pub mod forward;
 pub mod gaussians;
 pub mod gpu;
 pub mod init;
+pub mod inputs;
 mod lanes;
 pub mod loss;
 pub mod node;

@@ -287,10 +287,10 @@ fn fit_without_a_graph_matches_the_node() {
     )
     .unwrap();
     let real = RealImages {
-        views: fit::load_real_views(&train, "train").unwrap(),
+        views: augsplat_splat::inputs::load_real_views(&train, "train").unwrap(),
         loss: args.real_loss.clone(),
     };
-    let held_out = fit::load_real_views(&test, "test").unwrap();
+    let held_out = augsplat_splat::inputs::load_real_views(&test, "test").unwrap();
     let scene = Scene::load(&train).unwrap();
     let cloud = scene.load_points(&train).unwrap();
     let cams: Vec<_> = real.views.iter().map(|v| &v.camera).collect();
@@ -393,11 +393,11 @@ fn fit_continued_from_a_checkpoint_is_bit_identical() {
     let tmp = tempfile::tempdir().unwrap();
     let (train, test, syn, args) = resume_case(tmp.path());
     let real = RealImages {
-        views: fit::load_real_views(&train, "train").unwrap(),
+        views: augsplat_splat::inputs::load_real_views(&train, "train").unwrap(),
         loss: args.real_loss.clone(),
     };
-    let synth = fit::load_synthetic(&syn, &args.synthetic).unwrap();
-    let held_out = fit::load_real_views(&test, "test").unwrap();
+    let synth = augsplat_splat::inputs::load_synthetic(&syn, &args.synthetic).unwrap();
+    let held_out = augsplat_splat::inputs::load_real_views(&test, "test").unwrap();
     let scene = Scene::load(&train).unwrap();
     let cloud = scene.load_points(&train).unwrap();
     let cams: Vec<_> = real.views.iter().map(|v| &v.camera).collect();
