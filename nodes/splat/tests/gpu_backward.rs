@@ -302,6 +302,7 @@ fn gpu_gradients_agree_with_finite_differences_of_the_gpu_forward() {
 /// on the adapter's scheduling.
 ///
 /// [`backward_gpu`]: augsplat_splat::gpu::backward_gpu
+#[cfg(feature = "determinism-cost")]
 #[test]
 fn gpu_atomic_backward_matches_the_deterministic_one() {
     let Some(ctx) = context("gpu_atomic_backward_matches_the_deterministic_one") else {

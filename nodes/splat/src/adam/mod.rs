@@ -743,5 +743,6 @@ pub(crate) struct GpuStepConst {
     pub eps: f32,
 }
 
+pub(crate) mod gpu;
 #[cfg(test)]
 mod tests;

@@ -93,12 +93,6 @@ fn pair_set(e: u32, q: u32, v: f32) {
     }
 }
 
-const SPLAT_STRIDE: u32 = 12u;
-const IMAGE_STRIDE: u32 = 7u;
-const PAIR_STRIDE: u32 = 10u;    // Q, Q·dx, Q·dy, Q·dx², Q·dx·dy, Q·dy², g·α·T (3), −
-const SCREEN_STRIDE: u32 = 10u;  // mean2d x, y; conic a, b, c; opacity; colour r, g, b; depth
-const ALPHA_THRESHOLD: f32 = 0.003921568627450980;
-
 var<workgroup> batch: array<array<f32, 10>, 256>;
 var<workgroup> batch_e: array<u32, 256>;
 // Per-pair sums. Each pixel (thread li = 16·y + x) writes its 9 values into `red`, one row

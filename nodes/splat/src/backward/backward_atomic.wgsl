@@ -53,11 +53,6 @@ fn splat(g: u32, q: u32) -> f32 {
     return splats_hi[(g - p.splits.x) * SPLAT_STRIDE + q];
 }
 
-const SPLAT_STRIDE: u32 = 12u;
-const IMAGE_STRIDE: u32 = 7u;
-const SCREEN_STRIDE: u32 = 10u;  // mean2d x, y; conic a, b, c; opacity; colour r, g, b; depth
-const ALPHA_THRESHOLD: f32 = 0.003921568627450980;
-
 var<workgroup> batch: array<array<f32, 10>, 256>;
 var<workgroup> batch_g: array<u32, 256>;
 // Per-pair sums, as in backward.wgsl (see its comments): red[q·RED_ROW + li], then

@@ -51,6 +51,7 @@
 #[cfg(target_arch = "x86_64")]
 mod avx2;
 mod gaussian;
+pub(crate) mod gpu;
 #[cfg(test)]
 mod tests;
 mod tile;

@@ -44,12 +44,6 @@ fn splat(g: u32, q: u32) -> f32 {
     return splats_hi[(g - p.splits.x) * SPLAT_STRIDE + q];
 }
 
-const SPLAT_STRIDE: u32 = 12u;
-const IMAGE_STRIDE: u32 = 7u;    // r, g, b, alpha, normalised depth, T, bits of `last`
-const ALPHA_THRESHOLD: f32 = 0.003921568627450980;
-const TRANSMITTANCE_THRESHOLD: f32 = 1e-4;
-const DEPTH_ALPHA_EPS: f32 = 1e-6;
-
 fn linear(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
     return gid.x + gid.y * nwg.x * 256u;
 }

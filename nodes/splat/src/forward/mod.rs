@@ -34,6 +34,7 @@
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
 mod exp2;
+pub(crate) mod gpu;
 mod project_chunk;
 #[cfg(test)]
 pub(crate) mod tests;

@@ -20,7 +20,7 @@ use super::{GpuContext, GpuError};
 /// One binding of [`GpuContext::dispatch_items`]: (binding, buffer, 32-bit words per item).
 /// Item `i` sits at word `i · words`; each chunk binds the range of its own items, which the
 /// kernel sees as items 0, 1, ….
-pub(super) type ItemBinding<'a> = (u32, &'a wgpu::Buffer, u64);
+pub(crate) type ItemBinding<'a> = (u32, &'a wgpu::Buffer, u64);
 
 impl GpuContext {
     /// Caps every storage binding at `bytes` (never above the adapter's own limit), so that the
@@ -33,12 +33,12 @@ impl GpuContext {
 
     /// A storage buffer of `bytes` bytes that kernels bind only by range: checked against the
     /// adapter's largest buffer, not its largest binding.
-    pub(super) fn storage_items(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
+    pub(crate) fn storage_items(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
         self.storage_within(what, bytes, self.limits.max_buffer_size)
     }
 
     /// [`GpuContext::storage_items`] holding `data`.
-    pub(super) fn storage_items_init(
+    pub(crate) fn storage_items_init(
         &self,
         what: &str,
         data: &[u32],
@@ -72,7 +72,7 @@ impl GpuContext {
     /// of 256), in as few chunks as keep every binding's range within the binding limit.
     /// `uniform` is bound at 0, with each chunk's item count written at word `count_word`.
     /// One chunk binds every buffer whole: exactly the unchunked dispatch.
-    pub(super) fn dispatch_items(
+    pub(crate) fn dispatch_items(
         &self,
         enc: &mut wgpu::CommandEncoder,
         pipeline: &wgpu::ComputePipeline,
@@ -139,7 +139,7 @@ impl GpuContext {
 
     /// The first item of each range after the first, for a buffer of `items` items of
     /// `words` words bound as `k` ranges (`k − 1` values; `items` for ranges left empty).
-    pub(super) fn split_points(&self, items: u64, words: u64, k: usize) -> Vec<u32> {
+    pub(crate) fn split_points(&self, items: u64, words: u64, k: usize) -> Vec<u32> {
         let per = if items * words * 4 <= self.binding_limit {
             items
         } else {
@@ -150,7 +150,7 @@ impl GpuContext {
 
     /// A buffer of `items` items of `words` words for [`GpuContext::split_ranges`]'s `k`
     /// bindings: a [`GpuError::TooLarge`] naming `what` when `k` bindings cannot hold it.
-    pub(super) fn storage_split(
+    pub(crate) fn storage_split(
         &self,
         what: &str,
         items: u64,
@@ -172,7 +172,7 @@ impl GpuContext {
 
     /// The `k` bindings of a [`GpuContext::storage_split`] buffer, at [`GpuContext::split_points`];
     /// a range left empty binds the first range again (never read).
-    pub(super) fn split_ranges<'a>(
+    pub(crate) fn split_ranges<'a>(
         &self,
         buf: &'a wgpu::Buffer,
         items: u64,
@@ -209,7 +209,7 @@ impl GpuContext {
     }
 
     /// [`GpuContext::dispatch`] with whole buffers and ready resources (ranges).
-    pub(super) fn dispatch_mixed(
+    pub(crate) fn dispatch_mixed(
         &self,
         enc: &mut wgpu::CommandEncoder,
         pipeline: &wgpu::ComputePipeline,

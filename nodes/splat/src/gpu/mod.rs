@@ -1,6 +1,14 @@
 //! The GPU backend (wgpu + WGSL; Vulkan, Metal, DX12 or GL, whichever the machine has):
 //! the same splatting maths as the CPU kernels, in f32, deterministic.
 //!
+//! This module holds what every kernel family shares: the context (adapter, device, limits,
+//! error scopes), the buffer layout past one binding (`gpu/chunk.rs`), the WGSL prelude
+//! generated from the Rust constants (`gpu/prelude.rs`), and the radix sort and prefix sum
+//! (`gpu/sort.rs`, `sort.wgsl`, `scan.wgsl`). Each kernel family keeps its GPU half beside
+//! its CPU half: `forward/gpu.rs` + `forward.wgsl`, `backward/gpu.rs` + `backward.wgsl`,
+//! `project/gpu.rs` + `project.wgsl`/`project_vjp.wgsl`, `loss/gpu.rs` + `loss.wgsl`,
+//! `adam/gpu.rs` + `adam.wgsl`, and the training state `train/gpu.rs` + `accumulate.wgsl`.
+//!
 //! - [`GpuContext`]: the adapter and device (limits raised to what the adapter reports), with
 //!   the adapter's name, driver and backend for the outputs' metadata; asking for a GPU where
 //!   there is none is a [`GpuError::NoAdapter`] that says what was found. Buffers may exceed
@@ -17,7 +25,7 @@
 //!   (`project/project_vjp.wgsl`) turns them into gradients of the raw parameters;
 //! - `GpuTrainer`: the training state kept on the GPU between steps (Gaussians, Adam's
 //!   moments, the step's gradient sums, the densification statistics), with Adam
-//!   (`adam/adam.wgsl`) and the per-view sums (`gpu/accumulate.wgsl`) there;
+//!   (`adam/adam.wgsl`) and the per-view sums (`train/accumulate.wgsl`) there;
 //! - [`render_gpu`]: the forward pass — projection and SH colour (`project/project.wgsl`), a
 //!   stable radix sort of the visible Gaussians by depth (`gpu/sort.wgsl`, `gpu/scan.wgsl`),
 //!   tile binning in (tile, depth, index) order by a second stable sort on the tile, and
@@ -29,24 +37,26 @@
 //! Determinism: every reduction runs in a fixed order — prefix sums by blocks in shared
 //! memory, radix sort ranks by counting, compositing in list order — and no float atomics
 //! (no atomics at all) are used, so the same inputs on the same adapter give the same bytes.
-//! The one exception is the hidden `backward_gpu_atomic`, a float-atomic variant of the
-//! compositing backward that exists only to measure what this determinism costs
-//! (`examples/gpu_determinism_cost.rs`); nothing else calls it.
+//! The one exception is `backward_gpu_atomic`, a float-atomic variant of the compositing
+//! backward that exists only to measure what this determinism costs
+//! (`examples/gpu_determinism_cost.rs`); it is built only with the `determinism-cost`
+//! feature.
 
-mod backward;
 mod chunk;
-mod forward;
-mod loss;
-mod sort;
-mod train;
+pub(crate) mod prelude;
+pub(crate) mod sort;
 
-pub use backward::{
-    backward_gpu, backward_gpu_atomic, backward_gpu_timed, backward_gpu_with_cutoff,
-    project_vjp_gpu, BackwardStage, ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
+#[cfg(feature = "determinism-cost")]
+pub use crate::backward::gpu::backward_gpu_atomic;
+pub use crate::backward::gpu::{
+    backward_gpu, backward_gpu_timed, backward_gpu_with_cutoff, project_vjp_gpu, BackwardStage,
+    ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
 };
-pub use forward::{render_gpu, render_scene, render_scene_with_cutoff, GpuFrame, GpuScene};
-pub use loss::{loss_gpu, GpuLoss};
-pub(crate) use train::{GpuTarget, GpuTrainer, ViewLoss};
+pub use crate::forward::gpu::{
+    render_gpu, render_scene, render_scene_with_cutoff, GpuFrame, GpuScene,
+};
+pub use crate::loss::gpu::{loss_gpu, GpuLoss};
+pub(crate) use crate::train::gpu::{GpuTarget, GpuTrainer, ViewLoss};
 
 use std::sync::mpsc;
 
@@ -117,13 +127,13 @@ impl std::fmt::Display for AdapterSummary {
 
 /// A GPU device with the compiled kernels.
 pub struct GpuContext {
-    device: wgpu::Device,
-    queue: wgpu::Queue,
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
     adapter: AdapterSummary,
     limits: wgpu::Limits,
     /// The largest storage binding in bytes (see [`GpuContext::with_binding_limit`]).
     binding_limit: u64,
-    kernels: Kernels,
+    pub(crate) kernels: Kernels,
     /// Why the device was lost, once it was (set by wgpu's device-lost callback).
     lost: std::sync::Arc<std::sync::Mutex<Option<String>>>,
     /// The fault tests' option: the device is destroyed when this many training steps have
@@ -133,25 +143,16 @@ pub struct GpuContext {
     steps_begun: std::sync::atomic::AtomicU64,
 }
 
-/// The compiled compute pipelines.
-struct Kernels {
-    project: wgpu::ComputePipeline,
-    scan_blocks: wgpu::ComputePipeline,
-    add_sums: wgpu::ComputePipeline,
-    sort_count: wgpu::ComputePipeline,
-    sort_scatter: wgpu::ComputePipeline,
-    gather_counts: wgpu::ComputePipeline,
-    emit_pairs: wgpu::ComputePipeline,
-    tile_ranges: wgpu::ComputePipeline,
-    rasterize: wgpu::ComputePipeline,
-    project_vjp: wgpu::ComputePipeline,
-    rasterize_backward: wgpu::ComputePipeline,
-    gaussian_sums: wgpu::ComputePipeline,
-    accumulate: wgpu::ComputePipeline,
-    count_pairs: wgpu::ComputePipeline,
-    adam: wgpu::ComputePipeline,
-    loss: loss::LossKernels,
-    rasterize_backward_atomic: wgpu::ComputePipeline,
+/// The compiled compute pipelines, by kernel family (each family's `gpu.rs` builds its own
+/// from the WGSL beside it).
+pub(crate) struct Kernels {
+    pub(crate) project: crate::project::gpu::Kernels,
+    pub(crate) sort: sort::Kernels,
+    pub(crate) forward: crate::forward::gpu::Kernels,
+    pub(crate) backward: crate::backward::gpu::Kernels,
+    pub(crate) loss: crate::loss::gpu::LossKernels,
+    pub(crate) adam: crate::adam::gpu::Kernels,
+    pub(crate) train: crate::train::gpu::Kernels,
 }
 
 /// The adapter wgpu prefers (high-performance first), or an error naming what was found.
@@ -325,12 +326,17 @@ impl GpuContext {
     }
 
     /// A storage buffer of `bytes` bytes (at least 16), checked against the adapter's limits.
-    fn storage(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
+    pub(crate) fn storage(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
         self.storage_within(what, bytes, self.binding_limit)
     }
 
     /// A storage buffer of `bytes` bytes (at least 16), checked against `limit`.
-    fn storage_within(&self, what: &str, bytes: u64, limit: u64) -> Result<wgpu::Buffer, GpuError> {
+    pub(crate) fn storage_within(
+        &self,
+        what: &str,
+        bytes: u64,
+        limit: u64,
+    ) -> Result<wgpu::Buffer, GpuError> {
         // At least one 16-byte element: kernels read some buffers as arrays of vec4, and an
         // empty set (no Gaussians, no pairs) still binds them.
         let bytes = bytes.max(16).next_multiple_of(4);
@@ -358,7 +364,7 @@ impl GpuContext {
     }
 
     /// A storage buffer holding `data` (f32 or u32 words).
-    fn storage_init(&self, what: &str, data: &[u32]) -> Result<wgpu::Buffer, GpuError> {
+    pub(crate) fn storage_init(&self, what: &str, data: &[u32]) -> Result<wgpu::Buffer, GpuError> {
         let buf = self.storage(what, 4 * data.len() as u64)?;
         if !data.is_empty() {
             self.queue.write_buffer(&buf, 0, &words_to_bytes(data));
@@ -367,14 +373,14 @@ impl GpuContext {
     }
 
     /// A uniform buffer holding `words`.
-    fn uniform(&self, what: &str, words: &[u32]) -> wgpu::Buffer {
+    pub(crate) fn uniform(&self, what: &str, words: &[u32]) -> wgpu::Buffer {
         // Written through the queue rather than mapped at creation: on a lost device a
         // mapped creation panics inside wgpu, a queue write is an error the scope reports.
         let bytes = words_to_bytes(words);
         let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(what),
             size: (bytes.len() as u64).max(16).next_multiple_of(16),
-            // Also STORAGE: software adapters bind parameters as storage (`kernel_source`).
+            // Also STORAGE: software adapters bind parameters as storage (`prelude::shader_module`).
             usage: wgpu::BufferUsages::UNIFORM
                 | wgpu::BufferUsages::STORAGE
                 | wgpu::BufferUsages::COPY_DST,
@@ -386,7 +392,7 @@ impl GpuContext {
 
     /// Records one dispatch of `pipeline` over `groups` workgroups (spread over two
     /// dimensions past the per-dimension limit) with `buffers` at bindings 0, 1, ….
-    fn dispatch(
+    pub(crate) fn dispatch(
         &self,
         enc: &mut wgpu::CommandEncoder,
         pipeline: &wgpu::ComputePipeline,
@@ -404,7 +410,7 @@ impl GpuContext {
     }
 
     /// [`GpuContext::dispatch`] with ready bind-group entries (whole buffers or ranges).
-    fn dispatch_entries(
+    pub(crate) fn dispatch_entries(
         &self,
         enc: &mut wgpu::CommandEncoder,
         pipeline: &wgpu::ComputePipeline,
@@ -424,7 +430,7 @@ impl GpuContext {
     }
 
     /// Workgroups for `blocks` blocks: (x, y) with x ≤ the per-dimension limit.
-    fn groups(&self, blocks: u32) -> [u32; 2] {
+    pub(crate) fn groups(&self, blocks: u32) -> [u32; 2] {
         let max = self.limits.max_compute_workgroups_per_dimension.max(1);
         if blocks <= max {
             [blocks.max(1), 1]
@@ -435,7 +441,7 @@ impl GpuContext {
 
     /// Submits `enc` and waits for the device; reports validation errors, out-of-memory and
     /// device loss as [`GpuError::Device`].
-    fn submit(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
+    pub(crate) fn submit(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
         self.queue.submit([enc.finish()]);
         self.wait()
     }
@@ -443,14 +449,14 @@ impl GpuContext {
     /// Submits `enc` without waiting for it: for work whose results stay on the GPU. The
     /// queue runs submissions in order, so the next read-back ([`GpuContext::read_after`])
     /// sees its effects; errors surface there or in the enclosing [`GpuContext::scoped`].
-    fn submit_no_wait(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
+    pub(crate) fn submit_no_wait(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
         self.queue.submit([enc.finish()]);
         let _ = self.device.poll(wgpu::PollType::Poll);
         self.check_lost()
     }
 
     /// Waits until everything submitted so far has run.
-    fn wait(&self) -> Result<(), GpuError> {
+    pub(crate) fn wait(&self) -> Result<(), GpuError> {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| self.device_error(format!("waiting for the GPU: {e}")))?;
@@ -458,7 +464,7 @@ impl GpuContext {
     }
 
     /// A [`GpuError::Device`] if the device was lost (a driver reset, a removed GPU).
-    fn check_lost(&self) -> Result<(), GpuError> {
+    pub(crate) fn check_lost(&self) -> Result<(), GpuError> {
         let lost = self.lost.lock().ok().and_then(|l| l.clone());
         match lost {
             Some(why) => Err(self.device_error(format!("the GPU device was lost ({why})"))),
@@ -466,7 +472,7 @@ impl GpuContext {
         }
     }
 
-    fn device_error(&self, message: String) -> GpuError {
+    pub(crate) fn device_error(&self, message: String) -> GpuError {
         GpuError::Device {
             adapter: self.adapter.to_string(),
             message,
@@ -474,7 +480,11 @@ impl GpuContext {
     }
 
     /// Copies `words` u32 words of `buf` back to the host.
-    fn read_words(&self, buf: &wgpu::Buffer, words: usize) -> Result<Vec<u32>, GpuError> {
+    pub(crate) fn read_words(
+        &self,
+        buf: &wgpu::Buffer,
+        words: usize,
+    ) -> Result<Vec<u32>, GpuError> {
         if words == 0 {
             return Ok(Vec::new());
         }
@@ -486,7 +496,7 @@ impl GpuContext {
     /// Appends to `enc` a copy of each part (buffer, first word, words) into one staging
     /// buffer, submits it, waits once and returns each part's words: one round trip for
     /// several small read-backs.
-    fn read_after(
+    pub(crate) fn read_after(
         &self,
         mut enc: wgpu::CommandEncoder,
         parts: &[(&wgpu::Buffer, u64, usize)],
@@ -548,7 +558,7 @@ impl GpuContext {
 
     /// Runs `f` inside an error scope: validation errors and out-of-memory become
     /// [`GpuError::Device`] instead of a panic in wgpu's default handler.
-    fn scoped<T>(&self, f: impl FnOnce() -> Result<T, GpuError>) -> Result<T, GpuError> {
+    pub(crate) fn scoped<T>(&self, f: impl FnOnce() -> Result<T, GpuError>) -> Result<T, GpuError> {
         self.check_lost()?;
         let oom_scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let validation_scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -590,78 +600,51 @@ fn error_chain(e: &wgpu::Error) -> String {
     text
 }
 
-/// A kernel's WGSL source, with its `var<uniform>` parameters read from storage buffers when
-/// `params_as_storage` (the same layout: every parameter block holds 32-bit scalars and
-/// 16-byte vectors only).
-fn kernel_source(src: &str, params_as_storage: bool) -> std::borrow::Cow<'_, str> {
-    if params_as_storage {
-        src.replace("var<uniform>", "var<storage, read>").into()
-    } else {
-        src.into()
-    }
-}
-
 impl Kernels {
     fn new(device: &wgpu::Device, params_as_storage: bool) -> Kernels {
-        let module = |label: &str, src: &str| {
-            device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(label),
-                source: wgpu::ShaderSource::Wgsl(kernel_source(src, params_as_storage)),
-            })
-        };
-        let project = module("project.wgsl", include_str!("../project/project.wgsl"));
-        let scan = module("scan.wgsl", include_str!("scan.wgsl"));
-        let sort = module("sort.wgsl", include_str!("sort.wgsl"));
-        let forward = module("forward.wgsl", include_str!("../forward/forward.wgsl"));
-        let vjp = module(
-            "project_vjp.wgsl",
-            include_str!("../project/project_vjp.wgsl"),
-        );
-        let bwd = module("backward.wgsl", include_str!("../backward/backward.wgsl"));
-        let acc = module("accumulate.wgsl", include_str!("accumulate.wgsl"));
-        let adam = module("adam.wgsl", include_str!("../adam/adam.wgsl"));
-        let bwd_atomic = module(
-            "backward_atomic.wgsl",
-            include_str!("../backward/backward_atomic.wgsl"),
-        );
-        let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: None,
-                module: m,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
+        let m = (device, params_as_storage);
         Kernels {
-            project: pipeline(&project, "project"),
-            scan_blocks: pipeline(&scan, "scan_blocks"),
-            add_sums: pipeline(&scan, "add_sums"),
-            sort_count: pipeline(&sort, "count"),
-            sort_scatter: pipeline(&sort, "scatter"),
-            gather_counts: pipeline(&forward, "gather_counts"),
-            emit_pairs: pipeline(&forward, "emit_pairs"),
-            tile_ranges: pipeline(&forward, "tile_ranges"),
-            rasterize: pipeline(&forward, "rasterize"),
-            project_vjp: pipeline(&vjp, "project_vjp"),
-            rasterize_backward: pipeline(&bwd, "rasterize_backward"),
-            gaussian_sums: pipeline(&bwd, "gaussian_sums"),
-            accumulate: pipeline(&acc, "accumulate"),
-            count_pairs: pipeline(&acc, "count_pairs"),
-            adam: pipeline(&adam, "adam"),
-            loss: loss::LossKernels::new(device, params_as_storage),
-            rasterize_backward_atomic: pipeline(&bwd_atomic, "rasterize_backward_atomic"),
+            project: crate::project::gpu::Kernels::new(m),
+            sort: sort::Kernels::new(m),
+            forward: crate::forward::gpu::Kernels::new(m),
+            backward: crate::backward::gpu::Kernels::new(m),
+            loss: crate::loss::gpu::LossKernels::new(m),
+            adam: crate::adam::gpu::Kernels::new(m),
+            train: crate::train::gpu::Kernels::new(m),
         }
     }
 }
 
+/// What a family's kernels are compiled with: the device, and whether parameters are bound
+/// as storage (see [`prelude::shader_module`]).
+pub(crate) type ModuleSetup<'a> = (&'a wgpu::Device, bool);
+
+/// Compiles `src` (with the prelude) and its entry points `entries`, in order.
+pub(crate) fn pipelines<const K: usize>(
+    (device, params_as_storage): ModuleSetup<'_>,
+    label: &str,
+    src: &str,
+    entries: [&str; K],
+) -> [wgpu::ComputePipeline; K] {
+    let module = prelude::shader_module(device, label, src, params_as_storage);
+    entries.map(|entry| {
+        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: None,
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        })
+    })
+}
+
 /// Little-endian bytes of `words`.
-fn words_to_bytes(words: &[u32]) -> Vec<u8> {
+pub(crate) fn words_to_bytes(words: &[u32]) -> Vec<u8> {
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
 
 /// The bits of f32 values, for buffers.
-fn f32_words(v: impl IntoIterator<Item = f32>) -> Vec<u32> {
+pub(crate) fn f32_words(v: impl IntoIterator<Item = f32>) -> Vec<u32> {
     v.into_iter().map(f32::to_bits).collect()
 }

@@ -7,7 +7,7 @@ const BLOCK: u32 = 256;
 
 impl GpuContext {
     /// Records an in-place exclusive prefix sum of the first `n` u32 words of `data`.
-    pub(super) fn record_scan(
+    pub(crate) fn record_scan(
         &self,
         enc: &mut wgpu::CommandEncoder,
         data: &wgpu::Buffer,
@@ -19,7 +19,7 @@ impl GpuContext {
         let blocks = n.div_ceil(BLOCK);
         let sums = self.storage("scan block sums", 4 * u64::from(blocks))?;
         let params = self.uniform("scan params", &[n, blocks, 0, 0]);
-        let k = &self.kernels;
+        let k = &self.kernels.sort;
         self.dispatch(
             enc,
             &k.scan_blocks,
@@ -41,7 +41,7 @@ impl GpuContext {
     /// Records a stable sort of `n` (key, value) pairs by the low `bits` bits of the key
     /// (4 bits per pass); returns the buffers holding the result (either the inputs or the
     /// scratch pair, by the parity of the passes).
-    pub(super) fn record_sort<'a>(
+    pub(crate) fn record_sort<'a>(
         &self,
         enc: &mut wgpu::CommandEncoder,
         keys: &'a wgpu::Buffer,
@@ -58,7 +58,7 @@ impl GpuContext {
         let blocks = n.div_ceil(BLOCK);
         let ranks = self.storage("sort ranks", 4 * u64::from(n))?;
         let hist = self.storage("sort histogram", 4 * 16 * u64::from(blocks))?;
-        let k = &self.kernels;
+        let k = &self.kernels.sort;
         for pass in 0..bits.div_ceil(4) {
             let params = self.uniform("sort params", &[n, blocks, 4 * pass, 0]);
             self.dispatch(
@@ -85,5 +85,36 @@ impl GpuContext {
             std::mem::swap(&mut src, &mut dst);
         }
         Ok(src)
+    }
+}
+
+/// The compiled scan and sort kernels (`scan.wgsl`, `sort.wgsl`).
+pub(crate) struct Kernels {
+    scan_blocks: wgpu::ComputePipeline,
+    add_sums: wgpu::ComputePipeline,
+    sort_count: wgpu::ComputePipeline,
+    sort_scatter: wgpu::ComputePipeline,
+}
+
+impl Kernels {
+    pub(crate) fn new(m: super::ModuleSetup<'_>) -> Kernels {
+        let [scan_blocks, add_sums] = super::pipelines(
+            m,
+            "scan.wgsl",
+            include_str!("scan.wgsl"),
+            ["scan_blocks", "add_sums"],
+        );
+        let [sort_count, sort_scatter] = super::pipelines(
+            m,
+            "sort.wgsl",
+            include_str!("sort.wgsl"),
+            ["count", "scatter"],
+        );
+        Kernels {
+            scan_blocks,
+            add_sums,
+            sort_count,
+            sort_scatter,
+        }
     }
 }

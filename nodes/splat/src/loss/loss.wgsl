@@ -37,10 +37,6 @@ struct Params {
 @group(0) @binding(6) var<storage, read_write> grad: array<f32>;       // H·W·3, written
 @group(0) @binding(7) var<storage, read_write> sums: array<f32>;       // one per block
 
-const BLOCK: u32 = 256u;
-const WINDOW: u32 = 11u;
-const HALO: u32 = 10u;
-
 var<workgroup> red: array<f32, 256>;
 
 fn block_index(wid: vec3<u32>, nwg: vec3<u32>) -> u32 {
@@ -58,7 +54,7 @@ fn pred_at(v: u32) -> f32 {
 
 // Interleaved map row length 3·(W − 10).
 fn map_row() -> u32 {
-    return 3u * (p.width - HALO);
+    return 3u * (p.width - SSIM_HALO);
 }
 
 // Sums the block's 256 values `v` by a fixed tree into `sums[block]` (blocks that start at or
@@ -67,13 +63,13 @@ fn map_row() -> u32 {
 fn block_sum(block: u32, li: u32, v: f32, count: u32) {
     red[li] = v;
     workgroupBarrier();
-    for (var s = BLOCK / 2u; s > 0u; s = s >> 1u) {
+    for (var s = LOSS_BLOCK / 2u; s > 0u; s = s >> 1u) {
         if (li < s) {
             red[li] = red[li] + red[li + s];
         }
         workgroupBarrier();
     }
-    if (li == 0u && block * BLOCK < count) {
+    if (li == 0u && block * LOSS_BLOCK < count) {
         sums[block] = red[0];
     }
 }
@@ -99,7 +95,7 @@ fn pixel(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
          @builtin(local_invocation_index) li: u32) {
     let block = block_index(wid, nwg);
     let n = 3u * p.width * p.height;
-    let i = block * BLOCK + li;
+    let i = block * LOSS_BLOCK + li;
     var contrib = 0.0;
     if (i < n) {
         let r = pixel_step(pred_at(i) - tgt[i]);
@@ -117,7 +113,7 @@ fn weighted(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg:
             @builtin(local_invocation_index) li: u32) {
     let block = block_index(wid, nwg);
     let n = 3u * p.width * p.height;
-    let i = block * BLOCK + li;
+    let i = block * LOSS_BLOCK + li;
     var contrib = 0.0;
     if (i < n) {
         let raw = weights[i / 3u];
@@ -142,7 +138,7 @@ fn h_moments(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
              @builtin(local_invocation_index) li: u32) {
     let m = map_row();
     let plane = p.height * m;
-    let i = block_index(wid, nwg) * BLOCK + li;
+    let i = block_index(wid, nwg) * LOSS_BLOCK + li;
     if (i >= plane) {
         return;
     }
@@ -152,7 +148,7 @@ fn h_moments(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
     var exx = 0.0;
     var eyy = 0.0;
     var exy = 0.0;
-    for (var k = 0u; k < WINDOW; k++) {
+    for (var k = 0u; k < SSIM_WINDOW; k++) {
         let v = base + 3u * k;
         let x = pred_at(v);
         let y = tgt[v];
@@ -178,12 +174,12 @@ fn v_ssim(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     let block = block_index(wid, nwg);
     let m = map_row();
     let plane = p.height * m;
-    let count = (p.height - HALO) * m;
-    let i = block * BLOCK + li;
+    let count = (p.height - SSIM_HALO) * m;
+    let i = block * LOSS_BLOCK + li;
     var s = 0.0;
     if (i < count) {
         var mo = array<f32, 5>(0.0, 0.0, 0.0, 0.0, 0.0);
-        for (var k = 0u; k < WINDOW; k++) {
+        for (var k = 0u; k < SSIM_WINDOW; k++) {
             let w = tap(k);
             let o = i + k * m;    // row oy + k, column j
             for (var q = 0u; q < 5u; q++) {
@@ -215,9 +211,9 @@ fn v_adjoint(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
              @builtin(local_invocation_index) li: u32) {
     let m = map_row();
     let plane = p.height * m;
-    let oh = p.height - HALO;
+    let oh = p.height - SSIM_HALO;
     let count = oh * m;
-    let i = block_index(wid, nwg) * BLOCK + li;
+    let i = block_index(wid, nwg) * LOSS_BLOCK + li;
     if (i >= plane) {
         return;
     }
@@ -227,7 +223,7 @@ fn v_adjoint(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
     if (y + 1u > oh) {
         klo = y + 1u - oh;
     }
-    let khi = min(y, HALO);
+    let khi = min(y, SSIM_HALO);
     var a = 0.0;
     var b = 0.0;
     var c = 0.0;
@@ -254,7 +250,7 @@ fn ssim_grad(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
     let plane = p.height * m;
     let l = 3u * p.width;
     let n = l * p.height;
-    let i = block * BLOCK + li;
+    let i = block * LOSS_BLOCK + li;
     var contrib = 0.0;
     if (i < n) {
         let col = i % l;
@@ -266,7 +262,7 @@ fn ssim_grad(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
         // than a test inside all 11 iterations — the same sums, but on lavapipe (Mesa 22.3)
         // every dispatch of the tested form grew the process by about the size of the
         // submission's buffers (400 kB per call at 64×48; `tests/gpu_memory.rs`).
-        let k_hi = min(WINDOW - 1u, col / 3u);
+        let k_hi = min(SSIM_WINDOW - 1u, col / 3u);
         var k_lo = 0u;
         if (col >= m) {
             k_lo = (col - m) / 3u + 1u;

@@ -42,6 +42,7 @@
 //! | `tests.rs` | the kernels against the references; every tier and thread count bit for bit |
 
 mod fused;
+pub(crate) mod gpu;
 #[cfg(target_arch = "x86_64")]
 mod pair_avx2;
 pub mod reference;

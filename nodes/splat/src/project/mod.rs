@@ -770,5 +770,6 @@ pub fn project_vjp(
     first
 }
 
+pub(crate) mod gpu;
 #[cfg(test)]
 mod tests;

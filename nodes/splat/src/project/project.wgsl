@@ -27,21 +27,6 @@ struct Cam {
 @group(0) @binding(7) var<storage, read_write> rects: array<vec4<u32>>;
 @group(0) @binding(8) var<storage, read_write> keys: array<u32>;
 
-const SPLAT_STRIDE: u32 = 12u;   // mean x, y; conic a, b, c; opacity; r, g, b; depth; −, −
-const ALPHA_THRESHOLD: f32 = 0.003921568627450980;
-const EPS2D: f32 = 0.3;
-const MAX_EXTEND: f32 = 3.33;
-const MIN_COMPENSATION_RATIO: f32 = 0.000025;
-const MIN_QUAT_NORM2: f32 = 1e-24;
-const TILE: f32 = 16.0;
-const C0: f32 = 0.28209479177387814;
-const C1: f32 = 0.4886025119029199;
-
-fn finite(v: f32) -> bool {
-    // NaN fails both comparisons; ±∞ fails one.
-    return v >= -3.4028235e38 && v <= 3.4028235e38;
-}
-
 fn cull(i: u32, s: u32) {
     keys[i] = 0xffffffffu;
     rects[i] = vec4<u32>(0u, 0u, 0u, s);

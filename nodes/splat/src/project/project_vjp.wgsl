@@ -27,30 +27,6 @@ struct Cam {
 @group(0) @binding(7) var<storage, read_write> grads: array<f32>;     // GRAD_STRIDE
 @group(0) @binding(8) var<storage, read_write> sh_grads: array<f32>;  // K·3
 
-const SCREEN_STRIDE: u32 = 10u;
-const GRAD_STRIDE: u32 = 11u;   // mean 3, log-scale 3, quaternion 4, logit 1
-const EPS2D: f32 = 0.3;
-const MIN_COMPENSATION_RATIO: f32 = 0.000025;
-const MIN_QUAT_NORM2: f32 = 1e-24;
-const C0: f32 = 0.28209479177387814;
-const C1: f32 = 0.4886025119029199;
-const C20: f32 = 1.0925484305920792;
-const C21: f32 = -1.0925484305920792;
-const C22: f32 = 0.31539156525252005;
-const C23: f32 = -1.0925484305920792;
-const C24: f32 = 0.5462742152960396;
-const C30: f32 = -0.5900435899266435;
-const C31: f32 = 2.890611442640554;
-const C32: f32 = -0.4570457994644658;
-const C33: f32 = 0.3731763325901154;
-const C34: f32 = -0.4570457994644658;
-const C35: f32 = 1.445305721320277;
-const C36: f32 = -0.5900435899266435;
-
-fn finite(v: f32) -> bool {
-    return v >= -3.4028235e38 && v <= 3.4028235e38;
-}
-
 fn coef(i: u32, k: u32, c: u32) -> f32 {
     return sh[(i * cam.counts.y + k) * 3u + c];
 }

@@ -41,6 +41,7 @@ use crate::{Gaussians, RenderSettings};
 use augsplat_core::{Camera, Rng};
 
 mod args;
+pub(crate) mod gpu;
 
 pub use crate::device::add_grads;
 pub use args::{RealLoss, SyntheticArgs, TrainArgs};

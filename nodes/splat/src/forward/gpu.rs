@@ -1,17 +1,17 @@
 //! Host side of the GPU forward pass: uploads, the kernel sequence, read-back.
 
-use super::{f32_words, GpuContext, GpuError};
 use crate::constants::{JACOBIAN_CLAMP_MARGIN, TILE};
+use crate::gpu::{f32_words, GpuContext, GpuError};
 use crate::render::{Cutoff, RenderSettings, RenderStats};
 use crate::tiles::TileGrid;
 use crate::Gaussians;
 use augsplat_core::Camera;
 
 /// f32 words per splat record (`project.wgsl`).
-pub(super) const SPLAT_STRIDE: u64 = 12;
+pub(crate) const SPLAT_STRIDE: u64 = 12;
 /// f32 words per pixel of the image buffer (`forward.wgsl`): r, g, b, alpha, depth, T, the
 /// bits of the last contributor's position.
-pub(super) const IMAGE_STRIDE: usize = 7;
+pub(crate) const IMAGE_STRIDE: usize = 7;
 /// Gaussians per projection workgroup.
 const GROUP: u32 = 256;
 
@@ -39,14 +39,14 @@ pub struct GpuFrame {
 
 /// A set of Gaussians uploaded to the GPU once, to render from many cameras.
 pub struct GpuScene {
-    pub(super) n: u32,
-    pub(super) coeffs: u32,
-    pub(super) sh_degree: u32,
-    pub(super) means: wgpu::Buffer,
-    pub(super) scales: wgpu::Buffer,
-    pub(super) quats: wgpu::Buffer,
-    pub(super) logits: wgpu::Buffer,
-    pub(super) sh: wgpu::Buffer,
+    pub(crate) n: u32,
+    pub(crate) coeffs: u32,
+    pub(crate) sh_degree: u32,
+    pub(crate) means: wgpu::Buffer,
+    pub(crate) scales: wgpu::Buffer,
+    pub(crate) quats: wgpu::Buffer,
+    pub(crate) logits: wgpu::Buffer,
+    pub(crate) sh: wgpu::Buffer,
 }
 
 impl GpuScene {
@@ -109,10 +109,10 @@ impl GpuScene {
 }
 
 /// The word of [`camera_words`] that holds the number of Gaussians (`cam.counts.x`).
-pub(super) const CAMERA_COUNT_WORD: usize = 28;
+pub(crate) const CAMERA_COUNT_WORD: usize = 28;
 
 /// The camera uniform of `project.wgsl`.
-pub(super) fn camera_words(
+pub(crate) fn camera_words(
     g: &GpuScene,
     cam: &Camera,
     s: &RenderSettings,
@@ -187,7 +187,7 @@ pub fn render_scene_with_cutoff(
 
 /// The tile grid of a valid camera, within the kernels' rectangle encoding (65535 tiles per
 /// axis); the one check every GPU entry point makes on its camera.
-pub(super) fn tile_grid(cam: &Camera) -> Result<TileGrid, GpuError> {
+pub(crate) fn tile_grid(cam: &Camera) -> Result<TileGrid, GpuError> {
     cam.validate()
         .map_err(|e| GpuError::Invalid(format!("camera: {e}")))?;
     let grid = TileGrid::new(cam.width, cam.height);
@@ -201,7 +201,7 @@ pub(super) fn tile_grid(cam: &Camera) -> Result<TileGrid, GpuError> {
 }
 
 /// The buffers of one forward pass that the backward pass reads again.
-pub(super) struct ForwardState {
+pub(crate) struct ForwardState {
     /// Number of Gaussians.
     pub gaussians: u32,
     /// Number of (tile, Gaussian) pairs.
@@ -229,7 +229,7 @@ pub(super) struct ForwardState {
 }
 
 /// Runs the forward kernels and keeps their buffers.
-pub(super) fn forward_pass(
+pub(crate) fn forward_pass(
     ctx: &GpuContext,
     g: &GpuScene,
     cam: &Camera,
@@ -255,7 +255,7 @@ pub(super) fn forward_pass(
     let k3 = 3 * u64::from(g.coeffs);
     ctx.dispatch_items(
         &mut enc,
-        &kr.project,
+        &kr.project.project,
         (&camera_w, CAMERA_COUNT_WORD),
         &[
             (1, &g.means, 3),
@@ -290,16 +290,16 @@ pub(super) fn forward_pass(
         // Where the splats and the backward's screen-space gradients switch to their second
         // binding, and its pair slots to their second, third and fourth.
         w.extend(ctx.split_points(nn, SPLAT_STRIDE, 2));
-        w.extend(ctx.split_points(nn, super::backward::SCREEN_GRAD_STRIDE as u64, 2));
+        w.extend(ctx.split_points(nn, crate::backward::gpu::SCREEN_GRAD_STRIDE as u64, 2));
         w.extend([0, 0]);
-        w.extend(ctx.split_points(u64::from(pairs), super::backward::PAIR_STRIDE, 4));
+        w.extend(ctx.split_points(u64::from(pairs), crate::backward::gpu::PAIR_STRIDE, 4));
         w.push(0);
         w
     };
     let params0 = ctx.uniform("forward params", &fwd_params(0));
     ctx.dispatch(
         &mut enc,
-        &kr.gather_counts,
+        &kr.forward.gather_counts,
         &[(0, &params0), (1, &meta), (2, &order), (3, &counts)],
         ctx.groups(n.div_ceil(GROUP)),
     );
@@ -322,7 +322,7 @@ pub(super) fn forward_pass(
     let mut enc = ctx.device.create_command_encoder(&Default::default());
     ctx.dispatch(
         &mut enc,
-        &kr.emit_pairs,
+        &kr.forward.emit_pairs,
         &[
             (0, &params),
             (1, &meta),
@@ -346,14 +346,14 @@ pub(super) fn forward_pass(
     enc.clear_buffer(&ranges, 0, None);
     ctx.dispatch(
         &mut enc,
-        &kr.tile_ranges,
+        &kr.forward.tile_ranges,
         &[(0, &params), (4, sorted_tiles), (6, &ranges)],
         ctx.groups(pairs.div_ceil(GROUP)),
     );
     let splat_ranges = ctx.split_ranges(&splats, nn, SPLAT_STRIDE, 2);
     ctx.dispatch_mixed(
         &mut enc,
-        &kr.rasterize,
+        &kr.forward.rasterize,
         &[
             (0, &params),
             (2, &order),
@@ -436,4 +436,29 @@ fn render_inner(
     }
     debug_assert_eq!(TILE, 16);
     Ok(frame)
+}
+
+/// The compiled forward kernels (`forward.wgsl`): tile binning and compositing.
+pub(crate) struct Kernels {
+    gather_counts: wgpu::ComputePipeline,
+    emit_pairs: wgpu::ComputePipeline,
+    tile_ranges: wgpu::ComputePipeline,
+    rasterize: wgpu::ComputePipeline,
+}
+
+impl Kernels {
+    pub(crate) fn new(m: crate::gpu::ModuleSetup<'_>) -> Kernels {
+        let [gather_counts, emit_pairs, tile_ranges, rasterize] = crate::gpu::pipelines(
+            m,
+            "forward.wgsl",
+            include_str!("forward.wgsl"),
+            ["gather_counts", "emit_pairs", "tile_ranges", "rasterize"],
+        );
+        Kernels {
+            gather_counts,
+            emit_pairs,
+            tile_ranges,
+            rasterize,
+        }
+    }
 }

@@ -6,10 +6,10 @@
 //! `backward_gpu_atomic` (hidden) swaps the ordered pair sums for float atomics, only to
 //! measure what determinism costs.
 
-use super::forward::{
+use crate::forward::gpu::{
     camera_words, forward_pass, ForwardState, GpuScene, CAMERA_COUNT_WORD, SPLAT_STRIDE,
 };
-use super::{f32_words, GpuContext, GpuError};
+use crate::gpu::{f32_words, GpuContext, GpuError};
 use crate::render::{Cutoff, RenderSettings};
 use crate::tiles::TileGrid;
 use augsplat_core::Camera;
@@ -79,7 +79,7 @@ pub fn project_vjp_gpu(
             screen.len()
         )));
     }
-    super::forward::tile_grid(cam)?;
+    crate::forward::gpu::tile_grid(cam)?;
     ctx.scoped(|| {
         let upstream =
             ctx.storage_init("screen-space gradients", &f32_words(screen.iter().copied()))?;
@@ -115,7 +115,7 @@ fn vjp_inner(
 /// Records `project_vjp.wgsl`: the screen-space gradients in `upstream` become the raw
 /// parameters' gradients in `out` (`PARAM_GRAD_STRIDE` values per Gaussian, then the SH
 /// gradients in the parameters' layout).
-pub(super) fn record_vjp(
+pub(crate) fn record_vjp(
     ctx: &GpuContext,
     enc: &mut wgpu::CommandEncoder,
     scene: &GpuScene,
@@ -128,7 +128,7 @@ pub(super) fn record_vjp(
     let k3 = 3 * u64::from(scene.coeffs);
     ctx.dispatch_items(
         enc,
-        &ctx.kernels.project_vjp,
+        &ctx.kernels.project.project_vjp,
         (&camera_words(scene, cam, s, grid), CAMERA_COUNT_WORD),
         &[
             (1, &scene.means, 3),
@@ -150,7 +150,7 @@ pub(super) fn record_vjp(
 /// Gaussian) — per-tile pair sums into `pair_grads` (`PAIR_STRIDE` values per pair, see
 /// [`pair_buffer`]), then each Gaussian's pairs summed in tile order.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn record_backward(
+pub(crate) fn record_backward(
     ctx: &GpuContext,
     enc: &mut wgpu::CommandEncoder,
     st: &ForwardState,
@@ -166,7 +166,7 @@ pub(super) fn record_backward(
     ranged.extend(pair_ranges(ctx, st, pair_grads));
     ctx.dispatch_mixed(
         enc,
-        &kr.rasterize_backward,
+        &kr.backward.rasterize_backward,
         &walk,
         ranged,
         [grid.tiles_x, grid.tiles_y],
@@ -176,7 +176,7 @@ pub(super) fn record_backward(
     ranged.extend(screen_ranges(ctx, st, screen));
     ctx.dispatch_mixed(
         enc,
-        &kr.gaussian_sums,
+        &kr.backward.gaussian_sums,
         &[
             (0, &st.params),
             (1, &st.rects),
@@ -244,7 +244,7 @@ fn walk_bindings<'a>(
 }
 
 /// The pair buffer [`record_backward`] sums into, sized for a forward pass's pairs.
-pub(super) fn pair_buffer(ctx: &GpuContext, st: &ForwardState) -> Result<wgpu::Buffer, GpuError> {
+pub(crate) fn pair_buffer(ctx: &GpuContext, st: &ForwardState) -> Result<wgpu::Buffer, GpuError> {
     ctx.storage_split(
         "pair gradients",
         u64::from(st.pairs),
@@ -291,6 +291,7 @@ pub fn backward_gpu_with_cutoff(
 /// uses it. Not bit-reproducible by design on real GPUs: the order in which tiles add into a
 /// Gaussian's slot depends on scheduling, so the gradients agree with [`backward_gpu`]'s only
 /// up to f32 rounding, and two runs may differ in the last bits.
+#[cfg(feature = "determinism-cost")]
 #[doc(hidden)]
 pub fn backward_gpu_atomic(
     ctx: &GpuContext,
@@ -317,6 +318,7 @@ pub struct BackwardStage {
 
 /// [`backward_gpu`] (`atomic` false) or [`backward_gpu_atomic`] (`atomic` true), with the
 /// pair count and the time of the stage where they differ; for the determinism-cost example.
+/// The atomic variant is built only with the `determinism-cost` feature (an error without).
 #[doc(hidden)]
 pub fn backward_gpu_timed(
     ctx: &GpuContext,
@@ -326,10 +328,17 @@ pub fn backward_gpu_timed(
     d_rgb: &[f32],
     atomic: bool,
 ) -> Result<(ParamGradsGpu, BackwardStage), GpuError> {
-    let reduction = if atomic {
-        Reduction::Atomic
-    } else {
-        Reduction::Ordered
+    let reduction = match atomic {
+        false => Reduction::Ordered,
+        #[cfg(feature = "determinism-cost")]
+        true => Reduction::Atomic,
+        #[cfg(not(feature = "determinism-cost"))]
+        true => {
+            return Err(GpuError::Invalid(
+                "the float-atomic backward is built only with the `determinism-cost` feature"
+                    .into(),
+            ))
+        }
     };
     backward_inner(ctx, scene, cam, s, d_rgb, Cutoff::Hard, reduction)
 }
@@ -340,6 +349,7 @@ enum Reduction {
     /// Into the pairs' own slots, then per Gaussian in tile order (`backward.wgsl`).
     Ordered,
     /// Straight into the Gaussian's slot by float atomic adds (`backward_atomic.wgsl`).
+    #[cfg(feature = "determinism-cost")]
     Atomic,
 }
 
@@ -354,7 +364,7 @@ fn backward_inner(
     cutoff: Cutoff,
     reduction: Reduction,
 ) -> Result<(ParamGradsGpu, BackwardStage), GpuError> {
-    let grid = super::forward::tile_grid(cam)?;
+    let grid = crate::forward::gpu::tile_grid(cam)?;
     let pixels = cam.width as usize * cam.height as usize;
     if d_rgb.len() != 3 * pixels {
         return Err(GpuError::Invalid(format!(
@@ -374,26 +384,26 @@ fn backward_inner(
         // Allocated before the clock starts: the timed stage is the kernels alone.
         let pair_grads = match reduction {
             Reduction::Ordered => Some(pair_buffer(ctx, &st)?),
+            #[cfg(feature = "determinism-cost")]
             Reduction::Atomic => None,
         };
-        let kr = &ctx.kernels;
         // The forward's work done before the clock starts.
         ctx.wait()?;
         let started = std::time::Instant::now();
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        match &pair_grads {
-            Some(pair_grads) => {
-                record_backward(
-                    ctx, &mut enc, &st, grid, &g_rgb, &screen, n as u32, pair_grads,
-                );
-            }
-            None => {
+        if let Some(pair_grads) = &pair_grads {
+            record_backward(
+                ctx, &mut enc, &st, grid, &g_rgb, &screen, n as u32, pair_grads,
+            );
+        } else {
+            #[cfg(feature = "determinism-cost")]
+            {
                 enc.clear_buffer(&screen, 0, None);
                 let (walk, mut ranged) = walk_bindings(ctx, &st, &g_rgb);
                 ranged.extend(screen_ranges(ctx, &st, &screen));
                 ctx.dispatch_mixed(
                     &mut enc,
-                    &kr.rasterize_backward_atomic,
+                    &ctx.kernels.backward.rasterize_backward_atomic,
                     &walk,
                     ranged,
                     [grid.tiles_x, grid.tiles_y],
@@ -423,8 +433,41 @@ fn backward_inner(
 }
 
 /// f32 values per pair slot of `backward.wgsl`.
-pub(super) const PAIR_STRIDE: u64 = 10;
+pub(crate) const PAIR_STRIDE: u64 = 10;
 
 /// The bindings of the pair slots' four ranges in `backward.wgsl` (a 5M-Gaussian 1080p
 /// step has about 10M pairs: 400 MB of slots).
 const PAIR_BINDINGS: [u32; 4] = [10, 13, 15, 16];
+
+/// The compiled backward kernels (`backward.wgsl`; with the `determinism-cost` feature also
+/// the float-atomic variant that measures what the fixed order costs).
+pub(crate) struct Kernels {
+    rasterize_backward: wgpu::ComputePipeline,
+    gaussian_sums: wgpu::ComputePipeline,
+    #[cfg(feature = "determinism-cost")]
+    rasterize_backward_atomic: wgpu::ComputePipeline,
+}
+
+impl Kernels {
+    pub(crate) fn new(m: crate::gpu::ModuleSetup<'_>) -> Kernels {
+        let [rasterize_backward, gaussian_sums] = crate::gpu::pipelines(
+            m,
+            "backward.wgsl",
+            include_str!("backward.wgsl"),
+            ["rasterize_backward", "gaussian_sums"],
+        );
+        #[cfg(feature = "determinism-cost")]
+        let [rasterize_backward_atomic] = crate::gpu::pipelines(
+            m,
+            "backward_atomic.wgsl",
+            include_str!("backward_atomic.wgsl"),
+            ["rasterize_backward_atomic"],
+        );
+        Kernels {
+            rasterize_backward,
+            gaussian_sums,
+            #[cfg(feature = "determinism-cost")]
+            rasterize_backward_atomic,
+        }
+    }
+}

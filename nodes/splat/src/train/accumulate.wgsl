@@ -30,14 +30,6 @@ struct AccConst {
 @group(0) @binding(8) var<storage, read_write> grad2d: array<f32>;
 @group(0) @binding(9) var<storage, read_write> count: array<u32>;
 
-const GRAD_STRIDE: u32 = 11u;
-const SCREEN_STRIDE: u32 = 10u;
-
-fn finite(v: f32) -> bool {
-    // NaN fails the comparison; ±Inf exceeds the largest finite f32.
-    return abs(v) <= 3.4028234663852886e38;
-}
-
 @compute @workgroup_size(256)
 fn accumulate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = gid.x + gid.y * nwg.x * 256u;

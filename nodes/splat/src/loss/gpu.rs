@@ -6,11 +6,11 @@
 //! sum per 256-value block, summed by a fixed tree; [`LossSums::value`] adds the partials in
 //! index order in f64. No atomics: the same inputs on one adapter give the same bytes.
 
-use super::{f32_words, GpuContext, GpuError};
+use crate::gpu::{f32_words, GpuContext, GpuError};
 use crate::loss::{gaussian_window, PixelLoss, WeightNorm, SSIM_C1, SSIM_C2, SSIM_WINDOW};
 
 /// Values per block of the loss kernels (their workgroup size): one partial sum each.
-const BLOCK: u64 = 256;
+pub(crate) const BLOCK: u64 = 256;
 /// Rows and columns the SSIM window reaches past its first one.
 const HALO: u32 = SSIM_WINDOW as u32 - 1;
 
@@ -48,7 +48,7 @@ impl GpuLoss {
 }
 
 /// The compiled loss kernels (`loss/loss.wgsl`).
-pub(super) struct LossKernels {
+pub(crate) struct LossKernels {
     pixel: wgpu::ComputePipeline,
     weighted: wgpu::ComputePipeline,
     h_moments: wgpu::ComputePipeline,
@@ -58,31 +58,27 @@ pub(super) struct LossKernels {
 }
 
 impl LossKernels {
-    pub(super) fn new(device: &wgpu::Device, params_as_storage: bool) -> LossKernels {
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("loss.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(super::kernel_source(
-                include_str!("../loss/loss.wgsl"),
-                params_as_storage,
-            )),
-        });
-        let pipeline = |entry: &str| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: None,
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
+    pub(crate) fn new(m: crate::gpu::ModuleSetup<'_>) -> LossKernels {
+        let [pixel, weighted, h_moments, v_ssim, v_adjoint, ssim_grad] = crate::gpu::pipelines(
+            m,
+            "loss.wgsl",
+            include_str!("loss.wgsl"),
+            [
+                "pixel",
+                "weighted",
+                "h_moments",
+                "v_ssim",
+                "v_adjoint",
+                "ssim_grad",
+            ],
+        );
         LossKernels {
-            pixel: pipeline("pixel"),
-            weighted: pipeline("weighted"),
-            h_moments: pipeline("h_moments"),
-            v_ssim: pipeline("v_ssim"),
-            v_adjoint: pipeline("v_adjoint"),
-            ssim_grad: pipeline("ssim_grad"),
+            pixel,
+            weighted,
+            h_moments,
+            v_ssim,
+            v_adjoint,
+            ssim_grad,
         }
     }
 }

@@ -12,14 +12,14 @@
 //! ([`GpuTrainer::download`]) only where the CPU must see it: densification, opacity resets,
 //! evaluations and checkpoints; after the host changed it, it uploads a new state.
 
-use super::backward::{
+use crate::adam::{Adam, GpuStepConst, Group};
+use crate::backward::gpu::{
     pair_buffer, record_backward, record_vjp, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
 };
-use super::forward::{forward_pass, tile_grid, GpuScene, IMAGE_STRIDE};
-use super::loss::{record_loss, GpuLoss};
-use super::{f32_words, GpuContext, GpuError};
-use crate::adam::{Adam, GpuStepConst, Group};
 use crate::densify::Densifier;
+use crate::forward::gpu::{forward_pass, tile_grid, GpuScene, IMAGE_STRIDE};
+use crate::gpu::{f32_words, GpuContext, GpuError};
+use crate::loss::gpu::{record_loss, GpuLoss};
 use crate::render::{Cutoff, RenderSettings};
 use crate::Gaussians;
 use augsplat_core::Camera;
@@ -229,8 +229,11 @@ impl GpuTrainer {
                         .collect();
                     let mut grad = vec![0.0f32; rgb.len()];
                     let value = f(&rgb, &mut grad);
-                    ctx.queue
-                        .write_buffer(&d_rgb, 0, &super::words_to_bytes(&f32_words(grad)));
+                    ctx.queue.write_buffer(
+                        &d_rgb,
+                        0,
+                        &crate::gpu::words_to_bytes(&f32_words(grad)),
+                    );
                     (value, None)
                 }
                 ViewLoss::Gpu {
@@ -265,7 +268,7 @@ impl GpuTrainer {
             let sw = u64::from(sh_width);
             ctx.dispatch_items(
                 &mut enc,
-                &ctx.kernels.accumulate,
+                &ctx.kernels.train.accumulate,
                 (
                     &[
                         n,
@@ -301,7 +304,7 @@ impl GpuTrainer {
                 ctx.uniform("pair count constants", &[px as u32, blocks as u32, 0, 0]);
             ctx.dispatch(
                 &mut enc,
-                &ctx.kernels.count_pairs,
+                &ctx.kernels.train.count_pairs,
                 &[(10, &pair_consts), (11, &st.info), (12, &pair_partials)],
                 ctx.groups(blocks as u32),
             );
@@ -366,7 +369,7 @@ impl GpuTrainer {
                 let w = u64::from(width);
                 ctx.dispatch_items(
                     &mut enc,
-                    &ctx.kernels.adam,
+                    &ctx.kernels.adam.adam,
                     (&words, 0),
                     &[
                         (1, params[k], w),
@@ -388,5 +391,27 @@ impl GpuTrainer {
 fn copy_rows<const W: usize>(flat: &[f32], rows: &mut [[f32; W]]) {
     for (r, c) in rows.iter_mut().zip(flat.chunks_exact(W)) {
         r.copy_from_slice(c);
+    }
+}
+
+/// The compiled kernels of the GPU's training state (`accumulate.wgsl`): a view's gradients
+/// into the step's sums, and the composited pairs per block.
+pub(crate) struct Kernels {
+    accumulate: wgpu::ComputePipeline,
+    count_pairs: wgpu::ComputePipeline,
+}
+
+impl Kernels {
+    pub(crate) fn new(m: crate::gpu::ModuleSetup<'_>) -> Kernels {
+        let [accumulate, count_pairs] = crate::gpu::pipelines(
+            m,
+            "accumulate.wgsl",
+            include_str!("accumulate.wgsl"),
+            ["accumulate", "count_pairs"],
+        );
+        Kernels {
+            accumulate,
+            count_pairs,
+        }
     }
 }
