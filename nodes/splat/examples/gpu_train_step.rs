@@ -12,7 +12,7 @@
 //! degree 3, all bands active), the target a smooth colour ramp; densification is off so
 //! that every timed step sees the same N.
 
-#[path = "common/gpu_bench.rs"]
+#[path = "../../render/examples/common/gpu_bench.rs"]
 mod gpu_bench;
 
 use augsplat_splat::densify::DensifyArgs;

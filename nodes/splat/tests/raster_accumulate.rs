@@ -2,6 +2,7 @@
 //! same values as adding `backward`'s fresh buffers, for any thread count.
 #![allow(clippy::needless_range_loop)]
 
+#[path = "../../render/tests/raster_common/mod.rs"]
 mod raster_common;
 
 use augsplat_core::linalg;

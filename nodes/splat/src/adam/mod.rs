@@ -15,6 +15,7 @@
 //! survivor's moments ([`Adam::retain`], [`Adam::append_zeros`]).
 
 use crate::Gaussians;
+pub use augsplat_render::ParamGrads;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -101,53 +102,6 @@ impl LearningRates {
             step as f64 / total as f64
         };
         self.means * scene_scale * self.means_final_factor.powf(frac)
-    }
-}
-
-/// Summed gradients of one optimisation step, in the [`Gaussians`] layout, plus the union of
-/// the per-view visibility masks.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct ParamGrads {
-    /// dL/d(means).
-    pub means: Vec<[f32; 3]>,
-    /// dL/d(log-scales).
-    pub log_scales: Vec<[f32; 3]>,
-    /// dL/d(raw quaternions).
-    pub quats: Vec<[f32; 4]>,
-    /// dL/d(opacity logits).
-    pub opacity_logits: Vec<f32>,
-    /// dL/d(SH), same layout as [`Gaussians::sh`].
-    pub sh: Vec<f32>,
-    /// Whether the Gaussian was visible (radius > 0) in any render of the step.
-    pub visible: Vec<bool>,
-    /// How many leading values of each Gaussian's SH gradient row may be non-zero; the rest
-    /// are promised to be zero (the backward pass leaves the coefficients above the active
-    /// SH degree at zero, so a trainer passes `3·(active + 1)²`). [`Adam::step`] skips the
-    /// promised-zero values whose moments are still zero, which is exact: their update is
-    /// `m = v = 0` and no parameter change. Values ≥ the row width mean "all".
-    pub sh_active: usize,
-}
-
-impl ParamGrads {
-    /// Zero gradients for `n` Gaussians with `coeffs` SH coefficients per channel.
-    pub fn zeros(n: usize, coeffs: usize) -> Self {
-        ParamGrads {
-            means: vec![[0.0; 3]; n],
-            log_scales: vec![[0.0; 3]; n],
-            quats: vec![[0.0; 4]; n],
-            opacity_logits: vec![0.0; n],
-            sh: vec![0.0; n * coeffs * 3],
-            visible: vec![false; n],
-            sh_active: coeffs * 3,
-        }
-    }
-    /// Number of Gaussians.
-    pub fn len(&self) -> usize {
-        self.means.len()
-    }
-    /// Whether there are none.
-    pub fn is_empty(&self) -> bool {
-        self.means.is_empty()
     }
 }
 

@@ -47,6 +47,16 @@ impl GpuLoss {
     }
 }
 
+/// The loss kernels' constants, from the Rust side: the block of the partial sums and
+/// SSIM's window (after the renderer's prelude, `augsplat_render::gpu::prelude`).
+pub(crate) fn prelude() -> String {
+    use augsplat_render::gpu::prelude::constant_u32;
+    let window = crate::loss::SSIM_WINDOW as u64;
+    constant_u32("LOSS_BLOCK", BLOCK)
+        + &constant_u32("SSIM_WINDOW", window)
+        + &constant_u32("SSIM_HALO", window - 1)
+}
+
 /// The compiled loss kernels (`loss/loss.wgsl`).
 pub(crate) struct LossKernels {
     pixel: wgpu::ComputePipeline,
@@ -59,9 +69,10 @@ pub(crate) struct LossKernels {
 
 impl LossKernels {
     pub(crate) fn new(m: crate::gpu::ModuleSetup<'_>) -> LossKernels {
-        let [pixel, weighted, h_moments, v_ssim, v_adjoint, ssim_grad] = crate::gpu::pipelines(
+        let [pixel, weighted, h_moments, v_ssim, v_adjoint, ssim_grad] = crate::gpu::pipelines_with(
             m,
             "loss.wgsl",
+            &prelude(),
             include_str!("loss.wgsl"),
             [
                 "pixel",
@@ -287,7 +298,7 @@ fn record_weighted(
     let sums = Partials::new(ctx, "weighted L2 sums", n, denominator)?;
     ctx.dispatch(
         enc,
-        &ctx.kernels.loss.weighted,
+        &ctx.kernels_of(LossKernels::new)?.weighted,
         &[
             (0, &uni),
             (1, im.pred),
@@ -325,7 +336,7 @@ fn record_photometric(
         PixelLoss::L2 => (0, 2.0 * pix_scale / n as f32),
         PixelLoss::L1 => (1, pix_scale / n as f32),
     };
-    let kr = &ctx.kernels.loss;
+    let kr = ctx.kernels_of(LossKernels::new)?;
     let pix = Partials::new(ctx, "pixel-term sums", n, n as f64)?;
     let (width, height) = (im.width, im.height);
     let window = SSIM_WINDOW as u32;
@@ -462,4 +473,38 @@ pub fn loss_gpu(
             .collect();
         Ok((sums.value(ctx)?, grad))
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use augsplat_render::gpu::prelude::{declared_constants, prelude_names};
+
+    /// The trainer's kernels, by file name.
+    const SOURCES: &[(&str, &str)] = &[
+        ("loss.wgsl", include_str!("loss.wgsl")),
+        ("adam.wgsl", include_str!("../adam/adam.wgsl")),
+        ("accumulate.wgsl", include_str!("../train/accumulate.wgsl")),
+    ];
+
+    #[test]
+    fn no_trainer_kernel_declares_a_generated_constant_again() {
+        let own = super::prelude();
+        let generated: Vec<String> = prelude_names()
+            .into_iter()
+            .map(String::from)
+            .chain(declared_constants(&own))
+            .collect();
+        for (file, src) in SOURCES {
+            for name in declared_constants(src) {
+                assert!(
+                    !generated.contains(&name),
+                    "{file} declares {name}, which is generated from the Rust constant"
+                );
+            }
+            assert!(!src.contains("fn finite("), "{file} defines finite() again");
+        }
+        assert!(own.contains("const SSIM_WINDOW: u32 = 11u;"), "{own}");
+        assert!(own.contains("const SSIM_HALO: u32 = 10u;"), "{own}");
+        assert!(own.contains("const LOSS_BLOCK: u32 = 256u;"), "{own}");
+    }
 }

@@ -268,7 +268,7 @@ impl GpuTrainer {
             let sw = u64::from(sh_width);
             ctx.dispatch_items(
                 &mut enc,
-                &ctx.kernels.train.accumulate,
+                &ctx.kernels_of(Kernels::new)?.accumulate,
                 (
                     &[
                         n,
@@ -304,7 +304,7 @@ impl GpuTrainer {
                 ctx.uniform("pair count constants", &[px as u32, blocks as u32, 0, 0]);
             ctx.dispatch(
                 &mut enc,
-                &ctx.kernels.train.count_pairs,
+                &ctx.kernels_of(Kernels::new)?.count_pairs,
                 &[(10, &pair_consts), (11, &st.info), (12, &pair_partials)],
                 ctx.groups(blocks as u32),
             );
@@ -369,7 +369,7 @@ impl GpuTrainer {
                 let w = u64::from(width);
                 ctx.dispatch_items(
                     &mut enc,
-                    &ctx.kernels.adam.adam,
+                    &ctx.kernels_of(crate::adam::gpu::Kernels::new)?.adam,
                     (&words, 0),
                     &[
                         (1, params[k], w),

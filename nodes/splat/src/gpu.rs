@@ -1,0 +1,8 @@
+//! The GPU backend: the renderer's ([`augsplat_render::gpu`], re-exported here) and the
+//! trainer's kernels on the same context — the losses (`loss/gpu.rs`), Adam (`adam/gpu.rs`)
+//! and the training state kept on the GPU between steps (`train/gpu.rs`).
+
+pub use augsplat_render::gpu::*;
+
+pub use crate::loss::gpu::{loss_gpu, GpuLoss};
+pub(crate) use crate::train::gpu::{GpuTarget, GpuTrainer, ViewLoss};
