@@ -217,7 +217,7 @@ fn run_local(
                 scope.spawn(move || {
                     let c = job.comp;
                     let waiting = tx.clone();
-                    let on_wait = move |h: Option<&crate::claim::ClaimHolder>| {
+                    let on_wait = move |h: Option<&crate::store::claim::ClaimHolder>| {
                         let _ = waiting.send(Msg::Waiting(c, h.cloned()));
                     };
                     let _ = tx.send(Msg::Done(c, job.run(plan, store, &on_wait)));

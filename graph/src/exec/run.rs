@@ -93,7 +93,7 @@ impl Job {
         self,
         plan: &Plan,
         store: &Store,
-        on_wait: &dyn Fn(Option<&crate::claim::ClaimHolder>),
+        on_wait: &dyn Fn(Option<&crate::store::claim::ClaimHolder>),
     ) -> CompResult {
         let bar = self.bar.clone();
         let r = run_one(plan, store, self, on_wait);
@@ -118,7 +118,7 @@ fn run_one(
     plan: &Plan,
     store: &Store,
     job: Job,
-    on_wait: &dyn Fn(Option<&crate::claim::ClaimHolder>),
+    on_wait: &dyn Fn(Option<&crate::store::claim::ClaimHolder>),
 ) -> CompResult {
     let key = job.key;
     let fail = |m: String, secs: f64| CompResult {

@@ -307,7 +307,7 @@ pub(super) fn run(
                 slurm.visibility_wait.min(Duration::from_secs(5))
             };
             if ended.elapsed() >= bound {
-                crate::claim::break_claim_of_job(&store.claim_path(&s.key), &s.job);
+                crate::store::claim::break_claim_of_job(&store.claim_path(&s.key), &s.job);
                 let state = seen.map(|(st, _)| st).unwrap_or_else(|| "ended".into());
                 done.push((c, failed(s.key, job_failure(store, s, &state))));
             }
