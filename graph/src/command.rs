@@ -188,7 +188,7 @@ impl Node for Command {
                     .collect(),
             )?;
         }
-        let before = crate::exec::input_snapshot(&copies);
+        let before = crate::snapshot::input_snapshot(&copies);
         for n in &args.outputs {
             vars.push((
                 format!("out:{n}"),
@@ -277,7 +277,7 @@ impl Node for Command {
             )));
         }
         if let Some(change) =
-            crate::exec::changed_input(&before, &crate::exec::input_snapshot(&copies))
+            crate::snapshot::changed_input(&before, &crate::snapshot::input_snapshot(&copies))
         {
             return Err(NodeError::new(format!(
                 "`{}` changed its input {change} (a copy: the original is untouched); inputs \

@@ -24,6 +24,7 @@ pub mod key;
 pub mod node;
 pub mod registry;
 pub mod resolve;
+mod snapshot;
 pub mod spec;
 pub mod store;
 pub mod syntax;

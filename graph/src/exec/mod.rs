@@ -15,7 +15,6 @@ pub mod slurm;
 pub mod status;
 
 pub use report::{arg_origin, flatten_args, instance_record};
-pub(crate) use run::{changed_input, input_snapshot};
 
 use crate::error::EngineError;
 use crate::key::compute_key;

@@ -6,6 +6,7 @@ use super::{CompResult, Status};
 use crate::error::EngineError;
 use crate::node::{NodeError, ProgressSink, RunContext};
 use crate::resolve::Plan;
+use crate::snapshot::{changed_input, input_snapshot};
 use crate::store::{
     hex, hostname, now_unix, remove_tree, unhex, ActionEntry, Hash, Store, STORE_FORMAT,
 };
@@ -200,63 +201,6 @@ fn check_inputs(store: &Store, job: &Job) -> Result<(), String> {
         }
     }
     Ok(())
-}
-
-/// Per input name, every file and folder below each of its paths with its size and
-/// modification time (a stat per file: cheap beside any node).
-pub(crate) type InputSnapshot = BTreeMap<String, BTreeMap<PathBuf, (u64, i128)>>;
-
-pub(crate) fn input_snapshot(inputs: &[(String, Vec<PathBuf>)]) -> InputSnapshot {
-    fn walk(p: &std::path::Path, out: &mut BTreeMap<PathBuf, (u64, i128)>) {
-        let Ok(meta) = std::fs::symlink_metadata(p) else {
-            return;
-        };
-        let mtime = crate::store::mtime_ns(&meta);
-        out.insert(
-            p.to_path_buf(),
-            (if meta.is_dir() { 0 } else { meta.len() }, mtime),
-        );
-        if meta.is_dir() {
-            if let Ok(rd) = std::fs::read_dir(p) {
-                for e in rd.flatten() {
-                    walk(&e.path(), out);
-                }
-            }
-        }
-    }
-    inputs
-        .iter()
-        .map(|(name, paths)| {
-            let mut files = BTreeMap::new();
-            for p in paths {
-                walk(p, &mut files);
-            }
-            (name.clone(), files)
-        })
-        .collect()
-}
-
-/// The first difference between two snapshots, in words (`None` when the inputs are as they
-/// were).
-pub(crate) fn changed_input(before: &InputSnapshot, after: &InputSnapshot) -> Option<String> {
-    for (name, b) in before {
-        let Some(a) = after.get(name) else {
-            return Some(format!("`{name}` was disconnected"));
-        };
-        for (p, st) in b {
-            match a.get(p) {
-                None => return Some(format!("`{name}`: {} was removed", p.display())),
-                Some(x) if x != st => {
-                    return Some(format!("`{name}`: {} was modified", p.display()))
-                }
-                _ => {}
-            }
-        }
-        if let Some(p) = a.keys().find(|p| !b.contains_key(*p)) {
-            return Some(format!("`{name}`: {} was added", p.display()));
-        }
-    }
-    None
 }
 
 /// Runs the job's node in `scratch` and stores its outputs and action entry. On failure:

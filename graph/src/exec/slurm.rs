@@ -6,8 +6,8 @@
 //!   scheduler's rule), so nothing is submitted early, and nothing downstream of a failure is
 //!   submitted at all. Each submission writes `runs/slurm/<run>/<n>.keys` (one `KEY THREADS`
 //!   line per array task) and `<n>.sh`, and calls `sbatch --parsable` with the run's job name
-//!   `augsplat-<run>`, the node's [`Resources`] (from the pipeline's `resources:` block, never
-//!   part of a key) and the user's pass-through options.
+//!   `augsplat-<run>`, the node's [`Resources`](crate::resolve::Resources) (from the
+//!   pipeline's `resources:` block, never part of a key) and the user's pass-through options.
 //! - **Polling.** One `squeue --name=augsplat-<run>` call per poll for all the run's jobs, with
 //!   exponential back-off (0.5 s growing to [`SlurmOptions::poll_max`], back to 0.5 s when
 //!   something changes). `sacct` is asked only when the cluster keeps accounting, and only about
@@ -27,31 +27,10 @@ use crate::error::EngineError;
 use crate::node::Threads;
 use crate::resolve::Plan;
 use crate::store::{hex, Store};
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
-
-/// Slurm resources of a node's jobs: a value of the pipeline's `resources:` block, keyed by a
-/// node's name in the pipeline or by its kind (the name wins), or `default`. Not part of any
-/// key: where a node runs never changes what it computes.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Resources {
-    /// `--cpus-per-task` (default: 1 for a one-thread node, else the run's `--jobs`).
-    pub cpus: Option<u32>,
-    /// `--mem`, e.g. "8G".
-    pub mem: Option<String>,
-    /// `--time`, e.g. "02:00:00".
-    pub time: Option<String>,
-    /// `--gpus` (for nodes with `backend: Gpu`).
-    pub gpus: Option<u32>,
-    /// `--partition`.
-    pub partition: Option<String>,
-    /// More `sbatch` options, verbatim (e.g. `["--constraint=a100"]`).
-    pub sbatch: Vec<String>,
-}
 
 /// How to run on Slurm.
 #[derive(Clone, Debug)]
@@ -375,15 +354,6 @@ fn sh_quote(s: &str) -> String {
     format!("'{}'", s.replace('\'', "'\\''"))
 }
 
-/// The resources of computation `c`: its node name's entry, else its kind's, else `default`.
-pub fn resources_of(plan: &Plan, c: usize) -> Option<&Resources> {
-    let comp = &plan.comps[c];
-    let base = comp.instances.first().map(|&i| &plan.instances[i].base);
-    base.and_then(|b| plan.resources.get(b))
-        .or_else(|| plan.resources.get(comp.node.kind()))
-        .or_else(|| plan.resources.get("default"))
-}
-
 /// Submits `jobs` (one node's ready computations) as one job, or one array; returns each one's
 /// job id and output file, or why `sbatch` refused.
 fn submit(
@@ -396,9 +366,7 @@ fn submit(
     jobs: &[super::run::Job],
 ) -> Result<Vec<(String, PathBuf)>, String> {
     let first = &plan.comps[jobs[0].comp];
-    let res = resources_of(plan, jobs[0].comp)
-        .cloned()
-        .unwrap_or_default();
+    let res = plan.resources_of(jobs[0].comp).cloned().unwrap_or_default();
     let cpus = res.cpus.map(|c| c as usize).unwrap_or(match first.threads {
         Threads::One => 1,
         Threads::Exactly(k) => k,
