@@ -7,7 +7,7 @@
 //! - [`key`]: what identifies a computation (structural id) and addresses its outputs (key).
 //! - [`store`]: blobs, manifests, action cache, records; [`store::claim`]: claims on keys that
 //!   hold on shared filesystems; [`store::verify`] and [`store::gc`]: `verify` and `gc`.
-//! - [`exec`]: the local executor and its scheduler; [`explain`]: `plan` and `why`;
+//! - [`exec`]: one driver loop over the local and Slurm executors; [`explain`]: `plan` and `why`;
 //!   [`engine`]: the library API.
 //! - [`command`]: the `Command` node kind (external programs); [`gate`]: nodes that end at
 //!   once when another node's decision says so.

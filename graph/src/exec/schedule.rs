@@ -1,12 +1,13 @@
 //! The scheduler of one run: which needed computations wait on which, which are ready, which
 //! run, and how much of the thread budget is free.
 //!
-//! The executor alternates two steps until nothing runs: [`Scheduler::start_ready`] walks the
-//! ready queue in plan order, finishing at once each computation whose key is in the store and
-//! starting each one whose thread budget fits (a `Threads::All` computation that does not fit
-//! reserves the machine: nothing after it starts); [`Scheduler::on_message`] takes a finished
-//! computation's result, frees its threads and readies its dependents. A failed computation's
-//! dependents never become ready; [`Scheduler::into_results`] marks them skipped.
+//! The driver loop (`driver.rs`) alternates two steps of it until nothing runs:
+//! [`Scheduler::start_ready`] walks the ready queue in plan order, finishing at once each
+//! computation whose key is in the store and handing over each one whose thread budget fits (a
+//! `Threads::All` computation that does not fit reserves the machine: nothing after it
+//! starts); [`Scheduler::on_message`] takes a finished computation's result, frees its threads
+//! and readies its dependents. A failed computation's dependents never become ready;
+//! [`Scheduler::into_results`] marks them skipped.
 
 use super::run::{outputs_of, Job};
 use super::{CompResult, Status};
