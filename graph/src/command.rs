@@ -17,6 +17,7 @@
 //! node all the same: inputs are read-only by contract.
 
 use crate::node::{InputDecl, Node, NodeError, RunContext, Threads};
+use crate::snapshot::{changed_input, input_snapshot};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
@@ -152,43 +153,8 @@ impl Node for Command {
         Ok(())
     }
     fn run(args: &CommandArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
-        // The program gets copies of its inputs (reflinks where the filesystem has them), so
-        // that nothing it does — as root too — reaches a stored blob or a user's file.
-        let copies_root = ctx
-            .scratch()
-            .parent()
-            .unwrap_or(ctx.scratch())
-            .join("inputs");
-        let mut copies: Vec<(String, Vec<PathBuf>)> = Vec::new();
-        let mut vars: Vec<(String, Vec<String>)> = Vec::new();
-        let mut add_input = |n: &str, paths: Vec<PathBuf>| -> Result<(), NodeError> {
-            let mut v = Vec::new();
-            let mut mine = Vec::new();
-            for (i, p) in paths.iter().enumerate() {
-                let dest = copies_root.join(n).join(i.to_string());
-                let copy = copy_input(p, &dest).map_err(|e| {
-                    NodeError::new(format!("copying input `{n}` ({}): {e}", p.display()))
-                })?;
-                v.push(copy.display().to_string());
-                mine.push(copy);
-            }
-            vars.push((format!("in:{n}"), v));
-            copies.push((n.to_string(), mine));
-            Ok(())
-        };
-        for n in args.inputs.iter().chain(&args.list_inputs) {
-            add_input(n, ctx.input_list(n)?.to_vec())?;
-        }
-        for n in &args.optional_inputs {
-            add_input(
-                n,
-                ctx.optional_input(n)
-                    .map(|p| p.to_path_buf())
-                    .into_iter()
-                    .collect(),
-            )?;
-        }
-        let before = crate::exec::input_snapshot(&copies);
+        let (copies, mut vars) = copy_inputs(args, ctx)?;
+        let before = input_snapshot(&copies);
         for n in &args.outputs {
             vars.push((
                 format!("out:{n}"),
@@ -198,87 +164,16 @@ impl Node for Command {
         vars.push(("scratch".into(), vec![ctx.scratch().display().to_string()]));
         vars.push(("seed".into(), vec![ctx.seed().to_string()]));
         vars.push(("threads".into(), vec![ctx.threads().to_string()]));
-        let subst = |s: &str| -> String {
-            let mut out = s.to_string();
-            for (k, v) in &vars {
-                out = out.replace(&format!("{{{k}}}"), &v.join(":"));
-            }
-            out
-        };
-        let mut argv = Vec::new();
-        for a in &args.args {
-            match vars.iter().find(|(k, _)| a == &format!("{{{k}}}")) {
-                Some((_, v)) => argv.extend(v.iter().cloned()),
-                None => argv.push(subst(a)),
-            }
-        }
-        let mut cmd = std::process::Command::new(&args.program);
-        cmd.args(&argv)
-            .current_dir(ctx.scratch())
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped());
-        for (k, v) in &vars {
-            let name = match k.split_once(':') {
-                Some((dir, n)) => format!("AUGSPLAT_{}_{}", dir.to_uppercase(), n.to_uppercase()),
-                None => format!("AUGSPLAT_{}", k.to_uppercase()),
-            };
-            cmd.env(name, v.join(":"));
-        }
-        for (k, v) in &args.env {
-            cmd.env(k, subst(v));
-        }
-        // If the engine process dies (even by SIGKILL), the program dies with it instead of
-        // running on as an orphan.
-        #[cfg(target_os = "linux")]
-        {
-            use std::os::unix::process::CommandExt;
-            // SAFETY: only calls the async-signal-safe prctl between fork and exec.
-            unsafe {
-                cmd.pre_exec(|| {
-                    libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
-                    Ok(())
-                });
-            }
-        }
+        let (cmd, argv) = program_command(args, &vars, ctx.scratch());
         ctx.log(format!("$ {} {}", args.program, argv.join(" ")));
-        let mut child = cmd.spawn().map_err(|e| {
-            NodeError::new(format!(
-                "cannot start `{}`: {e} (is it on PATH?)",
-                args.program
-            ))
-        })?;
-        let stdout = child.stdout.take().expect("piped");
-        let stderr = child.stderr.take().expect("piped");
-        let (tx, rx) = std::sync::mpsc::channel::<String>();
-        let tx2 = tx.clone();
-        let t1 = std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                let _ = tx.send(line);
-            }
-        });
-        let t2 = std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                let _ = tx2.send(line);
-            }
-        });
-        for line in rx {
-            ctx.log(line);
-        }
-        let _ = t1.join();
-        let _ = t2.join();
-        let status = child
-            .wait()
-            .map_err(|e| NodeError::new(format!("waiting for `{}`: {e}", args.program)))?;
+        let status = run_logging(cmd, &args.program, ctx)?;
         if !status.success() {
             return Err(NodeError::new(format!(
                 "`{}` exited with {status}",
                 args.program
             )));
         }
-        if let Some(change) =
-            crate::exec::changed_input(&before, &crate::exec::input_snapshot(&copies))
-        {
+        if let Some(change) = changed_input(&before, &input_snapshot(&copies)) {
             return Err(NodeError::new(format!(
                 "`{}` changed its input {change} (a copy: the original is untouched); inputs \
                  are read-only, write to an output folder instead",
@@ -287,6 +182,143 @@ impl Node for Command {
         }
         Ok(())
     }
+}
+
+/// Placeholder values by name (`in:NAME`, `out:NAME`, `scratch`, `seed`, `threads`): one
+/// value per folder of a list input, one otherwise.
+type Vars = Vec<(String, Vec<String>)>;
+
+/// The copies of each input's folders, by input name.
+type Copies = Vec<(String, Vec<PathBuf>)>;
+
+/// Copies every input the node got (reflinks where the filesystem has them), so that nothing
+/// the program does — as root too — reaches a stored blob or a user's file. Returns the
+/// copies by input name, and the `in:NAME` placeholder values that name them.
+fn copy_inputs(args: &CommandArgs, ctx: &RunContext) -> Result<(Copies, Vars), NodeError> {
+    let copies_root = ctx
+        .scratch()
+        .parent()
+        .unwrap_or(ctx.scratch())
+        .join("inputs");
+    let mut copies: Copies = Vec::new();
+    let mut vars: Vars = Vec::new();
+    let mut add_input = |n: &str, paths: Vec<PathBuf>| -> Result<(), NodeError> {
+        let mut v = Vec::new();
+        let mut mine = Vec::new();
+        for (i, p) in paths.iter().enumerate() {
+            let dest = copies_root.join(n).join(i.to_string());
+            let copy = copy_input(p, &dest).map_err(|e| {
+                NodeError::new(format!("copying input `{n}` ({}): {e}", p.display()))
+            })?;
+            v.push(copy.display().to_string());
+            mine.push(copy);
+        }
+        vars.push((format!("in:{n}"), v));
+        copies.push((n.to_string(), mine));
+        Ok(())
+    };
+    for n in args.inputs.iter().chain(&args.list_inputs) {
+        add_input(n, ctx.input_list(n)?.to_vec())?;
+    }
+    for n in &args.optional_inputs {
+        add_input(
+            n,
+            ctx.optional_input(n)
+                .map(|p| p.to_path_buf())
+                .into_iter()
+                .collect(),
+        )?;
+    }
+    Ok((copies, vars))
+}
+
+/// The program's command, run in `scratch`: its arguments with placeholders replaced (a
+/// placeholder alone in an argument gives one argument per value, else values are joined
+/// with `:`), `AUGSPLAT_*` variables for every placeholder, the user's `env`, and (on Linux)
+/// death with the engine. Returns it with the arguments, for the log.
+fn program_command(
+    args: &CommandArgs,
+    vars: &Vars,
+    scratch: &Path,
+) -> (std::process::Command, Vec<String>) {
+    let subst = |s: &str| -> String {
+        let mut out = s.to_string();
+        for (k, v) in vars {
+            out = out.replace(&format!("{{{k}}}"), &v.join(":"));
+        }
+        out
+    };
+    let mut argv = Vec::new();
+    for a in &args.args {
+        match vars.iter().find(|(k, _)| a == &format!("{{{k}}}")) {
+            Some((_, v)) => argv.extend(v.iter().cloned()),
+            None => argv.push(subst(a)),
+        }
+    }
+    let mut cmd = std::process::Command::new(&args.program);
+    cmd.args(&argv)
+        .current_dir(scratch)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    for (k, v) in vars {
+        let name = match k.split_once(':') {
+            Some((dir, n)) => format!("AUGSPLAT_{}_{}", dir.to_uppercase(), n.to_uppercase()),
+            None => format!("AUGSPLAT_{}", k.to_uppercase()),
+        };
+        cmd.env(name, v.join(":"));
+    }
+    for (k, v) in &args.env {
+        cmd.env(k, subst(v));
+    }
+    // If the engine process dies (even by SIGKILL), the program dies with it instead of
+    // running on as an orphan.
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        // SAFETY: only calls the async-signal-safe prctl between fork and exec.
+        unsafe {
+            cmd.pre_exec(|| {
+                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
+                Ok(())
+            });
+        }
+    }
+    (cmd, argv)
+}
+
+/// Starts `cmd` and sends each line of its stdout and stderr to the node's log as it comes;
+/// returns how it exited.
+fn run_logging(
+    mut cmd: std::process::Command,
+    program: &str,
+    ctx: &mut RunContext,
+) -> Result<std::process::ExitStatus, NodeError> {
+    let mut child = cmd
+        .spawn()
+        .map_err(|e| NodeError::new(format!("cannot start `{program}`: {e} (is it on PATH?)")))?;
+    let stdout = child.stdout.take().expect("piped");
+    let stderr = child.stderr.take().expect("piped");
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let tx2 = tx.clone();
+    let t1 = std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let t2 = std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let _ = tx2.send(line);
+        }
+    });
+    for line in rx {
+        ctx.log(line);
+    }
+    let _ = t1.join();
+    let _ = t2.join();
+    child
+        .wait()
+        .map_err(|e| NodeError::new(format!("waiting for `{program}`: {e}")))
 }
 
 /// Copies a file or a folder tree from `from` to `to` (files by `fs::copy`, which clones

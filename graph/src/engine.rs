@@ -12,7 +12,9 @@ use crate::error::{EngineError, PipelineError};
 use crate::exec::{execute, RunOptions, RunReport};
 use crate::registry::Registry;
 use crate::resolve::{load_plan, Plan};
-use crate::store::{GcReport, Store};
+use crate::store::gc::GcReport;
+use crate::store::verify::VerifyReport;
+use crate::store::Store;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -77,7 +79,7 @@ impl Engine {
         self.store.gc(dry_run, repair)
     }
     /// Verification of the whole store (see [`Store::verify`]).
-    pub fn verify(&self, repair: bool) -> Result<crate::verify::VerifyReport, EngineError> {
+    pub fn verify(&self, repair: bool) -> Result<VerifyReport, EngineError> {
         self.store.verify(repair)
     }
 }

@@ -3,8 +3,8 @@
 use crate::error::EngineError;
 use crate::exec::{arg_origin, flatten_args, plan_keys, PlannedKeys};
 use crate::resolve::{Plan, Source};
+use crate::store::EntryState;
 use crate::store::{hex, Store};
-use crate::verify::EntryState;
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
 

@@ -116,7 +116,7 @@ fn keys_of_a_fixed_pipeline_are_pinned() {
 /// `default`, and changes no key and no structural id.
 #[test]
 fn a_resources_block_changes_no_key() {
-    use augsplat_graph::exec::slurm::{resources_of, Resources};
+    use augsplat_graph::resolve::Resources;
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(dir.path().join("data")).unwrap();
     std::fs::write(dir.path().join("data/value.txt"), "external").unwrap();
@@ -152,7 +152,7 @@ fn a_resources_block_changes_no_key() {
             .unwrap()
     };
     assert_eq!(
-        resources_of(&b, comp("ext")),
+        b.resources_of(comp("ext")),
         Some(&Resources {
             gpus: Some(1),
             partition: Some("gpu".into()),
@@ -162,11 +162,11 @@ fn a_resources_block_changes_no_key() {
         "the node's name wins"
     );
     assert_eq!(
-        resources_of(&b, comp("len")).and_then(|r| r.mem.clone()),
+        b.resources_of(comp("len")).and_then(|r| r.mem.clone()),
         Some("1G".into()),
         "then its kind"
     );
-    assert_eq!(resources_of(&b, comp("src")).and_then(|r| r.cpus), Some(2));
+    assert_eq!(b.resources_of(comp("src")).and_then(|r| r.cpus), Some(2));
     let one = RunOptions {
         jobs: 1,
         ..Default::default()

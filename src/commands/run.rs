@@ -2,7 +2,7 @@
 //! subcommands (`plan`, `why`, `expand`, `gc`) share.
 
 use super::CmdResult;
-use augsplat_graph::exec::{slurm::SlurmOptions, Executor};
+use augsplat_graph::exec::{slurm::SlurmOptions, ExecutorKind};
 use augsplat_graph::{default_cache_dir, Engine, Plan, Registry, RunOptions};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -72,9 +72,9 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
             if !args.slurm_opts.is_empty() || args.requeue {
                 return Err("--slurm-opt and --requeue need --executor slurm".into());
             }
-            Executor::Local
+            ExecutorKind::Local
         }
-        "slurm" => Executor::Slurm(slurm_options(&args, engine.store().root())?),
+        "slurm" => ExecutorKind::Slurm(slurm_options(&args, engine.store().root())?),
         other => {
             return Err(format!(
                 "--executor {other}: unknown executor (use `local` or `slurm`)"

@@ -1,13 +1,16 @@
-//! The local executor: runs the needed computations of a [`Plan`] in dependency order,
-//! independent ones in parallel within a thread budget, each inside a rayon pool of its own
-//! budget; finds finished ones in the store by key (every run is a resume); claims keys so two
-//! processes never compute one twice; promotes outputs atomically.
+//! Running a [`Plan`]: the needed computations in dependency order, independent ones in
+//! parallel, each found in the store by key when it is there (every run is a resume); claims
+//! keep two processes from computing one key twice, and outputs are promoted atomically.
 //!
-//! [`execute`] is a short loop over a scheduler (`schedule.rs`: `Scheduler::start_ready` starts
-//! what is ready and fits, `Scheduler::on_message` takes one finished computation); `run.rs`
-//! runs one computation on a worker thread; `report.rs` turns the results into summaries and
-//! the store's run records.
+//! [`execute`] hands the run to one driver loop (`driver.rs`) over an executor, which only
+//! starts jobs and reports what became of them: `local.rs` runs each on a worker thread within
+//! a thread budget, each inside a rayon pool of its own budget; [`slurm`] submits each as a
+//! Slurm job. `schedule.rs` is the driver's scheduler (what waits, what is ready, what fits);
+//! `run.rs` runs one computation; `report.rs` turns the results into summaries and the store's
+//! run records; [`status`] writes the run's live status file.
 
+mod driver;
+mod local;
 mod report;
 mod run;
 mod schedule;
@@ -15,15 +18,15 @@ pub mod slurm;
 pub mod status;
 
 pub use report::{arg_origin, flatten_args, instance_record};
-pub(crate) use run::{changed_input, input_snapshot};
 
 use crate::error::EngineError;
 use crate::key::compute_key;
 use crate::resolve::{Plan, Source};
 use crate::store::{unhex, ActionEntry, Hash, Store};
-use schedule::{Msg, Scheduler};
+use driver::drive;
+use local::Local;
+use slurm::Slurm;
 use std::collections::BTreeMap;
-use std::sync::mpsc;
 use std::time::Instant;
 
 /// How to run.
@@ -43,12 +46,12 @@ pub struct RunOptions {
     /// progress bar is drawn). The log is stored with the node's result either way.
     pub echo_log: bool,
     /// Where computations run.
-    pub executor: Executor,
+    pub executor: ExecutorKind,
 }
 
 /// Where a run's computations run.
 #[derive(Clone, Debug, Default)]
-pub enum Executor {
+pub enum ExecutorKind {
     /// In this process, on worker threads (the default).
     #[default]
     Local,
@@ -69,7 +72,7 @@ impl Default for RunOptions {
             progress: false,
             checkpoint_every: DEFAULT_CHECKPOINT_EVERY,
             echo_log: false,
-            executor: Executor::Local,
+            executor: ExecutorKind::Local,
         }
     }
 }
@@ -180,13 +183,19 @@ pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunRepor
     let _shared = store.lock_shared()?;
     let need = plan.needed(&opts.targets)?;
     let executor = match opts.executor {
-        Executor::Local => "local",
-        Executor::Slurm(_) => "slurm",
+        ExecutorKind::Local => "local",
+        ExecutorKind::Slurm(_) => "slurm",
     };
     let mut status = status::StatusWriter::new(store, plan.file.display().to_string(), executor);
     let results = match &opts.executor {
-        Executor::Local => run_local(plan, store, opts, need, &mut status)?,
-        Executor::Slurm(s) => slurm::run(plan, store, opts, s, need, &mut status)?,
+        ExecutorKind::Local => std::thread::scope(|scope| {
+            let mut local = Local::new(scope, plan, store);
+            drive(plan, store, opts, need, &mut local, &mut status)
+        })?,
+        ExecutorKind::Slurm(s) => {
+            let mut slurm = Slurm::new(plan, store, opts, s, status.run_id())?;
+            drive(plan, store, opts, need, &mut slurm, &mut status)?
+        }
     };
     let report = RunReport {
         results,
@@ -194,50 +203,6 @@ pub fn execute(plan: &Plan, store: &Store, opts: &RunOptions) -> Result<RunRepor
     };
     report::write_records(plan, store, &report)?;
     Ok(report)
-}
-
-/// The local executor's loop: worker threads within the thread budget.
-fn run_local(
-    plan: &Plan,
-    store: &Store,
-    opts: &RunOptions,
-    need: Vec<bool>,
-    status: &mut status::StatusWriter<'_>,
-) -> Result<Vec<Option<CompResult>>, EngineError> {
-    let mut sched = Scheduler::new(plan, store, need, opts.jobs.max(1), opts.progress);
-    sched.checkpoint_every = opts.checkpoint_every;
-    sched.echo_log = opts.echo_log;
-    let here = format!("pid {} on {}", std::process::id(), crate::store::hostname());
-    let place = |_c: usize| Some((here.clone(), false));
-    let (tx, rx) = mpsc::channel::<Msg>();
-    std::thread::scope(|scope| -> Result<(), EngineError> {
-        loop {
-            sched.start_ready(|job| {
-                let tx = tx.clone();
-                scope.spawn(move || {
-                    let c = job.comp;
-                    let waiting = tx.clone();
-                    let on_wait = move |h: Option<&crate::claim::ClaimHolder>| {
-                        let _ = waiting.send(Msg::Waiting(c, h.cloned()));
-                    };
-                    let _ = tx.send(Msg::Done(c, job.run(plan, store, &on_wait)));
-                });
-            })?;
-            // One write per start or finish: cheap beside any node.
-            status.update(sched.node_states(&place), true);
-            if sched.idle() {
-                break;
-            }
-            let Ok(msg) = rx.recv() else {
-                break;
-            };
-            sched.on_message(msg);
-        }
-        Ok(())
-    })?;
-    let results = sched.into_results();
-    status.finish(status::states_of_results(plan, &results));
-    Ok(results)
 }
 
 /// Computes the one computation of `plan` whose key is `key_hex` (its inputs must be in the

@@ -5,13 +5,14 @@
 use super::{CompResult, Status};
 use crate::error::EngineError;
 use crate::node::{NodeError, ProgressSink, RunContext};
-use crate::resolve::Plan;
+use crate::resolve::{Comp, Plan};
+use crate::snapshot::{changed_input, input_snapshot, InputSnapshot};
 use crate::store::{
     hex, hostname, now_unix, remove_tree, unhex, ActionEntry, Hash, Store, STORE_FORMAT,
 };
 use indicatif::ProgressBar;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -93,7 +94,7 @@ impl Job {
         self,
         plan: &Plan,
         store: &Store,
-        on_wait: &dyn Fn(Option<&crate::claim::ClaimHolder>),
+        on_wait: &dyn Fn(Option<&crate::store::claim::ClaimHolder>),
     ) -> CompResult {
         let bar = self.bar.clone();
         let r = run_one(plan, store, self, on_wait);
@@ -118,7 +119,7 @@ fn run_one(
     plan: &Plan,
     store: &Store,
     job: Job,
-    on_wait: &dyn Fn(Option<&crate::claim::ClaimHolder>),
+    on_wait: &dyn Fn(Option<&crate::store::claim::ClaimHolder>),
 ) -> CompResult {
     let key = job.key;
     let fail = |m: String, secs: f64| CompResult {
@@ -202,70 +203,17 @@ fn check_inputs(store: &Store, job: &Job) -> Result<(), String> {
     Ok(())
 }
 
-/// Per input name, every file and folder below each of its paths with its size and
-/// modification time (a stat per file: cheap beside any node).
-pub(crate) type InputSnapshot = BTreeMap<String, BTreeMap<PathBuf, (u64, i128)>>;
-
-pub(crate) fn input_snapshot(inputs: &[(String, Vec<PathBuf>)]) -> InputSnapshot {
-    fn walk(p: &std::path::Path, out: &mut BTreeMap<PathBuf, (u64, i128)>) {
-        let Ok(meta) = std::fs::symlink_metadata(p) else {
-            return;
-        };
-        let mtime = crate::store::mtime_ns(&meta);
-        out.insert(
-            p.to_path_buf(),
-            (if meta.is_dir() { 0 } else { meta.len() }, mtime),
-        );
-        if meta.is_dir() {
-            if let Ok(rd) = std::fs::read_dir(p) {
-                for e in rd.flatten() {
-                    walk(&e.path(), out);
-                }
-            }
-        }
-    }
-    inputs
-        .iter()
-        .map(|(name, paths)| {
-            let mut files = BTreeMap::new();
-            for p in paths {
-                walk(p, &mut files);
-            }
-            (name.clone(), files)
-        })
-        .collect()
-}
-
-/// The first difference between two snapshots, in words (`None` when the inputs are as they
-/// were).
-pub(crate) fn changed_input(before: &InputSnapshot, after: &InputSnapshot) -> Option<String> {
-    for (name, b) in before {
-        let Some(a) = after.get(name) else {
-            return Some(format!("`{name}` was disconnected"));
-        };
-        for (p, st) in b {
-            match a.get(p) {
-                None => return Some(format!("`{name}`: {} was removed", p.display())),
-                Some(x) if x != st => {
-                    return Some(format!("`{name}`: {} was modified", p.display()))
-                }
-                _ => {}
-            }
-        }
-        if let Some(p) = a.keys().find(|p| !b.contains_key(*p)) {
-            return Some(format!("`{name}`: {} was added", p.display()));
-        }
-    }
-    None
-}
-
 /// Runs the job's node in `scratch` and stores its outputs and action entry. On failure:
 /// the message and the seconds the node ran (its log goes to `runs/failed-<key>.log`).
+///
+/// Steps: make the scratch folders; set up the node's context (its inputs without the gate's
+/// slot, a snapshot of them); run the node, or write the gated marker; fail if it failed or
+/// changed an input; promote its outputs; write its action entry last.
 fn run_in_scratch(
     plan: &Plan,
     store: &Store,
     job: Job,
-    scratch: &std::path::Path,
+    scratch: &Path,
     check_seconds: f64,
 ) -> Result<CompResult, (String, f64)> {
     let Job {
@@ -281,15 +229,7 @@ fn run_in_scratch(
     } = job;
     let name = name.as_str();
     let comp = &plan.comps[c];
-    let mut outputs = Vec::new();
-    for o in &comp.outputs {
-        let p = scratch.join("out").join(o);
-        std::fs::create_dir_all(&p).map_err(|e| (format!("creating {}: {e}", p.display()), 0.0))?;
-        outputs.push((o.clone(), p));
-    }
-    let work = scratch.join("work");
-    std::fs::create_dir_all(&work)
-        .map_err(|e| (format!("creating {}: {e}", work.display()), 0.0))?;
+    let (outputs, work) = scratch_folders(comp, scratch)?;
     let sink = Arc::new(NodeSink {
         lines: Mutex::new(Vec::new()),
         bar,
@@ -330,62 +270,21 @@ fn run_in_scratch(
         .build()
         .map_err(|e| (format!("building a thread pool: {e}"), 0.0))?;
     let t = Instant::now();
-    let res = match &gated {
-        Some(reason) => {
-            ctx.log(format!("gated: {reason}"));
-            Ok(outputs
-                .iter()
-                .try_for_each(|(_, p)| crate::gate::write_marker(p, reason))
-                .map_err(|e| NodeError::new(format!("writing the gated marker: {e}"))))
-        }
-        None => pool.install(|| {
-            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                comp.node.run(&comp.args, &mut ctx)
-            }))
-        }),
-    };
+    let res = run_node(comp, &mut ctx, &pool, &outputs, gated.as_deref());
     let secs = t.elapsed().as_secs_f64();
     let log_text = sink.lines.lock().map(|l| l.join("\n")).unwrap_or_default();
-    if let Some(m) = failure_of(res) {
-        let msg = format!(
-            "node `{name}` ({}) failed: {m}{}",
-            comp.node.kind(),
-            log_tail(&log_text)
-        );
-        let _ = store.write_atomic(
-            &store
-                .root()
-                .join("runs")
-                .join(format!("failed-{}.log", hex(&key))),
-            format!("{msg}\n\n{log_text}\n").as_bytes(),
-        );
-        return Err((msg, secs));
-    }
-    if let Some(change) = changed_input(&before, &input_snapshot(&ctx.inputs)) {
-        let msg = format!(
-            "node `{name}` ({}) changed its input {change}; inputs are read-only (write to an \
-             output folder instead). If the input came from the store, run `augsplat verify \
-             --repair` before the next run",
-            comp.node.kind()
-        );
-        return Err((msg, secs));
-    }
-    let mut manifests = BTreeMap::new();
-    for (o, p) in &outputs {
-        if !p.is_dir() {
-            return Err((
-                format!(
-                    "node `{name}` ({}) removed its output folder `{o}`",
-                    comp.node.kind()
-                ),
-                secs,
-            ));
-        }
-        let m = pool
-            .install(|| store.promote(p))
-            .map_err(|e| (format!("storing output `{o}` of `{name}`: {e}"), secs))?;
-        manifests.insert(o.clone(), m);
-    }
+    check_run(
+        store,
+        comp,
+        name,
+        &key,
+        res,
+        &log_text,
+        &before,
+        &ctx.inputs,
+    )
+    .map_err(|m| (m, secs))?;
+    let manifests = promote_outputs(store, &pool, comp, name, &outputs).map_err(|m| (m, secs))?;
     let log = if log_text.is_empty() {
         None
     } else {
@@ -423,6 +322,114 @@ fn run_in_scratch(
         waited: false,
         gated,
     })
+}
+
+/// Each output's folder, by output name, in the node's order.
+type OutputFolders = Vec<(String, PathBuf)>;
+
+/// One output folder per output of `comp` under `scratch/out/`, and the node's own scratch
+/// folder `scratch/work`.
+fn scratch_folders(comp: &Comp, scratch: &Path) -> Result<(OutputFolders, PathBuf), (String, f64)> {
+    let mut outputs = Vec::new();
+    for o in &comp.outputs {
+        let p = scratch.join("out").join(o);
+        std::fs::create_dir_all(&p).map_err(|e| (format!("creating {}: {e}", p.display()), 0.0))?;
+        outputs.push((o.clone(), p));
+    }
+    let work = scratch.join("work");
+    std::fs::create_dir_all(&work)
+        .map_err(|e| (format!("creating {}: {e}", work.display()), 0.0))?;
+    Ok((outputs, work))
+}
+
+/// Runs the node in `pool` (a panic is caught), or, when a gate ended it (`gated`: why),
+/// writes the gated marker into each output folder instead.
+fn run_node(
+    comp: &Comp,
+    ctx: &mut RunContext,
+    pool: &rayon::ThreadPool,
+    outputs: &[(String, PathBuf)],
+    gated: Option<&str>,
+) -> std::thread::Result<Result<(), NodeError>> {
+    match gated {
+        Some(reason) => {
+            ctx.log(format!("gated: {reason}"));
+            Ok(outputs
+                .iter()
+                .try_for_each(|(_, p)| crate::gate::write_marker(p, reason))
+                .map_err(|e| NodeError::new(format!("writing the gated marker: {e}"))))
+        }
+        None => pool.install(|| {
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                comp.node.run(&comp.args, ctx)
+            }))
+        }),
+    }
+}
+
+/// Whether the node's run may be stored: it did not fail (else its log goes to
+/// `runs/failed-<key>.log`, and the message ends with the log's last lines) and it left its
+/// inputs as they were (`before`).
+#[allow(clippy::too_many_arguments)]
+fn check_run(
+    store: &Store,
+    comp: &Comp,
+    name: &str,
+    key: &Hash,
+    res: std::thread::Result<Result<(), NodeError>>,
+    log_text: &str,
+    before: &InputSnapshot,
+    inputs: &[(String, Vec<PathBuf>)],
+) -> Result<(), String> {
+    if let Some(m) = failure_of(res) {
+        let msg = format!(
+            "node `{name}` ({}) failed: {m}{}",
+            comp.node.kind(),
+            log_tail(log_text)
+        );
+        let _ = store.write_atomic(
+            &store
+                .root()
+                .join("runs")
+                .join(format!("failed-{}.log", hex(key))),
+            format!("{msg}\n\n{log_text}\n").as_bytes(),
+        );
+        return Err(msg);
+    }
+    if let Some(change) = changed_input(before, &input_snapshot(inputs)) {
+        return Err(format!(
+            "node `{name}` ({}) changed its input {change}; inputs are read-only (write to an \
+             output folder instead). If the input came from the store, run `augsplat verify \
+             --repair` before the next run",
+            comp.node.kind()
+        ));
+    }
+    Ok(())
+}
+
+/// Promotes each output folder into the store (in `pool`); returns the manifests by output
+/// name. A node that removed an output folder fails.
+fn promote_outputs(
+    store: &Store,
+    pool: &rayon::ThreadPool,
+    comp: &Comp,
+    name: &str,
+    outputs: &[(String, PathBuf)],
+) -> Result<BTreeMap<String, Hash>, String> {
+    let mut manifests = BTreeMap::new();
+    for (o, p) in outputs {
+        if !p.is_dir() {
+            return Err(format!(
+                "node `{name}` ({}) removed its output folder `{o}`",
+                comp.node.kind()
+            ));
+        }
+        let m = pool
+            .install(|| store.promote(p))
+            .map_err(|e| format!("storing output `{o}` of `{name}`: {e}"))?;
+        manifests.insert(o.clone(), m);
+    }
+    Ok(manifests)
 }
 
 /// Why a node's run failed (its error, or its panic's message), or `None` when it succeeded.

@@ -1,12 +1,13 @@
 //! The scheduler of one run: which needed computations wait on which, which are ready, which
 //! run, and how much of the thread budget is free.
 //!
-//! The executor alternates two steps until nothing runs: [`Scheduler::start_ready`] walks the
-//! ready queue in plan order, finishing at once each computation whose key is in the store and
-//! starting each one whose thread budget fits (a `Threads::All` computation that does not fit
-//! reserves the machine: nothing after it starts); [`Scheduler::on_message`] takes a finished
-//! computation's result, frees its threads and readies its dependents. A failed computation's
-//! dependents never become ready; [`Scheduler::into_results`] marks them skipped.
+//! The driver loop (`driver.rs`) alternates two steps of it until nothing runs:
+//! [`Scheduler::start_ready`] walks the ready queue in plan order, finishing at once each
+//! computation whose key is in the store and handing over each one whose thread budget fits (a
+//! `Threads::All` computation that does not fit reserves the machine: nothing after it
+//! starts); [`Scheduler::on_message`] takes a finished computation's result, frees its threads
+//! and readies its dependents. A failed computation's dependents never become ready;
+//! [`Scheduler::into_results`] marks them skipped.
 
 use super::run::{outputs_of, Job};
 use super::{CompResult, Status};
@@ -14,8 +15,8 @@ use crate::error::EngineError;
 use crate::key::compute_key;
 use crate::node::Threads;
 use crate::resolve::{Plan, Source};
+use crate::store::EntryState;
 use crate::store::{hex, Hash, Store};
-use crate::verify::EntryState;
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::path::PathBuf;
@@ -27,11 +28,11 @@ pub(super) enum Msg {
     Done(usize, CompResult),
     /// Computation `.0` waits for another process, `.1`, that holds its key's claim (`None`:
     /// it no longer waits).
-    Waiting(usize, Option<crate::claim::ClaimHolder>),
+    Waiting(usize, Option<crate::store::claim::ClaimHolder>),
 }
 
 /// The line a run prints when a node waits for another process computing the same key.
-pub(super) fn waiting_line(name: &str, h: &crate::claim::ClaimHolder) -> String {
+pub(super) fn waiting_line(name: &str, h: &crate::store::claim::ClaimHolder) -> String {
     format!(
         "waiting: `{name}` is being computed by {}, which claimed it {} s ago; its result \
          will be used when it finishes (a claim whose holder died is taken over)",
@@ -115,7 +116,7 @@ pub(super) struct Scheduler<'a> {
     /// Computations whose broken cache entry was already reported.
     warned_broken: BTreeSet<usize>,
     /// Running computations that wait for another process's claim on their key: whom.
-    waiting_for: BTreeMap<usize, crate::claim::ClaimHolder>,
+    waiting_for: BTreeMap<usize, crate::store::claim::ClaimHolder>,
     /// The checkpoint cadence handed to each job.
     pub(super) checkpoint_every: u64,
     /// Whether each job echoes its log lines to stderr.

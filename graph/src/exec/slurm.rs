@@ -6,8 +6,8 @@
 //!   scheduler's rule), so nothing is submitted early, and nothing downstream of a failure is
 //!   submitted at all. Each submission writes `runs/slurm/<run>/<n>.keys` (one `KEY THREADS`
 //!   line per array task) and `<n>.sh`, and calls `sbatch --parsable` with the run's job name
-//!   `augsplat-<run>`, the node's [`Resources`] (from the pipeline's `resources:` block, never
-//!   part of a key) and the user's pass-through options.
+//!   `augsplat-<run>`, the node's [`Resources`] (from the pipeline's `resources:` block,
+//!   never part of a key) and the user's pass-through options.
 //! - **Polling.** One `squeue --name=augsplat-<run>` call per poll for all the run's jobs, with
 //!   exponential back-off (0.5 s growing to [`SlurmOptions::poll_max`], back to 0.5 s when
 //!   something changes). `sacct` is asked only when the cluster keeps accounting, and only about
@@ -19,39 +19,24 @@
 //!   broken so a rerun does not wait for it.
 //! - **Preemption.** A requeued job (`scontrol requeue`, or preemption with `--requeue`) stays
 //!   in `squeue` and is simply waited for; its rerun resumes from the node's checkpoint.
+//!
+//! The executor is three short steps under the run's driver loop, which keeps the graph:
+//! `submit` groups the ready jobs into one submission per node and calls `sbatch`; `poll`
+//! lists the run's jobs; `settle` asks the store about each job that ended (`outcome`).
 
-use super::schedule::Scheduler;
-use super::status::StatusWriter;
+use super::driver::Executor;
+use super::run::{gated_outputs, outputs_of, Job};
+use super::schedule::Msg;
 use super::{CompResult, RunOptions, Status};
 use crate::error::EngineError;
 use crate::node::Threads;
-use crate::resolve::Plan;
-use crate::store::{hex, Store};
-use serde::{Deserialize, Serialize};
+use crate::resolve::{Plan, Resources};
+use crate::store::claim::break_claim_of_job;
+use crate::store::{hex, Hash, Store};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
-
-/// Slurm resources of a node's jobs: a value of the pipeline's `resources:` block, keyed by a
-/// node's name in the pipeline or by its kind (the name wins), or `default`. Not part of any
-/// key: where a node runs never changes what it computes.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Resources {
-    /// `--cpus-per-task` (default: 1 for a one-thread node, else the run's `--jobs`).
-    pub cpus: Option<u32>,
-    /// `--mem`, e.g. "8G".
-    pub mem: Option<String>,
-    /// `--time`, e.g. "02:00:00".
-    pub time: Option<String>,
-    /// `--gpus` (for nodes with `backend: Gpu`).
-    pub gpus: Option<u32>,
-    /// `--partition`.
-    pub partition: Option<String>,
-    /// More `sbatch` options, verbatim (e.g. `["--constraint=a100"]`).
-    pub sbatch: Vec<String>,
-}
 
 /// How to run on Slurm.
 #[derive(Clone, Debug)]
@@ -115,222 +100,429 @@ struct Submitted {
     /// When it was first seen ended without an entry.
     ended_at: Option<Instant>,
     /// The key.
-    key: crate::store::Hash,
+    key: Hash,
     /// Its spinner, when bars are drawn (cleared when it ends).
     bar: Option<indicatif::ProgressBar>,
+}
+
+impl Submitted {
+    /// Job `job`, just submitted as Slurm job `jid` writing to `out_file`.
+    fn new(job: Job, jid: String, out_file: PathBuf) -> Self {
+        Submitted {
+            job: jid,
+            out_file,
+            state: "PENDING".into(),
+            node: String::new(),
+            ended_at: None,
+            key: job.key,
+            bar: job.bar,
+        }
+    }
+
+    /// Records what `squeue` or `sacct` says of the job (its state, and its node when named);
+    /// returns whether that changed, and whether the job may still produce its entry.
+    fn observe(&mut self, seen: Option<&(String, String)>) -> (bool, bool) {
+        let Some((st, node)) = seen else {
+            return (false, false);
+        };
+        let changed = *st != self.state || (!node.is_empty() && *node != self.node);
+        self.state = st.clone();
+        if !node.is_empty() {
+            self.node = node.clone();
+        }
+        if let Some(b) = &self.bar {
+            b.set_message(format!("Slurm job {} {st}", self.job));
+        }
+        let live = LIVE_STATES.contains(&st.as_str());
+        if live {
+            self.ended_at = None;
+        }
+        (changed, live)
+    }
+
+    /// Where it runs, for the status file, and whether it is still queued.
+    fn place(&self) -> (String, bool) {
+        let queued = self.state == "PENDING" || self.state == "REQUEUED";
+        let at = if self.node.is_empty() || queued {
+            format!(" ({})", self.state)
+        } else {
+            format!(" on {}", self.node)
+        };
+        (format!("Slurm job {}{at}", self.job), queued)
+    }
 }
 
 /// `squeue`'s view of the run's jobs: job id → (state, node list).
 type Listing = BTreeMap<String, (String, String)>;
 
-/// Runs the needed computations of `plan` as Slurm jobs (see the module documentation).
-pub(super) fn run(
-    plan: &Plan,
-    store: &Store,
-    opts: &RunOptions,
-    slurm: &SlurmOptions,
-    need: Vec<bool>,
-    status: &mut StatusWriter<'_>,
-) -> Result<Vec<Option<CompResult>>, EngineError> {
-    if slurm.worker.is_empty() {
-        return Err(EngineError::Other(
-            "the Slurm executor needs a worker command".into(),
-        ));
+/// The pause after a poll that found something changed.
+const SHORT_PAUSE: Duration = Duration::from_millis(500);
+
+/// The Slurm executor over one run (see the module documentation).
+pub(super) struct Slurm<'a> {
+    plan: &'a Plan,
+    store: &'a Store,
+    slurm: &'a SlurmOptions,
+    /// The run's thread budget (`--jobs`): the cores of a job whose node uses all it is given.
+    jobs: usize,
+    /// `runs/slurm/<run>/`: each submission's keys file, script and output files.
+    run_dir: PathBuf,
+    /// `augsplat-<run>`: the name of every job of the run.
+    job_name: String,
+    /// Whether the cluster keeps accounting (so `sacct` can answer).
+    accounting: bool,
+    /// The submitted computations that have not settled, by computation.
+    submitted: BTreeMap<usize, Submitted>,
+    /// Submissions so far (each one's files are numbered).
+    submissions: usize,
+    /// The pause before the next poll: [`SHORT_PAUSE`], growing while nothing changes.
+    pause: Duration,
+    /// Whether something changed in this step (a submission, a job's state or node, a job
+    /// settled): the next pause is short again.
+    changed: bool,
+}
+
+impl<'a> Slurm<'a> {
+    /// The executor of run `run_id`: checks that there is a worker command and makes the
+    /// run's folder.
+    pub(super) fn new(
+        plan: &'a Plan,
+        store: &'a Store,
+        opts: &RunOptions,
+        slurm: &'a SlurmOptions,
+        run_id: &str,
+    ) -> Result<Self, EngineError> {
+        if slurm.worker.is_empty() {
+            return Err(EngineError::Other(
+                "the Slurm executor needs a worker command".into(),
+            ));
+        }
+        let run_dir = store.root().join("runs").join("slurm").join(run_id);
+        std::fs::create_dir_all(&run_dir).map_err(crate::error::io("creating", &run_dir))?;
+        Ok(Slurm {
+            plan,
+            store,
+            slurm,
+            jobs: opts.jobs.max(1),
+            run_dir,
+            job_name: format!("augsplat-{run_id}"),
+            accounting: accounting_enabled(),
+            submitted: BTreeMap::new(),
+            submissions: 0,
+            pause: SHORT_PAUSE,
+            changed: false,
+        })
     }
-    // Every ready computation is submitted at once: the cluster does the scheduling, and the
-    // thread budget (`--jobs`) only sizes each job.
-    let mut sched = Scheduler::new(plan, store, need, opts.jobs.max(1), opts.progress);
-    sched.checkpoint_every = opts.checkpoint_every;
-    sched.unbounded = true;
-    let run_dir = store
-        .root()
-        .join("runs")
-        .join("slurm")
-        .join(status.run_id());
-    std::fs::create_dir_all(&run_dir).map_err(crate::error::io("creating", &run_dir))?;
-    let job_name = format!("augsplat-{}", status.run_id());
-    let accounting = accounting_enabled();
-    let mut submitted: BTreeMap<usize, Submitted> = BTreeMap::new();
-    let mut n_submissions = 0usize;
-    let mut pause = Duration::from_millis(500);
-    loop {
-        let mut ready = Vec::new();
-        sched.start_ready(|job| ready.push(job))?;
-        // One submission per node name (array for several instances), in plan order.
-        let mut groups: BTreeMap<String, Vec<super::run::Job>> = BTreeMap::new();
-        let mut order = Vec::new();
-        for job in ready {
-            let comp = &plan.comps[job.comp];
-            let base = comp
-                .instances
-                .first()
-                .map(|&i| plan.instances[i].base.clone())
-                .unwrap_or_default();
-            let g = format!("{base}/{}", comp.node.kind());
-            if !groups.contains_key(&g) {
-                order.push(g.clone());
-            }
-            groups.entry(g).or_default().push(job);
-        }
-        let mut changed = !order.is_empty();
-        // Slurm's default `MaxArraySize` is 1001: larger groups go as several arrays.
-        let batches: Vec<Vec<super::run::Job>> = order
-            .iter()
-            .flat_map(|g| {
-                let mut jobs = groups.remove(g).unwrap_or_default();
-                let mut out = Vec::new();
-                while jobs.len() > MAX_ARRAY {
-                    let rest = jobs.split_off(MAX_ARRAY);
-                    out.push(std::mem::replace(&mut jobs, rest));
-                }
-                out.push(jobs);
-                out
-            })
-            .collect();
-        for jobs in batches {
-            let id = n_submissions;
-            n_submissions += 1;
-            match submit(plan, slurm, opts, &run_dir, &job_name, id, &jobs) {
-                Ok(ids) => {
-                    for (job, (jid, out_file)) in jobs.iter().zip(ids) {
-                        submitted.insert(
-                            job.comp,
-                            Submitted {
-                                job: jid,
-                                out_file,
-                                state: "PENDING".into(),
-                                node: String::new(),
-                                ended_at: None,
-                                key: job.key,
-                                bar: job.bar.clone(),
-                            },
-                        );
-                    }
-                }
-                Err(m) => {
-                    for job in &jobs {
-                        if let Some(b) = &job.bar {
-                            b.finish_and_clear();
-                        }
-                        sched.on_message(super::schedule::Msg::Done(
-                            job.comp,
-                            failed(job.key, m.clone()),
-                        ));
-                    }
-                }
-            }
-        }
-        let place = |c: usize| {
-            submitted.get(&c).map(|s| {
-                let queued = s.state == "PENDING" || s.state == "REQUEUED";
-                let at = if s.node.is_empty() || queued {
-                    format!(" ({})", s.state)
-                } else {
-                    format!(" on {}", s.node)
-                };
-                (format!("Slurm job {}{at}", s.job), queued)
-            })
-        };
-        status.update(sched.node_states(&place), changed);
-        if sched.idle() {
-            break;
-        }
-        std::thread::sleep(pause);
-        let listing = match squeue(&job_name) {
-            Ok(l) => l,
-            Err(m) => {
-                eprintln!("warning: {m}; polling again");
-                pause = (pause.mul_f64(1.6)).min(slurm.poll_max);
+
+    /// Settles each submitted job that is no longer live, given `squeue`'s `listing` and the
+    /// final states `sacct` knows (see [`outcome`]); returns their results.
+    fn settle(
+        &mut self,
+        listing: &Listing,
+        finals: &BTreeMap<String, String>,
+    ) -> Result<Vec<Msg>, EngineError> {
+        let mut done = Vec::new();
+        for (&c, s) in self.submitted.iter_mut() {
+            let seen = listing
+                .get(&s.job)
+                .cloned()
+                .or_else(|| finals.get(&s.job).map(|st| (st.clone(), String::new())));
+            let (changed, live) = s.observe(seen.as_ref());
+            self.changed |= changed;
+            if live {
                 continue;
             }
-        };
-        let gone: Vec<String> = submitted
+            if let Some(r) = outcome(self.store, self.slurm, s, seen)? {
+                done.push((c, r));
+            }
+        }
+        let mut msgs = Vec::new();
+        for (c, r) in done {
+            if let Some(b) = self.submitted.remove(&c).and_then(|s| s.bar) {
+                b.finish_and_clear();
+            }
+            self.changed = true;
+            msgs.push(Msg::Done(c, r));
+        }
+        Ok(msgs)
+    }
+
+    /// The pause after this one when nothing changed: 1.6 times as long, up to
+    /// [`SlurmOptions::poll_max`].
+    fn longer_pause(&self) -> Duration {
+        self.pause.mul_f64(1.6).min(self.slurm.poll_max)
+    }
+
+    /// The final states of the submitted jobs that `listing` no longer shows, when the
+    /// cluster keeps accounting (one `sacct` call).
+    fn final_states(&self, listing: &Listing) -> BTreeMap<String, String> {
+        let gone: Vec<String> = self
+            .submitted
             .values()
             .filter(|s| !listing.contains_key(&s.job))
             .map(|s| s.job.clone())
             .collect();
-        let final_states = if accounting && !gone.is_empty() {
+        if self.accounting && !gone.is_empty() {
             sacct_states(&gone)
         } else {
             BTreeMap::new()
-        };
-        let mut done = Vec::new();
-        for (&c, s) in submitted.iter_mut() {
-            let seen = listing
-                .get(&s.job)
-                .map(|(st, node)| (st.clone(), node.clone()))
-                .or_else(|| {
-                    final_states
-                        .get(&s.job)
-                        .map(|st| (st.clone(), String::new()))
-                });
-            if let Some((st, node)) = &seen {
-                if *st != s.state || (!node.is_empty() && *node != s.node) {
-                    changed = true;
-                }
-                s.state = st.clone();
-                if !node.is_empty() {
-                    s.node = node.clone();
-                }
-                if let Some(b) = &s.bar {
-                    b.set_message(format!("Slurm job {} {st}", s.job));
-                }
-                if LIVE_STATES.contains(&st.as_str()) {
-                    s.ended_at = None;
-                    continue;
-                }
-            }
-            // Ended (or no longer listed): the store says whether it succeeded.
-            if let Some(entry) = store.action(&s.key)? {
-                let outputs = super::run::outputs_of(&entry)?;
-                done.push((
-                    c,
-                    CompResult {
-                        status: Status::Ran,
-                        key: Some(s.key),
-                        seconds: entry.seconds,
-                        computed_seconds: entry.seconds,
-                        gated: super::run::gated_outputs(store, &outputs),
-                        outputs,
-                        waited: false,
-                    },
-                ));
-                continue;
-            }
-            let ended = *s.ended_at.get_or_insert_with(Instant::now);
-            // A job that Slurm says failed is not waited for long; one that completed (or
-            // vanished) may still be on its way through the shared filesystem.
-            let completed = seen.as_ref().is_none_or(|(st, _)| st == "COMPLETED");
-            let bound = if completed {
-                slurm.visibility_wait
-            } else {
-                slurm.visibility_wait.min(Duration::from_secs(5))
-            };
-            if ended.elapsed() >= bound {
-                crate::claim::break_claim_of_job(&store.claim_path(&s.key), &s.job);
-                let state = seen.map(|(st, _)| st).unwrap_or_else(|| "ended".into());
-                done.push((c, failed(s.key, job_failure(store, s, &state))));
-            }
         }
-        for (c, r) in done {
-            if let Some(b) = submitted.remove(&c).and_then(|s| s.bar) {
-                b.finish_and_clear();
-            }
-            changed = true;
-            sched.on_message(super::schedule::Msg::Done(c, r));
-        }
-        pause = if changed {
-            Duration::from_millis(500)
-        } else {
-            (pause.mul_f64(1.6)).min(slurm.poll_max)
-        };
     }
-    let results = sched.into_results();
-    status.finish(super::status::states_of_results(plan, &results));
-    Ok(results)
+
+    /// Submits `jobs` (one node's ready computations) as one job, or one array; returns each
+    /// one's job id and output file, or why `sbatch` refused.
+    fn sbatch(&self, id: usize, jobs: &[Job]) -> Result<Vec<(String, PathBuf)>, String> {
+        let res = self
+            .plan
+            .resources_of(jobs[0].comp)
+            .cloned()
+            .unwrap_or_default();
+        let cpus = match (res.cpus, self.plan.comps[jobs[0].comp].threads) {
+            (Some(c), _) => c as usize,
+            (None, Threads::One) => 1,
+            (None, Threads::Exactly(k)) => k,
+            (None, Threads::All) => self.jobs,
+        };
+        let script = self.write_job_files(id, jobs, cpus)?;
+        let array = jobs.len() > 1;
+        let args = self.sbatch_args(id, jobs.len(), cpus, &res, &script);
+        let jid = run_sbatch(&args)?;
+        Ok((0..jobs.len())
+            .map(|i| {
+                if array {
+                    (
+                        format!("{jid}_{i}"),
+                        self.run_dir.join(format!("{id}_{i}.out")),
+                    )
+                } else {
+                    (jid.clone(), self.run_dir.join(format!("{id}.out")))
+                }
+            })
+            .collect())
+    }
+
+    /// Writes submission `id`'s keys file (one `KEY THREADS` line per array task) and its
+    /// script, which runs the worker on the task's line; returns the script's path.
+    fn write_job_files(&self, id: usize, jobs: &[Job], cpus: usize) -> Result<PathBuf, String> {
+        let first = &self.plan.comps[jobs[0].comp];
+        let keys_file = self.run_dir.join(format!("{id}.keys"));
+        let lines: String = jobs
+            .iter()
+            .map(|j| format!("{} {cpus}\n", hex(&j.key)))
+            .collect();
+        std::fs::write(&keys_file, lines)
+            .map_err(|e| format!("writing {}: {e}", keys_file.display()))?;
+        let mut cmd_line: Vec<String> = self.slurm.worker.iter().map(|a| sh_quote(a)).collect();
+        cmd_line.push("--keys-file".into());
+        cmd_line.push(sh_quote(&keys_file.display().to_string()));
+        cmd_line.push("--index".into());
+        cmd_line.push("\"${SLURM_ARRAY_TASK_ID:-0}\"".into());
+        let script = self.run_dir.join(format!("{id}.sh"));
+        let text = format!(
+            "#!/bin/sh\n# augsplat: {} ({}), {} computation(s)\nexec {}\n",
+            first.display_name(self.plan),
+            first.node.kind(),
+            jobs.len(),
+            cmd_line.join(" ")
+        );
+        std::fs::write(&script, text).map_err(|e| format!("writing {}: {e}", script.display()))?;
+        Ok(script)
+    }
+
+    /// The `sbatch` arguments of submission `id` of `tasks` computations: the run's job name,
+    /// the output file, the cores, requeueing, the array, the node's resources, the user's
+    /// options, then the script.
+    fn sbatch_args(
+        &self,
+        id: usize,
+        tasks: usize,
+        cpus: usize,
+        res: &Resources,
+        script: &Path,
+    ) -> Vec<String> {
+        let array = tasks > 1;
+        let out_pattern = self.run_dir.join(if array {
+            format!("{id}_%a.out")
+        } else {
+            format!("{id}.out")
+        });
+        let mut args: Vec<String> = vec![
+            "--parsable".into(),
+            format!("--job-name={}", self.job_name),
+            format!("--output={}", out_pattern.display()),
+            format!("--cpus-per-task={cpus}"),
+            "--ntasks=1".into(),
+            // A requeued job appends to its output instead of truncating the first attempt's.
+            "--open-mode=append".into(),
+            if self.slurm.requeue {
+                "--requeue".into()
+            } else {
+                "--no-requeue".into()
+            },
+        ];
+        if array {
+            args.push(format!("--array=0-{}", tasks - 1));
+        }
+        if let Some(m) = &res.mem {
+            args.push(format!("--mem={m}"));
+        }
+        if let Some(t) = &res.time {
+            args.push(format!("--time={t}"));
+        }
+        if let Some(g) = res.gpus {
+            args.push(format!("--gpus={g}"));
+        }
+        if let Some(p) = &res.partition {
+            args.push(format!("--partition={p}"));
+        }
+        args.extend(res.sbatch.iter().cloned());
+        args.extend(self.slurm.sbatch_opts.iter().cloned());
+        args.push(script.display().to_string());
+        args
+    }
 }
 
-fn failed(key: crate::store::Hash, m: String) -> CompResult {
+impl Executor for Slurm<'_> {
+    fn unbounded(&self) -> bool {
+        true
+    }
+
+    fn eager_status(&self) -> bool {
+        false
+    }
+
+    /// One submission per node (an array of its ready instances), in plan order; a refused
+    /// submission fails its jobs at once.
+    fn submit(&mut self, jobs: Vec<Job>) -> Vec<Msg> {
+        self.changed = !jobs.is_empty();
+        let mut refused = Vec::new();
+        for batch in batches(self.plan, jobs) {
+            let id = self.submissions;
+            self.submissions += 1;
+            match self.sbatch(id, &batch) {
+                Ok(ids) => {
+                    for (job, (jid, out_file)) in batch.into_iter().zip(ids) {
+                        self.submitted
+                            .insert(job.comp, Submitted::new(job, jid, out_file));
+                    }
+                }
+                Err(m) => {
+                    for job in batch {
+                        if let Some(b) = &job.bar {
+                            b.finish_and_clear();
+                        }
+                        refused.push(Msg::Done(job.comp, failed(job.key, m.clone())));
+                    }
+                }
+            }
+        }
+        refused
+    }
+
+    /// Sleeps the current pause, lists the run's jobs (one `squeue` call; `sacct` for those it
+    /// no longer lists) and settles those that ended; the pause is short again after a
+    /// change, else grows. A failed `squeue` is a warning, and the next poll waits longer.
+    fn poll(&mut self) -> Result<Vec<Msg>, EngineError> {
+        std::thread::sleep(self.pause);
+        let listing = match squeue(&self.job_name) {
+            Ok(l) => l,
+            Err(m) => {
+                eprintln!("warning: {m}; polling again");
+                self.pause = self.longer_pause();
+                return Ok(Vec::new());
+            }
+        };
+        let finals = self.final_states(&listing);
+        let done = self.settle(&listing, &finals)?;
+        self.pause = if self.changed {
+            SHORT_PAUSE
+        } else {
+            self.longer_pause()
+        };
+        Ok(done)
+    }
+
+    fn place(&self, c: usize) -> Option<(String, bool)> {
+        self.submitted.get(&c).map(Submitted::place)
+    }
+}
+
+/// The ready jobs as submissions: one per node (by its name and kind), in order of first
+/// appearance; Slurm's default `MaxArraySize` is 1001, so a larger node goes as several
+/// arrays of at most [`MAX_ARRAY`].
+fn batches(plan: &Plan, ready: Vec<Job>) -> Vec<Vec<Job>> {
+    let mut groups: BTreeMap<String, Vec<Job>> = BTreeMap::new();
+    let mut order = Vec::new();
+    for job in ready {
+        let comp = &plan.comps[job.comp];
+        let base = comp
+            .instances
+            .first()
+            .map(|&i| plan.instances[i].base.clone())
+            .unwrap_or_default();
+        let g = format!("{base}/{}", comp.node.kind());
+        if !groups.contains_key(&g) {
+            order.push(g.clone());
+        }
+        groups.entry(g).or_default().push(job);
+    }
+    order
+        .iter()
+        .flat_map(|g| {
+            let mut jobs = groups.remove(g).unwrap_or_default();
+            let mut out = Vec::new();
+            while jobs.len() > MAX_ARRAY {
+                let rest = jobs.split_off(MAX_ARRAY);
+                out.push(std::mem::replace(&mut jobs, rest));
+            }
+            out.push(jobs);
+            out
+        })
+        .collect()
+}
+
+/// What became of submitted job `s`, which Slurm no longer lists as live (`seen`: its last
+/// state, if Slurm still knows it). Success is the store's word: its key's entry is visible.
+/// Without one it is waited for (a shared filesystem may show the entry late: up to
+/// [`SlurmOptions::visibility_wait`] after a job that completed or vanished, 5 s at most after
+/// one that Slurm says failed), then it fails with its state, its output's tail and the
+/// node's log, and its claim is broken so that a rerun does not wait for it. `None`: still
+/// waited for.
+fn outcome(
+    store: &Store,
+    slurm: &SlurmOptions,
+    s: &mut Submitted,
+    seen: Option<(String, String)>,
+) -> Result<Option<CompResult>, EngineError> {
+    if let Some(entry) = store.action(&s.key)? {
+        let outputs = outputs_of(&entry)?;
+        return Ok(Some(CompResult {
+            status: Status::Ran,
+            key: Some(s.key),
+            seconds: entry.seconds,
+            computed_seconds: entry.seconds,
+            gated: gated_outputs(store, &outputs),
+            outputs,
+            waited: false,
+        }));
+    }
+    let ended = *s.ended_at.get_or_insert_with(Instant::now);
+    let completed = seen.as_ref().is_none_or(|(st, _)| st == "COMPLETED");
+    let bound = if completed {
+        slurm.visibility_wait
+    } else {
+        slurm.visibility_wait.min(Duration::from_secs(5))
+    };
+    if ended.elapsed() < bound {
+        return Ok(None);
+    }
+    break_claim_of_job(&store.claim_path(&s.key), &s.job);
+    let state = seen.map(|(st, _)| st).unwrap_or_else(|| "ended".into());
+    Ok(Some(failed(s.key, job_failure(store, s, &state))))
+}
+
+/// The result of a job that failed with message `m`.
+fn failed(key: Hash, m: String) -> CompResult {
     CompResult {
         status: Status::Failed(m),
         key: Some(key),
@@ -375,96 +567,10 @@ fn sh_quote(s: &str) -> String {
     format!("'{}'", s.replace('\'', "'\\''"))
 }
 
-/// The resources of computation `c`: its node name's entry, else its kind's, else `default`.
-pub fn resources_of(plan: &Plan, c: usize) -> Option<&Resources> {
-    let comp = &plan.comps[c];
-    let base = comp.instances.first().map(|&i| &plan.instances[i].base);
-    base.and_then(|b| plan.resources.get(b))
-        .or_else(|| plan.resources.get(comp.node.kind()))
-        .or_else(|| plan.resources.get("default"))
-}
-
-/// Submits `jobs` (one node's ready computations) as one job, or one array; returns each one's
-/// job id and output file, or why `sbatch` refused.
-fn submit(
-    plan: &Plan,
-    slurm: &SlurmOptions,
-    opts: &RunOptions,
-    run_dir: &Path,
-    job_name: &str,
-    id: usize,
-    jobs: &[super::run::Job],
-) -> Result<Vec<(String, PathBuf)>, String> {
-    let first = &plan.comps[jobs[0].comp];
-    let res = resources_of(plan, jobs[0].comp)
-        .cloned()
-        .unwrap_or_default();
-    let cpus = res.cpus.map(|c| c as usize).unwrap_or(match first.threads {
-        Threads::One => 1,
-        Threads::Exactly(k) => k,
-        Threads::All => opts.jobs.max(1),
-    });
-    let keys_file = run_dir.join(format!("{id}.keys"));
-    let lines: String = jobs
-        .iter()
-        .map(|j| format!("{} {cpus}\n", hex(&j.key)))
-        .collect();
-    std::fs::write(&keys_file, lines)
-        .map_err(|e| format!("writing {}: {e}", keys_file.display()))?;
-    let mut cmd_line: Vec<String> = slurm.worker.iter().map(|a| sh_quote(a)).collect();
-    cmd_line.push("--keys-file".into());
-    cmd_line.push(sh_quote(&keys_file.display().to_string()));
-    cmd_line.push("--index".into());
-    cmd_line.push("\"${SLURM_ARRAY_TASK_ID:-0}\"".into());
-    let script = run_dir.join(format!("{id}.sh"));
-    let text = format!(
-        "#!/bin/sh\n# augsplat: {} ({}), {} computation(s)\nexec {}\n",
-        first.display_name(plan),
-        first.node.kind(),
-        jobs.len(),
-        cmd_line.join(" ")
-    );
-    std::fs::write(&script, text).map_err(|e| format!("writing {}: {e}", script.display()))?;
-    let array = jobs.len() > 1;
-    let out_pattern = run_dir.join(if array {
-        format!("{id}_%a.out")
-    } else {
-        format!("{id}.out")
-    });
-    let mut args: Vec<String> = vec![
-        "--parsable".into(),
-        format!("--job-name={job_name}"),
-        format!("--output={}", out_pattern.display()),
-        format!("--cpus-per-task={cpus}"),
-        "--ntasks=1".into(),
-        // A requeued job appends to its output instead of truncating the first attempt's.
-        "--open-mode=append".into(),
-        if slurm.requeue {
-            "--requeue".into()
-        } else {
-            "--no-requeue".into()
-        },
-    ];
-    if array {
-        args.push(format!("--array=0-{}", jobs.len() - 1));
-    }
-    if let Some(m) = &res.mem {
-        args.push(format!("--mem={m}"));
-    }
-    if let Some(t) = &res.time {
-        args.push(format!("--time={t}"));
-    }
-    if let Some(g) = res.gpus {
-        args.push(format!("--gpus={g}"));
-    }
-    if let Some(p) = &res.partition {
-        args.push(format!("--partition={p}"));
-    }
-    args.extend(res.sbatch.iter().cloned());
-    args.extend(slurm.sbatch_opts.iter().cloned());
-    args.push(script.display().to_string());
+/// Runs `sbatch` with `args`; returns the job id it printed, or why it refused.
+fn run_sbatch(args: &[String]) -> Result<String, String> {
     let out = Command::new("sbatch")
-        .args(&args)
+        .args(args)
         .output()
         .map_err(|e| format!("running sbatch: {e} (is Slurm installed here?)"))?;
     if !out.status.success() {
@@ -476,22 +582,12 @@ fn submit(
     }
     // `--parsable` prints `JOBID` or `JOBID;CLUSTER`.
     let text = String::from_utf8_lossy(&out.stdout);
-    let jid = text
-        .trim()
+    text.trim()
         .split(';')
         .next()
         .filter(|s| !s.is_empty() && s.chars().all(|c| c.is_ascii_digit()))
-        .ok_or_else(|| format!("sbatch printed no job id: {text:?}"))?
-        .to_string();
-    Ok((0..jobs.len())
-        .map(|i| {
-            if array {
-                (format!("{jid}_{i}"), run_dir.join(format!("{id}_{i}.out")))
-            } else {
-                (jid.clone(), run_dir.join(format!("{id}.out")))
-            }
-        })
-        .collect())
+        .map(str::to_string)
+        .ok_or_else(|| format!("sbatch printed no job id: {text:?}"))
 }
 
 /// One `squeue` call for all the run's jobs (array tasks one per line).

@@ -165,7 +165,7 @@ pub fn recent_statuses(store: &Store) -> Vec<RunStatus> {
     status_files(store)
         .into_iter()
         .filter_map(|(_, _, p)| {
-            let bytes = crate::verify::read_plain(&p).ok()?;
+            let bytes = crate::store::read_plain(&p).ok()?;
             serde_json::from_slice(&bytes).ok()
         })
         .collect()

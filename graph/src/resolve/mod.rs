@@ -19,8 +19,10 @@
 
 mod point;
 pub(crate) mod refs;
+mod resources;
 
 pub use crate::key::{compute_key, pipeline_id};
+pub use resources::Resources;
 
 use crate::error::{Diagnostic, PipelineError};
 use crate::node::Threads;
@@ -139,7 +141,7 @@ pub struct Plan {
     /// node uses), each with its location; `plan` and `run` print them.
     pub warnings: Vec<String>,
     /// The `resources:` block: Slurm resources by node name or kind (never part of a key).
-    pub resources: BTreeMap<String, crate::exec::slurm::Resources>,
+    pub resources: BTreeMap<String, Resources>,
 }
 
 impl Plan {
@@ -236,7 +238,7 @@ pub fn load_plan(
         })
         .collect();
     let sweep = spec::sweep_of(&doc)?;
-    let resources = resources_of(&doc)?;
+    let resources = resources::parse(&doc)?;
     if let ValueKind::Struct(_, f) = &mut doc.kind {
         f.retain(|(n, _)| n != "sweep" && n != "resources");
     }
@@ -265,26 +267,6 @@ pub fn load_plan(
         points,
         warnings,
         resources,
-    })
-}
-
-/// The document's `resources:` block, typed.
-fn resources_of(
-    doc: &Value,
-) -> Result<BTreeMap<String, crate::exec::slurm::Resources>, PipelineError> {
-    let Some(v) = doc.field("resources") else {
-        return Ok(BTreeMap::new());
-    };
-    // `cpus: 2` as well as `cpus: Some(2)`, as in node args.
-    let opts =
-        ron::Options::default().with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME);
-    opts.from_str(&v.to_ron()).map_err(|e| {
-        Diagnostic::at(&v.origin, format!("`resources`: {e}"))
-            .hint(
-                "write `resources: { \"OptimizeSplats\": (cpus: 8, mem: \"16G\", time: \"04:00:00\", gpus: 1) }` \
-                 (keys: node names, kinds or `default`; fields: cpus, mem, time, gpus, partition, sbatch)",
-            )
-            .into()
     })
 }
 

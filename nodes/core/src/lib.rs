@@ -24,7 +24,7 @@ pub mod simd;
 pub mod state;
 
 pub use camera::Camera;
-pub use error::CoreError;
+pub use error::{CoreError, FileError};
 pub use image::ImageF32;
 pub use rng::Rng;
 pub use scene::{PointCloud, Scene, SceneView};

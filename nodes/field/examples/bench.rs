@@ -11,7 +11,7 @@
 
 use augsplat_core::{Camera, Rng};
 use augsplat_field::field::{ChunkState, Field, FieldConfig, RayInput};
-use augsplat_field::hashgrid::HashGridConfig;
+use augsplat_field::hashgrid::{HashGridConfig, PointBatch};
 use augsplat_field::occupancy::OccupancyGrid;
 use augsplat_field::train::{self, Adam, TrainOptions, TrainState, ViewData};
 use std::time::Instant;
@@ -197,16 +197,17 @@ fn kernels(field: &Field) {
     let n = st.n();
     let (px, py, pz, ld) = (st.px.clone(), st.py.clone(), st.pz.clone(), st.ld);
     let mut enc = vec![0f32; field.grid.output_dim() * ld];
+    let pts = PointBatch {
+        px: &px,
+        py: &py,
+        pz: &pz,
+        n,
+        ld,
+    };
     let enc_t = best(&mut || {
-        field.grid.encode(
-            &params[..field.density_offset],
-            &px,
-            &py,
-            &pz,
-            n,
-            ld,
-            &mut enc,
-        )
+        field
+            .grid
+            .encode(&params[..field.density_offset], pts, &mut enc)
     });
     for r in 0..rays.len() {
         field.add_ray_output_grad(&mut st, &rays, r, [0.1, 0.1, 0.1], 0.0, 0.0);
@@ -219,7 +220,7 @@ fn kernels(field: &Field) {
             let r = field.grid.level_range(l);
             field
                 .grid
-                .backward_level(l, &st.px, &st.py, &st.pz, n, st.ld, &st.d_enc, &mut g[r]);
+                .backward_level(l, st.points(), &st.d_enc, &mut g[r]);
         }
     });
     println!(
@@ -246,7 +247,7 @@ fn kernels(field: &Field) {
 /// after the FMA peak on one thread and on `threads` threads.
 fn mlp_kernels(threads: usize) {
     use augsplat_field::mlp::{
-        linear_backward_input, linear_backward_weights, linear_forward, padded,
+        linear_backward_input, linear_backward_weights, linear_forward, padded, LayerShape,
     };
     let n = 6826;
     let ld = padded(n);
@@ -307,9 +308,10 @@ fn mlp_kernels(threads: usize) {
             }
             (flops / best / 1e9, 0.0)
         };
-        let f = time(&mut || linear_forward(&w, Some(&b), &x, &mut y, inp, out, ld, true));
-        let g = time(&mut || linear_backward_weights(&dy, &x, &mut dw, &mut db, inp, out, ld));
-        let h = time(&mut || linear_backward_input(&w, &dy, &mut dx, inp, out, ld, &mut wt));
+        let shape = LayerShape { inp, out };
+        let f = time(&mut || linear_forward(&w, Some(&b), &x, &mut y, shape, ld, true));
+        let g = time(&mut || linear_backward_weights(&dy, &x, &mut dw, &mut db, shape, ld));
+        let h = time(&mut || linear_backward_input(&w, &dy, &mut dx, shape, ld, &mut wt));
         println!(
             "{inp:>3} -> {out:>3}: GFLOP/s (best of 300) forward {:.1}, dW {:.1}, dX {:.1}",
             f.0, g.0, h.0

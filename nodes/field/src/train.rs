@@ -13,6 +13,7 @@ use crate::constants::*;
 use crate::contraction::{max_stretch, uncontract_radius};
 use crate::error::FieldError;
 use crate::field::{ChunkState, Field, RayInput};
+use crate::hashgrid::PointBatch;
 use crate::occupancy::OccupancyGrid;
 pub use crate::render::{
     evaluate, psnr, render_camera, RenderStats, RenderedImage, RENDER_CHUNK_RAYS, RENDER_PASS_RAYS,
@@ -530,9 +531,14 @@ pub fn train_step(
     }
     level_slices.into_par_iter().for_each(|(l, g)| {
         for r in &results {
-            field
-                .grid
-                .backward_level(l, &r.px, &r.py, &r.pz, r.n, r.ld, &r.d_enc, g);
+            let pts = PointBatch {
+                px: &r.px,
+                py: &r.py,
+                pz: &r.pz,
+                n: r.n,
+                ld: r.ld,
+            };
+            field.grid.backward_level(l, pts, &r.d_enc, g);
         }
     });
     let mut stats = StepStats::default();

@@ -6,8 +6,8 @@ use augsplat_core::Rng;
 use augsplat_field::constants::GEO_FEAT_DIM;
 use augsplat_field::contraction::{contract_backward, contract_f64, contract_jacobian_f64};
 use augsplat_field::field::{ChunkState, Field, FieldConfig, RayInput};
-use augsplat_field::hashgrid::{HashGrid, HashGridConfig};
-use augsplat_field::mlp::{padded, Mlp};
+use augsplat_field::hashgrid::{HashGrid, HashGridConfig, PointBatch};
+use augsplat_field::mlp::{padded, BackwardScratch, ForwardPass, InputGrad, Mlp};
 use augsplat_field::occupancy::OccupancyGrid;
 use augsplat_field::{reference, volume};
 
@@ -49,7 +49,14 @@ fn hash_encoding_matches_reference_and_finite_differences() {
         pts.iter().map(|p| p[2]).collect(),
     );
     let mut out = vec![0f32; grid.output_dim() * ld];
-    grid.encode(&table, &px, &py, &pz, n, ld, &mut out);
+    let batch = PointBatch {
+        px: &px,
+        py: &py,
+        pz: &pz,
+        n,
+        ld,
+    };
+    grid.encode(&table, batch, &mut out);
     let t64: Vec<f64> = table.iter().map(|&v| v as f64).collect();
     for i in 0..n {
         let r = reference::hash_encode(&grid, &t64, pts[i].map(|v| v as f64));
@@ -75,7 +82,7 @@ fn hash_encoding_matches_reference_and_finite_differences() {
     let mut grad = vec![0f32; grid.n_params()];
     for l in 0..grid.levels() {
         let range = grid.level_range(l);
-        grid.backward_level(l, &px, &py, &pz, n, ld, &coef, &mut grad[range]);
+        grid.backward_level(l, batch, &coef, &mut grad[range]);
     }
     let loss = |t: &[f64]| -> f64 {
         let mut s = 0.0;
@@ -145,19 +152,18 @@ fn mlp_matches_reference_and_finite_differences() {
     let d_out = coef.clone();
     let mut grad = vec![0f32; mlp.n_params()];
     let mut dx = Vec::new();
-    let (mut s1, mut s2) = (Vec::new(), Vec::new());
-    mlp.backward(
-        &params,
-        &x,
-        &acts,
+    let pass = ForwardPass {
+        params: &params,
+        x: &x,
+        acts: &acts,
         ld,
-        &d_out,
-        &mut grad,
-        Some(&mut dx),
-        usize::MAX,
-        &mut s1,
-        &mut s2,
-    );
+    };
+    let d_x = InputGrad {
+        d_x: &mut dx,
+        rows: usize::MAX,
+    };
+    let mut scratch = BackwardScratch::default();
+    mlp.backward(pass, &d_out, &mut grad, Some(d_x), &mut scratch);
     let loss = |p: &[f64], xv: &dyn Fn(usize) -> Vec<f64>| -> f64 {
         (0..n)
             .map(|i| {
@@ -411,16 +417,9 @@ fn field_chunk_gradient_matches_finite_differences() {
     field.backward_chunk(&params, &rays, &mut st, &mut grad[base..]);
     for l in 0..field.grid.levels() {
         let range = field.grid.level_range(l);
-        field.grid.backward_level(
-            l,
-            &st.px,
-            &st.py,
-            &st.pz,
-            st.n(),
-            st.ld,
-            &st.d_enc,
-            &mut grad[range],
-        );
+        field
+            .grid
+            .backward_level(l, st.points(), &st.d_enc, &mut grad[range]);
     }
     // Reference loss at the same samples and cuts.
     let samples: Vec<(usize, usize, usize)> = (0..rays.len())

@@ -1,5 +1,6 @@
 //! The error type of every metric and of the weight importer.
 
+use augsplat_core::FileError;
 use std::path::PathBuf;
 
 /// Why a metric could not be computed or weights could not be loaded or imported.
@@ -39,37 +40,19 @@ pub enum MetricsError {
     /// buffer length not matching its size).
     #[error("{0}")]
     BadImage(String),
-    /// A file could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The underlying error.
-        source: std::io::Error,
-    },
-    /// A weight file or archive has unexpected content.
-    #[error("{path}: {message}")]
-    Format {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong with it.
-        message: String,
-    },
+    /// A file could not be read or written, or a weight file or archive has unexpected
+    /// content.
+    #[error(transparent)]
+    File(#[from] FileError),
 }
 
 impl MetricsError {
     /// An I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        MetricsError::Io {
-            path: path.into(),
-            source,
-        }
+        FileError::io(path, source).into()
     }
     /// A format error in `path`.
     pub fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
-        MetricsError::Format {
-            path: path.into(),
-            message: message.into(),
-        }
+        FileError::format(path, message).into()
     }
 }

@@ -352,19 +352,31 @@ mod x86 {
 mod tests {
     use super::*;
 
-    /// f64 direct convolution + bias + ReLU.
-    #[allow(clippy::too_many_arguments)]
-    fn conv_reference(
-        input: &[f32],
+    /// A test convolution: a `c_in × h × w` input, `m` output channels, a `kh × kw` kernel.
+    #[derive(Clone, Copy)]
+    struct Case {
         c_in: usize,
         h: usize,
         w: usize,
-        wts: &[f32],
-        bias: &[f32],
-        (m, kh, kw): (usize, usize, usize),
+        m: usize,
+        kh: usize,
+        kw: usize,
         stride: usize,
         pad: usize,
-    ) -> Vec<f64> {
+    }
+
+    /// f64 direct convolution + bias + ReLU.
+    fn conv_reference(input: &[f32], wts: &[f32], bias: &[f32], case: Case) -> Vec<f64> {
+        let Case {
+            c_in,
+            h,
+            w,
+            m,
+            kh,
+            kw,
+            stride,
+            pad,
+        } = case;
         let oh = (h + 2 * pad - kh) / stride + 1;
         let ow = (w + 2 * pad - kw) / stride + 1;
         let mut out = vec![0f64; m * oh * ow];
@@ -414,8 +426,17 @@ mod tests {
             let input = values(c_in * h * w, 1);
             let wts = values(m * c_in * kh * kw, 2);
             let bias = values(m, 3);
-            let reference =
-                conv_reference(&input, c_in, h, w, &wts, &bias, (m, kh, kw), stride, pad);
+            let case = Case {
+                c_in,
+                h,
+                w,
+                m,
+                kh,
+                kw,
+                stride,
+                pad,
+            };
+            let reference = conv_reference(&input, &wts, &bias, case);
             simd::for_each_isa("conv micro-kernel against f64", |isa| {
                 let packed = PackedWeights::new(&wts, &bias, m, c_in, kh, kw);
                 assert_eq!(packed.isa(), isa);

@@ -116,7 +116,16 @@ fn ssim_mean(a: &ImageF32, b: &ImageF32, crop: usize) -> Result<f64, MetricsErro
             let (c, k) = (job / chunks_per_channel, job % chunks_per_channel);
             let r0 = y0 + k * ROWS_PER_CHUNK;
             let r1 = (r0 + ROWS_PER_CHUNK).min(y1);
-            chunk_sum(planes[c].0, planes[c].1, w, h, r0, r1, crop, &g, buf)
+            let chunk = Chunk {
+                x: planes[c].0,
+                y: planes[c].1,
+                w,
+                h,
+                r0,
+                r1,
+                crop,
+            };
+            chunk_sum(&chunk, &g, buf)
         })
         .collect();
     let count = nc * (y1 - y0) * (w - 2 * crop);
@@ -133,18 +142,24 @@ struct Buffers {
     smap: Vec<f32>,
 }
 
-// `chunk_sum`: the sum of the SSIM map over output rows `r0..r1` and columns `crop..w-crop`
-// of one channel, compiled for every instruction-set tier and dispatched by
-// `augsplat_core::simd::active` (the arithmetic is the same, so the bits are too: Rust never
-// fuses multiply-adds on its own).
-augsplat_core::multiversion!(fn chunk_sum(
-    x: &[f32],
-    y: &[f32],
+/// One job of `chunk_sum`: output rows `r0..r1` and columns `crop..w - crop` of one channel,
+/// from the channel's `w × h` planes of the two images.
+#[derive(Clone, Copy)]
+struct Chunk<'a> {
+    x: &'a [f32],
+    y: &'a [f32],
     w: usize,
     h: usize,
     r0: usize,
     r1: usize,
     crop: usize,
+}
+
+// `chunk_sum`: the sum of the SSIM map over one `Chunk`, compiled for every instruction-set
+// tier and dispatched by `augsplat_core::simd::active` (the arithmetic is the same, so the bits
+// are too: Rust never fuses multiply-adds on its own).
+augsplat_core::multiversion!(fn chunk_sum(
+    chunk: &Chunk<'_>,
     g: &[f32; WINDOW],
     buf: &mut Buffers,
 ) -> f64 => chunk_sum_generic);
@@ -166,18 +181,16 @@ fn filter_row(p: &[f32], out: &mut [f32], g: &[f32; WINDOW]) {
 }
 
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn chunk_sum_generic(
-    x: &[f32],
-    y: &[f32],
-    w: usize,
-    h: usize,
-    r0: usize,
-    r1: usize,
-    crop: usize,
-    g: &[f32; WINDOW],
-    buf: &mut Buffers,
-) -> f64 {
+fn chunk_sum_generic(chunk: &Chunk<'_>, g: &[f32; WINDOW], buf: &mut Buffers) -> f64 {
+    let Chunk {
+        x,
+        y,
+        w,
+        h,
+        r0,
+        r1,
+        crop,
+    } = *chunk;
     let c1 = (K1 * K1) as f32;
     let c2 = (K2 * K2) as f32;
     let rows = r1 - r0 + 2 * PAD;

@@ -1,6 +1,6 @@
 //! The error type of scene import, split, depth, export and inspection.
 
-use augsplat_core::CoreError;
+use augsplat_core::{CoreError, FileError};
 use std::path::{Path, PathBuf};
 
 /// Errors of this crate. Every variant that concerns a file names it; parse errors also name
@@ -10,22 +10,10 @@ pub enum SceneError {
     /// An error of the shared formats (image, EXR, scene folder), which already names its file.
     #[error(transparent)]
     Core(#[from] CoreError),
-    /// A file or folder could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file concerned.
-        path: PathBuf,
-        /// The underlying I/O error.
-        source: std::io::Error,
-    },
-    /// A file exists but its contents are wrong.
-    #[error("{path}: {message}")]
-    Format {
-        /// The file concerned.
-        path: PathBuf,
-        /// What is wrong, naming the entry.
-        message: String,
-    },
+    /// A file or folder could not be read or written, or a file's contents are wrong (the
+    /// message names the file, and for parse errors the entry: line, image or camera id).
+    #[error(transparent)]
+    File(#[from] FileError),
     /// The input as a whole is unusable (e.g. no views left), or an argument is out of range.
     #[error("{0}")]
     Invalid(String),
@@ -34,24 +22,15 @@ pub enum SceneError {
 impl SceneError {
     /// An I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        SceneError::Io {
-            path: path.into(),
-            source,
-        }
+        FileError::io(path, source).into()
     }
     /// A format error on `path`.
     pub fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
-        SceneError::Format {
-            path: path.into(),
-            message: message.into(),
-        }
+        FileError::format(path, message).into()
     }
     /// A "not found" error for a required file or folder.
     pub fn missing(path: &Path, what: &str) -> Self {
-        SceneError::Io {
-            path: path.to_path_buf(),
-            source: std::io::Error::new(std::io::ErrorKind::NotFound, format!("{what} not found")),
-        }
+        FileError::missing(path, what).into()
     }
 }
 

@@ -4,6 +4,7 @@
 
 use super::{ChunkState, Field, RayInput};
 use crate::constants::{GEO_FEAT_DIM, SH_COMPONENTS};
+use crate::mlp::{ForwardPass, InputGrad};
 use crate::volume;
 
 impl Field {
@@ -81,21 +82,21 @@ impl Field {
         {
             let (cg, eg) = grad[self.color_offset - base..]
                 .split_at_mut(self.embedding_offset - self.color_offset);
-            self.color.backward(
-                cp,
-                &st.col_in,
-                &st.col_acts,
-                ldc,
-                &d_out,
-                cg,
-                Some(&mut d_cin),
+            let pass = ForwardPass {
+                params: cp,
+                x: &st.col_in,
+                acts: &st.col_acts,
+                ld: ldc,
+            };
+            let d_x = InputGrad {
+                d_x: &mut d_cin,
                 // Without an appearance embedding only the leading geometry-feature rows
                 // need an input gradient, not the 16 SH rows of the view direction; an
                 // embedding's rows come last, so then every row is computed.
-                if e == 0 { GEO_FEAT_DIM } else { usize::MAX },
-                &mut st.scratch,
-                &mut st.wt,
-            );
+                rows: if e == 0 { GEO_FEAT_DIM } else { usize::MAX },
+            };
+            self.color
+                .backward(pass, &d_out, cg, Some(d_x), &mut st.mlp_scratch);
             // Embedding gradients.
             if e > 0 {
                 let mut j = 0;
@@ -130,18 +131,18 @@ impl Field {
         let dp = &params[self.density_offset..self.color_offset];
         let dg = &mut grad[..self.color_offset - base];
         let mut d_enc = std::mem::take(&mut st.d_enc);
-        self.density.backward(
-            dp,
-            &st.enc,
-            &st.dens_acts,
+        let pass = ForwardPass {
+            params: dp,
+            x: &st.enc,
+            acts: &st.dens_acts,
             ld,
-            &d_out,
-            dg,
-            Some(&mut d_enc),
-            usize::MAX,
-            &mut st.scratch,
-            &mut st.wt,
-        );
+        };
+        let d_x = InputGrad {
+            d_x: &mut d_enc,
+            rows: usize::MAX,
+        };
+        self.density
+            .backward(pass, &d_out, dg, Some(d_x), &mut st.mlp_scratch);
         st.d_enc = d_enc;
         st.scratch2 = d_out;
         st.d_cin = d_cin;

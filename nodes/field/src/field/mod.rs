@@ -15,8 +15,8 @@ use crate::constants::{
 };
 use crate::contraction::{contract, max_stretch};
 use crate::error::FieldError;
-use crate::hashgrid::{HashGrid, HashGridConfig};
-use crate::mlp::{padded, Mlp};
+use crate::hashgrid::{HashGrid, HashGridConfig, PointBatch};
+use crate::mlp::{padded, BackwardScratch, Mlp};
 use crate::occupancy::OccupancyGrid;
 use crate::sh::sh_encode;
 use crate::volume;
@@ -205,9 +205,8 @@ pub struct ChunkState {
     pub d_rgb: Vec<f32>,
     /// `∂L/∂enc` after the backward pass (`L·F × ld`).
     pub d_enc: Vec<f32>,
-    scratch: Vec<f32>,
+    mlp_scratch: BackwardScratch,
     scratch2: Vec<f32>,
-    wt: Vec<f32>,
     d_sigma: Vec<f32>,
     d_cin: Vec<f32>,
     /// Each active ray's sample range of the current segment round.
@@ -254,6 +253,17 @@ impl ChunkState {
     /// Number of samples.
     pub fn n(&self) -> usize {
         self.t.len()
+    }
+    /// The samples' contracted positions as a batch for the hash encoding (its gradient
+    /// [`ChunkState::d_enc`] has the same row stride).
+    pub fn points(&self) -> PointBatch<'_> {
+        PointBatch {
+            px: &self.px,
+            py: &self.py,
+            pz: &self.pz,
+            n: self.n(),
+            ld: self.ld,
+        }
     }
 }
 
@@ -396,15 +406,9 @@ impl Field {
         let n = px.len();
         let ld = padded(n);
         st.enc.resize(self.grid.output_dim() * ld, 0.0);
-        self.grid.encode(
-            &params[..self.density_offset],
-            px,
-            py,
-            pz,
-            n,
-            ld,
-            &mut st.enc,
-        );
+        let pts = PointBatch { px, py, pz, n, ld };
+        self.grid
+            .encode(&params[..self.density_offset], pts, &mut st.enc);
         self.density.forward(
             &params[self.density_offset..self.color_offset],
             &st.enc,
@@ -471,15 +475,14 @@ impl Field {
                 }
             }
             st.enc.resize(lf * ldb, 0.0);
-            self.grid.encode(
-                table,
-                &st.seg_px,
-                &st.seg_py,
-                &st.seg_pz,
-                nb,
-                ldb,
-                &mut st.enc,
-            );
+            let pts = PointBatch {
+                px: &st.seg_px,
+                py: &st.seg_py,
+                pz: &st.seg_pz,
+                n: nb,
+                ld: ldb,
+            };
+            self.grid.encode(table, pts, &mut st.enc);
             self.density.forward(dp, &st.enc, ldb, &mut st.dens_acts);
             let out = &st.dens_acts[st.dens_acts.len() - 1];
             for k in 0..rows {
@@ -597,15 +600,15 @@ impl Field {
             let lf = self.grid.output_dim();
             // `encode` writes every entry (padding columns included): no clearing needed.
             st.enc.resize(lf * ld, 0.0);
-            self.grid.encode(
-                &params[..self.density_offset],
-                &st.px,
-                &st.py,
-                &st.pz,
+            let pts = PointBatch {
+                px: &st.px,
+                py: &st.py,
+                pz: &st.pz,
                 n,
                 ld,
-                &mut st.enc,
-            );
+            };
+            self.grid
+                .encode(&params[..self.density_offset], pts, &mut st.enc);
             let dp = &params[self.density_offset..self.color_offset];
             self.density.forward(dp, &st.enc, ld, &mut st.dens_acts);
             st.counters.density = n as u64;

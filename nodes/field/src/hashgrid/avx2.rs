@@ -10,7 +10,7 @@
 //!   docs/notes/benchmarks.md, entry of 2026-11-27 on the hash encoding) and blended with a separate multiply and add in corner
 //!   order, as the scalar loop does.
 
-use super::{block_positions, BLOCK};
+use super::{block_positions, Level, PointBatch, BLOCK};
 use crate::constants::HASH_PRIMES;
 use std::arch::x86_64::*;
 
@@ -19,22 +19,18 @@ use std::arch::x86_64::*;
 /// portable `corners_block`, bit for bit.
 ///
 /// # Safety
-/// AVX2 must be available; `start < n`; `px`, `py`, `pz` must hold `n` points; `res` must be
-/// below 2²⁴ (cell indices convert through `i32`).
+/// AVX2 must be available; `start < pts.n`; `pts.px`, `pts.py`, `pts.pz` must hold `pts.n`
+/// points; `lv.res` must be below 2²⁴ (cell indices convert through `i32`).
 #[target_feature(enable = "avx2,fma,bmi1,popcnt")]
-#[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn corners_block<const DENSE: bool>(
-    res: u32,
-    size: usize,
-    px: &[f32],
-    py: &[f32],
-    pz: &[f32],
+    lv: Level,
+    pts: PointBatch<'_>,
     start: usize,
-    n: usize,
     idx: &mut [[u32; BLOCK]; 8],
     w: &mut [[f32; BLOCK]; 8],
 ) {
-    let (pos, cnt) = block_positions(px, py, pz, start, n);
+    let Level { res, size } = lv;
+    let (pos, cnt) = block_positions(pts, start);
     let r = _mm256_set1_ps(res as f32);
     let zero = _mm256_setzero_ps();
     let one = _mm256_set1_ps(1.0);

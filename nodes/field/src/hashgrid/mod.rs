@@ -63,19 +63,40 @@ pub struct HashGrid {
     pub dense: Vec<bool>,
 }
 
+/// A batch of points for [`HashGrid::encode`] and [`HashGrid::backward_level`]: coordinates in
+/// structure-of-arrays form, and the row stride of the channel-major encoding (and of its
+/// gradient).
+#[derive(Clone, Copy, Debug)]
+pub struct PointBatch<'a> {
+    /// x coordinates in `[0, 1]` (values outside are clamped, NaN counts as 0).
+    pub px: &'a [f32],
+    /// y coordinates in `[0, 1]`.
+    pub py: &'a [f32],
+    /// z coordinates in `[0, 1]`.
+    pub pz: &'a [f32],
+    /// Number of points (each coordinate slice holds at least this many).
+    pub n: usize,
+    /// Row stride of the encoding, `≥ n` (column `i` of row `r` is at `r·ld + i`).
+    pub ld: usize,
+}
+
+/// The geometry of one level: what the level kernels need besides the points.
+#[derive(Clone, Copy, Debug)]
+struct Level {
+    /// Cells per axis.
+    res: u32,
+    /// Table entries.
+    size: usize,
+}
+
 /// Points per block in the level kernels: corner indices and weights of a block are computed
 /// first (branch-free, vectorisable), then the table is gathered or scattered.
 const BLOCK: usize = 16;
 
 /// The coordinates of points `start..start + BLOCK` (zeros past `n`) and how many are real.
 #[inline(always)]
-fn block_positions(
-    px: &[f32],
-    py: &[f32],
-    pz: &[f32],
-    start: usize,
-    n: usize,
-) -> ([[f32; BLOCK]; 3], usize) {
+fn block_positions(pts: PointBatch<'_>, start: usize) -> ([[f32; BLOCK]; 3], usize) {
+    let PointBatch { px, py, pz, n, .. } = pts;
     let mut pos = [[0f32; BLOCK]; 3];
     let cnt = (n - start).min(BLOCK);
     if cnt == BLOCK {
@@ -98,22 +119,18 @@ fn block_positions(
 /// Corner indices (entry numbers, not floats) and trilinear weights of up to [`BLOCK`] points
 /// `start..start + BLOCK` (points past `n` get index 0 and weight 0).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn corners_block<const DENSE: bool>(
-    res: u32,
-    size: usize,
-    px: &[f32],
-    py: &[f32],
-    pz: &[f32],
+    lv: Level,
+    pts: PointBatch<'_>,
     start: usize,
-    n: usize,
     idx: &mut [[u32; BLOCK]; 8],
     w: &mut [[f32; BLOCK]; 8],
 ) {
+    let Level { res, size } = lv;
     let r = res as f32;
     let stride = res + 1;
     let mask = size as u32 - 1;
-    let (pos, cnt) = block_positions(px, py, pz, start, n);
+    let (pos, cnt) = block_positions(pts, start);
     let valid: [f32; BLOCK] = std::array::from_fn(|l| if l < cnt { 1.0 } else { 0.0 });
     let mut lo = [[0u32; BLOCK]; 3];
     let mut hi = [[0u32; BLOCK]; 3];
@@ -203,16 +220,11 @@ fn simd_blocks(allowed: bool, res: u32) -> bool {
 
 /// [`corners_block`], through its AVX2 twin when `simd` (from [`simd_blocks`]).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn corners<const DENSE: bool>(
     simd: bool,
-    res: u32,
-    size: usize,
-    px: &[f32],
-    py: &[f32],
-    pz: &[f32],
+    lv: Level,
+    pts: PointBatch<'_>,
     start: usize,
-    n: usize,
     idx: &mut [[u32; BLOCK]; 8],
     w: &mut [[f32; BLOCK]; 8],
 ) {
@@ -220,45 +232,35 @@ fn corners<const DENSE: bool>(
     if simd {
         // SAFETY: `simd_blocks` allows it only in the AVX2 tier and for `res < 2²⁴`; the
         // callers pass `start < n` and `n` points.
-        unsafe { avx2::corners_block::<DENSE>(res, size, px, py, pz, start, n, idx, w) };
+        unsafe { avx2::corners_block::<DENSE>(lv, pts, start, idx, w) };
         return;
     }
     let _ = simd;
-    corners_block::<DENSE>(res, size, px, py, pz, start, n, idx, w)
+    corners_block::<DENSE>(lv, pts, start, idx, w)
 }
 
 /// The encode kernel with the AVX2 block kernels in the AVX2 tier.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn encode_level_body<const F: usize, const DENSE: bool>(
     t: &[f32],
-    res: u32,
-    size: usize,
-    px: &[f32],
-    py: &[f32],
-    pz: &[f32],
-    n: usize,
-    ld: usize,
+    lv: Level,
+    pts: PointBatch<'_>,
     out: &mut [f32],
 ) {
-    encode_level_impl::<F, DENSE, true>(t, res, size, px, py, pz, n, ld, out)
+    encode_level_impl::<F, DENSE, true>(t, lv, pts, out)
 }
 
-/// Encodes one level; `GATHER` allows the AVX2 block kernels (`false`: the scalar loops only,
-/// the portable twin the tests compare them with).
+/// Encodes one level of the points `pts` from its table `t` into `out` (`F` rows of `pts.ld`);
+/// `GATHER` allows the AVX2 block kernels (`false`: the scalar loops only, the portable twin
+/// the tests compare them with).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
     t: &[f32],
-    res: u32,
-    size: usize,
-    px: &[f32],
-    py: &[f32],
-    pz: &[f32],
-    n: usize,
-    ld: usize,
+    lv: Level,
+    pts: PointBatch<'_>,
     out: &mut [f32],
 ) {
+    let (Level { res, size }, PointBatch { n, ld, .. }) = (lv, pts);
     let t = &t[..size * F];
     let simd = simd_blocks(GATHER, res);
     #[cfg(target_arch = "x86_64")]
@@ -270,13 +272,13 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
     if n == 0 {
         return;
     }
-    corners::<DENSE>(simd, res, size, px, py, pz, 0, n, &mut idx[0], &mut w[0]);
+    corners::<DENSE>(simd, lv, pts, 0, &mut idx[0], &mut w[0]);
     let mut cur = 0;
     for start in (0..n).step_by(BLOCK) {
         let next = start + BLOCK;
         if next < n {
             let (ni, nw) = (&mut idx[cur ^ 1], &mut w[cur ^ 1]);
-            corners::<DENSE>(simd, res, size, px, py, pz, next, n, ni, nw);
+            corners::<DENSE>(simd, lv, pts, next, ni, nw);
             if !DENSE {
                 prefetch_block::<F>(t, ni, (n - next).min(BLOCK));
             }
@@ -309,19 +311,17 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
     }
 }
 
+/// Adds the table gradient of one level for the points `pts` and the encoding gradient `d_out`
+/// (`F` rows of `pts.ld`) to `grad`, point after point; `SIMD` allows the AVX2 corner kernel
+/// (`false`: the portable twin the tests compare with).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn backward_level_body<const F: usize, const DENSE: bool, const SIMD: bool>(
     grad: &mut [f32],
-    res: u32,
-    size: usize,
-    px: &[f32],
-    py: &[f32],
-    pz: &[f32],
-    n: usize,
-    ld: usize,
+    lv: Level,
+    pts: PointBatch<'_>,
     d_out: &[f32],
 ) {
+    let (Level { res, size }, PointBatch { n, ld, .. }) = (lv, pts);
     let grad = &mut grad[..size * F];
     let simd = simd_blocks(SIMD, res);
     let mut idx = [[[0u32; BLOCK]; 8]; 2];
@@ -345,24 +345,13 @@ fn backward_level_body<const F: usize, const DENSE: bool, const SIMD: bool>(
     if start >= n {
         return;
     }
-    corners::<DENSE>(
-        simd,
-        res,
-        size,
-        px,
-        py,
-        pz,
-        start,
-        n,
-        &mut idx[0],
-        &mut w[0],
-    );
+    corners::<DENSE>(simd, lv, pts, start, &mut idx[0], &mut w[0]);
     let mut cur = 0;
     while start < n {
         let next = next_live(start + BLOCK);
         if next < n {
             let (ni, nw) = (&mut idx[cur ^ 1], &mut w[cur ^ 1]);
-            corners::<DENSE>(simd, res, size, px, py, pz, next, n, ni, nw);
+            corners::<DENSE>(simd, lv, pts, next, ni, nw);
             if !DENSE {
                 prefetch_block::<F>(grad, ni, (n - next).min(BLOCK));
             }
@@ -392,16 +381,10 @@ fn backward_level_body<const F: usize, const DENSE: bool, const SIMD: bool>(
 /// macro does not take), with the same tiers and the same AVX2 feature set.
 macro_rules! level_kernel {
     ($name:ident, $body:ident, $first:ident) => {
-        #[allow(clippy::too_many_arguments)]
         fn $name<const F: usize, const DENSE: bool>(
             $first: &[f32],
-            res: u32,
-            size: usize,
-            px: &[f32],
-            py: &[f32],
-            pz: &[f32],
-            n: usize,
-            ld: usize,
+            lv: Level,
+            pts: PointBatch<'_>,
             other: &mut [f32],
         ) {
             #[cfg(target_arch = "x86_64")]
@@ -409,46 +392,42 @@ macro_rules! level_kernel {
                 // The body compiled for AVX2 (8-lane corner computation; Rust never
                 // contracts a separate multiply and add, so the bits are unchanged).
                 #[target_feature(enable = "avx2,fma,bmi1,popcnt")]
-                #[allow(clippy::too_many_arguments)]
                 unsafe fn avx2<const F: usize, const DENSE: bool>(
-                    a: &[f32], res: u32, size: usize, px: &[f32], py: &[f32], pz: &[f32], n: usize, ld: usize, b: &mut [f32],
+                    a: &[f32],
+                    lv: Level,
+                    pts: PointBatch<'_>,
+                    b: &mut [f32],
                 ) {
-                    level_kernel!(@call $body, a, res, size, px, py, pz, n, ld, b)
+                    level_kernel!(@call $body, a, lv, pts, b)
                 }
                 if augsplat_core::simd::active() == augsplat_core::simd::Isa::Avx2 {
                     // SAFETY: `active` returns `Avx2` only on CPUs with its features.
-                    return unsafe { avx2::<F, DENSE>($first, res, size, px, py, pz, n, ld, other) };
+                    return unsafe { avx2::<F, DENSE>($first, lv, pts, other) };
                 }
             }
-            level_kernel!(@call $body, $first, res, size, px, py, pz, n, ld, other)
+            level_kernel!(@call $body, $first, lv, pts, other)
         }
     };
-    (@call encode_level_body, $a:expr, $res:expr, $size:expr, $px:expr, $py:expr, $pz:expr, $n:expr, $ld:expr, $b:expr) => {
-        encode_level_body::<F, DENSE>($a, $res, $size, $px, $py, $pz, $n, $ld, $b)
+    (@call encode_level_body, $a:expr, $lv:expr, $pts:expr, $b:expr) => {
+        encode_level_body::<F, DENSE>($a, $lv, $pts, $b)
     };
-    (@call backward_level_body, $a:expr, $res:expr, $size:expr, $px:expr, $py:expr, $pz:expr, $n:expr, $ld:expr, $b:expr) => {
-        backward_level_body::<F, DENSE, true>($b, $res, $size, $px, $py, $pz, $n, $ld, $a)
+    (@call backward_level_body, $a:expr, $lv:expr, $pts:expr, $b:expr) => {
+        backward_level_body::<F, DENSE, true>($b, $lv, $pts, $a)
     };
 }
 
 level_kernel!(encode_level, encode_level_body, table);
 level_kernel!(backward_level_ro, backward_level_body, d_out);
 
-/// Backward of one level: `grad` (mutable) first, then the point data and `d_out`.
-#[allow(clippy::too_many_arguments)]
+/// Backward of one level: `grad` (mutable) first, then the level, the points and `d_out`.
 #[inline]
 fn backward_level<const F: usize, const DENSE: bool>(
     grad: &mut [f32],
-    res: u32,
-    size: usize,
-    px: &[f32],
-    py: &[f32],
-    pz: &[f32],
-    n: usize,
-    ld: usize,
+    lv: Level,
+    pts: PointBatch<'_>,
     d_out: &[f32],
 ) {
-    backward_level_ro::<F, DENSE>(d_out, res, size, px, py, pz, n, ld, grad)
+    backward_level_ro::<F, DENSE>(d_out, lv, pts, grad)
 }
 
 impl HashGrid {
@@ -534,34 +513,31 @@ impl HashGrid {
     pub fn level_range(&self, level: usize) -> std::ops::Range<usize> {
         self.offsets[level]..self.offsets[level] + self.sizes[level] * self.features()
     }
+    /// The geometry of one level for the level kernels.
+    fn level(&self, level: usize) -> Level {
+        Level {
+            res: self.resolutions[level],
+            size: self.sizes[level],
+        }
+    }
 
-    /// Encodes `n` points (`px, py, pz` in `[0, 1]`, clamped) into `out`
-    /// (`(level·F + f) · ld + i`).
-    #[allow(clippy::too_many_arguments)]
-    pub fn encode(
-        &self,
-        table: &[f32],
-        px: &[f32],
-        py: &[f32],
-        pz: &[f32],
-        n: usize,
-        ld: usize,
-        out: &mut [f32],
-    ) {
-        let f = self.features();
+    /// Encodes the points of `pts` (coordinates in `[0, 1]`, clamped) into `out`
+    /// (`(level·F + f) · pts.ld + i`).
+    pub fn encode(&self, table: &[f32], pts: PointBatch<'_>, out: &mut [f32]) {
+        let (f, n, ld) = (self.features(), pts.n, pts.ld);
         for lvl in 0..self.levels() {
             let t = &table[self.level_range(lvl)];
-            let (res, size, dense) = (self.resolutions[lvl], self.sizes[lvl], self.dense[lvl]);
+            let (lv, dense) = (self.level(lvl), self.dense[lvl]);
             let o = &mut out[lvl * f * ld..(lvl + 1) * f * ld];
             match (f, dense) {
-                (1, true) => encode_level::<1, true>(t, res, size, px, py, pz, n, ld, o),
-                (1, false) => encode_level::<1, false>(t, res, size, px, py, pz, n, ld, o),
-                (2, true) => encode_level::<2, true>(t, res, size, px, py, pz, n, ld, o),
-                (2, false) => encode_level::<2, false>(t, res, size, px, py, pz, n, ld, o),
-                (4, true) => encode_level::<4, true>(t, res, size, px, py, pz, n, ld, o),
-                (4, false) => encode_level::<4, false>(t, res, size, px, py, pz, n, ld, o),
-                (_, true) => encode_level::<8, true>(t, res, size, px, py, pz, n, ld, o),
-                (_, false) => encode_level::<8, false>(t, res, size, px, py, pz, n, ld, o),
+                (1, true) => encode_level::<1, true>(t, lv, pts, o),
+                (1, false) => encode_level::<1, false>(t, lv, pts, o),
+                (2, true) => encode_level::<2, true>(t, lv, pts, o),
+                (2, false) => encode_level::<2, false>(t, lv, pts, o),
+                (4, true) => encode_level::<4, true>(t, lv, pts, o),
+                (4, false) => encode_level::<4, false>(t, lv, pts, o),
+                (_, true) => encode_level::<8, true>(t, lv, pts, o),
+                (_, false) => encode_level::<8, false>(t, lv, pts, o),
             }
             for v in o.iter_mut() {
                 if !v.is_finite() {
@@ -576,37 +552,28 @@ impl HashGrid {
         }
     }
 
-    /// Adds the table gradient of one level: for each point `i` (in order), each corner `c`
-    /// and feature `k`, `grad[idx·F + k] += w_c · d_out[(level·F + k)·ld + i]`. `grad` is the
-    /// level's slice ([`HashGrid::level_range`]).
-    #[allow(clippy::too_many_arguments)]
+    /// Adds the table gradient of one level: for each point `i` of `pts` (in order), each
+    /// corner `c` and feature `k`, `grad[idx·F + k] += w_c · d_out[(level·F + k)·pts.ld + i]`.
+    /// `grad` is the level's slice ([`HashGrid::level_range`]).
     pub fn backward_level(
         &self,
         level: usize,
-        px: &[f32],
-        py: &[f32],
-        pz: &[f32],
-        n: usize,
-        ld: usize,
+        pts: PointBatch<'_>,
         d_out: &[f32],
         grad: &mut [f32],
     ) {
-        let f = self.features();
-        let (res, size, dense) = (
-            self.resolutions[level],
-            self.sizes[level],
-            self.dense[level],
-        );
+        let (f, ld) = (self.features(), pts.ld);
+        let (lv, dense) = (self.level(level), self.dense[level]);
         let d = &d_out[level * f * ld..(level + 1) * f * ld];
         match (f, dense) {
-            (1, true) => backward_level::<1, true>(grad, res, size, px, py, pz, n, ld, d),
-            (1, false) => backward_level::<1, false>(grad, res, size, px, py, pz, n, ld, d),
-            (2, true) => backward_level::<2, true>(grad, res, size, px, py, pz, n, ld, d),
-            (2, false) => backward_level::<2, false>(grad, res, size, px, py, pz, n, ld, d),
-            (4, true) => backward_level::<4, true>(grad, res, size, px, py, pz, n, ld, d),
-            (4, false) => backward_level::<4, false>(grad, res, size, px, py, pz, n, ld, d),
-            (_, true) => backward_level::<8, true>(grad, res, size, px, py, pz, n, ld, d),
-            (_, false) => backward_level::<8, false>(grad, res, size, px, py, pz, n, ld, d),
+            (1, true) => backward_level::<1, true>(grad, lv, pts, d),
+            (1, false) => backward_level::<1, false>(grad, lv, pts, d),
+            (2, true) => backward_level::<2, true>(grad, lv, pts, d),
+            (2, false) => backward_level::<2, false>(grad, lv, pts, d),
+            (4, true) => backward_level::<4, true>(grad, lv, pts, d),
+            (4, false) => backward_level::<4, false>(grad, lv, pts, d),
+            (_, true) => backward_level::<8, true>(grad, lv, pts, d),
+            (_, false) => backward_level::<8, false>(grad, lv, pts, d),
         }
     }
 
@@ -678,8 +645,15 @@ mod tests {
                 let ld = n.div_ceil(16) * 16 + 16;
                 let [px, py, pz] = points(&mut rng, n);
                 let fd = f as usize;
+                let pts = PointBatch {
+                    px: &px,
+                    py: &py,
+                    pz: &pz,
+                    n,
+                    ld,
+                };
                 let mut got = vec![f32::NAN; grid.output_dim() * ld];
-                grid.encode(&table, &px, &py, &pz, n, ld, &mut got);
+                grid.encode(&table, pts, &mut got);
                 let d_out: Vec<f32> = (0..grid.output_dim() * ld)
                     .map(|k| {
                         if k % ld < n && k % 7 != 3 {
@@ -691,19 +665,14 @@ mod tests {
                     .collect();
                 for lvl in 0..grid.levels() {
                     let t = &table[grid.level_range(lvl)];
-                    let (res, size, dense) =
-                        (grid.resolutions[lvl], grid.sizes[lvl], grid.dense[lvl]);
+                    let (lv, size, dense) = (grid.level(lvl), grid.sizes[lvl], grid.dense[lvl]);
                     let mut want = vec![0f32; fd * ld];
                     macro_rules! enc {
                         ($f:literal) => {
                             if dense {
-                                encode_level_impl::<$f, true, false>(
-                                    t, res, size, &px, &py, &pz, n, ld, &mut want,
-                                )
+                                encode_level_impl::<$f, true, false>(t, lv, pts, &mut want)
                             } else {
-                                encode_level_impl::<$f, false, false>(
-                                    t, res, size, &px, &py, &pz, n, ld, &mut want,
-                                )
+                                encode_level_impl::<$f, false, false>(t, lv, pts, &mut want)
                             }
                         };
                     }
@@ -732,17 +701,13 @@ mod tests {
                     let mut g1 = vec![0.5f32; size * fd];
                     let mut g2 = g1.clone();
                     let d = &d_out[lvl * fd * ld..(lvl + 1) * fd * ld];
-                    grid.backward_level(lvl, &px, &py, &pz, n, ld, &d_out, &mut g1);
+                    grid.backward_level(lvl, pts, &d_out, &mut g1);
                     macro_rules! bwd {
                         ($f:literal) => {
                             if dense {
-                                backward_level_body::<$f, true, false>(
-                                    &mut g2, res, size, &px, &py, &pz, n, ld, d,
-                                )
+                                backward_level_body::<$f, true, false>(&mut g2, lv, pts, d)
                             } else {
-                                backward_level_body::<$f, false, false>(
-                                    &mut g2, res, size, &px, &py, &pz, n, ld, d,
-                                )
+                                backward_level_body::<$f, false, false>(&mut g2, lv, pts, d)
                             }
                         };
                     }

@@ -26,7 +26,7 @@
 
 use std::arch::x86_64::*;
 
-use super::Store;
+use super::{Gemm, Store, WeightGrad};
 
 /// Store modes of the forward tile (const generic so the store loop is fully unrolled).
 const LINEAR: u8 = 0;
@@ -44,21 +44,46 @@ struct Strides {
     m: usize,
 }
 
+/// The operands of the forward tiles: [`Gemm`] and its output as raw pointers (the bounds are
+/// checked by the callers of [`forward`]).
+#[derive(Clone, Copy)]
+struct Fwd {
+    /// Weights, `out × inp` row-major.
+    w: *const f32,
+    /// Biases, if any.
+    b: Option<*const f32>,
+    /// Input rows.
+    x: *const f32,
+    /// Output rows.
+    y: *mut f32,
+    /// ReLU-mask rows (read only in the `MASK` store mode).
+    mask: *const f32,
+    /// Input width.
+    inp: usize,
+    /// Output width.
+    out: usize,
+    /// Row strides of `x`, `y` and `mask`.
+    ld: Strides,
+}
+
 /// One forward tile: outputs `o0..o0 + OB` × columns `base..base + 8·T`.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 unsafe fn fwd_tile<const OB: usize, const T: usize, const MODE: u8>(
-    w: *const f32,
-    b: Option<*const f32>,
-    x: *const f32,
-    y: *mut f32,
-    mask: *const f32,
-    inp: usize,
+    op: Fwd,
     o0: usize,
-    ld: Strides,
     base: usize,
     prefetch_next: bool,
 ) {
+    let Fwd {
+        w,
+        b,
+        x,
+        y,
+        mask,
+        inp,
+        ld,
+        ..
+    } = op;
     // Bring the tile's output (and mask) lines in while the reduction runs.
     for k in 0..OB {
         for t in (0..T).step_by(2) {
@@ -120,34 +145,27 @@ unsafe fn fwd_tile<const OB: usize, const T: usize, const MODE: u8>(
 /// All outputs of one column panel of `8·T` columns: tiles of `OB` outputs, then one tile of
 /// the remaining `< OB` outputs (`OB ≤ 6`).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 unsafe fn fwd_columns<const T: usize, const OB: usize, const MODE: u8>(
-    w: *const f32,
-    b: Option<*const f32>,
-    x: *const f32,
-    y: *mut f32,
-    mask: *const f32,
-    inp: usize,
-    out: usize,
-    ld: Strides,
+    op: Fwd,
     ncols: usize,
     base: usize,
 ) {
+    let out = op.out;
     // Prefetch the next panel during the first tile (if there is a next panel).
     let pf = base + V * T < ncols;
     let mut o0 = 0;
     while o0 + OB <= out {
-        fwd_tile::<OB, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf && o0 == 0);
+        fwd_tile::<OB, T, MODE>(op, o0, base, pf && o0 == 0);
         o0 += OB;
     }
     let pf = pf && o0 == 0;
     match out - o0 {
         0 => {}
-        1 => fwd_tile::<1, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
-        2 => fwd_tile::<2, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
-        3 => fwd_tile::<3, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
-        4 => fwd_tile::<4, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
-        _ => fwd_tile::<5, T, MODE>(w, b, x, y, mask, inp, o0, ld, base, pf),
+        1 => fwd_tile::<1, T, MODE>(op, o0, base, pf),
+        2 => fwd_tile::<2, T, MODE>(op, o0, base, pf),
+        3 => fwd_tile::<3, T, MODE>(op, o0, base, pf),
+        4 => fwd_tile::<4, T, MODE>(op, o0, base, pf),
+        _ => fwd_tile::<5, T, MODE>(op, o0, base, pf),
     }
 }
 
@@ -157,19 +175,22 @@ unsafe fn fwd_columns<const T: usize, const OB: usize, const MODE: u8>(
 /// formed with wrapping arithmetic and never dereferenced). The active lanes compute exactly
 /// what [`fwd_tile`] computes for their columns.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 unsafe fn fwd_tile_part<const OB: usize, const MODE: u8>(
-    w: *const f32,
-    b: Option<*const f32>,
-    x: *const f32,
-    y: *mut f32,
-    mask: *const f32,
-    inp: usize,
+    op: Fwd,
     o0: usize,
-    ld: Strides,
     col: isize,
     lm: __m256i,
 ) {
+    let Fwd {
+        w,
+        b,
+        x,
+        y,
+        mask,
+        inp,
+        ld,
+        ..
+    } = op;
     let at =
         |p: *const f32, row: usize, stride: usize| p.wrapping_offset((row * stride) as isize + col);
     let mut acc = [_mm256_setzero_ps(); OB];
@@ -204,31 +225,20 @@ unsafe fn fwd_tile_part<const OB: usize, const MODE: u8>(
 /// All outputs of one masked 8-column window ([`fwd_tile_part`]): tiles of 6 outputs, then
 /// one of the rest.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-unsafe fn fwd_part_columns<const MODE: u8>(
-    w: *const f32,
-    b: Option<*const f32>,
-    x: *const f32,
-    y: *mut f32,
-    mask: *const f32,
-    inp: usize,
-    out: usize,
-    ld: Strides,
-    col: isize,
-    lm: __m256i,
-) {
+unsafe fn fwd_part_columns<const MODE: u8>(op: Fwd, col: isize, lm: __m256i) {
+    let out = op.out;
     let mut o0 = 0;
     while o0 + 6 <= out {
-        fwd_tile_part::<6, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm);
+        fwd_tile_part::<6, MODE>(op, o0, col, lm);
         o0 += 6;
     }
     match out - o0 {
         0 => {}
-        1 => fwd_tile_part::<1, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
-        2 => fwd_tile_part::<2, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
-        3 => fwd_tile_part::<3, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
-        4 => fwd_tile_part::<4, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
-        _ => fwd_tile_part::<5, MODE>(w, b, x, y, mask, inp, o0, ld, col, lm),
+        1 => fwd_tile_part::<1, MODE>(op, o0, col, lm),
+        2 => fwd_tile_part::<2, MODE>(op, o0, col, lm),
+        3 => fwd_tile_part::<3, MODE>(op, o0, col, lm),
+        4 => fwd_tile_part::<4, MODE>(op, o0, col, lm),
+        _ => fwd_tile_part::<5, MODE>(op, o0, col, lm),
     }
 }
 
@@ -241,123 +251,88 @@ unsafe fn fwd_part_columns<const MODE: u8>(
 /// panels, and a masked window for the last 4. Every output column is still computed by one
 /// tile with the same operations, so the bits do not depend on the walk.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-unsafe fn fwd_all<const T: usize, const OB: usize, const MODE: u8>(
-    w: *const f32,
-    b: Option<*const f32>,
-    x: *const f32,
-    y: *mut f32,
-    mask: *const f32,
-    inp: usize,
-    out: usize,
-    ld: Strides,
-    ncols: usize,
-) {
+unsafe fn fwd_all<const T: usize, const OB: usize, const MODE: u8>(op: Fwd, ncols: usize) {
+    let Fwd { x, y, mask, ld, .. } = op;
     let shift = (x as usize) % 32 == 16 && ld.x.is_multiple_of(V) && ncols >= V;
     if shift {
         // Lanes 4..8 of the window at column -4, and lanes 0..4 of the one at `ncols - 4`.
         let head = _mm256_setr_epi32(0, 0, 0, 0, -1, -1, -1, -1);
         let tail = _mm256_setr_epi32(-1, -1, -1, -1, 0, 0, 0, 0);
-        fwd_part_columns::<MODE>(w, b, x, y, mask, inp, out, ld, -4, head);
+        fwd_part_columns::<MODE>(op, -4, head);
         // Columns 4..ncols - 4 (a multiple of 8) from aligned rows.
         let h = V / 2;
         let mask_h = if MODE == MASK { mask.add(h) } else { mask };
-        fwd_body::<T, OB, MODE>(w, b, x.add(h), y.add(h), mask_h, inp, out, ld, ncols - V);
-        fwd_part_columns::<MODE>(w, b, x, y, mask, inp, out, ld, (ncols - h) as isize, tail);
+        let aligned = Fwd {
+            x: x.add(h),
+            y: y.add(h),
+            mask: mask_h,
+            ..op
+        };
+        fwd_body::<T, OB, MODE>(aligned, ncols - V);
+        fwd_part_columns::<MODE>(op, (ncols - h) as isize, tail);
     } else {
-        fwd_body::<T, OB, MODE>(w, b, x, y, mask, inp, out, ld, ncols);
+        fwd_body::<T, OB, MODE>(op, ncols);
     }
 }
 
-/// The column walk of [`fwd_all`] over `ncols` (a multiple of 8) columns from `x`, `y`, `mask`.
+/// The column walk of [`fwd_all`] over `ncols` (a multiple of 8) columns from `op`'s rows.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-unsafe fn fwd_body<const T: usize, const OB: usize, const MODE: u8>(
-    w: *const f32,
-    b: Option<*const f32>,
-    x: *const f32,
-    y: *mut f32,
-    mask: *const f32,
-    inp: usize,
-    out: usize,
-    ld: Strides,
-    ncols: usize,
-) {
+unsafe fn fwd_body<const T: usize, const OB: usize, const MODE: u8>(op: Fwd, ncols: usize) {
     let mut base = 0;
     while base + V * T <= ncols {
-        fwd_columns::<T, OB, MODE>(w, b, x, y, mask, inp, out, ld, ncols, base);
+        fwd_columns::<T, OB, MODE>(op, ncols, base);
         base += V * T;
     }
     if base + 2 * V <= ncols {
-        fwd_columns::<2, 6, MODE>(w, b, x, y, mask, inp, out, ld, ncols, base);
+        fwd_columns::<2, 6, MODE>(op, ncols, base);
         base += 2 * V;
     }
     if base < ncols {
-        fwd_columns::<1, 6, MODE>(w, b, x, y, mask, inp, out, ld, ncols, base);
+        fwd_columns::<1, 6, MODE>(op, ncols, base);
     }
 }
 
 /// Picks the tile shape: 6 outputs × 2 vectors, or `out` (≤ 3) outputs × 4 vectors.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-unsafe fn fwd_mode<const MODE: u8>(
-    w: *const f32,
-    b: Option<*const f32>,
-    x: *const f32,
-    y: *mut f32,
-    mask: *const f32,
-    inp: usize,
-    out: usize,
-    ld: Strides,
-    ncols: usize,
-) {
-    if out <= 3 {
-        fwd_all::<4, 3, MODE>(w, b, x, y, mask, inp, out, ld, ncols)
+unsafe fn fwd_mode<const MODE: u8>(op: Fwd, ncols: usize) {
+    if op.out <= 3 {
+        fwd_all::<4, 3, MODE>(op, ncols)
     } else {
-        fwd_all::<2, 6, MODE>(w, b, x, y, mask, inp, out, ld, ncols)
+        fwd_all::<2, 6, MODE>(op, ncols)
     }
 }
 
-/// `y[o][c] = store(b[o] + Σ_i w[o·inp + i] · x[i][c])` for columns `c < ncols` of
-/// channel-major operands (`x` rows `ldx` apart, `y` rows `ldy` apart, a mask's rows its own
-/// stride apart).
+/// `y[o][c] = store(b[o] + Σ_i w[o·inp + i] · x[i][c])` for columns `c < ncols` of the
+/// channel-major operands of `g` (`x` rows `ldx` apart, a mask's rows its own stride apart),
+/// into `y` (rows `ldy` apart).
 ///
 /// # Safety
 /// AVX2 and FMA must be available; `ncols` is a multiple of 8; `w.len() ≥ out·inp`,
 /// `b.len() ≥ out`, and every row `r` read or written lies inside its slice
 /// (`r·ld + ncols ≤ len`).
 #[target_feature(enable = "avx2,fma,bmi1,popcnt")]
-#[allow(clippy::too_many_arguments)]
-pub(crate) unsafe fn forward(
-    w: &[f32],
-    b: Option<&[f32]>,
-    x: &[f32],
-    ldx: usize,
-    y: &mut [f32],
-    ldy: usize,
-    inp: usize,
-    out: usize,
-    ncols: usize,
-    store: Store<'_>,
-) {
-    let (wp, bp, xp, yp) = (
-        w.as_ptr(),
-        b.map(|b| b.as_ptr()),
-        x.as_ptr(),
-        y.as_mut_ptr(),
-    );
-    let mut ld = Strides {
-        x: ldx,
-        y: ldy,
-        m: 0,
+pub(crate) unsafe fn forward(g: Gemm<'_>, y: &mut [f32], ldy: usize) {
+    let mut op = Fwd {
+        w: g.w.as_ptr(),
+        b: g.b.map(|b| b.as_ptr()),
+        x: g.x.as_ptr(),
+        y: y.as_mut_ptr(),
+        mask: std::ptr::null(),
+        inp: g.inp,
+        out: g.out,
+        ld: Strides {
+            x: g.ldx,
+            y: ldy,
+            m: 0,
+        },
     };
-    let null = std::ptr::null();
-    match store {
-        Store::Linear => fwd_mode::<LINEAR>(wp, bp, xp, yp, null, inp, out, ld, ncols),
-        Store::Relu => fwd_mode::<RELU>(wp, bp, xp, yp, null, inp, out, ld, ncols),
+    match g.store {
+        Store::Linear => fwd_mode::<LINEAR>(op, g.ncols),
+        Store::Relu => fwd_mode::<RELU>(op, g.ncols),
         Store::MaskPositive(m, ldm) => {
-            ld.m = ldm;
-            fwd_mode::<MASK>(wp, bp, xp, yp, m.as_ptr(), inp, out, ld, ncols)
+            op.mask = m.as_ptr();
+            op.ld.m = ldm;
+            fwd_mode::<MASK>(op, g.ncols)
         }
     }
 }
@@ -408,21 +383,42 @@ pub(crate) unsafe fn transpose8_slice(src: &[f32; 64], dst: &mut [f32; 64]) {
     }
 }
 
+/// The operands of the weight-gradient tiles as raw pointers (the bounds are checked by the
+/// callers of [`backward_weights`]).
+#[derive(Clone, Copy)]
+struct Dw {
+    /// Output-gradient rows.
+    dy: *const f32,
+    /// The transposed block of the input: sample-major rows of `inp_pad` floats.
+    xt: *const f32,
+    /// Padded weight-gradient accumulators, `out × inp_pad`.
+    dwp: *mut f32,
+    /// Input width rounded up to 16.
+    inp_pad: usize,
+    /// Output width.
+    out: usize,
+    /// Row stride of `dy`.
+    lddy: usize,
+}
+
 /// One weight-gradient tile: outputs `o0..o0 + OB` × inputs `i0..i0 + 8·IV`, over the
 /// samples `kb..kb + kc` (rows of the transposed block `xt`) in order.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 unsafe fn dw_tile<const OB: usize, const IV: usize>(
-    dy: *const f32,
-    xt: *const f32,
-    dwp: *mut f32,
-    inp_pad: usize,
+    op: Dw,
     o0: usize,
     i0: usize,
-    lddy: usize,
     kb: usize,
     kc: usize,
 ) {
+    let Dw {
+        dy,
+        xt,
+        dwp,
+        inp_pad,
+        lddy,
+        ..
+    } = op;
     let mut acc = [[_mm256_setzero_ps(); IV]; OB];
     for k in 0..OB {
         for v in 0..IV {
@@ -453,34 +449,24 @@ unsafe fn dw_tile<const OB: usize, const IV: usize>(
 /// All outputs of one strip of `8·IV` inputs: tiles of `OB` outputs, then one tile of the
 /// remaining `< OB` outputs (`OB ≤ 6`).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-unsafe fn dw_rows<const OB: usize, const IV: usize>(
-    dy: *const f32,
-    xt: *const f32,
-    dwp: *mut f32,
-    inp_pad: usize,
-    out: usize,
-    i0: usize,
-    ld: usize,
-    kb: usize,
-    kc: usize,
-) {
+unsafe fn dw_rows<const OB: usize, const IV: usize>(op: Dw, i0: usize, kb: usize, kc: usize) {
+    let out = op.out;
     let mut o0 = 0;
     while o0 + OB <= out {
-        dw_tile::<OB, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc);
+        dw_tile::<OB, IV>(op, o0, i0, kb, kc);
         o0 += OB;
     }
     match out - o0 {
         0 => {}
-        1 => dw_tile::<1, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
-        2 => dw_tile::<2, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
-        3 => dw_tile::<3, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
-        4 => dw_tile::<4, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
-        _ => dw_tile::<5, IV>(dy, xt, dwp, inp_pad, o0, i0, ld, kb, kc),
+        1 => dw_tile::<1, IV>(op, o0, i0, kb, kc),
+        2 => dw_tile::<2, IV>(op, o0, i0, kb, kc),
+        3 => dw_tile::<3, IV>(op, o0, i0, kb, kc),
+        4 => dw_tile::<4, IV>(op, o0, i0, kb, kc),
+        _ => dw_tile::<5, IV>(op, o0, i0, kb, kc),
     }
 }
 
-/// Weight-gradient accumulation over columns `c < ncols`: `dwp[o·inp_pad + i] +=
+/// Weight-gradient accumulation `g` over columns `c < ncols`: `dwp[o·inp_pad + i] +=
 /// Σ_c dy[o][c] · x[i][c]` as one sequential fused sum per entry (`inp_pad` = `inp` rounded up
 /// to 16; padding entries accumulate products with zero), and `lanes[o·16 + l] += Σ dy[o][c]`
 /// over the columns `c ≡ l (mod 16)`. `xt` is scratch.
@@ -490,26 +476,28 @@ unsafe fn dw_rows<const OB: usize, const IV: usize>(
 /// `lanes.len() ≥ 16·out`, and the rows of `dy` (stride `lddy`) and `x` (stride `ldx`) hold
 /// `ncols` columns inside their slices.
 #[target_feature(enable = "avx2,fma,bmi1,popcnt")]
-#[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn backward_weights(
-    dy: &[f32],
-    lddy: usize,
-    x: &[f32],
-    ldx: usize,
+    g: WeightGrad<'_>,
     dwp: &mut [f32],
     lanes: &mut [f32],
-    inp: usize,
-    out: usize,
-    ncols: usize,
     xt: &mut Vec<f32>,
 ) {
+    let (inp, out, ncols, ldx) = (g.inp, g.out, g.ncols, g.ldx);
     let inp_pad = inp.div_ceil(16) * 16;
     // Keep the transposed block (kc × inp_pad floats) within ~16 KiB of L1.
     let kc_max = (4096 / inp_pad).max(1).div_ceil(16) * 16;
     if xt.len() < kc_max * inp_pad {
         xt.resize(kc_max * inp_pad, 0.0);
     }
-    let (dyp, xp, dwpp, xtp) = (dy.as_ptr(), x.as_ptr(), dwp.as_mut_ptr(), xt.as_mut_ptr());
+    let (dyp, xp, xtp) = (g.dy.as_ptr(), g.x.as_ptr(), xt.as_mut_ptr());
+    let op = Dw {
+        dy: dyp,
+        xt: xtp,
+        dwp: dwp.as_mut_ptr(),
+        inp_pad,
+        out,
+        lddy: g.lddy,
+    };
     let zero = _mm256_setzero_ps();
     let mut kb = 0;
     while kb < ncols {
@@ -545,15 +533,15 @@ pub(crate) unsafe fn backward_weights(
             // Few outputs: wider input strips (32 inputs, then 16) for enough accumulators.
             let mut i0 = 0;
             while i0 + 4 * V <= inp_pad {
-                dw_rows::<3, 4>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
+                dw_rows::<3, 4>(op, i0, kb, kc);
                 i0 += 4 * V;
             }
             if i0 < inp_pad {
-                dw_rows::<6, 2>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
+                dw_rows::<6, 2>(op, i0, kb, kc);
             }
         } else {
             for i0 in (0..inp_pad).step_by(2 * V) {
-                dw_rows::<6, 2>(dyp, xtp, dwpp, inp_pad, out, i0, lddy, kb, kc);
+                dw_rows::<6, 2>(op, i0, kb, kc);
             }
         }
         kb += kc;
@@ -565,8 +553,8 @@ pub(crate) unsafe fn backward_weights(
         let mut lo = _mm256_loadu_ps(lp);
         let mut hi = _mm256_loadu_ps(lp.add(V));
         for base in (0..ncols).step_by(16) {
-            lo = _mm256_add_ps(lo, _mm256_loadu_ps(dyp.add(o * lddy + base)));
-            hi = _mm256_add_ps(hi, _mm256_loadu_ps(dyp.add(o * lddy + base + V)));
+            lo = _mm256_add_ps(lo, _mm256_loadu_ps(dyp.add(o * op.lddy + base)));
+            hi = _mm256_add_ps(hi, _mm256_loadu_ps(dyp.add(o * op.lddy + base + V)));
         }
         _mm256_storeu_ps(lp, lo);
         _mm256_storeu_ps(lp.add(V), hi);

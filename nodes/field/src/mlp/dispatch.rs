@@ -11,7 +11,7 @@
 //! compare them).
 
 use super::portable::{dw_body, fwd_body, hsum};
-use super::{Store, LANES};
+use super::{Gemm, Store, WeightGrad, LANES};
 #[cfg(target_arch = "x86_64")]
 use augsplat_core::simd::{self, Isa};
 
@@ -30,20 +30,19 @@ fn check_rows(len: usize, rows: usize, ld: usize, ncols: usize, what: &str) {
     );
 }
 
-/// Forward-style product over columns `< ncols` with separate row strides (dispatch).
-#[allow(clippy::too_many_arguments)]
-pub(super) fn product(
-    w: &[f32],
-    b: Option<&[f32]>,
-    x: &[f32],
-    ldx: usize,
-    y: &mut [f32],
-    ldy: usize,
-    inp: usize,
-    out: usize,
-    ncols: usize,
-    store: Store<'_>,
-) {
+/// Forward-style product `g` into `y` (rows `ldy` apart) over the columns `< g.ncols`
+/// (dispatch).
+pub(super) fn product(g: Gemm<'_>, y: &mut [f32], ldy: usize) {
+    let Gemm {
+        w,
+        b,
+        x,
+        ldx,
+        inp,
+        out,
+        ncols,
+        store,
+    } = g;
     assert!(
         w.len() >= inp * out,
         "dense-layer kernel: weights too short"
@@ -59,28 +58,22 @@ pub(super) fn product(
     #[cfg(target_arch = "x86_64")]
     if simd::active() == Isa::Avx2 {
         // SAFETY: `active` returns `Avx2` only on CPUs with its features; shapes checked above.
-        return unsafe { super::avx2::forward(w, b, x, ldx, y, ldy, inp, out, ncols, store) };
+        return unsafe { super::avx2::forward(g, y, ldy) };
     }
-    fwd_body::<4, false>(w, b, x, ldx, y, ldy, inp, out, ncols, store)
+    fwd_body::<4, false>(g, y, ldy)
 }
 
-/// Weight-gradient accumulation over columns `< ncols` into a padded `dwp` (`out × inp_pad`)
-/// and per-lane bias sums (dispatch).
-#[allow(clippy::too_many_arguments)]
+/// Weight-gradient accumulation `g` over the columns `< g.ncols` into a padded `dwp`
+/// (`out × inp_pad`) and per-lane bias sums; `xt` is transpose scratch (dispatch).
 pub(super) fn weight_grad(
-    dy: &[f32],
-    lddy: usize,
-    x: &[f32],
-    ldx: usize,
+    g: WeightGrad<'_>,
     dwp: &mut [f32],
     lane_sums: &mut [f32],
-    inp: usize,
-    out: usize,
-    ncols: usize,
     xt: &mut Vec<f32>,
 ) {
-    check_rows(dy.len(), out, lddy, ncols, "output gradient");
-    check_rows(x.len(), inp, ldx, ncols, "input batch");
+    let (inp, out) = (g.inp, g.out);
+    check_rows(g.dy.len(), out, g.lddy, g.ncols, "output gradient");
+    check_rows(g.x.len(), inp, g.ldx, g.ncols, "input batch");
     assert!(
         dwp.len() >= out * inp.div_ceil(LANES) * LANES && lane_sums.len() >= out * LANES,
         "dense-layer kernel: gradient accumulators too short"
@@ -88,11 +81,9 @@ pub(super) fn weight_grad(
     #[cfg(target_arch = "x86_64")]
     if simd::active() == Isa::Avx2 {
         // SAFETY: `active` returns `Avx2` only on CPUs with its features; shapes checked above.
-        return unsafe {
-            super::avx2::backward_weights(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt)
-        };
+        return unsafe { super::avx2::backward_weights(g, dwp, lane_sums, xt) };
     }
-    dw_body::<false>(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt)
+    dw_body::<false>(g, dwp, lane_sums, xt)
 }
 
 /// Copies `dw` (`out × inp`) into a padded `dwp` (`out × inp_pad`, zero padding).

@@ -25,6 +25,10 @@
 //!   portable kernels *without* fused multiply-adds (so `AUGSPLAT_ISA=portable` or a CPU
 //!   without AVX2 may differ from the AVX2 tier in the last bits).
 //!
+//! Every tier's kernels take the same arguments: a `Gemm` (weights, bias, input batch, shape,
+//! store mode) with the output batch for the forward-style products, a `WeightGrad` (output
+//! gradient, input batch, shape) with the accumulators for the weight gradients.
+//!
 //! An f64 reference lives in [`crate::reference`].
 
 #[cfg(target_arch = "x86_64")]
@@ -60,38 +64,91 @@ pub(crate) enum Store<'a> {
     MaskPositive(&'a [f32], usize),
 }
 
+/// The operands of a forward-style dense-layer product over the columns `< ncols` of
+/// channel-major batches: `y[o][c] = store(b[o] + Σ_i w[o·inp + i] · x[i][c])`. Every tier's
+/// kernel takes one, with the output batch and its row stride beside it.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Gemm<'a> {
+    /// Weights, `out × inp` row-major.
+    pub(crate) w: &'a [f32],
+    /// Biases (`out` of them); none adds nothing.
+    pub(crate) b: Option<&'a [f32]>,
+    /// Input batch: `inp` rows of `ldx` floats.
+    pub(crate) x: &'a [f32],
+    /// Row stride of `x`.
+    pub(crate) ldx: usize,
+    /// Input width (rows of `x`).
+    pub(crate) inp: usize,
+    /// Output width (rows of `y`).
+    pub(crate) out: usize,
+    /// Columns to compute (a multiple of [`LANES`]).
+    pub(crate) ncols: usize,
+    /// What is applied when an output is stored.
+    pub(crate) store: Store<'a>,
+}
+
+/// The operands of a weight-gradient accumulation over the columns `< ncols`: `dw[o][i] +=
+/// Σ_c dy[o][c] · x[i][c]` (into accumulators padded to `inp` rounded up to [`LANES`]) and the
+/// bias lane sums of `dy`. Every tier's kernel takes one, with the accumulators and the
+/// transpose scratch beside it.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct WeightGrad<'a> {
+    /// Output gradient: `out` rows of `lddy` floats.
+    pub(crate) dy: &'a [f32],
+    /// Row stride of `dy`.
+    pub(crate) lddy: usize,
+    /// Input batch: `inp` rows of `ldx` floats.
+    pub(crate) x: &'a [f32],
+    /// Row stride of `x`.
+    pub(crate) ldx: usize,
+    /// Input width (rows of `x`).
+    pub(crate) inp: usize,
+    /// Output width (rows of `dy`).
+    pub(crate) out: usize,
+    /// Columns to sum over (a multiple of [`LANES`]).
+    pub(crate) ncols: usize,
+}
+
 /// `y[o] = act(b[o] + Σ_i w[o·inp + i] · x[i])` for every column of a channel-major batch
-/// (`x`: `inp × ld`, `y`: `out × ld`, `w`: `out × inp` row-major). `act` is ReLU when
-/// `relu`, else identity. `ld` must be a multiple of [`LANES`]. Each output sums over `i` in
-/// order, so block sizes do not change the result.
-#[allow(clippy::too_many_arguments)]
+/// (`x`: `inp × ld`, `y`: `out × ld`, `w`: `out × inp` row-major, with `inp`, `out` from
+/// `shape`). `act` is ReLU when `relu`, else identity. `ld` must be a multiple of [`LANES`].
+/// Each output sums over `i` in order, so block sizes do not change the result.
 pub fn linear_forward(
     w: &[f32],
     b: Option<&[f32]>,
     x: &[f32],
     y: &mut [f32],
-    inp: usize,
-    out: usize,
+    shape: LayerShape,
     ld: usize,
     relu: bool,
 ) {
     let store = if relu { Store::Relu } else { Store::Linear };
-    product(w, b, x, ld, y, ld, inp, out, ld, store)
+    let LayerShape { inp, out } = shape;
+    let g = Gemm {
+        w,
+        b,
+        x,
+        ldx: ld,
+        inp,
+        out,
+        ncols: ld,
+        store,
+    };
+    product(g, y, ld)
 }
 
 /// Weight gradients of a layer: `dw[o·inp + i] += Σ_n dy[o][n] · x[i][n]` (the sequential sum
 /// over the columns, after the existing value) and `db[o] += Σ_n dy[o][n]` (16 lane sums
-/// combined pairwise).
-#[allow(clippy::too_many_arguments)]
+/// combined pairwise), with `inp`, `out` from `shape`.
 pub fn linear_backward_weights(
     dy: &[f32],
     x: &[f32],
     dw: &mut [f32],
     db: &mut [f32],
-    inp: usize,
-    out: usize,
+    shape: LayerShape,
     ld: usize,
 ) {
+    let LayerShape { inp, out } = shape;
     assert!(
         dw.len() >= inp * out && db.len() >= out,
         "dense-layer kernel: gradient buffers too short"
@@ -101,49 +158,44 @@ pub fn linear_backward_weights(
     let mut lane_sums = vec![0f32; out * LANES];
     pad_weights(dw, &mut dwp, inp, out);
     let mut xt = Vec::new();
-    weight_grad(
+    let g = WeightGrad {
         dy,
-        ld,
+        lddy: ld,
         x,
-        ld,
-        &mut dwp,
-        &mut lane_sums,
+        ldx: ld,
         inp,
         out,
-        ld,
-        &mut xt,
-    );
+        ncols: ld,
+    };
+    weight_grad(g, &mut dwp, &mut lane_sums, &mut xt);
     unpad_weights(&dwp, &lane_sums, dw, &mut db[..out], inp);
 }
 
-/// Input gradient of a layer: `dx[i] = Σ_o w[o·inp + i] · dy[o]` per column. `wt` is scratch
-/// that receives the transposed weights.
-#[allow(clippy::too_many_arguments)]
+/// Input gradient of a layer: `dx[i] = Σ_o w[o·inp + i] · dy[o]` per column (`inp`, `out`
+/// from `shape`). `wt` is scratch that receives the transposed weights.
 pub fn linear_backward_input(
     w: &[f32],
     dy: &[f32],
     dx: &mut [f32],
-    inp: usize,
-    out: usize,
+    shape: LayerShape,
     ld: usize,
     wt: &mut Vec<f32>,
 ) {
-    linear_backward_input_masked(w, dy, dx, inp, out, ld, wt, None)
+    linear_backward_input_masked(w, dy, dx, shape, ld, wt, None)
 }
 
 /// [`linear_backward_input`] followed by [`relu_backward`] with `mask` (the post-activation
 /// output of the layer below, laid out like `dx`), fused into the kernel's store.
-#[allow(clippy::too_many_arguments)]
 pub fn linear_backward_input_masked(
     w: &[f32],
     dy: &[f32],
     dx: &mut [f32],
-    inp: usize,
-    out: usize,
+    shape: LayerShape,
     ld: usize,
     wt: &mut Vec<f32>,
     mask: Option<&[f32]>,
 ) {
+    let LayerShape { inp, out } = shape;
     assert!(
         w.len() >= inp * out,
         "dense-layer kernel: weights too short"
@@ -155,7 +207,18 @@ pub fn linear_backward_input_masked(
         Some(m) => Store::MaskPositive(m, ld),
         None => Store::Linear,
     };
-    product(wt, None, dy, ld, dx, ld, out, inp, ld, store)
+    // The transposed product: `out` gradient rows in, `inp` rows out.
+    let g = Gemm {
+        w: wt,
+        b: None,
+        x: dy,
+        ldx: ld,
+        inp: out,
+        out: inp,
+        ncols: ld,
+        store,
+    };
+    product(g, dx, ld)
 }
 
 /// Multiplies `d` by the ReLU derivative read from the layer's post-activation output `y`
@@ -187,6 +250,39 @@ impl LayerShape {
 pub struct Mlp {
     /// The layers, first to last.
     pub layers: Vec<LayerShape>,
+}
+
+/// A forward pass of an [`Mlp`] for [`Mlp::backward`] to differentiate: what
+/// [`Mlp::forward`] read and what it left.
+#[derive(Clone, Copy, Debug)]
+pub struct ForwardPass<'a> {
+    /// The parameters (weights then biases, layer after layer).
+    pub params: &'a [f32],
+    /// The input batch (`inp × ld`).
+    pub x: &'a [f32],
+    /// The layer outputs [`Mlp::forward`] wrote.
+    pub acts: &'a [Vec<f32>],
+    /// Row stride of the batches (a multiple of [`LANES`]).
+    pub ld: usize,
+}
+
+/// Where [`Mlp::backward`] writes the gradient of the network input, and how much of it.
+#[derive(Debug)]
+pub struct InputGrad<'a> {
+    /// Receives `min(rows, inp) × ld` floats: the gradient of the leading input rows.
+    pub d_x: &'a mut Vec<f32>,
+    /// How many leading input rows to compute (`usize::MAX` for all of them). Each row is
+    /// computed on its own, so asking for fewer leaves the others' bits unchanged.
+    pub rows: usize,
+}
+
+/// Reusable scratch of [`Mlp::backward`] (its content never matters between calls).
+#[derive(Clone, Debug, Default)]
+pub struct BackwardScratch {
+    /// Block buffers and padded gradient accumulators.
+    buf: Vec<f32>,
+    /// Transposed weights of every layer.
+    wt: Vec<f32>,
 }
 
 impl Mlp {
@@ -247,45 +343,47 @@ impl Mlp {
                 } else {
                     Store::Linear
                 };
-                product(
+                let g = Gemm {
                     w,
-                    Some(b),
-                    &input[c0..],
-                    ld,
-                    &mut rest[0][c0..],
-                    ld,
-                    s.inp,
-                    s.out,
-                    nb,
+                    b: Some(b),
+                    x: &input[c0..],
+                    ldx: ld,
+                    inp: s.inp,
+                    out: s.out,
+                    ncols: nb,
                     store,
-                );
+                };
+                product(g, &mut rest[0][c0..], ld);
             }
             c0 += nb;
         }
     }
 
-    /// Backward pass. `d_out` is the gradient of the network output (`out × ld`, zero in the
-    /// padding columns). Gradients are *added* to `grad` (same layout as
-    /// `params`). When `d_x` is given it receives the gradient of the leading `d_x_rows`
-    /// input rows (`min(d_x_rows, inp) × ld`; pass `usize::MAX` for all of them — each row is
-    /// computed on its own, so asking for fewer leaves the others' bits unchanged). `scratch`
-    /// and `wt` are reusable scratch. The batch runs through all layers one block of
-    /// [`COLUMN_BLOCK`] columns at a time; every gradient sum runs over the columns in order,
-    /// so the blocking does not change the result.
-    #[allow(clippy::too_many_arguments)]
+    /// Backward pass through `pass`. `d_out` is the gradient of the network output
+    /// (`out × ld`, zero in the padding columns). Gradients are *added* to `grad` (same layout
+    /// as the parameters). When `d_x` is given it receives the gradient of the network input
+    /// (see [`InputGrad`]). The batch runs through all layers one block of [`COLUMN_BLOCK`]
+    /// columns at a time; every gradient sum runs over the columns in order, so the blocking
+    /// does not change the result.
     pub fn backward(
         &self,
-        params: &[f32],
-        x: &[f32],
-        acts: &[Vec<f32>],
-        ld: usize,
+        pass: ForwardPass<'_>,
         d_out: &[f32],
         grad: &mut [f32],
-        d_x: Option<&mut Vec<f32>>,
-        d_x_rows: usize,
-        scratch: &mut Vec<f32>,
-        wt: &mut Vec<f32>,
+        d_x: Option<InputGrad<'_>>,
+        scratch: &mut BackwardScratch,
     ) {
+        let ForwardPass {
+            params,
+            x,
+            acts,
+            ld,
+        } = pass;
+        let (mut d_x, d_x_rows) = match d_x {
+            Some(InputGrad { d_x, rows }) => (Some(d_x), rows),
+            None => (None, 0),
+        };
+        let BackwardScratch { buf: scratch, wt } = scratch;
         let nl = self.layers.len();
         let dx_rows = d_x_rows.min(self.layers.first().map_or(0, |s| s.inp));
         let pad = |n: usize| n.div_ceil(LANES) * LANES;
@@ -332,7 +430,6 @@ impl Mlp {
                 ao += s.out * pad(s.inp);
             }
         }
-        let mut d_x = d_x;
         if let Some(dx) = d_x.as_deref_mut() {
             dx.resize(dx_rows * ld, 0.0);
         }
@@ -355,47 +452,39 @@ impl Mlp {
                     (&cur[..], ldb)
                 };
                 let input: &[f32] = if l == 0 { x } else { &acts[l - 1] };
-                weight_grad(
+                let g = WeightGrad {
                     dy,
                     lddy,
-                    &input[c0..],
-                    ld,
+                    x: &input[c0..],
+                    ldx: ld,
+                    inp: s.inp,
+                    out: s.out,
+                    ncols: nb,
+                };
+                weight_grad(
+                    g,
                     &mut accs[ao..ao + s.out * pad(s.inp)],
                     &mut lane_sums[lo..lo + s.out * LANES],
-                    s.inp,
-                    s.out,
-                    nb,
                     &mut xt,
                 );
-                let wtl = &wt[wo..wo + s.inp * s.out];
+                // The input gradient: the transposed product, `out` gradient rows in.
+                let g = Gemm {
+                    w: &wt[wo..wo + s.inp * s.out],
+                    b: None,
+                    x: dy,
+                    ldx: lddy,
+                    inp: s.out,
+                    out: s.inp,
+                    ncols: nb,
+                    store: Store::Linear,
+                };
                 if l > 0 {
-                    product(
-                        wtl,
-                        None,
-                        dy,
-                        lddy,
-                        next,
-                        ldb,
-                        s.out,
-                        s.inp,
-                        nb,
-                        Store::MaskPositive(&acts[l - 1][c0..], ld),
-                    );
+                    let store = Store::MaskPositive(&acts[l - 1][c0..], ld);
+                    product(Gemm { store, ..g }, next, ldb);
                     std::mem::swap(&mut cur, &mut next);
                     from_top = false;
                 } else if let Some(dx) = d_x.as_deref_mut() {
-                    product(
-                        wtl,
-                        None,
-                        dy,
-                        lddy,
-                        &mut dx[c0..],
-                        ld,
-                        s.out,
-                        dx_rows,
-                        nb,
-                        Store::Linear,
-                    );
+                    product(Gemm { out: dx_rows, ..g }, &mut dx[c0..], ld);
                 }
             }
             c0 += nb;

@@ -6,7 +6,7 @@
 //! them in the portable tier; with them they give exactly the bits of the AVX2 kernels
 //! ([`super::avx2`]), which is what the tests compare.
 
-use super::{Store, LANES};
+use super::{Gemm, Store, WeightGrad, LANES};
 
 /// `a·b + c`, fused when `FMA` (the twin of the AVX2 kernels, which fuse every step).
 #[inline(always)]
@@ -23,22 +23,26 @@ fn lanes(s: &[f32], at: usize) -> &[f32; LANES] {
     s[at..at + LANES].try_into().expect("lane slice")
 }
 
-/// One forward tile: outputs `o0..o0 + OB` × columns `base..base + T·LANES`, each output
-/// summing `b + Σ_i w_i x_i` in `i` order, then stored as `store` says.
+/// One forward tile of `g`: outputs `o0..o0 + OB` × columns `base..base + T·LANES`, each
+/// output summing `b + Σ_i w_i x_i` in `i` order, then stored into `y` (rows `ldy` apart) as
+/// `g.store` says.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn fwd_block<const OB: usize, const T: usize, const FMA: bool>(
-    w: &[f32],
-    b: Option<&[f32]>,
-    x: &[f32],
-    ldx: usize,
+    g: Gemm<'_>,
     y: &mut [f32],
     ldy: usize,
-    inp: usize,
     o0: usize,
     base: usize,
-    store: Store<'_>,
 ) {
+    let Gemm {
+        w,
+        b,
+        x,
+        ldx,
+        inp,
+        store,
+        ..
+    } = g;
     let mut acc = [[[0f32; LANES]; T]; OB];
     if let Some(b) = b {
         for k in 0..OB {
@@ -82,39 +86,28 @@ fn fwd_block<const OB: usize, const T: usize, const FMA: bool>(
     }
 }
 
-/// Forward-style product over columns `< ncols` with separate row strides: tiles of `OB`
-/// outputs × two (or, at the end, one) column vectors.
+/// Forward-style product `g` into `y` (rows `ldy` apart) over the columns `< g.ncols`:
+/// tiles of `OB` outputs × two (or, at the end, one) column vectors.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub(super) fn fwd_body<const OB: usize, const FMA: bool>(
-    w: &[f32],
-    b: Option<&[f32]>,
-    x: &[f32],
-    ldx: usize,
-    y: &mut [f32],
-    ldy: usize,
-    inp: usize,
-    out: usize,
-    ncols: usize,
-    store: Store<'_>,
-) {
+pub(super) fn fwd_body<const OB: usize, const FMA: bool>(g: Gemm<'_>, y: &mut [f32], ldy: usize) {
+    let (out, ncols) = (g.out, g.ncols);
     let mut base = 0;
     while base < ncols {
         let two = base + 2 * LANES <= ncols;
         let mut o0 = 0;
         while o0 + OB <= out {
             if two {
-                fwd_block::<OB, 2, FMA>(w, b, x, ldx, y, ldy, inp, o0, base, store);
+                fwd_block::<OB, 2, FMA>(g, y, ldy, o0, base);
             } else {
-                fwd_block::<OB, 1, FMA>(w, b, x, ldx, y, ldy, inp, o0, base, store);
+                fwd_block::<OB, 1, FMA>(g, y, ldy, o0, base);
             }
             o0 += OB;
         }
         while o0 < out {
             if two {
-                fwd_block::<1, 2, FMA>(w, b, x, ldx, y, ldy, inp, o0, base, store);
+                fwd_block::<1, 2, FMA>(g, y, ldy, o0, base);
             } else {
-                fwd_block::<1, 1, FMA>(w, b, x, ldx, y, ldy, inp, o0, base, store);
+                fwd_block::<1, 1, FMA>(g, y, ldy, o0, base);
             }
             o0 += 1;
         }
@@ -126,19 +119,21 @@ pub(super) fn fwd_body<const OB: usize, const FMA: bool>(
 /// [`super::avx2::backward_weights`]): columns are transposed in blocks, then every
 /// `dwp` row is updated column after column (the inner loop over inputs vectorises).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 pub(super) fn dw_body<const FMA: bool>(
-    dy: &[f32],
-    lddy: usize,
-    x: &[f32],
-    ldx: usize,
+    g: WeightGrad<'_>,
     dwp: &mut [f32],
     lane_sums: &mut [f32],
-    inp: usize,
-    out: usize,
-    ncols: usize,
     xt: &mut Vec<f32>,
 ) {
+    let WeightGrad {
+        dy,
+        lddy,
+        x,
+        ldx,
+        inp,
+        out,
+        ncols,
+    } = g;
     let inp_pad = inp.div_ceil(LANES) * LANES;
     const KC: usize = 64;
     xt.resize(KC * inp_pad, 0.0);

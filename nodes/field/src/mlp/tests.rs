@@ -18,46 +18,26 @@ fn batch(rng: &mut Rng, rows: usize, n: usize, ld: usize) -> Vec<f32> {
 
 /// The portable twin of the forward-style kernels with the fusing of `isa`'s kernels: the AVX2
 /// tier fuses every multiply-add, the portable tier none.
-#[allow(clippy::too_many_arguments)]
-fn twin_forward(
-    isa: Isa,
-    w: &[f32],
-    b: Option<&[f32]>,
-    x: &[f32],
-    ldx: usize,
-    y: &mut [f32],
-    ldy: usize,
-    inp: usize,
-    out: usize,
-    ncols: usize,
-    store: Store<'_>,
-) {
+fn twin_forward(isa: Isa, g: Gemm<'_>, y: &mut [f32], ldy: usize) {
     if isa == Isa::Portable {
-        fwd_body::<4, false>(w, b, x, ldx, y, ldy, inp, out, ncols, store)
+        fwd_body::<4, false>(g, y, ldy)
     } else {
-        fwd_body::<4, true>(w, b, x, ldx, y, ldy, inp, out, ncols, store)
+        fwd_body::<4, true>(g, y, ldy)
     }
 }
 
 /// The portable twin of the weight-gradient kernel with the fusing of `isa`'s kernels.
-#[allow(clippy::too_many_arguments)]
 fn twin_weight_grad(
     isa: Isa,
-    dy: &[f32],
-    lddy: usize,
-    x: &[f32],
-    ldx: usize,
+    g: WeightGrad<'_>,
     dwp: &mut [f32],
     lane_sums: &mut [f32],
-    inp: usize,
-    out: usize,
-    ncols: usize,
     xt: &mut Vec<f32>,
 ) {
     if isa == Isa::Portable {
-        dw_body::<false>(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt)
+        dw_body::<false>(g, dwp, lane_sums, xt)
     } else {
-        dw_body::<true>(dy, lddy, x, ldx, dwp, lane_sums, inp, out, ncols, xt)
+        dw_body::<true>(g, dwp, lane_sums, xt)
     }
 }
 
@@ -90,7 +70,8 @@ fn kernels_match_f64_sums_once() {
         let dy = batch(&mut rng, out, n, ld);
         let mask = batch(&mut rng, inp, n, ld);
         let mut y = vec![f32::NAN; out * ld];
-        linear_forward(&w, Some(&b), &x, &mut y, inp, out, ld, true);
+        let shape = LayerShape { inp, out };
+        linear_forward(&w, Some(&b), &x, &mut y, shape, ld, true);
         for o in 0..out {
             for c in 0..n {
                 let r: f64 = b[o] as f64
@@ -106,7 +87,7 @@ fn kernels_match_f64_sums_once() {
         }
         let mut dx = vec![f32::NAN; inp * ld];
         let mut wt = Vec::new();
-        linear_backward_input_masked(&w, &dy, &mut dx, inp, out, ld, &mut wt, Some(&mask));
+        linear_backward_input_masked(&w, &dy, &mut dx, shape, ld, &mut wt, Some(&mask));
         for i in 0..inp {
             for c in 0..ld {
                 let r: f64 = (0..out)
@@ -122,7 +103,7 @@ fn kernels_match_f64_sums_once() {
         }
         let mut dw = vec![0.25f32; inp * out];
         let mut db = vec![-0.5f32; out];
-        linear_backward_weights(&dy, &x, &mut dw, &mut db, inp, out, ld);
+        linear_backward_weights(&dy, &x, &mut dw, &mut db, shape, ld);
         for o in 0..out {
             for i in 0..inp {
                 let r: f64 = 0.25
@@ -168,7 +149,17 @@ fn portable_kernels_match_f64_sums() {
                 _ => Store::MaskPositive(&mask, ld),
             };
             let mut y = vec![f32::NAN; out * ldy];
-            fwd_body::<4, false>(&w, Some(&b), &x, ld, &mut y, ldy, inp, out, ld, store);
+            let g = Gemm {
+                w: &w,
+                b: Some(&b),
+                x: &x,
+                ldx: ld,
+                inp,
+                out,
+                ncols: ld,
+                store,
+            };
+            fwd_body::<4, false>(g, &mut y, ldy);
             for o in 0..out {
                 for c in 0..n {
                     let r: f64 = b[o] as f64
@@ -198,18 +189,16 @@ fn portable_kernels_match_f64_sums() {
         let mut dwp = vec![0.25f32; out * inp_pad];
         let mut lane_sums = vec![0f32; out * LANES];
         let mut xt = Vec::new();
-        dw_body::<false>(
-            &dy,
-            ld,
-            &x,
-            ld,
-            &mut dwp,
-            &mut lane_sums,
+        let g = WeightGrad {
+            dy: &dy,
+            lddy: ld,
+            x: &x,
+            ldx: ld,
             inp,
             out,
-            ld,
-            &mut xt,
-        );
+            ncols: ld,
+        };
+        dw_body::<false>(g, &mut dwp, &mut lane_sums, &mut xt);
         for o in 0..out {
             for i in 0..inp {
                 let r: f64 = 0.25
@@ -252,36 +241,26 @@ fn blocked_mlp_matches_whole_batch_layers_once() {
     let mut grad: Vec<f32> = (0..mlp.n_params()).map(|k| k as f32 * 1e-3).collect();
     let mut want_grad = grad.clone();
     let mut dx = Vec::new();
-    let (mut s1, mut s2) = (Vec::new(), Vec::new());
+    let mut scratch = BackwardScratch::default();
     let d_out = d_top.clone();
-    mlp.backward(
-        &params,
-        &x,
-        &acts,
+    let pass = ForwardPass {
+        params: &params,
+        x: &x,
+        acts: &acts,
         ld,
-        &d_out,
-        &mut grad,
-        Some(&mut dx),
-        usize::MAX,
-        &mut s1,
-        &mut s2,
-    );
+    };
+    let all_rows = InputGrad {
+        d_x: &mut dx,
+        rows: usize::MAX,
+    };
+    mlp.backward(pass, &d_out, &mut grad, Some(all_rows), &mut scratch);
     // Whole-batch reference with the public per-layer kernels.
     let mut want_acts: Vec<Vec<f32>> = Vec::new();
     for (l, s) in mlp.layers.iter().enumerate() {
         let (w, b) = mlp.split(&params, l);
         let mut y = vec![0f32; s.out * ld];
         let input = if l == 0 { &x } else { &want_acts[l - 1] };
-        linear_forward(
-            w,
-            Some(b),
-            input,
-            &mut y,
-            s.inp,
-            s.out,
-            ld,
-            l + 1 < mlp.layers.len(),
-        );
+        linear_forward(w, Some(b), input, &mut y, *s, ld, l + 1 < mlp.layers.len());
         want_acts.push(y);
     }
     assert_eq!(acts, want_acts);
@@ -294,14 +273,14 @@ fn blocked_mlp_matches_whole_batch_layers_once() {
         let off: usize = mlp.layers[..l].iter().map(LayerShape::params).sum();
         let (gw, gb) = want_grad[off..off + s.params()].split_at_mut(s.inp * s.out);
         let input = if l == 0 { &x } else { &want_acts[l - 1] };
-        linear_backward_weights(&d, input, gw, gb, s.inp, s.out, ld);
+        linear_backward_weights(&d, input, gw, gb, s, ld);
         let mut nd = vec![0f32; s.inp * ld];
         let mask = if l > 0 {
             Some(&want_acts[l - 1][..])
         } else {
             None
         };
-        linear_backward_input_masked(w, &d, &mut nd, s.inp, s.out, ld, &mut wt, mask);
+        linear_backward_input_masked(w, &d, &mut nd, s, ld, &mut wt, mask);
         if l == 0 {
             want_dx = nd;
         } else {
@@ -314,34 +293,26 @@ fn blocked_mlp_matches_whole_batch_layers_once() {
     // parameter gradients.
     let mut grad15: Vec<f32> = (0..mlp.n_params()).map(|k| k as f32 * 1e-3).collect();
     let mut dx15 = vec![f32::NAN; 3];
-    mlp.backward(
-        &params,
-        &x,
-        &acts,
-        ld,
-        &d_out,
-        &mut grad15,
-        Some(&mut dx15),
-        15,
-        &mut s1,
-        &mut s2,
-    );
+    let rows15 = InputGrad {
+        d_x: &mut dx15,
+        rows: 15,
+    };
+    mlp.backward(pass, &d_out, &mut grad15, Some(rows15), &mut scratch);
     assert_eq!(grad15, want_grad);
     assert_eq!(dx15, want_dx[..15 * ld]);
 }
 
-/// `f64` value of `b[o] + Σ_i w[o·inp + i] · x[i][c]` after `store`.
-#[allow(clippy::too_many_arguments)]
-fn fwd_ref(
-    w: &[f32],
-    b: Option<&[f32]>,
-    x: &[f32],
-    ldx: usize,
-    inp: usize,
-    o: usize,
-    c: usize,
-    store: Store<'_>,
-) -> f64 {
+/// `f64` value of `b[o] + Σ_i w[o·inp + i] · x[i][c]` after `store`, for the operands of `g`.
+fn fwd_ref(g: Gemm<'_>, o: usize, c: usize) -> f64 {
+    let Gemm {
+        w,
+        b,
+        x,
+        ldx,
+        inp,
+        store,
+        ..
+    } = g;
     let r = b.map_or(0.0, |b| b[o] as f64)
         + (0..inp)
             .map(|i| w[o * inp + i] as f64 * x[i * ldx + c] as f64)
@@ -413,13 +384,21 @@ fn tier_kernels_match_portable_once(isa: Isa) {
                     1 => Store::Relu,
                     _ => Store::MaskPositive(&mask, ldy),
                 };
+                let g = Gemm {
+                    w: &w,
+                    b: bias,
+                    x: &x,
+                    ldx,
+                    inp,
+                    out,
+                    ncols,
+                    store,
+                };
                 // Padding columns past `ncols` must stay untouched.
                 let mut got = vec![f32::NAN; out * ldy];
                 let mut want = got.clone();
-                product(&w, bias, &x, ldx, &mut got, ldy, inp, out, ncols, store);
-                twin_forward(
-                    isa, &w, bias, &x, ldx, &mut want, ldy, inp, out, ncols, store,
-                );
+                product(g, &mut got, ldy);
+                twin_forward(isa, g, &mut want, ldy);
                 let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
                 assert_eq!(
                     bits(&got),
@@ -428,7 +407,7 @@ fn tier_kernels_match_portable_once(isa: Isa) {
                 );
                 for o in 0..out {
                     for c in 0..ncols {
-                        let r = fwd_ref(&w, bias, &x, ldx, inp, o, c, store);
+                        let r = fwd_ref(g, o, c);
                         let g = got[o * ldy + c] as f64;
                         assert!(
                             (g - r).abs() < 1e-5 * (1.0 + r.abs()),
@@ -448,22 +427,17 @@ fn tier_kernels_match_portable_once(isa: Isa) {
             .collect();
         let (mut dwp, mut ls) = (dwp0.clone(), ls0.clone());
         let (mut want_dwp, mut want_ls) = (dwp0.clone(), ls0.clone());
-        weight_grad(
-            &dy, ldy, &x, ldx, &mut dwp, &mut ls, inp, out, ncols, &mut xt_a,
-        );
-        twin_weight_grad(
-            isa,
-            &dy,
-            ldy,
-            &x,
+        let g = WeightGrad {
+            dy: &dy,
+            lddy: ldy,
+            x: &x,
             ldx,
-            &mut want_dwp,
-            &mut want_ls,
             inp,
             out,
             ncols,
-            &mut xt_b,
-        );
+        };
+        weight_grad(g, &mut dwp, &mut ls, &mut xt_a);
+        twin_weight_grad(isa, g, &mut want_dwp, &mut want_ls, &mut xt_b);
         let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&dwp), bits(&want_dwp), "dW {inp}->{out} x{ncols}");
         assert_eq!(bits(&ls), bits(&want_ls), "lane sums {inp}->{out} x{ncols}");
@@ -515,10 +489,20 @@ fn forward_non_finite_once(isa: Isa) {
             1 => Store::Relu,
             _ => Store::MaskPositive(&mask, ld),
         };
+        let g = Gemm {
+            w: &w,
+            b: None,
+            x: &x,
+            ldx: ld,
+            inp,
+            out,
+            ncols: ld,
+            store,
+        };
         let mut got = vec![0f32; out * ld];
         let mut want = vec![0f32; out * ld];
-        product(&w, None, &x, ld, &mut got, ld, inp, out, ld, store);
-        twin_forward(isa, &w, None, &x, ld, &mut want, ld, inp, out, ld, store);
+        product(g, &mut got, ld);
+        twin_forward(isa, g, &mut want, ld);
         for (k, (g, e)) in got.iter().zip(&want).enumerate() {
             assert!(
                 g.to_bits() == e.to_bits() || (g.is_nan() && e.is_nan()),
@@ -582,14 +566,18 @@ fn forward_any_alignment_once(isa: Isa) {
                         let mut got = vec![f32::from_bits(0x7fc0_1234); out * ld + 16];
                         let mut want = got.clone();
                         let span = 8 + yo % 8;
-                        {
-                            let y = &mut got[span..span + out * ld];
-                            product(&w, bias, x, ld, y, ld, inp, out, ncols, store);
-                        }
-                        {
-                            let y = &mut want[span..span + out * ld];
-                            twin_forward(isa, &w, bias, x, ld, y, ld, inp, out, ncols, store);
-                        }
+                        let g = Gemm {
+                            w: &w,
+                            b: bias,
+                            x,
+                            ldx: ld,
+                            inp,
+                            out,
+                            ncols,
+                            store,
+                        };
+                        product(g, &mut got[span..span + out * ld], ld);
+                        twin_forward(isa, g, &mut want[span..span + out * ld], ld);
                         assert_eq!(
                             bits(&got),
                             bits(&want),

@@ -24,6 +24,7 @@
 //! content-addressed data, so even two holders of one key (a holder judged stale while it
 //! still ran) write identical entries.
 
+use super::files::{hostname, now_unix, unique_suffix};
 use crate::error::{io, EngineError};
 use serde::{Deserialize, Serialize};
 use std::fs;
@@ -80,12 +81,12 @@ impl ClaimHolder {
     pub fn this_process() -> ClaimHolder {
         let pid = std::process::id();
         ClaimHolder {
-            host: crate::store::hostname(),
+            host: hostname(),
             pid,
             start_ticks: start_ticks(pid).unwrap_or(0),
             slurm_job: slurm_job_id(),
-            since_unix: crate::store::now_unix(),
-            token: format!("{pid}-{}", crate::store::unique_suffix()),
+            since_unix: now_unix(),
+            token: format!("{pid}-{}", unique_suffix()),
         }
     }
 
@@ -119,7 +120,7 @@ fn start_ticks(pid: u32) -> Option<u64> {
 
 /// Whether the holder is a process of this host that no longer exists.
 fn holder_dead_here(h: &ClaimHolder) -> bool {
-    if h.host != crate::store::hostname() || !Path::new("/proc/self/stat").exists() {
+    if h.host != hostname() || !Path::new("/proc/self/stat").exists() {
         return false;
     }
     match start_ticks(h.pid) {
@@ -199,7 +200,7 @@ pub fn stale_reason_in_job(
         Some(h)
             if own_job.is_some()
                 && h.slurm_job.as_deref() == own_job
-                && (h.pid != std::process::id() || h.host != crate::store::hostname()) =>
+                && (h.pid != std::process::id() || h.host != hostname()) =>
         {
             let why = format!(
                 "its holder, {}, was an earlier attempt of this Slurm job",
@@ -308,7 +309,7 @@ fn try_create(path: &Path, holder: &ClaimHolder) -> Result<bool, EngineError> {
 /// Rewrites the beat file of claim `path` (atomically: written beside it, then renamed).
 fn write_beat(path: &Path, token: &str, beats: u64) {
     let beat = beat_path(path);
-    let tmp = beat.with_extension(format!("beat.{}", crate::store::unique_suffix()));
+    let tmp = beat.with_extension(format!("beat.{}", unique_suffix()));
     if fs::write(&tmp, format!("{token} {beats}")).is_ok() && fs::rename(&tmp, &beat).is_err() {
         let _ = fs::remove_file(&tmp);
     }
@@ -341,7 +342,7 @@ fn link_count(_p: &Path) -> Option<u64> {
 /// `true` when it was removed.
 fn take_over(path: &Path, stale: &ClaimHolder) -> bool {
     let dir = path.parent().unwrap_or(Path::new("."));
-    let aside = dir.join(format!(".stale-{}", crate::store::unique_suffix()));
+    let aside = dir.join(format!(".stale-{}", unique_suffix()));
     if fs::rename(path, &aside).is_err() {
         return false; // gone already (released, or another taker won)
     }

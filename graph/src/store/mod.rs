@@ -3,79 +3,65 @@
 //!
 //! Layout under the store root (default `./cache`):
 //! ```text
-//! store.lock                 runs hold it shared, `gc` exclusive
+//! store.lock                 runs hold it shared, `gc` and `verify --repair` exclusive
 //! blobs/ab/<hash>            file contents by blake3 (read-only)
 //! manifests/<hash>.json      an output folder's listing: path, size, blob hash per file
 //! outputs/<hash>/            the folder itself (hard links to blobs), read-only, given to dependents
 //! actions/ab/<key>.json      action cache: key -> output manifests + run metadata (time, host, seed, log)
-//! locks/<key>.lock           claims: a process computing a key holds an OS lock on its file
+//! locks/<key>.claim          claims: the process computing a key (see [`claim`])
+//! checkpoints/<key>/         an interrupted node run's checkpoints, resumed by the next run
 //! tmp/                       scratch folders and half-written files (never read as results)
 //! runs/latest/<id>.json      the latest run of each pipeline (GC roots, `why`)
 //! runs/records/<t>-<pid>.json every run's summary
+//! runs/status/<run>.json     each recent run's live status (`augsplat status`)
 //! pins/<name>.json           pinned results (GC roots)
 //! extcache/<id>.json         hashes of external input files by path + size + mtime
 //! ```
 //! An action entry is written last, by atomic rename, after its outputs are complete: a killed
 //! or failed run leaves only scratch files and unreferenced blobs, never an entry.
+//!
+//!
+//! What a run trusts, checked cheaply on every read:
+//! - [`Store::action_state`]: an action entry is *present* only when it parses and every
+//!   output it names has its manifest, its folder, every file and every blob; an entry that
+//!   exists but lacks any of these is *broken* (reported by `plan`, recomputed by `run` with a
+//!   warning), never "cached".
+//! - [`Store::check_output`]: before a node reads a stored output, the output folder must hold
+//!   exactly the files and folders its manifest lists (an extra, missing or special file is
+//!   damage) and each file is hashed with blake3 against the manifest: bit rot that keeps a
+//!   file's size, modification time and inode is found before a node computes on it.
+//!
+//! This module holds [`Store`] itself: opening, locks, paths, blobs, promotion, the action
+//! cache and entry states. Beside it: [`claim`] (claims on keys), [`verify`] (`augsplat
+//! verify`), [`gc`] (garbage collection), and the leaves they all share, which import nothing
+//! from the others: hashes, manifests, folder scans and filesystem helpers.
+
+pub mod claim;
+mod files;
+pub mod gc;
+mod hash;
+mod manifest;
+mod scan;
+pub mod verify;
+
+pub use claim::Claim;
+pub use files::{hostname, now_unix, remove_tree};
+pub(crate) use files::{list_dir, mtime_ns, read_plain};
+pub use hash::{hash_file, hex, unhex, Hash};
+use manifest::folder_damage;
+pub use manifest::{Manifest, ManifestEntry};
+pub use scan::{links_within, scan_folder, scan_tree, Links};
 
 use crate::error::{io, EngineError};
+use files::{link_count, set_readonly, set_tree_readonly, unique_suffix};
+use scan::{cached_hash, external_manifest, ExtCache};
 use serde::{Deserialize, Serialize};
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::fs::{self, File};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
-
-/// A blake3 hash.
-pub type Hash = [u8; 32];
 
 /// Store format version; part of every key.
 pub const STORE_FORMAT: u32 = 1;
-
-/// Lower-case hex of a hash.
-pub fn hex(h: &Hash) -> String {
-    let mut s = String::with_capacity(64);
-    for b in h {
-        s.push_str(&format!("{b:02x}"));
-    }
-    s
-}
-
-/// Parses 64 hex digits.
-pub fn unhex(s: &str) -> Option<Hash> {
-    if s.len() != 64 {
-        return None;
-    }
-    let mut h = [0u8; 32];
-    for (i, b) in h.iter_mut().enumerate() {
-        *b = u8::from_str_radix(s.get(2 * i..2 * i + 2)?, 16).ok()?;
-    }
-    Some(h)
-}
-
-/// One entry of a manifest: a file (with size and blob hash) or a folder.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, Eq)]
-pub struct ManifestEntry {
-    /// Path relative to the output folder, `/`-separated; folders end with `/`.
-    pub path: String,
-    /// File size in bytes (0 for folders).
-    pub size: u64,
-    /// Blob hash (hex) of a file; empty for folders.
-    pub hash: String,
-}
-
-/// The listing of one output folder, sorted by path. Its hash identifies the output's content.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
-pub struct Manifest {
-    /// Entries sorted by path.
-    pub entries: Vec<ManifestEntry>,
-}
-
-impl Manifest {
-    /// The canonical bytes (compact JSON) and their hash.
-    pub fn hash(&self) -> Hash {
-        *blake3::hash(&serde_json::to_vec(self).expect("manifest serialises")).as_bytes()
-    }
-}
 
 /// An action cache entry: what a key produced and how.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -122,73 +108,26 @@ pub struct ActionEntry {
     pub check_seconds: f64,
 }
 
-pub use crate::claim::Claim;
-
-/// What `gc` removed or would remove.
-#[derive(Clone, Debug, Default)]
-pub struct GcReport {
-    /// Number of root keys kept (latest runs + pins).
-    pub roots: usize,
-    /// Root files read.
-    pub root_files: Vec<String>,
-    /// Action entries kept / removed.
-    pub actions_kept: usize,
-    /// Removed action entries.
-    pub actions_removed: usize,
-    /// Output folders (manifests) kept.
-    pub outputs_kept: usize,
-    /// Removed output folders.
-    pub outputs_removed: usize,
-    /// Blobs kept.
-    pub blobs_kept: usize,
-    /// Removed blobs.
-    pub blobs_removed: usize,
-    /// Bytes of removed blobs.
-    pub bytes_removed: u64,
-    /// Scratch folders, stale claim files and half-written files removed.
-    pub scratch_removed: usize,
-    /// Checkpoint folders removed: their key has its entry, or no root and no run's status
-    /// names it (no pipeline will resume it).
-    pub checkpoints_removed: usize,
-    /// Kept entries that are broken (an output, manifest, file or blob is missing): the next
-    /// run recomputes them. Each names the node, key and what is missing.
-    pub broken: Vec<String>,
-    /// Unreadable kept entries and manifests dropped by `repair`.
-    pub repaired: Vec<String>,
+/// What the store holds for one key.
+#[derive(Clone, Debug)]
+pub enum EntryState {
+    /// No action entry.
+    Absent,
+    /// A complete entry: every output's manifest, folder, files and blobs are there.
+    Present(ActionEntry),
+    /// An entry exists but cannot be used; the key must be recomputed.
+    Broken {
+        /// The instance that computed it (empty when the entry itself is unreadable).
+        name: String,
+        /// What is missing or unreadable, naming the file.
+        reason: String,
+    },
 }
 
 /// A store on disk.
 #[derive(Clone, Debug)]
 pub struct Store {
     root: PathBuf,
-}
-
-static COUNTER: AtomicU64 = AtomicU64::new(0);
-
-pub(crate) fn unique_suffix() -> String {
-    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let t = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.subsec_nanos())
-        .unwrap_or(0);
-    format!("{}-{n}-{t:x}", std::process::id())
-}
-
-/// Seconds since the Unix epoch.
-pub fn now_unix() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0)
-}
-
-/// This machine's host name.
-pub fn hostname() -> String {
-    fs::read_to_string("/proc/sys/kernel/hostname")
-        .or_else(|_| fs::read_to_string("/etc/hostname"))
-        .map(|s| s.trim().to_string())
-        .or_else(|_| std::env::var("HOSTNAME"))
-        .unwrap_or_else(|_| "unknown".into())
 }
 
 impl Store {
@@ -232,6 +171,13 @@ impl Store {
     /// The store root.
     pub fn root(&self) -> &Path {
         &self.root
+    }
+    /// `p` relative to the store root, as text (as reports name what they removed).
+    pub(crate) fn relative(&self, p: &Path) -> String {
+        p.strip_prefix(&self.root)
+            .unwrap_or(p)
+            .display()
+            .to_string()
     }
 
     fn lock_file(&self) -> Result<File, EngineError> {
@@ -289,13 +235,13 @@ impl Store {
     /// broken entry counts as absent).
     pub fn action(&self, key: &Hash) -> Result<Option<ActionEntry>, EngineError> {
         Ok(match self.action_state(key)? {
-            crate::verify::EntryState::Present(e) => Some(e),
+            EntryState::Present(e) => Some(e),
             _ => None,
         })
     }
 
     /// Claims `key`: returns at once if no other process computes it, else waits until that
-    /// process finishes, dies or stops renewing its claim (see [`crate::claim`]: claim files,
+    /// process finishes, dies or stops renewing its claim (see [`claim`]: claim files,
     /// not OS locks, so that a store on NFS or Lustre works).
     pub fn claim(&self, key: &Hash) -> Result<Claim, EngineError> {
         self.claim_reporting(key, &|_| {})
@@ -306,18 +252,18 @@ impl Store {
     pub fn claim_reporting(
         &self,
         key: &Hash,
-        on_wait: &dyn Fn(Option<&crate::claim::ClaimHolder>),
+        on_wait: &dyn Fn(Option<&claim::ClaimHolder>),
     ) -> Result<Claim, EngineError> {
-        crate::claim::acquire_reporting(
+        claim::acquire_reporting(
             &self.claim_path(key),
-            &crate::claim::ClaimPolicy::default(),
+            &claim::ClaimPolicy::default(),
             on_wait,
         )
     }
 
     /// The claim file of `key`.
     pub fn claim_path(&self, key: &Hash) -> PathBuf {
-        crate::claim::claim_path(&self.root.join("locks"), &hex(key))
+        claim::claim_path(&self.root.join("locks"), &hex(key))
     }
 
     /// The folder a node run of `key` keeps its checkpoints in: it outlives a killed run, so
@@ -386,7 +332,7 @@ impl Store {
             )?;
         }
         let dest = self.output_dir(&mh);
-        if dest.is_dir() && crate::verify::folder_damage(&manifest, &dest).is_none() {
+        if dest.is_dir() && folder_damage(&manifest, &dest).is_none() {
             // Same content already materialised (by us or another process).
             remove_tree(folder);
             return Ok(mh);
@@ -551,348 +497,116 @@ impl Store {
     }
 }
 
-/// Collects every `key` string and `keys` list of a run record or pin (the GC roots).
-pub(crate) fn collect_keys(v: &serde_json::Value, out: &mut BTreeSet<String>) {
-    match v {
-        serde_json::Value::Object(m) => {
-            for (k, x) in m {
-                match (k.as_str(), x) {
-                    ("key", serde_json::Value::String(s)) if s.len() == 64 => {
-                        out.insert(s.clone());
-                    }
-                    ("keys", serde_json::Value::Array(a)) => {
-                        out.extend(a.iter().filter_map(|s| s.as_str()).map(str::to_string));
-                    }
-                    _ => collect_keys(x, out),
-                }
-            }
+/// Entry states and the checks of what a node is about to read (see the module
+/// documentation).
+impl Store {
+    fn manifest_path(&self, m: &Hash) -> PathBuf {
+        self.root()
+            .join("manifests")
+            .join(format!("{}.json", hex(m)))
+    }
+
+    /// Reads manifest `m` and checks that its content hashes to its name.
+    pub fn read_manifest(&self, m: &Hash) -> Result<Manifest, String> {
+        let p = self.manifest_path(m);
+        let bytes =
+            read_plain(&p).map_err(|e| format!("manifest {} is unreadable ({e})", p.display()))?;
+        let manifest: Manifest = serde_json::from_slice(&bytes)
+            .map_err(|e| format!("manifest {} does not parse ({e})", p.display()))?;
+        if manifest.hash() != *m {
+            return Err(format!(
+                "manifest {} does not match its name (its content hashes to {})",
+                p.display(),
+                hex(&manifest.hash())
+            ));
         }
-        serde_json::Value::Array(a) => a.iter().for_each(|x| collect_keys(x, out)),
-        _ => {}
+        Ok(manifest)
     }
-}
 
-/// The entries of a folder, sorted (none if it cannot be read).
-pub(crate) fn list_dir(p: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = fs::read_dir(p)
-        .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect())
-        .unwrap_or_default();
-    v.sort();
-    v
-}
-
-/// A file's modification time in nanoseconds since the epoch (−1 when unknown): with its size
-/// and inode, what the external inputs' hash cache compares.
-pub(crate) fn mtime_ns(meta: &fs::Metadata) -> i128 {
-    meta.modified()
-        .ok()
-        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-        .map(|d| d.as_nanos() as i128)
-        .unwrap_or(-1)
-}
-
-/// The hash cache of one external input: relative path -> (size, mtime ns, inode, hash).
-type ExtCache = BTreeMap<String, (u64, i128, u64, String)>;
-
-/// The manifest of external input `abs` (a file or a folder, links followed), hashing each
-/// file with `hash(rel, path)`.
-fn external_manifest(
-    abs: &Path,
-    mut hash: impl FnMut(&str, &Path) -> Result<String, EngineError>,
-) -> Result<Manifest, EngineError> {
-    let meta = fs::metadata(abs).map_err(io("reading input", abs))?;
-    if !meta.is_file() && !meta.is_dir() {
-        return Err(special_file_error(abs, &meta.file_type()));
-    }
-    if meta.is_file() {
-        let h = hash("", abs)?;
-        Ok(Manifest {
-            entries: vec![ManifestEntry {
-                path: String::new(),
-                size: meta.len(),
-                hash: h,
-            }],
+    /// The state of `key`'s action entry (cheap: reads the entry and its manifests and checks
+    /// that every file and blob exists; hashes nothing).
+    pub fn action_state(&self, key: &Hash) -> Result<EntryState, EngineError> {
+        let p = self.action_path(key);
+        let bytes = match read_plain(&p) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(EntryState::Absent),
+            Err(e) => {
+                return Err(EngineError::Io {
+                    what: "reading",
+                    path: p,
+                    source: e,
+                })
+            }
+        };
+        let entry: ActionEntry = match serde_json::from_slice(&bytes) {
+            Ok(e) => e,
+            Err(e) => {
+                return Ok(EntryState::Broken {
+                    name: String::new(),
+                    reason: format!("action entry {} does not parse ({e})", p.display()),
+                })
+            }
+        };
+        Ok(match self.entry_problem(&entry) {
+            None => EntryState::Present(entry),
+            Some(reason) => EntryState::Broken {
+                name: entry.name.clone(),
+                reason,
+            },
         })
-    } else {
-        scan_tree(abs, Links::Follow, |rel, p, _| hash(rel, p))
     }
-}
 
-fn cached_hash(
-    old: &ExtCache,
-    new: &mut ExtCache,
-    rel: &str,
-    path: &Path,
-    meta: &fs::Metadata,
-) -> Result<String, EngineError> {
-    let mtime = mtime_ns(meta);
-    #[cfg(unix)]
-    let ino = {
-        use std::os::unix::fs::MetadataExt;
-        meta.ino()
-    };
-    #[cfg(not(unix))]
-    let ino = 0u64;
-    let h = match old.get(rel) {
-        Some((s, m, i, h)) if *s == meta.len() && *m == mtime && *i == ino && mtime >= 0 => {
-            h.clone()
-        }
-        _ => hash_file(path)?,
-    };
-    new.insert(rel.to_string(), (meta.len(), mtime, ino, h.clone()));
-    Ok(h)
-}
-
-/// The symbolic links met below external input `abs` (its own path first, when it is one):
-/// each link's path relative to `abs` (empty for `abs` itself) and its target as written.
-/// `why` compares them between runs to say which link now points elsewhere.
-pub fn links_within(abs: &Path) -> BTreeMap<String, String> {
-    fn walk(dir: &Path, prefix: &str, depth: usize, out: &mut BTreeMap<String, String>) {
-        if depth > 64 {
-            return;
-        }
-        for p in list_dir(dir) {
-            let name = p
-                .file_name()
-                .map(|s| s.to_string_lossy().to_string())
-                .unwrap_or_default();
-            let rel = format!("{prefix}{name}");
-            let Ok(meta) = fs::symlink_metadata(&p) else {
-                continue;
+    /// What makes `entry` unusable, if anything (missing manifest, folder, file or blob).
+    pub(crate) fn entry_problem(&self, entry: &ActionEntry) -> Option<String> {
+        for (out, m) in &entry.outputs {
+            let Some(h) = unhex(m) else {
+                return Some(format!("output `{out}` names a bad manifest hash {m:?}"));
             };
-            if meta.file_type().is_symlink() {
-                if let Ok(t) = fs::read_link(&p) {
-                    out.insert(rel.clone(), t.display().to_string());
+            let dir = self.output_dir(&h);
+            if !dir.is_dir() {
+                return Some(format!(
+                    "output `{out}`: folder {} is missing",
+                    dir.display()
+                ));
+            }
+            let manifest = match self.read_manifest(&h) {
+                Ok(m) => m,
+                Err(reason) => return Some(format!("output `{out}`: {reason}")),
+            };
+            for e in manifest.entries.iter().filter(|e| !e.hash.is_empty()) {
+                let f = dir.join(&e.path);
+                if !f.is_file() {
+                    return Some(format!("output `{out}`: file {} is missing", f.display()));
                 }
-            }
-            if fs::metadata(&p).map(|m| m.is_dir()).unwrap_or(false) {
-                walk(&p, &format!("{rel}/"), depth + 1, out);
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    if let Ok(t) = fs::read_link(abs) {
-        out.insert(String::new(), t.display().to_string());
-    }
-    if fs::metadata(abs).map(|m| m.is_dir()).unwrap_or(false) {
-        walk(abs, "", 0, &mut out);
-    }
-    out
-}
-
-/// Hashes a file with blake3 (memory-mapped and multi-threaded on the current rayon pool for
-/// large files). Returns hex.
-pub fn hash_file(path: &Path) -> Result<String, EngineError> {
-    let mut h = blake3::Hasher::new();
-    let len = fs::metadata(path).map_err(io("reading", path))?.len();
-    if len >= 1 << 20 {
-        h.update_mmap_rayon(path).map_err(io("hashing", path))?;
-    } else {
-        h.update_reader(File::open(path).map_err(io("opening", path))?)
-            .map_err(io("hashing", path))?;
-    }
-    Ok(h.finalize().to_hex().to_string())
-}
-
-/// The error for a FIFO, socket or device file where a plain file or folder must be (reading
-/// one would block forever or never end).
-fn special_file_error(p: &Path, ft: &fs::FileType) -> EngineError {
-    #[cfg(unix)]
-    let what = {
-        use std::os::unix::fs::FileTypeExt;
-        if ft.is_fifo() {
-            "a FIFO (named pipe)"
-        } else if ft.is_socket() {
-            "a socket"
-        } else if ft.is_block_device() || ft.is_char_device() {
-            "a device file"
-        } else {
-            "not a plain file"
-        }
-    };
-    #[cfg(not(unix))]
-    let what = {
-        let _ = ft;
-        "not a plain file"
-    };
-    EngineError::Other(format!(
-        "{} is {what}; pipeline inputs and node outputs must hold plain files and folders",
-        p.display()
-    ))
-}
-
-/// How [`scan_tree`] treats symbolic links.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Links {
-    /// Refused: a node's output holds plain files and folders only.
-    Refuse,
-    /// Followed to the file or folder they point to (external inputs, as make, Bazel and
-    /// Snakemake do); a link that leads back into a folder it lies in is a cycle and refused,
-    /// as is a dangling one.
-    Follow,
-}
-
-/// Lists a folder recursively (sorted, `/`-separated, folders end with `/`), hashing each file
-/// with `hash(rel, path, size)`. Symbolic links are refused (see [`scan_tree`] to follow them).
-pub fn scan_folder(
-    root: &Path,
-    hash: impl FnMut(&str, &Path, u64) -> Result<String, EngineError>,
-) -> Result<Manifest, EngineError> {
-    scan_tree(root, Links::Refuse, hash)
-}
-
-/// [`scan_folder`] with a choice of how symbolic links are treated. FIFOs, sockets and device
-/// files are refused either way and never opened.
-pub fn scan_tree(
-    root: &Path,
-    links: Links,
-    mut hash: impl FnMut(&str, &Path, u64) -> Result<String, EngineError>,
-) -> Result<Manifest, EngineError> {
-    let mut entries = Vec::new();
-    // Canonical paths of the folders from the root down to the one being listed: a link to
-    // any of them is a cycle.
-    let mut ancestors: Vec<PathBuf> = Vec::new();
-    scan_dir(root, "", links, &mut ancestors, &mut hash, &mut entries)?;
-    entries.sort_by(|a, b| a.path.cmp(&b.path));
-    Ok(Manifest { entries })
-}
-
-/// How deep [`scan_tree`] descends (a guard against link chains that never repeat a folder).
-const MAX_SCAN_DEPTH: usize = 256;
-
-fn scan_dir(
-    dir: &Path,
-    prefix: &str,
-    links: Links,
-    ancestors: &mut Vec<PathBuf>,
-    hash: &mut impl FnMut(&str, &Path, u64) -> Result<String, EngineError>,
-    entries: &mut Vec<ManifestEntry>,
-) -> Result<(), EngineError> {
-    if ancestors.len() >= MAX_SCAN_DEPTH {
-        return Err(EngineError::Other(format!(
-            "{} lies more than {MAX_SCAN_DEPTH} folders deep; refusing to descend further",
-            dir.display()
-        )));
-    }
-    let canonical = fs::canonicalize(dir).map_err(io("reading", dir))?;
-    ancestors.push(canonical);
-    let mut items: Vec<_> = fs::read_dir(dir)
-        .map_err(io("listing", dir))?
-        .map(|e| e.map_err(io("listing", dir)))
-        .collect::<Result<_, _>>()?;
-    items.sort_by_key(|e| e.file_name());
-    for e in items {
-        let name = e.file_name().to_string_lossy().to_string();
-        let p = e.path();
-        let mut ft = e.file_type().map_err(io("reading", &p))?;
-        let rel = format!("{prefix}{name}");
-        if ft.is_symlink() {
-            if links == Links::Refuse {
-                return Err(EngineError::Other(format!(
-                    "{} is a symbolic link; a node's outputs must hold plain files",
-                    p.display()
-                )));
-            }
-            let meta = fs::metadata(&p).map_err(|e| {
-                EngineError::Other(format!(
-                    "{} is a symbolic link whose target cannot be read ({e})",
-                    p.display()
-                ))
-            })?;
-            ft = meta.file_type();
-            if ft.is_dir() {
-                let target = fs::canonicalize(&p).map_err(io("reading", &p))?;
-                if ancestors.contains(&target) {
-                    return Err(EngineError::Other(format!(
-                        "{} is a symbolic link to {}, a folder it lies in: a cycle",
-                        p.display(),
-                        target.display()
-                    )));
+                if !self.blob_path(&e.hash).is_file() {
+                    return Some(format!(
+                        "output `{out}`: blob {} (of {}) is missing",
+                        e.hash, e.path
+                    ));
                 }
             }
         }
-        if !ft.is_dir() && !ft.is_file() {
-            return Err(special_file_error(&p, &ft));
-        } else if ft.is_dir() {
-            entries.push(ManifestEntry {
-                path: format!("{rel}/"),
-                size: 0,
-                hash: String::new(),
-            });
-            scan_dir(&p, &format!("{rel}/"), links, ancestors, hash, entries)?;
-        } else {
-            let size = fs::metadata(&p).map_err(io("reading", &p))?.len();
-            let h = hash(&rel, &p, size)?;
-            entries.push(ManifestEntry {
-                path: rel,
-                size,
-                hash: h,
-            });
+        None
+    }
+
+    /// Checks the stored output `m` against its manifest before a node reads it: the folder
+    /// holds exactly the manifest's files and folders, and every file hashes to its manifest
+    /// hash (in parallel on the current rayon pool).
+    pub fn check_output(&self, m: &Hash) -> Result<(), String> {
+        let manifest = self.read_manifest(m)?;
+        let dir = self.output_dir(m);
+        match folder_damage(&manifest, &dir) {
+            None => Ok(()),
+            Some((path, detail)) => Err(format!("{}: {detail}", path.display())),
         }
     }
-    ancestors.pop();
-    Ok(())
-}
 
-/// Sets or clears the write bits of a file or folder (best effort).
-pub(crate) fn set_readonly(p: &Path, ro: bool) {
-    if let Ok(m) = fs::metadata(p) {
-        let mut perm = m.permissions();
-        #[cfg(unix)]
-        {
-            use std::os::unix::fs::PermissionsExt;
-            let mode = perm.mode();
-            perm.set_mode(if ro { mode & !0o222 } else { mode | 0o200 });
+    /// The manifest hash of `folder` when it is a stored output folder (`outputs/<hash>`).
+    pub fn output_of_folder(&self, folder: &Path) -> Option<Hash> {
+        if folder.parent()? != self.root().join("outputs") {
+            return None;
         }
-        #[cfg(not(unix))]
-        perm.set_readonly(ro);
-        let _ = fs::set_permissions(p, perm);
-    }
-}
-
-/// The number of hard links to a file (1 where unknown).
-pub(crate) fn link_count(p: &Path) -> u64 {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::MetadataExt;
-        fs::symlink_metadata(p).map(|m| m.nlink()).unwrap_or(1)
-    }
-    #[cfg(not(unix))]
-    {
-        let _ = p;
-        1
-    }
-}
-
-fn set_tree_readonly(p: &Path) {
-    if let Ok(rd) = fs::read_dir(p) {
-        for e in rd.flatten() {
-            if e.file_type().map(|t| t.is_dir()).unwrap_or(false) {
-                set_tree_readonly(&e.path());
-            }
-        }
-    }
-    set_readonly(p, true);
-}
-
-/// Removes a file or folder tree, making read-only folders writable first. Errors are ignored
-/// (a later `gc` retries).
-pub fn remove_tree(p: &Path) {
-    fn unlock(p: &Path) {
-        set_readonly(p, false);
-        if let Ok(rd) = fs::read_dir(p) {
-            for e in rd.flatten() {
-                if e.file_type().map(|t| t.is_dir()).unwrap_or(false) {
-                    unlock(&e.path());
-                }
-            }
-        }
-    }
-    if p.is_dir() {
-        unlock(p);
-        let _ = fs::remove_dir_all(p);
-    } else {
-        let _ = fs::remove_file(p);
+        unhex(&folder.file_name()?.to_string_lossy())
     }
 }
 
