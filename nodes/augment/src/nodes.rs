@@ -24,8 +24,6 @@ pub struct SynthesizePoses;
 
 impl Node for SynthesizePoses {
     const KIND: &'static str = "SynthesizePoses";
-    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 2;
     type Args = PoseParams;
 
@@ -115,8 +113,6 @@ pub struct ScenePoses;
 
 impl Node for ScenePoses {
     const KIND: &'static str = "ScenePoses";
-    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 2;
     type Args = ScenePosesArgs;
 
@@ -182,8 +178,6 @@ pub struct AggregateEnsemble;
 
 impl Node for AggregateEnsemble {
     const KIND: &'static str = "AggregateEnsemble";
-    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 2;
     type Args = AggregateParams;
 

@@ -186,9 +186,6 @@ pub struct TrainField;
 
 impl Node for TrainField {
     const KIND: &'static str = "TrainField";
-    // 2: register-blocked MLP kernels sum the weight gradients in a different (fixed) order.
-    // 3: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 3;
     type Args = TrainFieldArgs;
 
@@ -365,9 +362,6 @@ pub struct RenderField;
 
 impl Node for RenderField {
     const KIND: &'static str = "RenderField";
-    // 2: rays stop at early termination (opacity/depth drop the < 1e-4 mass beyond it).
-    // 3: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 3;
     type Args = RenderFieldArgs;
 

@@ -77,10 +77,6 @@ pub struct EvaluateEnsembleNode;
 
 impl Node for EvaluateEnsembleNode {
     const KIND: &'static str = "EvaluateEnsemble";
-    // 2: LPIPS weights only from the `lpips` input (no environment or default-folder
-    // fallback).
-    // 3: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 3;
     type Args = EvaluateEnsembleArgs;
 

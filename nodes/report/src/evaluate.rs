@@ -105,13 +105,6 @@ pub const LPIPS_INSTALL_HINT: &str = "the LPIPS-alex weights ship with augsplat 
 
 impl Node for EvaluateNode {
     const KIND: &'static str = "Evaluate";
-    // 2: the FMA rasteriser kernels change renders in the last bits. 3: LPIPS weights only
-    // from the `lpips` input (no environment or default-folder fallback). 4: the projection's
-    // own exp/ln (eight Gaussians per vector) change renders in the last bits. 5: the
-    // kernels' base-2 exponential changes renders in the last bits. 6: the folder holds the
-    // evaluated checkpoint (`model.ply`) and the cameras (`cameras.json`) for the viewer.
-    // 7: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 7;
     type Args = EvaluateArgs;
 

@@ -256,8 +256,6 @@ impl GateReport {
 
 impl Node for GateNode {
     const KIND: &'static str = "Gate";
-    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 2;
     type Args = GateArgs;
 

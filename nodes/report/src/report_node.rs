@@ -59,11 +59,6 @@ pub mod files {
 
 impl Node for ReportNode {
     const KIND: &'static str = "Report";
-    // 3: the page embeds the 3-D viewer; 4: gated evaluations and the scene gate's section.
-    // 5: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
-    // 6: without recorded wall times, a note where to read them instead of a table of dashes
-    // and empty plots; the LPIPS install hint names the shipped weights.
     const VERSION: u32 = 7;
     type Args = ReportArgs;
 

@@ -219,9 +219,6 @@ pub struct ImportScene;
 
 impl Node for ImportScene {
     const KIND: &'static str = "ImportScene";
-    // 3: scenes without points or bounds take near/far from the cameras.
-    // 4: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 4;
     type Args = ImportSceneArgs;
 
@@ -360,8 +357,6 @@ pub struct SplitScene;
 
 impl Node for SplitScene {
     const KIND: &'static str = "SplitScene";
-    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 2;
     type Args = SplitSceneArgs;
 
@@ -443,8 +438,6 @@ pub struct SparseDepth;
 
 impl Node for SparseDepth {
     const KIND: &'static str = "SparseDepth";
-    // 2: JSON floats are read back exactly (serde_json `float_roundtrip`); earlier
-    // versions parsed some one ulp off, which could change outputs in the last bits.
     const VERSION: u32 = 2;
     type Args = SparseDepthArgs;
 

@@ -29,14 +29,6 @@ pub struct OptimizeSplats;
 
 impl Node for OptimizeSplats {
     const KIND: &'static str = "OptimizeSplats";
-    // 2: FMA rasteriser kernels, the fused loss and Frusta random initialisation change the
-    // outputs. 3: the curve's average error is the mean of per-view average errors (as
-    // `Evaluate`), which can change the best checkpoint. 4: the projection's own exp/ln
-    // (eight Gaussians per vector) change renders in the last bits. 5: the kernels' base-2
-    // exponential (σ in bits, a degree-5 polynomial) changes renders in the last bits.
-    // 6: Adam updates every Gaussian by default (`adam: Dense`, gsplat's default), where
-    // version 5 and earlier updated only the visible ones (now `adam: Selective`).
-    // 7: with `backend: Gpu` the loss and Adam run on the GPU (CPU outputs unchanged).
     const VERSION: u32 = 7;
     type Args = TrainArgs;
 
