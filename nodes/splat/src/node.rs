@@ -24,7 +24,7 @@ pub fn register(registry: &mut Registry) {
 }
 
 /// The Gaussian optimisation node (baseline 3DGS, Staged and Dual AugSplat schedules): an
-/// adapter over [`crate::fit`] and [`init::initial_gaussians`].
+/// adapter over [`crate::inputs`] and [`crate::fit`].
 pub struct OptimizeSplats;
 
 impl Node for OptimizeSplats {

@@ -2,7 +2,7 @@
 //! per-tile pair sums — each pair's 256 pixels summed column by column, then the 16 columns,
 //! in a fixed order — then per-Gaussian sums in tile order) and the projection and colour
 //! backward (`project/project_vjp.wgsl`); `record_backward` and `record_vjp` are the same
-//! steps recorded into a caller's encoder, for the training step in `gpu/train.rs`.
+//! steps recorded into a caller's encoder, for the training step on the GPU (`augsplat-splat`'s `train/gpu.rs`).
 //! `backward_gpu_atomic` (hidden) swaps the ordered pair sums for float atomics, only to
 //! measure what determinism costs.
 

@@ -6,8 +6,9 @@
 //! generated from the Rust constants (`gpu/prelude.rs`), and the radix sort and prefix sum
 //! (`gpu/sort.rs`, `sort.wgsl`, `scan.wgsl`). Each kernel family keeps its GPU half beside
 //! its CPU half: `forward/gpu.rs` + `forward.wgsl`, `backward/gpu.rs` + `backward.wgsl`,
-//! `project/gpu.rs` + `project.wgsl`/`project_vjp.wgsl`, `loss/gpu.rs` + `loss.wgsl`,
-//! `adam/gpu.rs` + `adam.wgsl`, and the training state `train/gpu.rs` + `accumulate.wgsl`.
+//! `project/gpu.rs` + `project.wgsl`/`project_vjp.wgsl`. Other crates compile their own
+//! kernels on the same context ([`GpuContext::kernels_of`]): the trainer's losses, Adam and
+//! training state (`augsplat-splat`'s `loss/gpu.rs`, `adam/gpu.rs`, `train/gpu.rs`).
 //!
 //! - [`GpuContext`]: the adapter and device (limits raised to what the adapter reports), with
 //!   the adapter's name, driver and backend for the outputs' metadata; asking for a GPU where
@@ -23,16 +24,10 @@
 //!   16 column sums left to right: two barriers per pair), each Gaussian's slots are summed
 //!   in tile order (`backward/backward.wgsl`), and [`project_vjp_gpu`]
 //!   (`project/project_vjp.wgsl`) turns them into gradients of the raw parameters;
-//! - `GpuTrainer`: the training state kept on the GPU between steps (Gaussians, Adam's
-//!   moments, the step's gradient sums, the densification statistics), with Adam
-//!   (`adam/adam.wgsl`) and the per-view sums (`train/accumulate.wgsl`) there;
 //! - [`render_gpu`]: the forward pass — projection and SH colour (`project/project.wgsl`), a
 //!   stable radix sort of the visible Gaussians by depth (`gpu/sort.wgsl`, `gpu/scan.wgsl`),
 //!   tile binning in (tile, depth, index) order by a second stable sort on the tile, and
-//!   per-tile front-to-back compositing in shared-memory batches (`forward/forward.wgsl`);
-//! - [`loss_gpu`] and [`GpuLoss`]: the training losses and their gradients on the colour
-//!   (`loss/loss.wgsl`) — the photometric loss (L2 or L1, plus SSIM in four separable passes
-//!   with its adjoint) and the weighted L2, each summed per 256-value block by a fixed tree.
+//!   per-tile front-to-back compositing in shared-memory batches (`forward/forward.wgsl`).
 //!
 //! Determinism: every reduction runs in a fixed order — prefix sums by blocks in shared
 //! memory, radix sort ranks by counting, compositing in list order — and no float atomics

@@ -1,6 +1,6 @@
 //! The projection's GPU kernels: `project.wgsl` (projection, culling, SH colour and the tile
 //! rectangles, the twin of [`super::project`] and [`crate::sh`]) and `project_vjp.wgsl` (its
-//! backward, the twin of [`super::project_vjp_lanes`]). The forward pass records the first
+//! backward, the twin of `project_vjp_lanes` in `project/mod.rs`). The forward pass records the first
 //! (`forward/gpu.rs`), the backward pass the second (`backward/gpu.rs`).
 
 /// The compiled projection kernels.
