@@ -194,7 +194,6 @@ impl Node for AggregateEnsemble {
         args.validate()
     }
     fn run(args: &AggregateParams, ctx: &mut RunContext) -> Result<(), NodeError> {
-        args.validate().map_err(NodeError::new)?;
         let dirs: Vec<PathBuf> = ctx.input_list("members")?.to_vec();
         let out = ctx.output("synthetic")?.to_path_buf();
         let ctx_ref: &RunContext = ctx;
