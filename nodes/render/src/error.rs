@@ -1,27 +1,14 @@
-//! Errors of the splatting crate.
+//! Errors of the renderer.
 
-use std::path::PathBuf;
+use augsplat_core::FileError;
 
 /// What can go wrong reading or writing splats.
 #[derive(Debug, thiserror::Error)]
 pub enum SplatError {
-    /// A file could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The underlying error.
-        #[source]
-        source: std::io::Error,
-    },
-    /// A PLY file is malformed or not in the Inria layout.
-    #[error("{path}: {message}")]
-    Ply {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong with it.
-        message: String,
-    },
+    /// A file could not be read or written ([`FileError::Io`]), or a PLY file is malformed
+    /// or not in the Inria layout ([`FileError::Format`]).
+    #[error(transparent)]
+    File(#[from] FileError),
     /// Inputs are inconsistent (sizes, degrees, parameters).
     #[error("{0}")]
     Invalid(String),

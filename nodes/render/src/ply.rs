@@ -7,16 +7,14 @@
 
 use crate::error::SplatError;
 use crate::gaussians::{sh_coeffs, Gaussians};
+use augsplat_core::FileError;
 use std::io::Seek;
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
 /// Writes `g` as a binary little-endian float32 PLY in the Inria layout.
 pub fn write_ply(path: &Path, g: &Gaussians) -> Result<(), SplatError> {
-    let io = |source| SplatError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
+    let io = |source| SplatError::File(FileError::io(path, source));
     let n = g.len();
     let k = g.coeffs();
     if g.log_scales.len() != n
@@ -83,14 +81,8 @@ pub fn write_ply(path: &Path, g: &Gaussians) -> Result<(), SplatError> {
 
 /// Reads an Inria-layout PLY (binary little-endian, float32 vertex properties).
 pub fn read_ply(path: &Path) -> Result<Gaussians, SplatError> {
-    let io = |source| SplatError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let bad = |message: String| SplatError::Ply {
-        path: path.to_path_buf(),
-        message,
-    };
+    let io = |source| SplatError::File(FileError::io(path, source));
+    let bad = |message: String| SplatError::File(FileError::format(path, message));
     let file = std::fs::File::open(path).map_err(io)?;
     let mut r = BufReader::new(file);
     let mut line = String::new();

@@ -4,6 +4,7 @@
 
 mod raster_common;
 
+use augsplat_core::FileError;
 use augsplat_render::{read_ply, render, write_ply, RenderSettings, SplatError};
 use raster_common::*;
 use std::io::Write;
@@ -85,7 +86,8 @@ fn bad_files_give_clear_errors() {
     let truncated = write("t.ply", &bytes[..bytes.len() - 5]);
     let e = read_ply(&truncated).unwrap_err();
     assert!(
-        matches!(e, SplatError::Ply { .. }) && e.to_string().contains("ends at vertex 2"),
+        matches!(e, SplatError::File(FileError::Format { .. }))
+            && e.to_string().contains("ends at vertex 2"),
         "{e}"
     );
     let ascii = String::from_utf8_lossy(&bytes).replace("binary_little_endian", "ascii");
@@ -114,5 +116,5 @@ fn bad_files_give_clear_errors() {
     let e = read_ply(&write("n.ply", b"hello")).unwrap_err();
     assert!(e.to_string().contains("not a PLY"), "{e}");
     let e = read_ply(&dir.path().join("absent.ply")).unwrap_err();
-    assert!(matches!(e, SplatError::Io { .. }));
+    assert!(matches!(e, SplatError::File(FileError::Io { .. })));
 }
