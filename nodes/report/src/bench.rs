@@ -2,9 +2,18 @@
 //! compute seconds of every node the method's evaluation needs and its held-out error; per
 //! method the Pareto front (no configuration both cheaper and better) and its knee; written as
 //! a Markdown table, a JSON record and an HTML page with one scatter plot per method.
+//!
+//! [`sweep`] writes the pipeline the bench runs (the grid as its sweep), [`cost`] attributes
+//! the run's compute seconds and held-out errors to each configuration and method, and
+//! [`BenchTable`] holds the result and writes its files.
 
+pub mod cost;
+pub mod sweep;
+
+use crate::error::ReportError;
 use crate::svg::{self, escape, Chart, LabeledPoint};
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// One (configuration, method) measurement.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -357,6 +366,23 @@ impl BenchTable {
         out
     }
 
+    /// Writes `bench.md` ([`BenchTable::markdown`]), `bench.html` ([`BenchTable::html`]) and
+    /// `bench.json` (the table itself) into `out`, and returns the Markdown.
+    pub fn write_files(&self, out: &Path) -> Result<String, ReportError> {
+        let write = |name: &str, text: String| {
+            let p = out.join(name);
+            std::fs::write(&p, text)
+                .map_err(|e| ReportError::Message(format!("writing {}: {e}", p.display())))
+        };
+        let md = self.markdown();
+        write("bench.md", md.clone())?;
+        write("bench.html", self.html())?;
+        let json =
+            serde_json::to_string_pretty(self).map_err(|e| ReportError::Message(e.to_string()))?;
+        write("bench.json", json)?;
+        Ok(md)
+    }
+
     /// A self-contained HTML page: the table and one scatter plot (seconds against error,
     /// front dashed) per method.
     pub fn html(&self) -> String {
@@ -510,6 +536,21 @@ mod tests {
             "{html}"
         );
         assert_eq!(html.matches("<td>* knee</td>").count(), 2);
+    }
+
+    #[test]
+    fn the_files_hold_the_markdown_the_page_and_the_table() {
+        let dir = tempfile::tempdir().unwrap();
+        let t = table(&[("c1", "A", 10.0, 0.5), ("c2", "A", 20.0, 0.2)]);
+        let md = t.write_files(dir.path()).unwrap();
+        assert_eq!(md, t.markdown());
+        let read = |f: &str| std::fs::read_to_string(dir.path().join(f)).unwrap();
+        assert_eq!(read("bench.md"), md);
+        assert_eq!(read("bench.html"), t.html());
+        let back: BenchTable = serde_json::from_str(&read("bench.json")).unwrap();
+        assert_eq!(back, t);
+        let e = t.write_files(&dir.path().join("absent")).unwrap_err();
+        assert!(e.to_string().starts_with("writing "), "{e}");
     }
 
     #[test]
