@@ -12,6 +12,8 @@ pub mod sweep;
 
 use crate::error::ReportError;
 use crate::svg::{self, escape, Chart, LabeledPoint};
+use augsplat_core::bench_record;
+pub use augsplat_core::bench_record::civil_date;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -133,15 +135,9 @@ impl Machine {
         format!("{} ({} cores{isa})", self.cpu, self.cores)
     }
 
-    /// This machine, now.
+    /// This machine, now (the CPU model, cores and date of [`bench_record`]).
     pub fn this() -> Machine {
         let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
-        let cpu = info
-            .lines()
-            .find(|l| l.starts_with("model name"))
-            .and_then(|l| l.split_once(':'))
-            .map(|(_, v)| v.trim().to_string())
-            .unwrap_or_else(|| std::env::consts::ARCH.to_string());
         let flags: Vec<&str> = info
             .lines()
             .find(|l| l.starts_with("flags") || l.starts_with("Features"))
@@ -153,34 +149,13 @@ impl Machine {
             .filter(|f| flags.contains(f))
             .map(|f| f.to_string())
             .collect();
-        let days = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs() / 86_400)
-            .unwrap_or(0) as i64;
         Machine {
-            cpu,
-            cores: std::thread::available_parallelism()
-                .map(|n| n.get())
-                .unwrap_or(1),
+            cpu: bench_record::cpu_model(),
+            cores: bench_record::cores(),
             isa,
-            date: civil_date(days),
+            date: bench_record::today(),
         }
     }
-}
-
-/// `YYYY-MM-DD` of a day number since 1970-01-01 (proleptic Gregorian).
-pub fn civil_date(days: i64) -> String {
-    // Howard Hinnant's days-to-civil algorithm.
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!("{y:04}-{m:02}-{d:02}")
 }
 
 /// Seconds to three significant digits or whole seconds.
