@@ -8,13 +8,18 @@
 //! The seconds a training skipped (an early stop, Dual's synthetic branch switching off) are
 //! estimated from the step times its node measured (its cache record's `measures`).
 //! Writes `bench.md`, `bench.json` and `bench.html` (Pareto front and knee per method).
+//! The sweep file and the attribution are [`augsplat_report::bench::sweep`] and
+//! [`augsplat_report::bench::cost`]; this command parses its arguments, runs the sweep and
+//! prints.
 
 use super::run::open_engine;
 use super::CmdResult;
-use augsplat_graph::{Registry, RunOptions};
-use augsplat_report::bench::{BenchPoint, BenchTable, Machine, Savings};
+use augsplat_graph::{Plan, Registry, RunOptions, RunReport};
+use augsplat_report::bench::cost::Attribution;
+use augsplat_report::bench::sweep::sweep_file;
+use augsplat_report::bench::Machine;
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Arguments of `augsplat bench`.
 #[derive(clap::Args)]
@@ -42,30 +47,8 @@ pub struct Args {
     pub quiet: bool,
 }
 
-/// The text of the sweep file for `file` over `grid`.
-fn sweep_file(file: &Path, grid: &[String]) -> Result<String, String> {
-    let mut axes = Vec::new();
-    for g in grid {
-        let (path, values) = g
-            .split_once('=')
-            .ok_or_else(|| format!("--grid {g}: write PATH=[V, ..]"))?;
-        let (path, values) = (path.trim(), values.trim());
-        if path.is_empty() || !values.starts_with('[') || !values.ends_with(']') {
-            return Err(format!(
-                "--grid {g}: write PATH=[V, ..], e.g. 'field.steps=[100, 200]'"
-            ));
-        }
-        axes.push(format!("{path:?}: {values}"));
-    }
-    Ok(format!(
-        "// Written by `augsplat bench`: {} with the grid as its sweep.\n(\n    extends: {:?},\n    sweep: Grid({{ {} }}),\n)\n",
-        file.display(),
-        file.display().to_string(),
-        axes.join(", ")
-    ))
-}
-
-/// Runs `augsplat bench`.
+/// Runs `augsplat bench`: writes the sweep, runs it, and hands the run to the cost
+/// attribution of [`augsplat_report::bench::cost`].
 pub fn run(args: Args, registry: &Registry) -> CmdResult {
     let file =
         std::fs::canonicalize(&args.file).map_err(|e| format!("{}: {e}", args.file.display()))?;
@@ -79,7 +62,8 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
         .unwrap_or_else(|| PathBuf::from("bench").join(&stem));
     std::fs::create_dir_all(&out).map_err(|e| format!("creating {}: {e}", out.display()))?;
     let bench_file = out.join("bench.ron");
-    std::fs::write(&bench_file, sweep_file(&file, &args.grid)?)
+    let sweep = sweep_file(&file, &args.grid).map_err(|e| e.to_string())?;
+    std::fs::write(&bench_file, sweep)
         .map_err(|e| format!("writing {}: {e}", bench_file.display()))?;
     let engine = open_engine(registry, args.cache.clone())?;
     let plan = engine
@@ -93,144 +77,11 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
         opts.jobs = j.max(1);
     }
     let report = engine.run(&plan, &opts).map_err(|e| e.to_string())?;
-    let failures = report.failures(&plan);
-    if !failures.is_empty() {
-        let mut msg = format!("{} node(s) failed:", failures.len());
-        for (_, m) in failures {
-            msg.push_str("\n  ");
-            msg.push_str(&m.replace('\n', "\n  "));
-        }
-        return Err(msg);
-    }
-    let store = engine.store();
-    let mut points = Vec::new();
-    let mut all_avg = true;
-    let mut raw = Vec::new();
-    let mut gated = Vec::new();
-    // A scene gate's rehearsal evaluations measure the gate, not a method: left out.
-    let feeds_gate: std::collections::BTreeSet<usize> = plan
-        .comps
-        .iter()
-        .filter(|c| c.node.kind() == "Gate")
-        .flat_map(|c| c.inputs.iter().flat_map(|s| s.sources.iter()))
-        .filter_map(|(s, _)| match s {
-            augsplat_graph::resolve::Source::Node { comp, .. } => Some(*comp),
-            _ => None,
-        })
-        .collect();
-    for point in &plan.points {
-        for &i in &point.instances {
-            let c = plan.instances[i].comp;
-            let kind = plan.comps[c].node.kind();
-            if (kind != "Evaluate" && kind != "EvaluateEnsemble") || feeds_gate.contains(&c) {
-                continue;
-            }
-            let r = report.results[c]
-                .as_ref()
-                .ok_or("internal: an evaluation did not run")?;
-            let closure_seconds = |c: usize| -> f64 {
-                plan.closure(c)
-                    .iter()
-                    .map(|&k| {
-                        report.results[k]
-                            .as_ref()
-                            .map_or(0.0, |r| r.computed_seconds)
-                    })
-                    .sum()
-            };
-            if r.gated.is_some() {
-                gated.push((
-                    point.label.clone(),
-                    plan.instances[i].name.clone(),
-                    closure_seconds(c),
-                ));
-                continue;
-            }
-            let manifest = r
-                .outputs
-                .get("eval")
-                .ok_or_else(|| format!("{kind} has no `eval` output"))?;
-            let path = store.output_dir(manifest).join("metrics.json");
-            let m: serde_json::Value = serde_json::from_slice(
-                &std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?,
-            )
-            .map_err(|e| format!("{}: {e}", path.display()))?;
-            let mean = if kind == "Evaluate" {
-                &m["mean"]
-            } else {
-                &m["median"]["mean"]
-            };
-            let label = m["label"].as_str().unwrap_or(kind).to_string();
-            let closure = plan.closure(c);
-            let seconds = closure_seconds(c);
-            let avg = mean["avg_error"].as_f64();
-            all_avg &= avg.is_some();
-            // What the evaluated training skipped, from its cache record's measures.
-            let saved = plan.comps[c]
-                .inputs
-                .iter()
-                .filter(|s| s.name == "model")
-                .flat_map(|s| s.sources.iter())
-                .find_map(|(s, _)| match s {
-                    augsplat_graph::resolve::Source::Node { comp, .. } => Some(*comp),
-                    _ => None,
-                })
-                .and_then(|m| report.results[m].as_ref()?.key)
-                .and_then(|k| store.action(&k).ok().flatten())
-                .map(|entry| Savings::from_measures(&entry.measures))
-                .unwrap_or_default();
-            raw.push((
-                point.label.clone(),
-                label,
-                seconds,
-                avg,
-                mean["mse"].as_f64().unwrap_or(f64::NAN),
-                mean["psnr"].as_f64().unwrap_or(f64::NAN),
-                closure.len(),
-                saved,
-            ));
-        }
-    }
-    for (config, method, seconds, avg, mse, psnr, nodes, saved) in raw {
-        points.push(BenchPoint {
-            config,
-            method,
-            seconds,
-            error: if all_avg { avg.unwrap_or(mse) } else { mse },
-            psnr,
-            nodes,
-            saved,
-        });
-    }
-    if points.is_empty() {
-        return Err(format!(
-            "{} has no `Evaluate` or `EvaluateEnsemble` node: nothing to measure the error of",
-            file.display()
-        ));
-    }
-    let table = BenchTable {
-        pipeline: file.display().to_string(),
-        grid: args.grid.clone(),
-        error_name: if all_avg {
-            "average error".into()
-        } else {
-            "MSE".into()
-        },
-        machine: Machine::this(),
-        points,
-        gated,
-    };
-    let write = |name: &str, text: String| {
-        let p = out.join(name);
-        std::fs::write(&p, text).map_err(|e| format!("writing {}: {e}", p.display()))
-    };
-    let md = table.markdown();
-    write("bench.md", md.clone())?;
-    write("bench.html", table.html())?;
-    write(
-        "bench.json",
-        serde_json::to_string_pretty(&table).map_err(|e| e.to_string())?,
-    )?;
+    failures(&plan, &report)?;
+    let md = Attribution::of_run(&plan, &report, engine.store())
+        .and_then(|a| a.table(&file, &args.grid, Machine::this()))
+        .and_then(|table| table.write_files(&out))
+        .map_err(|e| e.to_string())?;
     if !args.quiet {
         print!("{md}");
         println!(
@@ -239,4 +90,18 @@ pub fn run(args: Args, registry: &Registry) -> CmdResult {
         );
     }
     Ok(())
+}
+
+/// The run's failures as one message (`Ok` when nothing failed).
+fn failures(plan: &Plan, report: &RunReport) -> CmdResult {
+    let failures = report.failures(plan);
+    if failures.is_empty() {
+        return Ok(());
+    }
+    let mut msg = format!("{} node(s) failed:", failures.len());
+    for (_, m) in failures {
+        msg.push_str("\n  ");
+        msg.push_str(&m.replace('\n', "\n  "));
+    }
+    Err(msg)
 }

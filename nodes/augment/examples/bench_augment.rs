@@ -1,19 +1,21 @@
 //! Benchmarks of the augmentation kernels and nodes (run by hand, not a test):
 //!
 //! ```text
-//! cargo run --release -p augsplat-augment --example bench_augment
+//! cargo run --release -p augsplat-augment --example bench_augment [-- --json PATH]
 //! ```
 //!
 //! Measures, at the paper's sizes (200 synthetic views at 1/8 of 800×533 → 100×67, M = 5):
 //! the aggregation kernel (no blur and 9×9 blur) on 1 and 2 threads, the whole
 //! `AggregateEnsemble` node with EXR reading and writing, and pose synthesis for 26 cameras
 //! (with the size of the candidate pool, which is what rendering every candidate would cost
-//! instead of only the drawn poses).
+//! instead of only the drawn poses). `--json PATH` also writes the node's time on 2 threads as
+//! a `BenchRecord` (`docs/figures/`).
 
 use augsplat_augment::aggregate::{aggregate_view, AggregateParams, Workspace};
 use augsplat_augment::poses::{candidate_pool, synthesize_poses, PoseParams};
 use augsplat_augment::AggregateEnsemble;
 use augsplat_core::artifacts::{self, files, RenderSet, RenderedView};
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_core::{image, Camera, Rng};
 use augsplat_graph::{Node, RunContext};
 use rayon::prelude::*;
@@ -37,6 +39,7 @@ fn time<T>(label: &str, reps: usize, mut f: impl FnMut() -> T) -> f64 {
 }
 
 fn main() {
+    let (args, json) = bench_record::args_and_json();
     let (views, m, w, h) = (200usize, 5usize, 100usize, 67usize);
     let n = w * h;
     let mut rng = Rng::new(1);
@@ -48,7 +51,10 @@ fn main() {
         })
         .collect();
     println!("aggregation: {views} views of {w}×{h}, M = {m}");
-    for blur in [None, Some(9)] {
+    // Seconds of the kernel on 2 threads, without and with the blur, and of the node.
+    let mut kernel2 = [0.0; 2];
+    let mut node2 = 0.0;
+    for (b, blur) in [None, Some(9)].into_iter().enumerate() {
         let params = AggregateParams {
             blur,
             ..AggregateParams::default()
@@ -71,6 +77,9 @@ fn main() {
                 })
             });
             println!("{:<58} {:>10.1} Mpx/s", "", (views * n) as f64 / s / 1e6);
+            if threads == 2 {
+                kernel2[b] = s;
+            }
         }
     }
 
@@ -114,7 +123,7 @@ fn main() {
             .build()
             .unwrap();
         let mut i = 0;
-        time(
+        let s = time(
             &format!("AggregateEnsemble node (EXR in/out, PNG previews), {threads} thr"),
             2,
             || {
@@ -132,6 +141,9 @@ fn main() {
                     .unwrap();
             },
         );
+        if threads == 2 {
+            node2 = s;
+        }
     }
     let _ = std::fs::remove_dir_all(&tmp);
 
@@ -141,7 +153,7 @@ fn main() {
         .collect();
     let params = PoseParams::default();
     let pool = candidate_pool(&train, &params).unwrap();
-    time("SynthesizePoses kernel, 26 cameras, 200 drawn", 20, || {
+    let poses = time("SynthesizePoses kernel, 26 cameras, 200 drawn", 20, || {
         synthesize_poses(&train, &params).unwrap().len()
     });
     println!(
@@ -150,4 +162,18 @@ fn main() {
         params.count,
         100.0 * params.count as f64 / pool.len() as f64
     );
+    let record = BenchRecord::now(
+        format!("AggregateEnsemble, {views} views of {w}×{h}, M = {m}, 2 threads"),
+        bench_record::example_command("augsplat-augment", "bench_augment", &args),
+        format!(
+            "node (EXR in/out, PNG previews) {:.0} ms; kernel {:.0} ms, with 9×9 blur {:.0} ms; pose synthesis (26 cameras) {:.1} ms",
+            node2 * 1e3,
+            kernel2[0] * 1e3,
+            kernel2[1] * 1e3,
+            poses * 1e3
+        ),
+        node2 * 1e3,
+        "ms",
+    );
+    record.write_or_exit(json.as_deref());
 }

@@ -1,5 +1,5 @@
 //! Throughput benchmarks of the field (run with `cargo run --release -p augsplat-field
-//! --example bench -- [threads] [what] [steps] [chunk rays]`):
+//! --example bench -- [threads] [what] [steps] [chunk rays] [--json PATH]`):
 //! - `step`: forward+backward samples per second and time per step (16 levels × 2 features,
 //!   2^17 table, 64-wide MLPs) for 1024- and 4096-ray steps on a random scene: median, best
 //!   and mean of `steps` timed steps (default 10), chunks of `chunk rays` (default 64);
@@ -7,8 +7,13 @@
 //! - `mlp`: GFLOP/s of the dense-layer kernels (forward, weight gradient, input gradient) on
 //!   chunk-sized batches, best of 300, next to a register-only FMA peak probe (one thread, then
 //!   `threads` threads at once: the machine's ceiling for the dense layers).
+//!
+//! `--json PATH` (anywhere among the arguments) also writes the headline figure as a
+//! [`BenchRecord`] (`docs/figures/`): the median samples/s of 1,024-ray steps, the
+//! single-thread samples/s of one chunk, or the 64 → 64 forward GFLOP/s.
 #![allow(clippy::needless_range_loop)]
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_core::{Camera, Rng};
 use augsplat_field::field::{ChunkState, Field, FieldConfig, RayInput};
 use augsplat_field::hashgrid::{HashGridConfig, PointBatch};
@@ -41,19 +46,22 @@ fn cpu_seconds() -> f64 {
     augsplat_core::cputime::process_cpu_seconds().unwrap_or(0.0)
 }
 
+/// A headline figure: (what, the figure in words, its value, its unit).
+type Headline = (String, String, f64, &'static str);
+
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let threads: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(2);
-    let what = args.get(2).cloned().unwrap_or_else(|| "step".into());
+    let (args, json) = bench_record::args_and_json();
+    let threads: usize = args.first().and_then(|s| s.parse().ok()).unwrap_or(2);
+    let what = args.get(1).cloned().unwrap_or_else(|| "step".into());
     // `step` options: timed steps per ray count (default 10) and rays per chunk (default 64,
     // TrainField's default).
     let steps: usize = args
-        .get(3)
+        .get(2)
         .and_then(|s| s.parse().ok())
         .unwrap_or(10)
         .max(1);
     let chunk: u32 = args
-        .get(4)
+        .get(3)
         .and_then(|s| s.parse().ok())
         .unwrap_or(64)
         .max(1);
@@ -90,10 +98,11 @@ fn main() {
         })
         .collect();
     println!("threads {threads}; params {}", field.n_params);
-    pool.install(|| match what.as_str() {
+    let (what, figure, value, unit) = pool.install(|| match what.as_str() {
         "kernels" => kernels(&field),
         "mlp" => mlp_kernels(threads),
         _ => {
+            let mut medians = Vec::new();
             for rays in [1024u32, 4096] {
                 let opts = TrainOptions {
                     seed: 1,
@@ -141,6 +150,7 @@ fn main() {
                 rates.sort_by(f64::total_cmp);
                 let median = rates[n / 2];
                 let best = rates[n - 1];
+                medians.push(median);
                 println!(
                     "{rays} rays/step, chunks of {chunk} rays: {:.3} s/step wall, {:.0} samples/step ({:.0} with colour); \
                      forward+backward samples/s over {n} steps: median {:.0}, best {:.0}, mean {:.0}; \
@@ -157,11 +167,23 @@ fn main() {
                     100.0 * steal
                 );
             }
+            (
+                format!("hash-grid field, forward+backward, {threads} threads"),
+                format!(
+                    "{:.2} M samples/s with 1,024-ray steps, {:.2} M with 4,096 (median of {steps} steps, chunks of {chunk} rays)",
+                    medians[0] / 1e6,
+                    medians[1] / 1e6
+                ),
+                medians[0],
+                "samples/s",
+            )
         }
     });
+    let command = bench_record::example_command("augsplat-field", "bench", &args);
+    BenchRecord::now(what, command, figure, value, unit).write_or_exit(json.as_deref());
 }
 
-fn kernels(field: &Field) {
+fn kernels(field: &Field) -> Headline {
     let params = field.init_params(3);
     let occ = OccupancyGrid::full(64);
     let mut rng = Rng::new(5);
@@ -237,15 +259,24 @@ fn kernels(field: &Field) {
         bwd * 1e3,
         gb * 1e3
     );
-    println!(
-        "  => {:.0} samples/s single thread fwd+bwd",
-        n as f64 / (fwd + bwd + gb)
-    );
+    let rate = n as f64 / (fwd + bwd + gb);
+    println!("  => {rate:.0} samples/s single thread fwd+bwd");
+    (
+        "hash-grid field kernels, one 64-ray chunk, 1 thread".into(),
+        format!(
+            "{rate:.0} samples/s forward+backward (forward {:.2} ms, backward MLPs {:.2} ms, hash backward {:.2} ms; best of {reps})",
+            fwd * 1e3,
+            bwd * 1e3,
+            gb * 1e3
+        ),
+        rate,
+        "samples/s",
+    )
 }
 
 /// GFLOP/s of the three dense-layer kernels on one thread (64-wide layers, a chunk-sized batch),
 /// after the FMA peak on one thread and on `threads` threads.
-fn mlp_kernels(threads: usize) {
+fn mlp_kernels(threads: usize) -> Headline {
     use augsplat_field::mlp::{
         linear_backward_input, linear_backward_weights, linear_forward, padded, LayerShape,
     };
@@ -258,9 +289,9 @@ fn mlp_kernels(threads: usize) {
     let c0 = cpu_seconds();
     peak(&mut acc, iters);
     let cpu = cpu_seconds() - c0;
+    let peak_one = (iters * 24 * 16 * 2) as f64 / cpu / 1e9;
     println!(
-        "FMA peak probe: {:.1} GFLOP/s (checksum {})",
-        (iters * 24 * 16 * 2) as f64 / cpu / 1e9,
+        "FMA peak probe: {peak_one:.1} GFLOP/s (checksum {})",
         acc.iter().flatten().sum::<f32>()
     );
     // The same probe on `threads` threads at once, by the wall clock.
@@ -275,10 +306,9 @@ fn mlp_kernels(threads: usize) {
             });
         }
     });
-    println!(
-        "FMA peak probe, {threads} threads at once: {:.1} GFLOP/s",
-        (threads * iters * 24 * 16 * 2) as f64 / t0.elapsed().as_secs_f64() / 1e9
-    );
+    let peak_all = (threads * iters * 24 * 16 * 2) as f64 / t0.elapsed().as_secs_f64() / 1e9;
+    println!("FMA peak probe, {threads} threads at once: {peak_all:.1} GFLOP/s");
+    let mut square = (0.0, 0.0, 0.0);
     let mut rng = Rng::new(9);
     for (inp, out) in [(32usize, 64usize), (64, 64), (64, 16), (64, 3)] {
         let w: Vec<f32> = (0..inp * out)
@@ -316,7 +346,19 @@ fn mlp_kernels(threads: usize) {
             "{inp:>3} -> {out:>3}: GFLOP/s (best of 300) forward {:.1}, dW {:.1}, dX {:.1}",
             f.0, g.0, h.0
         );
+        if (inp, out) == (64, 64) {
+            square = (f.0, g.0, h.0);
+        }
     }
+    (
+        "dense 64 → 64 layer on a chunk-sized batch, 1 thread".into(),
+        format!(
+            "forward {:.1}, dW {:.1}, dX {:.1} GFLOP/s (best of 300); FMA peak {peak_one:.1}, {threads} threads at once {peak_all:.1}",
+            square.0, square.1, square.2
+        ),
+        square.0,
+        "GFLOP/s",
+    )
 }
 
 #[inline(never)]

@@ -1,7 +1,7 @@
 //! Times `RenderField`'s renderer on a trained member:
 //!
 //! `cargo run --release -p augsplat-field --example bench_render -- WEIGHTS_DIR POSES_JSON
-//! [views] [downscale]`
+//! [views] [downscale] [--json PATH]`
 //!
 //! `WEIGHTS_DIR` is a `TrainField` output (`config.json` + weights), `POSES_JSON` a
 //! `poses.json` (e.g. a `SynthesizePoses` or `ScenePoses` output in the store). Prints the
@@ -10,39 +10,41 @@
 //! chunk size (default `RENDER_CHUNK_RAYS`); `WEIGHT_STATS=1` also prints, for the first
 //! view, the rays' mean opacity, how their sample weights spread over decades and how many
 //! samples a ray needs to keep all but 1e-4 (1e-3) of its colour weight — the bound on what
-//! any exact renderer could skip.
+//! any exact renderer could skip. `--json PATH` also writes the seconds of all the views as a
+//! `BenchRecord` (`docs/figures/`).
 #![allow(clippy::needless_range_loop)]
 
 use augsplat_core::artifacts::{self, PoseSet};
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_field::{io, train};
 use std::path::Path;
 use std::time::Instant;
 
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    if args.len() < 3 {
-        eprintln!("usage: bench_render WEIGHTS_DIR POSES_JSON [views] [downscale]");
+    let (args, json) = bench_record::args_and_json();
+    if args.len() < 2 {
+        eprintln!("usage: bench_render WEIGHTS_DIR POSES_JSON [views] [downscale] [--json PATH]");
         std::process::exit(2);
     }
-    let loaded = match io::load(Path::new(&args[1])) {
+    let loaded = match io::load(Path::new(&args[0])) {
         Ok(l) => l,
+        Err(e) => {
+            eprintln!("{}: {e}", args[0]);
+            std::process::exit(1);
+        }
+    };
+    let poses: PoseSet = match artifacts::read_json(Path::new(&args[1])) {
+        Ok(p) => p,
         Err(e) => {
             eprintln!("{}: {e}", args[1]);
             std::process::exit(1);
         }
     };
-    let poses: PoseSet = match artifacts::read_json(Path::new(&args[2])) {
-        Ok(p) => p,
-        Err(e) => {
-            eprintln!("{}: {e}", args[2]);
-            std::process::exit(1);
-        }
-    };
     let views: usize = args
-        .get(3)
+        .get(2)
         .and_then(|s| s.parse().ok())
         .unwrap_or(poses.views.len());
-    let down: u32 = args.get(4).and_then(|s| s.parse().ok()).unwrap_or(1);
+    let down: u32 = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(1);
     let chunk: usize = std::env::var("CHUNK")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -68,6 +70,11 @@ fn main() {
         weight_stats(&loaded, &poses.views[0].camera);
     }
     let n = views.min(poses.views.len()).max(1);
+    let size = poses
+        .views
+        .first()
+        .map(|v| v.camera.downscaled(down))
+        .map_or(String::new(), |c| format!(" at {}×{}", c.width, c.height));
     let per_ray = |v: u64| v as f64 / rays.max(1) as f64;
     println!(
         "{n} views, {rays} rays: {secs:.2} s ({:.3} s per view, {:.0} rays/s)",
@@ -81,6 +88,19 @@ fn main() {
         per_ray(stats.color),
         per_ray(stats.steps),
     );
+    let record = BenchRecord::now(
+        format!("one radiance-field member's {n} views{size}, {chunk}-ray chunks"),
+        bench_record::example_command("augsplat-field", "bench_render", &args),
+        format!(
+            "{secs:.2} s ({:.3} s per view, {:.0} rays/s; {:.1} samples per ray through the colour network)",
+            secs / n as f64,
+            rays as f64 / secs,
+            per_ray(stats.color)
+        ),
+        secs,
+        "s",
+    );
+    record.write_or_exit(json.as_deref());
 }
 
 /// Weight distribution of one view's rays (see the module docs).

@@ -1,13 +1,15 @@
 //! Times each AlexNet / VGG16 convolution of LPIPS for an 800×533 input with random weights
 //! and reports GFLOP/s (2 threads by default; `--threads N`).
 //!
-//! `cargo run --release -p augsplat-metrics --example bench_conv -- [--threads N] [--vgg]`
+//! `cargo run --release -p augsplat-metrics --example bench_conv -- [--threads N] [--vgg]
+//! [--json PATH]` (`--json`: the total as a `BenchRecord`, for `docs/figures/`)
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_metrics::gemm::{conv2d_relu, out_size, PackedWeights};
 use std::time::Instant;
 
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
+    let (args, json) = bench_record::args_and_json();
     let threads = args
         .iter()
         .position(|a| a == "--threads")
@@ -40,8 +42,8 @@ fn main() {
         .num_threads(threads)
         .build()
         .expect("pool");
-    pool.install(|| {
-        let mut total = 0.0;
+    let (total, flops) = pool.install(|| {
+        let (mut total, mut all_flops) = (0.0, 0.0);
         for (c_in, h, w, m, k, s, p) in layers {
             let mut rng = augsplat_core::Rng::new(1);
             let input: Vec<f32> = (0..c_in * h * w).map(|_| rng.next_f32()).collect();
@@ -60,6 +62,7 @@ fn main() {
                 best = best.min(t.elapsed().as_secs_f64());
             }
             total += best;
+            all_flops += flops;
             println!(
                 "{c_in:>4}→{m:<4} k{k} {h}×{w}: {:7.2} ms  {:6.1} GFLOP/s",
                 best * 1e3,
@@ -67,5 +70,19 @@ fn main() {
             );
         }
         println!("total (one image) {:.1} ms", total * 1e3);
+        (total, all_flops)
     });
+    let net = if vgg { "VGG16" } else { "AlexNet" };
+    let record = BenchRecord::now(
+        format!("LPIPS {net} convolutions of one 800×533 image, {threads} threads"),
+        bench_record::example_command("augsplat-metrics", "bench_conv", &args),
+        format!(
+            "{:.1} ms, {:.1} GFLOP/s over the layers (best of 3 each)",
+            total * 1e3,
+            flops / total * 1e-9
+        ),
+        total * 1e3,
+        "ms",
+    );
+    record.write_or_exit(json.as_deref());
 }

@@ -2,8 +2,12 @@
 //! photos from the shared data), on a rayon pool of `--threads N` (default 2).
 //!
 //! `cargo run --release -p augsplat-metrics --example bench_metrics -- [--threads N]
-//! [--what psnr,ssim,alex,vgg] [A B]`
+//! [--what psnr,ssim,alex,vgg] [A B] [--json PATH]`
+//!
+//! `--json PATH` also writes the best wall times as a `BenchRecord` (`docs/figures/`), its
+//! value LPIPS-alex's (the metric `Evaluate` runs by default) when measured, else the first.
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_core::image::read_rgb;
 use augsplat_metrics::lpips::{Backbone, Lpips};
 use std::path::PathBuf;
@@ -21,7 +25,8 @@ fn cpu_seconds() -> f64 {
 }
 
 fn main() {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let (mut args, json) = bench_record::args_and_json();
+    let command = bench_record::example_command("augsplat-metrics", "bench_metrics", &args);
     let mut threads = 2;
     if let Some(i) = args.iter().position(|a| a == "--threads") {
         threads = args
@@ -68,8 +73,10 @@ fn main() {
         .num_threads(threads)
         .build()
         .expect("thread pool");
+    // (metric, best wall seconds)
+    let mut results: Vec<(String, f64)> = Vec::new();
     pool.install(|| {
-        let time = |name: &str, reps: usize, f: &dyn Fn() -> f64| {
+        let mut time = |name: &str, reps: usize, f: &dyn Fn() -> f64| {
             let v = f(); // warm-up
             let mut best = f64::INFINITY;
             let mut total = 0.0;
@@ -88,6 +95,7 @@ fn main() {
                 total / reps as f64 * 1e3,
                 best_cpu * 1e3
             );
+            results.push((name.to_string(), best));
         };
         if what.contains("psnr") {
             time("psnr", 20, &|| augsplat_metrics::psnr(&a, &b).unwrap());
@@ -110,4 +118,26 @@ fn main() {
             });
         }
     });
+    let Some(&(ref name, best)) = results
+        .iter()
+        .find(|(n, _)| n == "lpips-alex")
+        .or(results.first())
+    else {
+        return;
+    };
+    let figure: Vec<String> = results
+        .iter()
+        .map(|(n, s)| format!("{n} {:.2} ms", s * 1e3))
+        .collect();
+    let record = BenchRecord::now(
+        format!(
+            "{name} of one {}×{} image pair, {threads} threads",
+            a.width, a.height
+        ),
+        command,
+        format!("{} (best wall time)", figure.join(", ")),
+        best * 1e3,
+        "ms",
+    );
+    record.write_or_exit(json.as_deref());
 }

@@ -1,13 +1,17 @@
 //! Benchmark of evaluation and report building at the paper's evaluation size.
 //!
-//! `cargo run -p augsplat-report --example bench_eval --profile test -- [GAUSSIANS] [VIEWS]`
+//! `cargo run -p augsplat-report --example bench_eval --profile test -- [GAUSSIANS] [VIEWS]
+//! [--json PATH]`
 //!
 //! Builds a random splat model (default 50 000 Gaussians) and a test scene of VIEWS (default
 //! 4) 800×533 views whose ground truth is the mip-NeRF 360 bonsai photos when
 //! `../shared/data/bonsai/images` exists (random noise otherwise), then times per stage:
 //! render, MSE+SSIM, LPIPS-alex (when `../shared/data/lpips` exists), the whole `evaluate`
 //! (renders + metrics + PNG writing), and `build_report` over three such evaluations.
+//! `--json PATH` also writes the best of the three evaluations as a `BenchRecord`
+//! (`docs/figures/`).
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_core::{image, Camera, ImageF32, Scene, SceneView};
 use augsplat_report::evalset::EvalDir;
 use augsplat_report::evaluate::{evaluate, Checkpoint, EvalContext};
@@ -24,13 +28,13 @@ fn rng(state: &mut u64) -> f32 {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().collect();
+    let (args, json) = bench_record::args_and_json();
     let n: usize = args
-        .get(1)
+        .first()
         .map(|s| s.parse())
         .transpose()?
         .unwrap_or(50_000);
-    let views: usize = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(4);
+    let views: usize = args.get(1).map(|s| s.parse()).transpose()?.unwrap_or(4);
     let (w, h) = (800u32, 533u32);
     let shared = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
     let mut s = 7u64;
@@ -154,6 +158,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let model = dir.path().join("model");
     std::fs::create_dir_all(&model)?;
     let mut evals = Vec::new();
+    let mut best_eval = f64::INFINITY;
     for k in 0..3 {
         let out = dir.path().join(format!("eval{k}"));
         std::fs::create_dir_all(&out)?;
@@ -184,10 +189,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             },
             &|_, _| {},
         )?;
-        println!(
-            "evaluate ({views} views, renders + metrics + PNGs): {:.2} s",
-            t.elapsed().as_secs_f64()
-        );
+        let secs = t.elapsed().as_secs_f64();
+        best_eval = best_eval.min(secs);
+        println!("evaluate ({views} views, renders + metrics + PNGs): {secs:.2} s");
         evals.push(EvalDir::load(&out)?);
     }
     let t = Instant::now();
@@ -199,10 +203,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &evals,
         None::<&Path>,
     )?;
+    let t_report = t.elapsed().as_secs_f64();
     println!(
-        "build_report (3 evaluations): {:.2} s, index.html {} KiB",
-        t.elapsed().as_secs_f64(),
+        "build_report (3 evaluations): {t_report:.2} s, index.html {} KiB",
         built.html.len() / 1024
     );
+    let lpips = t_lp.map_or("LPIPS off (no weights)".to_string(), |v| {
+        format!("LPIPS-alex {v:.3} s")
+    });
+    // Its usage line runs it with the test profile, not --release.
+    let mut command =
+        "cargo run -p augsplat-report --example bench_eval --profile test".to_string();
+    if !args.is_empty() {
+        command = format!("{command} -- {}", args.join(" "));
+    }
+    let record = BenchRecord::now(
+        format!("evaluation of {n} Gaussians on {views} views at {w}×{h}"),
+        command,
+        format!(
+            "{best_eval:.2} s, best of 3 (view 0: render {t_render:.3} s, MSE+SSIM {t_ms:.3} s, {lpips}); build_report over 3: {t_report:.2} s"
+        ),
+        best_eval,
+        "s",
+    );
+    record.write_or_exit(json.as_deref());
     Ok(())
 }

@@ -5,17 +5,20 @@
 //! a depth sort, a draw and a one-pixel read back (the median after the first frame).
 //!
 //! ```text
-//! cargo run --release -p augsplat-report --example viewer_bench -- [W H frames count...]
+//! cargo run --release -p augsplat-report --example viewer_bench -- [W H frames count...] [--json PATH]
 //! ```
 //! Defaults: 800 533 20 100000 1000000. Prints one JSON line per count and the page size;
-//! the pages stay in `target/tmp/viewer_bench/` (open one to look, or to profile).
+//! the pages stay in `target/tmp/viewer_bench/` (open one to look, or to profile). `--json`
+//! also writes the frame times as a `BenchRecord` (`docs/figures/`), its value the last
+//! count's median.
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_report::viewer::{self, ViewerCamera, ViewerModel};
 use augsplat_splat::Gaussians;
 use std::time::Duration;
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let (args, json) = bench_record::args_and_json();
     let num = |i: usize, d: usize| -> usize {
         args.get(i).map_or(d, |s| {
             s.parse()
@@ -44,6 +47,8 @@ fn main() {
             [0.0, 0.0, 0.0, 1.0],
         ],
     );
+    // Per count: (Gaussians, median frame ms, median sort ms).
+    let mut medians: Vec<(usize, f64, f64)> = Vec::new();
     for n in counts {
         let g = Gaussians::random_cloud(n, 4.0 / camera.fx, 7);
         let packed = viewer::pack(&g, n);
@@ -67,12 +72,31 @@ fn main() {
         cmd.arg("--dump-dom")
             .arg(format!("file://{}#bench={frames}", file.display()));
         let (dom, log) = augsplat_testkit::browser::run_limited(cmd, Duration::from_secs(600));
-        match augsplat_testkit::browser::text_in_dom(&dom, "viewer-bench") {
-            Some(json) => println!(
-                "{json} page {:.1} MB",
-                std::fs::metadata(&file).map_or(0, |m| m.len()) as f64 / 1e6
-            ),
-            None => panic!("no bench result for {n} Gaussians; stderr:\n{log}"),
-        }
+        let Some(result) = augsplat_testkit::browser::text_in_dom(&dom, "viewer-bench") else {
+            panic!("no bench result for {n} Gaussians; stderr:\n{log}");
+        };
+        println!(
+            "{result} page {:.1} MB",
+            std::fs::metadata(&file).map_or(0, |m| m.len()) as f64 / 1e6
+        );
+        let v: serde_json::Value =
+            serde_json::from_str(&result).unwrap_or_else(|e| panic!("{result}: {e}"));
+        let ms = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+        medians.push((n, ms("median_ms"), ms("median_sort_ms")));
     }
+    let Some(&(_, last, _)) = medians.last() else {
+        return;
+    };
+    let figure: Vec<String> = medians
+        .iter()
+        .map(|(n, f, s)| format!("{n} Gaussians {f:.1} ms (sort {s:.1} ms)"))
+        .collect();
+    let record = BenchRecord::now(
+        format!("3-D viewer frame in headless Chromium, {w}×{h}"),
+        bench_record::example_command("augsplat-report", "viewer_bench", &args),
+        format!("median frame of {frames}: {}", figure.join(", ")),
+        last,
+        "ms",
+    );
+    record.write_or_exit(json.as_deref());
 }

@@ -2,9 +2,20 @@
 //! compute seconds of every node the method's evaluation needs and its held-out error; per
 //! method the Pareto front (no configuration both cheaper and better) and its knee; written as
 //! a Markdown table, a JSON record and an HTML page with one scatter plot per method.
+//!
+//! [`sweep`] writes the pipeline the bench runs (the grid as its sweep), [`cost`] attributes
+//! the run's compute seconds and held-out errors to each configuration and method, and
+//! [`BenchTable`] holds the result and writes its files.
 
+pub mod cost;
+pub mod sweep;
+
+use crate::error::ReportError;
 use crate::svg::{self, escape, Chart, LabeledPoint};
+use augsplat_core::bench_record;
+pub use augsplat_core::bench_record::civil_date;
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// One (configuration, method) measurement.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -124,15 +135,9 @@ impl Machine {
         format!("{} ({} cores{isa})", self.cpu, self.cores)
     }
 
-    /// This machine, now.
+    /// This machine, now (the CPU model, cores and date of [`bench_record`]).
     pub fn this() -> Machine {
         let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
-        let cpu = info
-            .lines()
-            .find(|l| l.starts_with("model name"))
-            .and_then(|l| l.split_once(':'))
-            .map(|(_, v)| v.trim().to_string())
-            .unwrap_or_else(|| std::env::consts::ARCH.to_string());
         let flags: Vec<&str> = info
             .lines()
             .find(|l| l.starts_with("flags") || l.starts_with("Features"))
@@ -144,34 +149,13 @@ impl Machine {
             .filter(|f| flags.contains(f))
             .map(|f| f.to_string())
             .collect();
-        let days = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs() / 86_400)
-            .unwrap_or(0) as i64;
         Machine {
-            cpu,
-            cores: std::thread::available_parallelism()
-                .map(|n| n.get())
-                .unwrap_or(1),
+            cpu: bench_record::cpu_model(),
+            cores: bench_record::cores(),
             isa,
-            date: civil_date(days),
+            date: bench_record::today(),
         }
     }
-}
-
-/// `YYYY-MM-DD` of a day number since 1970-01-01 (proleptic Gregorian).
-pub fn civil_date(days: i64) -> String {
-    // Howard Hinnant's days-to-civil algorithm.
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!("{y:04}-{m:02}-{d:02}")
 }
 
 /// Seconds to three significant digits or whole seconds.
@@ -357,6 +341,23 @@ impl BenchTable {
         out
     }
 
+    /// Writes `bench.md` ([`BenchTable::markdown`]), `bench.html` ([`BenchTable::html`]) and
+    /// `bench.json` (the table itself) into `out`, and returns the Markdown.
+    pub fn write_files(&self, out: &Path) -> Result<String, ReportError> {
+        let write = |name: &str, text: String| {
+            let p = out.join(name);
+            std::fs::write(&p, text)
+                .map_err(|e| ReportError::Message(format!("writing {}: {e}", p.display())))
+        };
+        let md = self.markdown();
+        write("bench.md", md.clone())?;
+        write("bench.html", self.html())?;
+        let json =
+            serde_json::to_string_pretty(self).map_err(|e| ReportError::Message(e.to_string()))?;
+        write("bench.json", json)?;
+        Ok(md)
+    }
+
     /// A self-contained HTML page: the table and one scatter plot (seconds against error,
     /// front dashed) per method.
     pub fn html(&self) -> String {
@@ -510,6 +511,21 @@ mod tests {
             "{html}"
         );
         assert_eq!(html.matches("<td>* knee</td>").count(), 2);
+    }
+
+    #[test]
+    fn the_files_hold_the_markdown_the_page_and_the_table() {
+        let dir = tempfile::tempdir().unwrap();
+        let t = table(&[("c1", "A", 10.0, 0.5), ("c2", "A", 20.0, 0.2)]);
+        let md = t.write_files(dir.path()).unwrap();
+        assert_eq!(md, t.markdown());
+        let read = |f: &str| std::fs::read_to_string(dir.path().join(f)).unwrap();
+        assert_eq!(read("bench.md"), md);
+        assert_eq!(read("bench.html"), t.html());
+        let back: BenchTable = serde_json::from_str(&read("bench.json")).unwrap();
+        assert_eq!(back, t);
+        let e = t.write_files(&dir.path().join("absent")).unwrap_err();
+        assert!(e.to_string().starts_with("writing "), "{e}");
     }
 
     #[test]

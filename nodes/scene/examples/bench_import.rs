@@ -1,10 +1,12 @@
 //! Benchmark: import + undistort + 30-view split of the bonsai capture (800×533, 25
 //! registered views of colmap30) through the node kinds, as a pipeline would run them.
 //!
-//! `cargo run --release -p augsplat-scene --example bench_import -- [THREADS] [REPEATS]`
-//! (data from `<workspace>/../shared/data`, or `$AUGSPLAT_DATA`). Prints the best time of
-//! each stage over the repeats.
+//! `cargo run --release -p augsplat-scene --example bench_import -- [THREADS] [REPEATS]
+//! [--json PATH]` (data from `<workspace>/../shared/data`, or `$AUGSPLAT_DATA`). Prints the
+//! best time of each stage over the repeats; `--json` also writes the total as a `BenchRecord`
+//! (`docs/figures/`).
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_graph::{Node, RunContext};
 use augsplat_scene::node::{
     ImportScene, ImportSceneArgs, SourceFormat, SplitScene, SplitSceneArgs,
@@ -33,9 +35,9 @@ fn run<N: Node>(args: &N::Args, inputs: &[(&str, &Path)], root: &Path, threads: 
 }
 
 fn main() {
-    let a: Vec<String> = std::env::args().collect();
-    let threads: usize = a.get(1).and_then(|s| s.parse().ok()).unwrap_or(2);
-    let repeats: usize = a.get(2).and_then(|s| s.parse().ok()).unwrap_or(3);
+    let (a, json) = bench_record::args_and_json();
+    let threads: usize = a.first().and_then(|s| s.parse().ok()).unwrap_or(2);
+    let repeats: usize = a.get(1).and_then(|s| s.parse().ok()).unwrap_or(3);
     let data = std::env::var_os("AUGSPLAT_DATA")
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
@@ -68,4 +70,15 @@ fn main() {
          import+undistort {best_i:.3} s, split {best_s:.3} s, total {:.3} s",
         best_i + best_s
     );
+    let record = BenchRecord::now(
+        format!("import, undistortion and split of bonsai colmap30 (25 views, 800×533), {threads} threads"),
+        bench_record::example_command("augsplat-scene", "bench_import", &a),
+        format!(
+            "{:.3} s: import+undistort {best_i:.3} s, split {best_s:.3} s (best of {repeats})",
+            best_i + best_s
+        ),
+        best_i + best_s,
+        "s",
+    );
+    record.write_or_exit(json.as_deref());
 }

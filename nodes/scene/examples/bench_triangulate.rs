@@ -1,21 +1,24 @@
 //! Benchmark of the triangulation (run by hand, not a test):
 //!
 //! ```text
-//! cargo run --release -p augsplat-scene --example bench_triangulate [-- VIEWS [THREADS]]
+//! cargo run --release -p augsplat-scene --example bench_triangulate [-- VIEWS [THREADS] [--json PATH]]
 //! ```
 //!
 //! Imports `../shared/data/dtu_scan24` at 400×300 (capture.ron's `max_side: 512`), sets its SfM
 //! points aside, and triangulates the first `VIEWS` views (default 30) with the default
 //! options on `THREADS` threads (default: all), three times; prints the stage counts, the
-//! median time, and one JSON line (`{"bench": "triangulate", ...}`) for docs/current.md.
+//! median time, and one JSON line (`{"bench": "triangulate", ...}`); `--json PATH` writes the
+//! median as a `BenchRecord` for `docs/figures/`.
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_scene::import::{import_scene, ImportOptions};
 use augsplat_scene::node::{read_source, ImportSceneArgs};
 use augsplat_scene::triangulate::{triangulate, TriangulateOptions};
 use std::time::Instant;
 
 fn main() {
-    let mut args = std::env::args().skip(1);
+    let (all, json) = bench_record::args_and_json();
+    let mut args = all.iter();
     let views: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(30);
     let threads: usize = args
         .next()
@@ -62,4 +65,18 @@ fn main() {
          \"threads\": {threads}, \"seconds\": {:.3}, \"points\": {}}}",
         cams[0].width, times[1], r.report.points
     );
+    let record = BenchRecord::now(
+        format!(
+            "triangulation of dtu_scan24 without its SfM points, {n} views at {}×{}, {threads} threads",
+            cams[0].width, cams[0].height
+        ),
+        bench_record::example_command("augsplat-scene", "bench_triangulate", &all),
+        format!(
+            "median {:.2} s of 3 runs ({:.2} / {:.2} / {:.2}), {} points",
+            times[1], times[0], times[1], times[2], r.report.points
+        ),
+        times[1],
+        "s",
+    );
+    record.write_or_exit(json.as_deref());
 }
