@@ -13,9 +13,12 @@
 //! batch) is also timed both ways: `backward` into fresh buffers then added to the sum with
 //! `train::add_grads` (the trainer's former path), vs `backward_add` straight into the sum
 //! (min and median of `--steps` repetitions).
+//! With `--json PATH`, the first N's step median is also written as a
+//! [`BenchRecord`] (`docs/figures/`).
 //! Gaussians are random in a box in front of the camera (isotropic-ish, scale ~ 1–3 px),
 //! the target image a smooth gradient.
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_core::cputime::Usage;
 use augsplat_core::Camera;
 use augsplat_splat::adam::{Adam, LearningRates, ParamGrads};
@@ -60,7 +63,8 @@ fn main() {
     let (mut w, mut h, mut steps, mut threads) = (256u32, 256u32, 10usize, 0usize);
     let mut kernels = false;
     let mut accumulate = 0usize;
-    let mut it = std::env::args().skip(1);
+    let (argv, json) = bench_record::args_and_json();
+    let mut it = argv.clone().into_iter();
     while let Some(a) = it.next() {
         match a.as_str() {
             "--size" => {
@@ -83,6 +87,7 @@ fn main() {
         .num_threads(threads)
         .build()
         .unwrap();
+    let mut headline: Option<(usize, f64)> = None;
     pool.install(|| {
         println!("{} threads, {w}×{h}, {steps} timed steps", rayon::current_num_threads());
         for &n in &ns {
@@ -134,6 +139,7 @@ fn main() {
             let ms = |v: f64| v / steps as f64 * 1e3;
             let total: f64 = t.iter().sum();
             step_ms.sort_by(f64::total_cmp);
+            headline.get_or_insert((n, step_ms[step_ms.len() / 2]));
             println!(
                 "N={n:>7}: step median {:.2} ms, best {:.2} ms; means: step {:7.2} ms | forward {:6.2} | loss(L2+SSIM) {:5.2} | backward {:7.2} | grad move {:4.2} | adam {:5.2} | densify stat {:4.2} ms | {:.1} M pairs/step, {:.2} ns/pair (fwd+bwd)",
                 step_ms[step_ms.len() / 2],
@@ -170,6 +176,17 @@ fn main() {
             }
         }
     });
+    if let Some((n, median)) = headline {
+        let threads = pool.current_num_threads();
+        BenchRecord::now(
+            format!("splat training step, {n} Gaussians, {w}×{h}"),
+            bench_record::example_command("augsplat-splat", "train_step_bench", &argv),
+            format!("median {median:.2} ms per step over {steps} steps, {threads} threads"),
+            median,
+            "ms",
+        )
+        .write_or_exit(json.as_deref());
+    }
 }
 
 /// Min and median of `reps` timings of `f`, in ms.
