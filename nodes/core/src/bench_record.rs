@@ -264,6 +264,27 @@ mod tests {
     }
 
     #[test]
+    fn the_figures_of_the_docs_are_records() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures");
+        let mut n = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_none_or(|e| e != "json") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            let r: BenchRecord =
+                serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            assert!(r.value.is_finite(), "{}", path.display());
+            n += 1;
+        }
+        assert!(
+            (1..=12).contains(&n),
+            "{n} records: docs/current.md has 1 to 12 rows"
+        );
+    }
+
+    #[test]
     fn a_record_round_trips_and_refuses_a_value_that_is_not_a_number() {
         let dir = tempfile::tempdir().unwrap();
         let mut r = BenchRecord {
