@@ -2,8 +2,8 @@
 //! and clear errors on bad inputs.
 
 use augsplat_augment::aggregate::{aggregate_view, AggregateParams, Workspace};
-use augsplat_augment::nodes::ScenePosesArgs;
-use augsplat_augment::nodes::{AggregateReport, AGGREGATE_REPORT, POSES_REPORT};
+use augsplat_augment::node::ScenePosesArgs;
+use augsplat_augment::node::{AggregateReport, AGGREGATE_REPORT, POSES_REPORT};
 use augsplat_augment::poses::{PoseParams, PosesReport};
 use augsplat_augment::{AggregateEnsemble, ScenePoses, SynthesizePoses};
 use augsplat_core::artifacts::{self, files, PoseSet, RenderSet, RenderedView, SyntheticSet};

@@ -16,7 +16,7 @@
 use augsplat_core::linalg::{self, Mat4};
 use augsplat_core::{Camera, Scene, SceneView};
 use augsplat_field::field::Field;
-use augsplat_field::nodes::TrainFieldArgs;
+use augsplat_field::node::TrainFieldArgs;
 use augsplat_field::train::{self, ViewData};
 use std::path::Path;
 use std::time::Instant;

@@ -8,7 +8,7 @@
 mod common;
 
 use augsplat_field::field::Field;
-use augsplat_field::nodes::TrainFieldArgs;
+use augsplat_field::node::TrainFieldArgs;
 use augsplat_field::train;
 use std::time::Instant;
 

@@ -1,5 +1,5 @@
 //! Every magic number of the radiance field in one place (defaults of the node args live in
-//! [`crate::nodes`]; these are fixed properties of the method).
+//! [`crate::node`]; these are fixed properties of the method).
 
 /// Rays stop contributing once transmittance falls below this (instant-ngp, nerfacc).
 pub const TRANSMITTANCE_THRESHOLD: f32 = 1e-4;

@@ -6,7 +6,7 @@
 //! grid over contracted space ([`occupancy`]) and volume-rendered with analytic gradients
 //! ([`volume`]). Training ([`train`]) uses Adam over fixed ray chunks with a fixed-order
 //! gradient reduction, so results are bit-identical for any thread count. [`mod@reference`] holds
-//! naive f64 versions of every kernel for tests. The node kinds are in [`nodes`].
+//! naive f64 versions of every kernel for tests. The node kinds are in [`node`].
 
 // Kernels index several parallel arrays (SoA rows, accumulators, weights) with one index;
 // iterator zips over four or five slices would hide the maths.
@@ -20,7 +20,7 @@ pub mod field;
 pub mod hashgrid;
 pub mod io;
 pub mod mlp;
-pub mod nodes;
+pub mod node;
 pub mod occupancy;
 pub mod reference;
 pub mod render;
@@ -29,10 +29,22 @@ pub mod train;
 pub mod volume;
 
 pub use error::FieldError;
-pub use nodes::{RenderField, RenderFieldArgs, TrainField, TrainFieldArgs};
+/// The node kinds' module under its former name (`augsplat_field::nodes::…` paths still
+/// resolve); the module is [`node`], as in every node family.
+pub use node as nodes;
+pub use node::{RenderField, RenderFieldArgs, TrainField, TrainFieldArgs};
 
 /// Registers `TrainField` and `RenderField`.
 pub fn register(registry: &mut augsplat_graph::Registry) {
     registry.register::<TrainField>();
     registry.register::<RenderField>();
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_former_module_name_still_resolves() {
+        let _: fn() -> crate::nodes::TrainFieldArgs = crate::node::TrainFieldArgs::default;
+        let _: fn() -> crate::nodes::RenderFieldArgs = crate::node::RenderFieldArgs::default;
+    }
 }

@@ -5,7 +5,7 @@
 mod common;
 
 use augsplat_core::artifacts::{read_json, PoseSet, PoseView, RenderSet, TrainingCurve};
-use augsplat_field::nodes::{RenderFieldArgs, TrainFieldArgs};
+use augsplat_field::node::{RenderFieldArgs, TrainFieldArgs};
 use augsplat_field::{RenderField, TrainField};
 use augsplat_graph::{Node, RunContext};
 use std::path::{Path, PathBuf};

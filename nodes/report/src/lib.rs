@@ -10,7 +10,7 @@
 //! - [`evaluate`]: the `Evaluate` node (render held-out views, per-view/mean metrics);
 //! - [`ensemble`]: the `EvaluateEnsemble` node (each radiance-field member and their per-pixel
 //!   median on the held-out views);
-//! - [`report`], [`report_node`]: the report builder and the `Report` node;
+//! - [`report`], [`node`]: the report builder and the `Report` node;
 //! - [`gate`]: the `Gate` node (is a scene worth the ensemble and Staged/Dual? decided from
 //!   training views only);
 //! - [`compare`]: metric deltas across runs (ablation points);
@@ -24,8 +24,8 @@ pub mod evalset;
 pub mod evaluate;
 pub mod gate;
 pub mod html;
+pub mod node;
 pub mod report;
-pub mod report_node;
 pub mod select;
 pub mod svg;
 pub mod viewer;
@@ -34,7 +34,10 @@ pub use ensemble::EvaluateEnsembleNode;
 pub use error::ReportError;
 pub use evaluate::EvaluateNode;
 pub use gate::GateNode;
-pub use report_node::ReportNode;
+/// The `Report` node's module under its former name (`augsplat_report::report_node::…` paths
+/// still resolve); the module is [`node`], as in every node family.
+pub use node as report_node;
+pub use node::ReportNode;
 
 /// Registers this family's node kinds (`Report`; `Evaluate`; `EvaluateEnsemble`; `Gate`) and the
 /// installed resource `lpips` (pipelines connect it with `Installed("lpips")`).
@@ -66,4 +69,13 @@ pub fn installed_lpips() -> Option<std::path::PathBuf> {
     default_dir()
         .filter(|d| holds_weights(d))
         .or_else(|| Some(bundled_dir()).filter(|d| holds_weights(d)))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_former_module_name_still_resolves() {
+        let _: fn() -> crate::report_node::ReportArgs = crate::node::ReportArgs::default;
+        assert_eq!(crate::report_node::files::INDEX, crate::node::files::INDEX);
+    }
 }

@@ -5,7 +5,7 @@
 mod common;
 
 use augsplat_graph::{Node, RunContext};
-use augsplat_report::report_node::{files, ReportArgs};
+use augsplat_report::node::{files, ReportArgs};
 use augsplat_report::ReportNode;
 use common::*;
 use std::path::{Path, PathBuf};
