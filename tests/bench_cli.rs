@@ -291,9 +291,11 @@ fn bench_estimates_what_the_branch_off_and_the_early_stop_saved() {
                 let want = (run - off as f64)
                     * (mean("synthetic_step_seconds", "synthetic_steps")
                         - mean("real_only_step_seconds", "real_only_steps"));
+                // The steps' wall times decide the sign (on a loaded machine a synthetic step
+                // may time no slower than a real one): the saving is the formula, never negative.
                 let got = saved["branch_off"].as_f64().expect("a branch-off saving");
                 assert!(
-                    got > 0.0 && (got - want.max(0.0)).abs() <= 1e-9,
+                    got >= 0.0 && (got - want.max(0.0)).abs() <= 1e-9,
                     "{got} vs {want}"
                 );
             } else {
