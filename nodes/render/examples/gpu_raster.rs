@@ -17,11 +17,9 @@ mod gpu_bench;
 use gpu_bench::median;
 
 fn main() {
-    let gpu_bench::Args {
-        counts,
-        sizes,
-        reps,
-    } = gpu_bench::args(5);
+    let a = gpu_bench::args(5);
+    let (counts, sizes, reps) = (a.counts.clone(), a.sizes.clone(), a.reps);
+    let mut headline = None;
     let ctx = gpu_bench::context();
     println!("adapter: {}", ctx.adapter());
     println!("CPU threads: {}", rayon::current_num_threads());
@@ -74,17 +72,33 @@ fn main() {
                 worst = d.iter().copied().fold(worst, f32::max);
                 over = d.iter().filter(|v| **v > 1e-4).count();
             }
+            let (gf, cf, gb, cb) = (median(tg), median(tc), median(tgb), median(tcb));
+            headline.get_or_insert((n, w, h, gf, cf, gb, cb));
             println!(
                 "{n:>9} {:>10} {:>11.2} {:>11.2} {:>11.2} {:>11.2} {:>10} {:>12.2e} {:>9}",
                 format!("{w}x{h}"),
-                median(tg),
-                median(tc),
-                median(tgb),
-                median(tcb),
+                gf,
+                cf,
+                gb,
+                cb,
                 warm.stats.pairs,
                 worst,
                 over
             );
         }
+    }
+    if let Some((n, w, h, gf, cf, gb, cb)) = headline {
+        gpu_bench::record(
+            &ctx,
+            &a,
+            ("augsplat-render", "gpu_raster"),
+            (
+                format!("GPU render and backward, {n} Gaussians at {w}×{h}"),
+                format!(
+                    "render {gf:.2} ms, render+backward {gb:.2} ms (medians of {reps}); CPU {cf:.2} / {cb:.2} ms"
+                ),
+            ),
+            (gf, "ms"),
+        );
     }
 }

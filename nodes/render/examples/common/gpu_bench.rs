@@ -1,6 +1,8 @@
-//! What the GPU benchmark examples share: their command line (`N,N,... WxH,... REPS`), the
-//! GPU context, and the median.
+//! What the GPU benchmark examples share: their command line (`N,N,... WxH,... REPS`, and
+//! `--json PATH` anywhere for a [`BenchRecord`] of the headline), the GPU context, the
+//! median, and the record (the machine named by its adapter).
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_render::gpu::GpuContext;
 
 /// The parsed command line: Gaussian counts, image sizes, repetitions.
@@ -11,11 +13,15 @@ pub struct Args {
     pub sizes: Vec<(u32, u32)>,
     /// Repetitions per case (at least 1).
     pub reps: usize,
+    /// The arguments without `--json PATH` (for the record's command).
+    pub argv: Vec<String>,
+    /// Where to write the headline's record, if asked.
+    pub json: Option<std::path::PathBuf>,
 }
 
 /// Parses `[N,N,... [WxH,... [REPS]]]` (defaults: 10000, 256x256, `default_reps`).
 pub fn args(default_reps: usize) -> Args {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let (args, json) = bench_record::args_and_json();
     let counts = args.first().map_or(vec![10_000], |a| {
         a.split(',').filter_map(|s| s.parse().ok()).collect()
     });
@@ -36,7 +42,27 @@ pub fn args(default_reps: usize) -> Args {
         counts,
         sizes,
         reps,
+        argv: args,
+        json,
     }
+}
+
+/// Writes the headline of example `example` of `package` as a record when `--json` asked for
+/// one, naming the machine by the GPU adapter that measured it.
+pub fn record(
+    ctx: &GpuContext,
+    a: &Args,
+    (package, example): (&str, &str),
+    (what, figure): (String, String),
+    (value, unit): (f64, &str),
+) {
+    if a.json.is_none() {
+        return;
+    }
+    let command = bench_record::example_command(package, example, &a.argv);
+    let mut r = BenchRecord::now(what, command, figure, value, unit);
+    r.machine = format!("{} ({})", ctx.adapter().name, ctx.adapter().backend);
+    r.write_or_exit(a.json.as_deref());
 }
 
 /// The GPU context, or exit with wgpu's message.
