@@ -2,13 +2,15 @@
 //! 256×256 and 800×533, with the time per composited (Gaussian, pixel) pair.
 //!
 //! `cargo run --release -p augsplat-render --example bench_raster [-- N,N,... [REPS] [--scene box|step] [--size WxH,...]]`
-//! (threads: `RAYON_NUM_THREADS`, default all cores).
+//! (threads: `RAYON_NUM_THREADS`, default all cores). `--json PATH` also writes the first
+//! case's forward+backward time as a [`BenchRecord`] (`docs/figures/`).
 //!
 //! Scenes: `box` (default) fills a box in front of the camera with Gaussians sized to the mean
 //! spacing; `step` is the scene of `train_step_bench` (footprints of 1–3 pixels' scale).
 //! Times are the minimum over the repetitions, both wall-clock and CPU time of all threads
 //! (Linux schedstat; it sees through a machine shared with other jobs better than wall time).
 
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_core::linalg::mat4_from_rt;
 use augsplat_core::{Camera, Rng};
 use augsplat_render::{backward, render, Gaussians, RenderSettings};
@@ -100,7 +102,8 @@ fn main() {
     let mut step = false;
     let mut images: Vec<(u32, u32)> = vec![(256, 256), (800, 533)];
     let mut positional = 0;
-    let mut args = std::env::args().skip(1);
+    let (argv, json) = bench_record::args_and_json();
+    let mut args = argv.clone().into_iter();
     while let Some(a) = args.next() {
         match a.as_str() {
             "--scene" => step = args.next().as_deref() == Some("step"),
@@ -142,6 +145,7 @@ fn main() {
         "cpu fwd ms",
         "cpu bwd ms"
     );
+    let mut headline = None;
     for &n in &sizes {
         let box_g = (!step).then(|| box_scene(n, 7));
         for &(w, h) in &images {
@@ -185,6 +189,7 @@ fn main() {
                     format!("{:.2}", v as f64 / 1e6)
                 }
             };
+            headline.get_or_insert((n, w, h, (tf + tb) * 1e3, pairs));
             println!(
                 "{:>8} {:>9} {:>8.2} {:>8.2} {:>10.2} {:>10} {:>9.2} {:>10.2} {:>10} {:>10}",
                 n,
@@ -199,5 +204,19 @@ fn main() {
                 cpu(cb),
             );
         }
+    }
+    if let Some((n, w, h, ms, pairs)) = headline {
+        let threads = rayon::current_num_threads();
+        BenchRecord::now(
+            format!("rasteriser forward+backward, {n} Gaussians at {w}×{h}, {threads} threads"),
+            bench_record::example_command("augsplat-render", "bench_raster", &argv),
+            format!(
+                "{ms:.2} ms (minimum of {reps}), {:.2} ns per composited pair",
+                ms * 1e6 / pairs.max(1) as f64
+            ),
+            ms,
+            "ms",
+        )
+        .write_or_exit(json.as_deref());
     }
 }
