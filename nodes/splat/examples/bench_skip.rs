@@ -3,7 +3,7 @@
 //! every view of an `AggregateEnsemble` output, with a trained model.
 //!
 //! ```text
-//! cargo run --release -p augsplat-splat --example bench_skip -- MODEL.ply SYNTHETIC_DIR [T ...] [--rounds R]
+//! cargo run --release -p augsplat-splat --example bench_skip -- MODEL.ply SYNTHETIC_DIR [T ...] [--rounds R] [--json PATH]
 //! ```
 //!
 //! Defaults: thresholds 0 0.05 0.2 0.5, 5 rounds. The thresholds are timed interleaved (round
@@ -12,6 +12,7 @@
 //! composited (Gaussian, pixel) pairs saved — machine-independent measures of the work.
 
 use augsplat_core::artifacts::{self, SyntheticSet};
+use augsplat_core::bench_record::{self, BenchRecord};
 use augsplat_core::Camera;
 use augsplat_splat::loss::{self, WeightNorm};
 use augsplat_splat::train::SynthView;
@@ -53,7 +54,8 @@ fn skipped_tiles(cam: &Camera, mask: Option<&[u8]>) -> (usize, usize) {
 }
 
 fn main() {
-    let mut args = std::env::args().skip(1);
+    let (argv, json) = bench_record::args_and_json();
+    let mut args = argv.clone().into_iter();
     let model = PathBuf::from(args.next().expect("MODEL.ply"));
     let dir = PathBuf::from(args.next().expect("SYNTHETIC_DIR"));
     let mut thresholds: Vec<f64> = Vec::new();
@@ -118,6 +120,7 @@ fn main() {
         t.sort_by(f64::total_cmp);
         t[t.len() / 2]
     };
+    let mut rows = Vec::new();
     println!("threshold | pixels skipped | tiles skipped | pairs saved | ms per view (median round) | time saved");
     for (k, &thr) in thresholds.iter().enumerate() {
         let mut t = times[k].clone();
@@ -134,6 +137,11 @@ fn main() {
             tl_skip += e;
             tl_all += a;
         }
+        rows.push((
+            thr,
+            1e3 * med / sets[k].len().max(1) as f64,
+            100.0 * (1.0 - med / base),
+        ));
         println!(
             "{thr:9} | {:13.1}% | {:12.1}% | {:10.1}% | {:26.3} | {:8.1}%",
             100.0 * px_skip as f64 / px_all.max(1) as f64,
@@ -142,5 +150,21 @@ fn main() {
             1e3 * med / sets[k].len().max(1) as f64,
             100.0 * (1.0 - med / base)
         );
+    }
+    // The headline: the time saved at the last (largest) threshold, against no skipping.
+    if let Some(&(thr, ms, saved)) = rows.last() {
+        BenchRecord::now(
+            format!(
+                "synthetic part of a step, skipping pixels below confidence {thr}, {} views",
+                sets[0].len()
+            ),
+            bench_record::example_command("augsplat-splat", "bench_skip", &argv),
+            format!(
+                "{ms:.3} ms per view (median of {rounds} interleaved rounds), {saved:.1} % saved against no skipping"
+            ),
+            saved,
+            "%",
+        )
+        .write_or_exit(json.as_deref());
     }
 }
