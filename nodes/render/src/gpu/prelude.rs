@@ -147,15 +147,11 @@ pub fn prelude_names() -> Vec<&'static str> {
 mod tests {
     use super::*;
 
-    fn declared(src: &str) -> Vec<String> {
-        declared_constants(src)
-    }
-
     #[test]
     fn no_kernel_declares_a_prelude_constant_again() {
-        let shared: Vec<&str> = constants().iter().map(|(n, _)| *n).collect();
+        let shared = prelude_names();
         for (file, src) in SOURCES {
-            for name in declared(src) {
+            for name in declared_constants(src) {
                 assert!(
                     !shared.contains(&name.as_str()),
                     "{file} declares {name}, which the prelude generates from the Rust constant"

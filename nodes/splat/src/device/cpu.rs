@@ -21,6 +21,9 @@ impl SplatDevice for CpuDevice {
     fn training(&self) -> Box<dyn TrainingDevice> {
         Box::new(CpuTraining::default())
     }
+    fn gpu_context(&self) -> Option<&std::sync::Arc<crate::gpu::GpuContext>> {
+        None
+    }
 }
 
 /// Gaussians rendered on the CPU (nothing to upload: the host's set is read in place).

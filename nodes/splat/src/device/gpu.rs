@@ -25,6 +25,9 @@ impl SplatDevice for GpuDevice {
             scene: GpuScene::upload(&self.0, g)?,
         }))
     }
+    fn gpu_context(&self) -> Option<&Arc<GpuContext>> {
+        Some(&self.0)
+    }
     fn training(&self) -> Box<dyn TrainingDevice> {
         Box::new(GpuTraining {
             ctx: self.0.clone(),

@@ -18,7 +18,7 @@
 //! The CPU device (`device/cpu.rs`) keeps the state in the host's [`TrainState`] itself; the
 //! GPU device (`device/gpu.rs`) keeps a copy in GPU buffers between steps and holds one
 //! shared [`crate::gpu::GpuContext`] (adapter, limits, error scopes, kernels), which any
-//! other family's GPU path can share through [`Device::gpu_context`].
+//! other family's GPU path can share through [`SplatDevice::gpu_context`].
 
 mod cpu;
 mod gpu;
@@ -175,13 +175,14 @@ pub trait SplatDevice: Send + Sync {
     fn upload<'a>(&'a self, g: &'a Gaussians) -> Result<Box<dyn DeviceModel + 'a>, GpuError>;
     /// A training run's device half, starting with nothing on the device.
     fn training(&self) -> Box<dyn TrainingDevice>;
+    /// The GPU context (`None` on the CPU), for other kernels that run on the same device.
+    fn gpu_context(&self) -> Option<&Arc<GpuContext>>;
 }
 
 /// An opened device: the CPU, or a GPU context (see the module documentation).
 #[derive(Clone)]
 pub struct Device {
     inner: Arc<dyn SplatDevice>,
-    gpu: Option<Arc<GpuContext>>,
 }
 
 impl Device {
@@ -198,21 +199,14 @@ impl Device {
     pub fn cpu() -> Device {
         Device {
             inner: Arc::new(cpu::CpuDevice),
-            gpu: None,
         }
     }
 
     /// A GPU through an existing context (e.g. one with a lowered binding limit).
     pub fn gpu(ctx: Arc<GpuContext>) -> Device {
         Device {
-            inner: Arc::new(gpu::GpuDevice(ctx.clone())),
-            gpu: Some(ctx),
+            inner: Arc::new(gpu::GpuDevice(ctx)),
         }
-    }
-
-    /// The GPU context, for other kernels that run on the same device.
-    pub fn gpu_context(&self) -> Option<&Arc<GpuContext>> {
-        self.gpu.as_ref()
     }
 }
 

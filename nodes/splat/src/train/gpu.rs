@@ -92,6 +92,10 @@ pub struct GpuTrainer {
     /// The densification statistic's sums and counts.
     grad2d: wgpu::Buffer,
     count: wgpu::Buffer,
+    /// The per-view sums and pair counts (`accumulate.wgsl`), compiled on the context once.
+    kernels: std::sync::Arc<Kernels>,
+    /// Adam (`adam.wgsl`), compiled on the context once.
+    adam: std::sync::Arc<crate::adam::gpu::Kernels>,
 }
 
 impl GpuTrainer {
@@ -111,6 +115,8 @@ impl GpuTrainer {
             )));
         }
         let scene = GpuScene::upload(ctx, g)?;
+        let kernels = ctx.kernels_of(Kernels::new)?;
+        let adam_kernels = ctx.kernels_of(crate::adam::gpu::Kernels::new)?;
         ctx.scoped(|| {
             let mut moments = Vec::with_capacity(GROUPS.len());
             for group in GROUPS {
@@ -134,6 +140,8 @@ impl GpuTrainer {
                 count: ctx.storage_items_init("densification counts", &stats.count)?,
                 moments,
                 scene,
+                kernels,
+                adam: adam_kernels,
             })
         })
     }
@@ -268,7 +276,7 @@ impl GpuTrainer {
             let sw = u64::from(sh_width);
             ctx.dispatch_items(
                 &mut enc,
-                &ctx.kernels_of(Kernels::new)?.accumulate,
+                &self.kernels.accumulate,
                 (
                     &[
                         n,
@@ -304,7 +312,7 @@ impl GpuTrainer {
                 ctx.uniform("pair count constants", &[px as u32, blocks as u32, 0, 0]);
             ctx.dispatch(
                 &mut enc,
-                &ctx.kernels_of(Kernels::new)?.count_pairs,
+                &self.kernels.count_pairs,
                 &[(10, &pair_consts), (11, &st.info), (12, &pair_partials)],
                 ctx.groups(blocks as u32),
             );
@@ -369,7 +377,7 @@ impl GpuTrainer {
                 let w = u64::from(width);
                 ctx.dispatch_items(
                     &mut enc,
-                    &ctx.kernels_of(crate::adam::gpu::Kernels::new)?.adam,
+                    &self.adam.adam,
                     (&words, 0),
                     &[
                         (1, params[k], w),
