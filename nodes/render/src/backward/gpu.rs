@@ -9,7 +9,7 @@
 use crate::forward::gpu::{
     camera_words, forward_pass, ForwardState, GpuScene, CAMERA_COUNT_WORD, SPLAT_STRIDE,
 };
-use crate::gpu::{f32_words, GpuContext, GpuError};
+use crate::gpu::{f32_words, GpuBuffer, GpuContext, GpuError};
 use crate::render::{Cutoff, RenderSettings};
 use crate::tiles::TileGrid;
 use augsplat_core::Camera;
@@ -232,19 +232,19 @@ fn walk_bindings<'a>(
     Vec<(u32, wgpu::BindingResource<'a>)>,
 ) {
     let whole = vec![
-        (0, &st.params),
-        (2, &st.order),
-        (4, &st.pair_rank),
-        (5, &st.sorted),
-        (6, &st.ranges),
-        (8, &st.image),
+        (0, &*st.params),
+        (2, &*st.order),
+        (4, &*st.pair_rank),
+        (5, &*st.sorted),
+        (6, &*st.ranges),
+        (8, &*st.image),
         (9, d_rgb),
     ];
     (whole, splat_ranges(ctx, st))
 }
 
 /// The pair buffer [`record_backward`] sums into, sized for a forward pass's pairs.
-pub fn pair_buffer(ctx: &GpuContext, st: &ForwardState) -> Result<wgpu::Buffer, GpuError> {
+pub fn pair_buffer(ctx: &GpuContext, st: &ForwardState) -> Result<GpuBuffer, GpuError> {
     ctx.storage_split(
         "pair gradients",
         u64::from(st.pairs),
@@ -280,7 +280,22 @@ pub fn backward_gpu_with_cutoff(
     d_rgb: &[f32],
     cutoff: Cutoff,
 ) -> Result<ParamGradsGpu, GpuError> {
-    backward_inner(ctx, scene, cam, s, d_rgb, cutoff, Reduction::Ordered).map(|(g, _)| g)
+    backward_whole(ctx, scene, cam, s, d_rgb, cutoff, Reduction::Ordered).map(|(g, _)| g)
+}
+
+/// [`backward_inner`] and a reclaim of its buffers (every encoder it recorded was submitted).
+fn backward_whole(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    d_rgb: &[f32],
+    cutoff: Cutoff,
+    reduction: Reduction,
+) -> Result<(ParamGradsGpu, BackwardStage), GpuError> {
+    let out = backward_inner(ctx, scene, cam, s, d_rgb, cutoff, reduction);
+    ctx.reclaim();
+    out
 }
 
 /// [`backward_gpu`] with the per-Gaussian sums done by float atomics instead of ordered pair
@@ -340,7 +355,7 @@ pub fn backward_gpu_timed(
             ))
         }
     };
-    backward_inner(ctx, scene, cam, s, d_rgb, Cutoff::Hard, reduction)
+    backward_whole(ctx, scene, cam, s, d_rgb, Cutoff::Hard, reduction)
 }
 
 /// How the compositing backward sums each Gaussian's per-tile shares.

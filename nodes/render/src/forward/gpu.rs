@@ -1,7 +1,7 @@
 //! Host side of the GPU forward pass: uploads, the kernel sequence, read-back.
 
 use crate::constants::{JACOBIAN_CLAMP_MARGIN, TILE};
-use crate::gpu::{f32_words, GpuContext, GpuError};
+use crate::gpu::{f32_words, GpuBuffer, GpuContext, GpuError};
 use crate::render::{Cutoff, RenderSettings, RenderStats};
 use crate::tiles::TileGrid;
 use crate::Gaussians;
@@ -46,15 +46,15 @@ pub struct GpuScene {
     /// The stored SH degree.
     pub sh_degree: u32,
     /// Means, 3 f32 per Gaussian.
-    pub means: wgpu::Buffer,
+    pub means: GpuBuffer,
     /// Log-scales, 3 f32 per Gaussian.
-    pub scales: wgpu::Buffer,
+    pub scales: GpuBuffer,
     /// Raw quaternions, 4 f32 per Gaussian.
-    pub quats: wgpu::Buffer,
+    pub quats: GpuBuffer,
     /// Opacity logits, 1 f32 per Gaussian.
-    pub logits: wgpu::Buffer,
+    pub logits: GpuBuffer,
     /// SH coefficients, `3·coeffs` f32 per Gaussian.
-    pub sh: wgpu::Buffer,
+    pub sh: GpuBuffer,
 }
 
 impl GpuScene {
@@ -185,7 +185,10 @@ pub fn render_scene_with_cutoff(
     cutoff: Cutoff,
 ) -> Result<GpuFrame, GpuError> {
     let grid = tile_grid(cam)?;
-    ctx.scoped(|| render_inner(ctx, scene, cam, s, grid, cutoff))
+    let frame = ctx.scoped(|| render_inner(ctx, scene, cam, s, grid, cutoff));
+    // Every encoder of the render was submitted: its buffers are free for the next one.
+    ctx.reclaim();
+    frame
 }
 
 /// The tile grid of a valid camera, within the kernels' rectangle encoding (65535 tiles per
@@ -210,25 +213,25 @@ pub struct ForwardState {
     /// Number of (tile, Gaussian) pairs.
     pub pairs: u32,
     /// The forward kernels' parameters (with `pairs`).
-    pub params: wgpu::Buffer,
+    pub params: GpuBuffer,
     /// Per Gaussian: tile rectangle, tile count, status.
-    pub rects: wgpu::Buffer,
+    pub rects: GpuBuffer,
     /// Rank → Gaussian.
-    pub order: wgpu::Buffer,
+    pub order: GpuBuffer,
     /// Per rank: the offset of its pairs (exclusive scan of tile counts).
-    pub counts: wgpu::Buffer,
+    pub counts: GpuBuffer,
     /// Per emit position: the pair's rank.
-    pub pair_rank: wgpu::Buffer,
+    pub pair_rank: GpuBuffer,
     /// Emit positions in (tile, rank) order.
-    pub sorted: wgpu::Buffer,
+    pub sorted: GpuBuffer,
     /// Per tile: [start, end) in `sorted`.
-    pub ranges: wgpu::Buffer,
+    pub ranges: GpuBuffer,
     /// Screen-space splats by Gaussian.
-    pub splats: wgpu::Buffer,
+    pub splats: GpuBuffer,
     /// The image (`IMAGE_STRIDE` words per pixel).
-    pub image: wgpu::Buffer,
+    pub image: GpuBuffer,
     /// Per pixel: last contributor, composited pairs.
-    pub info: wgpu::Buffer,
+    pub info: GpuBuffer,
 }
 
 /// Runs the forward kernels and keeps their buffers.
@@ -274,7 +277,7 @@ pub fn forward_pass(
         1,
     )?;
     let (_, sorted_order) = ctx.record_sort(&mut enc, &keys, &vals, (&keys2, &vals2), n, 32)?;
-    let order_in_vals = std::ptr::eq(sorted_order, &vals);
+    let order_in_vals = std::ptr::eq(sorted_order, &*vals);
     let order = if order_in_vals { vals } else { vals2 };
     let pixels = u64::from(cam.width) * u64::from(cam.height);
     let fwd_params = |pairs: u32| {
@@ -371,7 +374,7 @@ pub fn forward_pass(
     );
     // The image stays on the GPU until a caller reads it (after its own work, one wait).
     ctx.submit_no_wait(enc)?;
-    let sorted_in_first = std::ptr::eq(sorted_pairs, &pair_vals);
+    let sorted_in_first = std::ptr::eq(sorted_pairs, &*pair_vals);
     let sorted = if sorted_in_first {
         pair_vals
     } else {

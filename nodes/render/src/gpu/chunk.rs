@@ -33,18 +33,17 @@ impl GpuContext {
 
     /// A storage buffer of `bytes` bytes that kernels bind only by range: checked against the
     /// adapter's largest buffer, not its largest binding.
-    pub fn storage_items(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
+    pub fn storage_items(&self, what: &str, bytes: u64) -> Result<super::GpuBuffer, GpuError> {
         self.storage_within(what, bytes, self.limits.max_buffer_size)
     }
 
     /// [`GpuContext::storage_items`] holding `data`.
-    pub fn storage_items_init(&self, what: &str, data: &[u32]) -> Result<wgpu::Buffer, GpuError> {
-        let buf = self.storage_items(what, 4 * data.len() as u64)?;
-        if !data.is_empty() {
-            self.queue
-                .write_buffer(&buf, 0, &super::words_to_bytes(data));
-        }
-        Ok(buf)
+    pub fn storage_items_init(
+        &self,
+        what: &str,
+        data: &[u32],
+    ) -> Result<super::GpuBuffer, GpuError> {
+        self.storage_init_within(what, data, self.limits.max_buffer_size)
     }
 
     /// How many items one chunk of a dispatch may hold, with `words` words per item for each
@@ -88,7 +87,7 @@ impl GpuContext {
         if u64::from(items) <= per {
             let whole = bindings.iter().map(|&(i, buf, _)| (i, buf));
             let u = self.uniform("chunk constants", &words);
-            let mut all = vec![(0, &u)];
+            let mut all = vec![(0, &*u)];
             all.extend(whole);
             let groups = self.groups(invocations(u64::from(items))?.div_ceil(256));
             self.dispatch(enc, pipeline, &all, groups);
@@ -152,7 +151,7 @@ impl GpuContext {
         items: u64,
         words: u64,
         k: usize,
-    ) -> Result<wgpu::Buffer, GpuError> {
+    ) -> Result<super::GpuBuffer, GpuError> {
         let fits =
             items * words * 4 <= self.binding_limit || items <= self.range_items(words) * k as u64;
         if !fits {

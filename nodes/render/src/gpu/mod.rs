@@ -2,7 +2,8 @@
 //! the same splatting maths as the CPU kernels, in f32, deterministic.
 //!
 //! This module holds what every kernel family shares: the context (adapter, device, limits,
-//! error scopes), the buffer layout past one binding (`gpu/chunk.rs`), the WGSL prelude
+//! error scopes, a buffer pool: `gpu/pool.rs`), the buffer layout past one binding
+//! (`gpu/chunk.rs`), the WGSL prelude
 //! generated from the Rust constants (`gpu/prelude.rs`), and the radix sort and prefix sum
 //! (`gpu/sort.rs`, `sort.wgsl`, `scan.wgsl`). Each kernel family keeps its GPU half beside
 //! its CPU half: `forward/gpu.rs` + `forward.wgsl`, `backward/gpu.rs` + `backward.wgsl`,
@@ -38,6 +39,7 @@
 //! feature.
 
 mod chunk;
+mod pool;
 pub mod prelude;
 pub mod sort;
 
@@ -51,6 +53,8 @@ pub use crate::forward::gpu::{
     render_gpu, render_scene, render_scene_with_cutoff, GpuFrame, GpuScene,
 };
 
+use pool::Contents;
+pub use pool::{GpuBuffer, PoolStats, DEFAULT_IDLE_BYTES};
 use std::sync::mpsc;
 
 /// What can go wrong on the GPU.
@@ -141,6 +145,8 @@ pub struct GpuContext {
     params_as_storage: bool,
     /// Kernels other crates compile on this context ([`GpuContext::kernels_of`]), by type.
     extensions: std::sync::Mutex<KernelCache>,
+    /// Buffers that were dropped, for reuse (`gpu/pool.rs`).
+    pool: std::sync::Arc<pool::Pool>,
 }
 
 /// Compiled kernel sets by type.
@@ -286,6 +292,7 @@ impl GpuContext {
             steps_begun: Default::default(),
             params_as_storage,
             extensions: Default::default(),
+            pool: Default::default(),
         })
     }
 
@@ -354,17 +361,32 @@ impl GpuContext {
     }
 
     /// A storage buffer of `bytes` bytes (at least 16), checked against the adapter's limits.
-    pub fn storage(&self, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
+    /// It reads as zeros; it comes from the context's buffer pool when the pool holds one of
+    /// its size.
+    pub fn storage(&self, what: &str, bytes: u64) -> Result<GpuBuffer, GpuError> {
         self.storage_within(what, bytes, self.binding_limit)
     }
 
-    /// A storage buffer of `bytes` bytes (at least 16), checked against `limit`.
+    /// A storage buffer of `bytes` bytes (at least 16), checked against `limit`, reading as
+    /// zeros.
     pub fn storage_within(
         &self,
         what: &str,
         bytes: u64,
         limit: u64,
-    ) -> Result<wgpu::Buffer, GpuError> {
+    ) -> Result<GpuBuffer, GpuError> {
+        self.storage_shaped(what, bytes, limit, Contents::Zeroed)
+    }
+
+    /// A storage buffer of `bytes` bytes rounded up as [`GpuContext::storage`] rounds,
+    /// checked against `limit`.
+    fn storage_shaped(
+        &self,
+        what: &str,
+        bytes: u64,
+        limit: u64,
+        contents: Contents,
+    ) -> Result<GpuBuffer, GpuError> {
         // At least one 16-byte element: kernels read some buffers as arrays of vec4, and an
         // empty set (no Gaussians, no pairs) still binds them.
         let bytes = bytes.max(16).next_multiple_of(4);
@@ -381,39 +403,57 @@ impl GpuContext {
                 adapter: self.adapter.to_string(),
             });
         }
-        Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(what),
-            size: bytes,
-            usage: wgpu::BufferUsages::STORAGE
+        Ok(self.pooled(
+            what,
+            bytes,
+            wgpu::BufferUsages::STORAGE
                 | wgpu::BufferUsages::COPY_SRC
                 | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        }))
+            contents,
+        ))
     }
 
-    /// A storage buffer holding `data` (f32 or u32 words).
-    pub fn storage_init(&self, what: &str, data: &[u32]) -> Result<wgpu::Buffer, GpuError> {
-        let buf = self.storage(what, 4 * data.len() as u64)?;
+    /// A storage buffer holding `data` (f32 or u32 words), checked against `limit`; past
+    /// `data` (a buffer is at least 16 bytes) it reads as zeros.
+    pub(crate) fn storage_init_within(
+        &self,
+        what: &str,
+        data: &[u32],
+        limit: u64,
+    ) -> Result<GpuBuffer, GpuError> {
+        let bytes = 4 * data.len() as u64;
+        // Written whole below unless it is shorter than a buffer's 16-byte minimum.
+        let contents = if bytes >= 16 {
+            Contents::Overwritten
+        } else {
+            Contents::Zeroed
+        };
+        let buf = self.storage_shaped(what, bytes, limit, contents)?;
         if !data.is_empty() {
             self.queue.write_buffer(&buf, 0, &words_to_bytes(data));
         }
         Ok(buf)
     }
 
-    /// A uniform buffer holding `words`.
-    pub fn uniform(&self, what: &str, words: &[u32]) -> wgpu::Buffer {
+    /// A storage buffer holding `data` (f32 or u32 words).
+    pub fn storage_init(&self, what: &str, data: &[u32]) -> Result<GpuBuffer, GpuError> {
+        self.storage_init_within(what, data, self.binding_limit)
+    }
+
+    /// A uniform buffer holding `words` (zeros after them up to a multiple of 16 bytes).
+    pub fn uniform(&self, what: &str, words: &[u32]) -> GpuBuffer {
         // Written through the queue rather than mapped at creation: on a lost device a
         // mapped creation panics inside wgpu, a queue write is an error the scope reports.
-        let bytes = words_to_bytes(words);
-        let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(what),
-            size: (bytes.len() as u64).max(16).next_multiple_of(16),
-            // Also STORAGE: software adapters bind parameters as storage (`prelude::shader_module`).
-            usage: wgpu::BufferUsages::UNIFORM
-                | wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let mut bytes = words_to_bytes(words);
+        bytes.resize(
+            (bytes.len() as u64).max(16).next_multiple_of(16) as usize,
+            0,
+        );
+        // Also STORAGE: software adapters bind parameters as storage (`prelude::shader_module`).
+        let usage = wgpu::BufferUsages::UNIFORM
+            | wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST;
+        let buf = self.pooled(what, bytes.len() as u64, usage, Contents::Overwritten);
         self.queue.write_buffer(&buf, 0, &bytes);
         buf
     }
@@ -531,12 +571,13 @@ impl GpuContext {
             self.submit(enc)?;
             return Ok(parts.iter().map(|_| Vec::new()).collect());
         }
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: total,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        // Only the copied bytes are read.
+        let staging = self.pooled(
+            "readback",
+            total,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            Contents::Overwritten,
+        );
         let mut at = 0;
         for &(buf, first, words) in parts {
             let bytes = 4 * words as u64;
@@ -546,6 +587,22 @@ impl GpuContext {
             at += bytes;
         }
         self.queue.submit([enc.finish()]);
+        let read = self.map_words(&staging, parts.iter().map(|p| p.2));
+        match read {
+            Ok(_) => staging.unmap(),
+            // Never returned to the pool in an unknown mapping state.
+            Err(_) => staging.discard(),
+        }
+        read
+    }
+
+    /// Maps `staging` (after the submitted copies into it), waits, and splits its words into
+    /// parts of `words` words each.
+    fn map_words(
+        &self,
+        staging: &wgpu::Buffer,
+        words: impl Iterator<Item = usize>,
+    ) -> Result<Vec<Vec<u32>>, GpuError> {
         let slice = staging.slice(..);
         let (tx, rx) = mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -565,9 +622,9 @@ impl GpuContext {
         let data = slice
             .get_mapped_range()
             .map_err(|e| self.device_error(format!("read-back mapping: {e}")))?;
-        let mut out = Vec::with_capacity(parts.len());
+        let mut out = Vec::new();
         let mut at = 0;
-        for &(_, _, words) in parts {
+        for words in words {
             out.push(
                 data[at..at + 4 * words]
                     .chunks_exact(4)
@@ -576,8 +633,6 @@ impl GpuContext {
             );
             at += 4 * words;
         }
-        drop(data);
-        staging.unmap();
         Ok(out)
     }
 

@@ -99,6 +99,8 @@ impl GpuTraining {
 impl TrainingDevice for GpuTraining {
     fn begin_step(&mut self, st: &mut TrainState, sh_active: usize) -> Result<(), GpuError> {
         self.sh_active = sh_active;
+        // The previous step's encoders were all submitted: its buffers are free.
+        self.ctx.reclaim();
         self.ctx.count_training_step();
         let ctx = self.ctx.clone();
         self.state(st)?.begin_step(&ctx)
@@ -130,7 +132,11 @@ impl TrainingDevice for GpuTraining {
             None => ViewLoss::Host(&mut host),
         };
         let state = self.state.as_ref().expect("uploaded above");
-        state.add_view(&ctx, src.camera(i), s, loss, view.stats, sh_active)
+        let out = state.add_view(&ctx, src.camera(i), s, loss, view.stats, sh_active);
+        // The view's encoders were all submitted (it ends with a read-back): the next view
+        // reuses its buffers.
+        ctx.reclaim();
+        out
     }
 
     fn adam_step(

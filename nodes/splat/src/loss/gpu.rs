@@ -6,7 +6,7 @@
 //! sum per 256-value block, summed by a fixed tree; [`LossSums::value`] adds the partials in
 //! index order in f64. No atomics: the same inputs on one adapter give the same bytes.
 
-use crate::gpu::{f32_words, GpuContext, GpuError};
+use crate::gpu::{f32_words, GpuBuffer, GpuContext, GpuError};
 use crate::loss::{gaussian_window, PixelLoss, WeightNorm, SSIM_C1, SSIM_C2, SSIM_WINDOW};
 
 /// Values per block of the loss kernels (their workgroup size): one partial sum each.
@@ -96,7 +96,7 @@ impl LossKernels {
 
 /// One term's per-block partial sums on the GPU.
 struct Partials {
-    buf: wgpu::Buffer,
+    buf: GpuBuffer,
     blocks: usize,
     /// What the sum is divided by (values, map values or the weighted L2's denominator).
     divisor: f64,
@@ -159,7 +159,7 @@ impl LossSums {
         [&self.pixel, &self.ssim]
             .into_iter()
             .flatten()
-            .map(|p| (&p.buf, 0, p.blocks))
+            .map(|p| (&*p.buf, 0, p.blocks))
             .collect()
     }
 
@@ -458,7 +458,7 @@ pub fn loss_gpu(
             &pred,
             3,
             &tgt,
-            w.as_ref(),
+            w.as_deref(),
             width,
             height,
             loss,

@@ -18,7 +18,7 @@ use crate::backward::gpu::{
 };
 use crate::densify::Densifier;
 use crate::forward::gpu::{forward_pass, tile_grid, GpuScene, IMAGE_STRIDE};
-use crate::gpu::{f32_words, GpuContext, GpuError};
+use crate::gpu::{f32_words, GpuBuffer, GpuContext, GpuError};
 use crate::loss::gpu::{record_loss, GpuLoss};
 use crate::render::{Cutoff, RenderSettings};
 use crate::Gaussians;
@@ -53,8 +53,8 @@ pub enum ViewLoss<'a> {
 
 /// A view's target colour (`H·W·3`) and optional per-pixel weights (`H·W`) on the GPU.
 pub struct GpuTarget {
-    rgb: wgpu::Buffer,
-    weights: Option<wgpu::Buffer>,
+    rgb: GpuBuffer,
+    weights: Option<GpuBuffer>,
 }
 
 impl GpuTarget {
@@ -82,16 +82,16 @@ impl GpuTarget {
 pub struct GpuTrainer {
     scene: GpuScene,
     /// First and second moments per group, in the order of [`GROUPS`].
-    moments: Vec<(wgpu::Buffer, wgpu::Buffer)>,
+    moments: Vec<(GpuBuffer, GpuBuffer)>,
     /// The step's summed gradients: `PARAM_GRAD_STRIDE` per Gaussian.
-    acc_grads: wgpu::Buffer,
+    acc_grads: GpuBuffer,
     /// The step's summed SH gradients, in the parameters' layout.
-    acc_sh: wgpu::Buffer,
+    acc_sh: GpuBuffer,
     /// Per Gaussian: visible in any of the step's views (1) or not (0).
-    acc_visible: wgpu::Buffer,
+    acc_visible: GpuBuffer,
     /// The densification statistic's sums and counts.
-    grad2d: wgpu::Buffer,
-    count: wgpu::Buffer,
+    grad2d: GpuBuffer,
+    count: GpuBuffer,
     /// The per-view sums and pair counts (`accumulate.wgsl`), compiled on the context once.
     kernels: std::sync::Arc<Kernels>,
     /// Adam (`adam.wgsl`), compiled on the context once.
@@ -255,7 +255,7 @@ impl GpuTrainer {
                         &st.image,
                         IMAGE_STRIDE as u32,
                         &target.rgb,
-                        target.weights.as_ref(),
+                        target.weights.as_deref(),
                         cam.width,
                         cam.height,
                         loss,
