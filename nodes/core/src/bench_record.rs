@@ -29,7 +29,7 @@ pub struct BenchRecord {
     pub commit: Option<String>,
     /// The UTC date of the measurement (`YYYY-MM-DD`).
     pub date: String,
-    /// The machine: CPU model and logical cores (`AMD EPYC 9R14 (2 cores)`).
+    /// The machine: CPU model and logical cores (`AMD EPYC (Zen 4), 2 cores`).
     pub machine: String,
 }
 
@@ -154,13 +154,33 @@ pub fn cpu_model() -> String {
         .unwrap_or_else(|| std::env::consts::ARCH.to_string())
 }
 
-/// The `model name` of a `/proc/cpuinfo` text.
+/// The `model name` of a `/proc/cpuinfo` text, followed by the core generation where the
+/// model name leaves it out (virtual AMD hosts report only "AMD EPYC"): `AMD EPYC (Zen 4)`.
 pub fn cpu_model_in(cpuinfo: &str) -> Option<String> {
-    cpuinfo
-        .lines()
-        .find(|l| l.starts_with("model name"))
-        .and_then(|l| l.split_once(':'))
-        .map(|(_, v)| v.trim().to_string())
+    let field = |key: &str| {
+        cpuinfo
+            .lines()
+            .find(|l| l.split(':').next().map(str::trim) == Some(key))
+            .and_then(|l| l.split_once(':'))
+            .map(|(_, v)| v.trim().to_string())
+    };
+    let model = field("model name")?;
+    let generation = match (
+        field("vendor_id").as_deref(),
+        field("cpu family").as_deref(),
+    ) {
+        (Some("AuthenticAMD"), Some("23")) => Some("Zen 2 or older"),
+        (Some("AuthenticAMD"), Some("25")) => {
+            let avx512 = field("flags").is_some_and(|f| f.split(' ').any(|x| x == "avx512f"));
+            Some(if avx512 { "Zen 4" } else { "Zen 3" })
+        }
+        (Some("AuthenticAMD"), Some("26")) => Some("Zen 5"),
+        _ => None,
+    };
+    Some(match generation {
+        Some(g) if !model.contains("Zen") => format!("{model} ({g})"),
+        _ => model,
+    })
 }
 
 /// Logical cores this process may use.
@@ -170,9 +190,9 @@ pub fn cores() -> usize {
         .unwrap_or(1)
 }
 
-/// This machine in words: `CPU MODEL (N cores)`.
+/// This machine in words: `CPU MODEL, N cores` (`AMD EPYC (Zen 4), 2 cores`).
 pub fn machine() -> String {
-    format!("{} ({} cores)", cpu_model(), cores())
+    format!("{}, {} cores", cpu_model(), cores())
 }
 
 /// Today's UTC date, `YYYY-MM-DD`.
@@ -256,7 +276,20 @@ mod tests {
             Some("AMD EPYC 9R14 96-Core Processor")
         );
         assert_eq!(cpu_model_in("Features\t: neon\n"), None);
-        assert!(machine().ends_with(" cores)"), "{}", machine());
+        let epyc = |flags: &str| {
+            format!(
+                "vendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel name\t: AMD EPYC\nflags\t\t: {flags}\n"
+            )
+        };
+        assert_eq!(
+            cpu_model_in(&epyc("fpu avx2 fma avx512f")).as_deref(),
+            Some("AMD EPYC (Zen 4)")
+        );
+        assert_eq!(
+            cpu_model_in(&epyc("fpu avx2 fma avx512")).as_deref(),
+            Some("AMD EPYC (Zen 3)")
+        );
+        assert!(machine().ends_with(" cores"), "{}", machine());
         assert_eq!(civil_date(0), "1970-01-01");
         assert_eq!(civil_date(20_417), "2025-11-25");
         assert_eq!(civil_date(11_016), "2000-02-29");
