@@ -1,6 +1,7 @@
 //! The scene gate end to end (`pipelines/fragments/gate.ron` mixed into the demo): its decision never
-//! depends on a held-out view, a "skip" decision ends the ensemble and both methods at once
-//! (marked gated) while the baseline and the report run, and the report shows the decision.
+//! depends on a held-out view, it picks at most one of Staged and Dual, a "skip" decision ends
+//! the ensemble and both methods at once (marked gated) while the baseline and the report run,
+//! and the report shows the decision.
 
 mod common;
 
@@ -111,6 +112,18 @@ fn the_gate_reads_no_held_out_view_and_a_skip_ends_the_ensemble() {
     let decision = f.output(&gate.2, "gate.json");
     let d: Value = serde_json::from_slice(&decision).unwrap();
     assert!(d["run"].is_boolean() && d["reason"].is_string(), "{d}");
+    // The gate picks at most one of Staged and Dual (each reads its own output), and the
+    // ensemble runs exactly when one is picked.
+    let mut runs = 0;
+    for method in ["staged", "dual"] {
+        let path = output_dir(&f.cache, &gate.2, Some(method)).join("gate.json");
+        let m: Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+        let run = m["run"].as_bool().unwrap();
+        runs += usize::from(run);
+        assert_eq!(find(&first, method).3.is_none(), run, "{method}: {m}");
+    }
+    assert!(runs <= 1, "the gate picked both methods");
+    assert_eq!(d["run"].as_bool(), Some(runs == 1), "{d}");
 
     // Which images are held out: the test split's views.
     let split_test = std::fs::read_dir(f.cache.join("outputs"))
@@ -147,7 +160,13 @@ fn the_gate_reads_no_held_out_view_and_a_skip_ends_the_ensemble() {
         find(&first, "eval_baseline").2,
         "the held-out evaluation reads the swapped views"
     );
-    for node in ["gate_split", "gate_field", "gate_dual", "gate"] {
+    for node in [
+        "gate_split",
+        "gate_field",
+        "gate_dual",
+        "gate_staged",
+        "gate",
+    ] {
         let (_, status, key, _) = find(&second, node);
         assert_eq!(status, "cached", "{node} must not see held-out views");
         assert_eq!(key, &find(&first, node).2);

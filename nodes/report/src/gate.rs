@@ -7,7 +7,11 @@
 //! short field, and that field's renders), measured on training views that the rehearsals did
 //! not train on. No held-out view reaches any of them, so the decision cannot leak the test
 //! set. The rule: run when the rehearsed method (or, with `criterion: Prior`, the field
-//! itself) has an error at least `margin` (relative) below the rehearsed baseline's.
+//! itself) has an error at least `margin` (relative) below the rehearsed baseline's. With
+//! `criterion: Choose` the gate rehearses both methods and picks one: the one with the lower
+//! error when that error is at least `margin` below the baseline's, neither otherwise; its
+//! `staged` and `dual` outputs then decide for each method and `decision` for what both
+//! need (the ensemble).
 
 use crate::ensemble::EnsembleMetrics;
 use crate::evalset::{EvalDir, Metrics};
@@ -25,6 +29,29 @@ pub enum GateCriterion {
     Method,
     /// The field's own renders against the baseline: does the prior beat sparse-view 3DGS?
     Prior,
+    /// The rehearsed Staged (`staged` input) and Dual (`method` input) against the baseline:
+    /// the one with the lower error runs when it is at least `margin` below the baseline's
+    /// (Staged on a tie), neither otherwise.
+    Choose,
+}
+
+/// The methods a [`GateCriterion::Choose`] gate picks from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum GatedMethod {
+    /// Staged AugSplat.
+    Staged,
+    /// Dual AugSplat.
+    Dual,
+}
+
+impl GatedMethod {
+    /// The output that decides for this method.
+    pub fn output(self) -> &'static str {
+        match self {
+            GatedMethod::Staged => "staged",
+            GatedMethod::Dual => "dual",
+        }
+    }
 }
 
 /// Args of [`GateNode`].
@@ -73,8 +100,15 @@ pub struct GateReport {
     pub evidence_run: bool,
     /// The rehearsed baseline's error and metrics.
     pub baseline: GateEvidence,
-    /// The rehearsed method's, when connected.
+    /// The rehearsed method's (Dual with `criterion: Choose`), when connected.
     pub method: Option<GateEvidence>,
+    /// The rehearsed Staged's, when connected.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub staged: Option<GateEvidence>,
+    /// The method a [`GateCriterion::Choose`] gate picked from the evidence (`None`: neither,
+    /// or another criterion).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chosen: Option<GatedMethod>,
     /// The field's (median of the rehearsal's members), when connected.
     pub prior: Option<GateEvidence>,
     /// The training views the rehearsals were measured on (none is a held-out view).
@@ -121,26 +155,29 @@ fn error_of(m: &Metrics, use_avg: bool) -> f64 {
     }
 }
 
+/// The rehearsals' labels and mean metrics, as the gate's inputs give them.
+#[derive(Clone, Copy, Debug)]
+pub struct Rehearsals<'a> {
+    /// The rehearsed 3DGS baseline.
+    pub baseline: (&'a str, &'a Metrics),
+    /// The rehearsed method (Dual), when connected.
+    pub method: Option<(&'a str, &'a Metrics)>,
+    /// The rehearsed Staged, when connected.
+    pub staged: Option<(&'a str, &'a Metrics)>,
+    /// The rehearsal's field (median of its members), when connected.
+    pub prior: Option<(&'a str, &'a Metrics)>,
+}
+
 /// Decides from the rehearsals' mean metrics (pure: the node's adapter reads the folders).
 pub fn decide(
     args: &GateArgs,
-    baseline: (&str, &Metrics),
-    method: Option<(&str, &Metrics)>,
-    prior: Option<(&str, &Metrics)>,
+    r: &Rehearsals<'_>,
     views: Vec<String>,
 ) -> Result<GateReport, String> {
-    let compared = match args.criterion {
-        GateCriterion::Method => method.ok_or(
-            "criterion Method needs the `method` input (an evaluation of the rehearsed method)",
-        )?,
-        GateCriterion::Prior => prior.ok_or(
-            "criterion Prior needs the `prior` input (an ensemble evaluation of the rehearsal's field)",
-        )?,
-    };
-    let all = [Some(baseline), method, prior];
+    let all = [Some(r.baseline), r.method, r.staged, r.prior];
     let use_avg = all.iter().flatten().all(|(_, m)| m.avg_error.is_some());
     let metric = if use_avg { "avg_error" } else { "mse" };
-    let base_err = error_of(baseline.1, use_avg);
+    let base_err = error_of(r.baseline.1, use_avg);
     let evidence = |(label, m): (&str, &Metrics)| {
         let e = error_of(m, use_avg);
         GateEvidence {
@@ -150,6 +187,7 @@ pub fn decide(
             metrics: m.clone(),
         }
     };
+    let (compared, candidate) = compared(args.criterion, r, |x| error_of(x.1, use_avg))?;
     let c = evidence(compared);
     if !(c.error.is_finite() && base_err.is_finite() && base_err > 0.0) {
         return Err(format!(
@@ -160,6 +198,7 @@ pub fn decide(
     let what = match args.criterion {
         GateCriterion::Method => "the rehearsed method",
         GateCriterion::Prior => "the rehearsed prior",
+        GateCriterion::Choose => "the better rehearsed method",
     };
     let helps = c.relative <= -args.margin;
     let measured = format!(
@@ -188,11 +227,44 @@ pub fn decide(
         margin: args.margin,
         forced: args.force.is_some(),
         evidence_run: helps,
-        baseline: evidence(baseline),
-        method: method.map(evidence),
-        prior: prior.map(evidence),
+        baseline: evidence(r.baseline),
+        method: r.method.map(evidence),
+        staged: r.staged.map(evidence),
+        prior: r.prior.map(evidence),
+        chosen: candidate.filter(|_| helps),
         views,
     })
+}
+
+/// The rehearsal `criterion` compares with the baseline (for `Choose`, the one of Staged and
+/// Dual with the lower `error`, Staged on a tie) and, for `Choose`, which method that is.
+fn compared<'a>(
+    criterion: GateCriterion,
+    r: &Rehearsals<'a>,
+    error: impl Fn((&'a str, &'a Metrics)) -> f64,
+) -> Result<((&'a str, &'a Metrics), Option<GatedMethod>), String> {
+    const NEEDS_METHOD: &str =
+        "criterion Method needs the `method` input (an evaluation of the rehearsed method)";
+    match criterion {
+        GateCriterion::Method => Ok((r.method.ok_or(NEEDS_METHOD)?, None)),
+        GateCriterion::Prior => Ok((
+            r.prior.ok_or(
+                "criterion Prior needs the `prior` input (an ensemble evaluation of the rehearsal's field)",
+            )?,
+            None,
+        )),
+        GateCriterion::Choose => {
+            let (Some(staged), Some(dual)) = (r.staged, r.method) else {
+                return Err("criterion Choose needs the `staged` and `method` inputs (evaluations of the rehearsed Staged and Dual)".into());
+            };
+            // NaN never wins: the comparison is false and Staged is kept only if Dual's is NaN.
+            if error(dual) < error(staged) || error(staged).is_nan() {
+                Ok((dual, Some(GatedMethod::Dual)))
+            } else {
+                Ok((staged, Some(GatedMethod::Staged)))
+            }
+        }
+    }
 }
 
 impl GateReport {
@@ -203,6 +275,7 @@ impl GateReport {
         let what = match self.criterion {
             GateCriterion::Method => "method",
             GateCriterion::Prior => "prior",
+            GateCriterion::Choose => "methods",
         };
         let reason = if self.run {
             "the scene gate says run".to_string()
@@ -221,20 +294,66 @@ impl GateReport {
         }
     }
 
+    /// What the engine reads for one method of a [`GateCriterion::Choose`] gate: run when the
+    /// gate was forced to run, or when the evidence chose this method. The reason holds no
+    /// measured number (see [`GateReport::decision`]).
+    pub fn method_decision(
+        &self,
+        args: &GateArgs,
+        method: GatedMethod,
+    ) -> augsplat_graph::gate::GateDecision {
+        let run = match args.force {
+            Some(force) => force,
+            None => self.chosen == Some(method),
+        };
+        let reason = if run {
+            "the scene gate says run".to_string()
+        } else if self.forced {
+            "forced to skip by the pipeline's scene gate".to_string()
+        } else if self.chosen.is_some() {
+            format!(
+                "skipped by the scene gate: the other rehearsed method ({:?}) lowered the error more on training views held out of the rehearsal (evidence in the report)",
+                self.chosen.unwrap_or(method)
+            )
+        } else {
+            format!(
+                "skipped by the scene gate: neither rehearsed method lowered the error by {} % on training views held out of the rehearsal (evidence in the report)",
+                100.0 * args.margin
+            )
+        };
+        augsplat_graph::gate::GateDecision { run, reason }
+    }
+
+    /// The decision in a word or two: `run`, `run Staged`, `run Dual` or `skip`.
+    pub fn verdict(&self) -> String {
+        match (self.run, self.chosen) {
+            (true, Some(m)) if !self.forced => format!("run {m:?}"),
+            (true, _) => "run".to_string(),
+            (false, _) => "skip".to_string(),
+        }
+    }
+
+    /// The rehearsals' evidence in table order: baseline, Staged, the method, the prior.
+    pub fn rows(&self) -> impl Iterator<Item = &GateEvidence> {
+        [
+            Some(&self.baseline),
+            self.staged.as_ref(),
+            self.method.as_ref(),
+            self.prior.as_ref(),
+        ]
+        .into_iter()
+        .flatten()
+    }
+
     /// The decision and its evidence as Markdown (a heading, a sentence and a table).
     pub fn to_markdown(&self) -> String {
         let mut md = format!(
             "## Gate: {}\n\n{}\n\n| rehearsal | {} | vs baseline | PSNR | SSIM |\n|---|---:|---:|---:|---:|\n",
-            if self.run { "run" } else { "skip" },
+            self.verdict(),
             self.reason,
             self.metric
         );
-        let rows = [
-            Some(&self.baseline),
-            self.method.as_ref(),
-            self.prior.as_ref(),
-        ];
-        for e in rows.into_iter().flatten() {
+        for e in self.rows() {
             let _ = writeln!(
                 md,
                 "| {} | {:.4} | {:+.1} % | {:.2} | {:.3} |",
@@ -263,11 +382,17 @@ impl Node for GateNode {
         vec![
             InputDecl::one("baseline"),
             InputDecl::optional("method"),
+            InputDecl::optional("staged"),
             InputDecl::optional("prior"),
         ]
     }
-    fn outputs(_: &GateArgs) -> Vec<String> {
-        vec!["decision".into(), "evidence".into()]
+    fn outputs(a: &GateArgs) -> Vec<String> {
+        let mut out = vec!["decision".to_string()];
+        if a.criterion == GateCriterion::Choose {
+            out.extend([GatedMethod::Staged, GatedMethod::Dual].map(|m| m.output().to_string()));
+        }
+        out.push("evidence".into());
+        out
     }
     fn validate(a: &GateArgs) -> Result<(), String> {
         if !(0.0..1.0).contains(&a.margin) {
@@ -278,6 +403,10 @@ impl Node for GateNode {
     fn run(args: &GateArgs, ctx: &mut RunContext) -> Result<(), NodeError> {
         let baseline = EvalDir::load(ctx.input("baseline")?)?;
         let method = match ctx.optional_input("method") {
+            Some(d) => Some(EvalDir::load(d)?),
+            None => None,
+        };
+        let staged = match ctx.optional_input("staged") {
             Some(d) => Some(EvalDir::load(d)?),
             None => None,
         };
@@ -293,19 +422,28 @@ impl Node for GateNode {
             .iter()
             .map(|v| v.name.clone())
             .collect();
-        let report = decide(
-            args,
-            (&baseline.metrics.label, &baseline.metrics.mean),
-            method
-                .as_ref()
-                .map(|m| (m.metrics.label.as_str(), &m.metrics.mean)),
-            prior
+        fn labelled(e: &EvalDir) -> (&str, &Metrics) {
+            (e.metrics.label.as_str(), &e.metrics.mean)
+        }
+        let rehearsals = Rehearsals {
+            baseline: labelled(&baseline),
+            method: method.as_ref().map(labelled),
+            staged: staged.as_ref().map(labelled),
+            prior: prior
                 .as_ref()
                 .map(|p| ("field (rehearsal)", &p.median.mean)),
-            views,
-        )
-        .map_err(NodeError::new)?;
+        };
+        let report = decide(args, &rehearsals, views).map_err(NodeError::new)?;
         ctx.log(&report.reason);
+        if args.criterion == GateCriterion::Choose {
+            for m in [GatedMethod::Staged, GatedMethod::Dual] {
+                let out = ctx.output(m.output())?;
+                artifacts::write_json(
+                    &out.join(files::DECISION),
+                    &report.method_decision(args, m),
+                )?;
+            }
+        }
         let decision = ctx.output("decision")?;
         artifacts::write_json(&decision.join(files::DECISION), &report.decision(args))?;
         let evidence = ctx.output("evidence")?;
@@ -329,6 +467,19 @@ mod tests {
         }
     }
 
+    fn reh<'a>(
+        baseline: (&'a str, &'a Metrics),
+        method: Option<(&'a str, &'a Metrics)>,
+        prior: Option<(&'a str, &'a Metrics)>,
+    ) -> Rehearsals<'a> {
+        Rehearsals {
+            baseline,
+            method,
+            staged: None,
+            prior,
+        }
+    }
+
     #[test]
     fn runs_only_when_the_compared_rehearsal_beats_the_baseline_by_the_margin() {
         let args = GateArgs::default();
@@ -337,9 +488,7 @@ mod tests {
         // 2 % lower: runs.
         let r = decide(
             &args,
-            ("3DGS", &b),
-            Some(("Dual", &m(0.02, Some(0.098)))),
-            None,
+            &reh(("3DGS", &b), Some(("Dual", &m(0.02, Some(0.098)))), None),
             views.clone(),
         )
         .unwrap();
@@ -349,9 +498,7 @@ mod tests {
         // 0.5 % lower: below the 1 % margin, skipped.
         let r = decide(
             &args,
-            ("3DGS", &b),
-            Some(("Dual", &m(0.02, Some(0.0995)))),
-            None,
+            &reh(("3DGS", &b), Some(("Dual", &m(0.02, Some(0.0995)))), None),
             views.clone(),
         )
         .unwrap();
@@ -360,9 +507,11 @@ mod tests {
         // Without LPIPS anywhere the MSE decides.
         let r = decide(
             &args,
-            ("3DGS", &m(0.010, None)),
-            Some(("Dual", &m(0.009, Some(0.5)))),
-            None,
+            &reh(
+                ("3DGS", &m(0.010, None)),
+                Some(("Dual", &m(0.009, Some(0.5)))),
+                None,
+            ),
             views.clone(),
         )
         .unwrap();
@@ -373,13 +522,16 @@ mod tests {
             criterion: GateCriterion::Prior,
             ..GateArgs::default()
         };
-        let e = decide(&p, ("3DGS", &b), Some(("Dual", &b)), None, views.clone()).unwrap_err();
+        let e = decide(
+            &p,
+            &reh(("3DGS", &b), Some(("Dual", &b)), None),
+            views.clone(),
+        )
+        .unwrap_err();
         assert!(e.contains("prior"), "{e}");
         let r = decide(
             &p,
-            ("3DGS", &b),
-            None,
-            Some(("field", &m(0.02, Some(0.2)))),
+            &reh(("3DGS", &b), None, Some(("field", &m(0.02, Some(0.2))))),
             views.clone(),
         )
         .unwrap();
@@ -391,9 +543,7 @@ mod tests {
         };
         let r = decide(
             &f,
-            ("3DGS", &b),
-            Some(("Dual", &m(0.02, Some(0.2)))),
-            None,
+            &reh(("3DGS", &b), Some(("Dual", &m(0.02, Some(0.2)))), None),
             views.clone(),
         )
         .unwrap();
@@ -405,12 +555,86 @@ mod tests {
         // Unusable errors are an error, not a decision.
         let e = decide(
             &args,
-            ("3DGS", &m(0.0, None)),
-            Some(("Dual", &b)),
-            None,
+            &reh(("3DGS", &m(0.0, None)), Some(("Dual", &b)), None),
             views,
         )
         .unwrap_err();
         assert!(e.contains("not usable"), "{e}");
+    }
+
+    #[test]
+    fn choose_runs_the_better_rehearsed_method_or_neither() {
+        let args = GateArgs {
+            criterion: GateCriterion::Choose,
+            ..GateArgs::default()
+        };
+        let views = vec!["a".to_string()];
+        let b = m(0.010, Some(0.100));
+        let choose = |staged: f64, dual: f64, args: &GateArgs| {
+            let (s, d) = (m(0.01, Some(staged)), m(0.01, Some(dual)));
+            let r = Rehearsals {
+                baseline: ("3DGS", &b),
+                method: Some(("Dual", &d)),
+                staged: Some(("Staged", &s)),
+                prior: None,
+            };
+            let report = decide(args, &r, views.clone()).unwrap();
+            let runs = [GatedMethod::Staged, GatedMethod::Dual]
+                .map(|x| report.method_decision(args, x).run);
+            (report, runs)
+        };
+        // Staged 5 % lower, Dual 2 % lower: Staged alone runs (and the ensemble).
+        let (r, runs) = choose(0.095, 0.098, &args);
+        assert_eq!(r.chosen, Some(GatedMethod::Staged));
+        assert!(r.run && r.reason.contains("(Staged)"), "{}", r.reason);
+        assert_eq!(runs, [true, false]);
+        let why = r.method_decision(&args, GatedMethod::Dual).reason;
+        assert!(why.contains("other rehearsed method (Staged)"), "{why}");
+        assert!(r.to_markdown().starts_with("## Gate: run Staged"));
+        // Dual lower: Dual alone.
+        let (r, runs) = choose(0.099, 0.090, &args);
+        assert_eq!(r.chosen, Some(GatedMethod::Dual));
+        assert_eq!(runs, [false, true]);
+        // The better one is within the margin: neither, and no ensemble.
+        let (r, runs) = choose(0.0995, 0.0999, &args);
+        assert_eq!(r.chosen, None);
+        assert!(!r.run);
+        assert_eq!(runs, [false, false]);
+        let why = r.method_decision(&args, GatedMethod::Staged).reason;
+        assert!(why.contains("neither rehearsed method"), "{why}");
+        // A run-run decision holds no number: the same bytes whichever method won.
+        let (r1, _) = choose(0.095, 0.098, &args);
+        let (r2, _) = choose(0.080, 0.098, &args);
+        assert_eq!(
+            r1.method_decision(&args, GatedMethod::Staged),
+            r2.method_decision(&args, GatedMethod::Staged)
+        );
+        assert_eq!(r1.decision(&args), r2.decision(&args));
+        // Forced open, both run whatever the evidence (the validation runs measure both).
+        let forced = GateArgs {
+            force: Some(true),
+            ..args.clone()
+        };
+        let (r, runs) = choose(0.0995, 0.0999, &forced);
+        assert!(r.run && !r.evidence_run);
+        assert_eq!(runs, [true, true]);
+        // Both inputs are needed.
+        let r = Rehearsals {
+            baseline: ("3DGS", &b),
+            method: Some(("Dual", &b)),
+            staged: None,
+            prior: None,
+        };
+        let e = decide(&args, &r, views.clone()).unwrap_err();
+        assert!(e.contains("`staged` and `method`"), "{e}");
+        // The outputs a Choose gate has.
+        assert_eq!(
+            GateNode::outputs(&args),
+            ["decision", "staged", "dual", "evidence"]
+        );
+        assert_eq!(
+            GateNode::outputs(&GateArgs::default()),
+            ["decision", "evidence"]
+        );
     }
 }

@@ -354,14 +354,11 @@ fn gate_section(opts: &ReportOptions, body: &mut String, md: &mut String) {
         let _ = write!(
             body,
             "<p><b>Decision: {}.</b> {}</p><table class=\"metrics\"><thead><tr><th>rehearsal</th><th>{}</th><th>vs baseline</th><th>PSNR</th><th>SSIM</th></tr></thead><tbody>",
-            if g.run { "run" } else { "skip" },
+            escape(&g.verdict()),
             escape(&g.reason),
             escape(&g.metric)
         );
-        for e in [Some(&g.baseline), g.method.as_ref(), g.prior.as_ref()]
-            .into_iter()
-            .flatten()
-        {
+        for e in g.rows() {
             let _ = write!(
                 body,
                 "<tr><th scope=\"row\">{}</th><td>{:.4}</td><td>{:+.1} %</td><td>{:.2}</td><td>{:.3}</td></tr>",

@@ -42,6 +42,7 @@ pub const GATE_SETS: &[&str] = &[
     "params.gate_eval_every=10",
     "params.gate_synthetic=4",
     "params.gate_synthetic_batch=2",
+    "params.gate_warmup=5",
     "gate_field.rays_per_step=64",
     "gate_field.chunk_rays=32",
     "gate_field.levels=4",
