@@ -18,6 +18,7 @@ const SCENES: &[(&str, usize, usize)] = &[
     ("paper_fern", 17, 3),
     ("paper_horns", 26, 4),
     ("paper_dtu_scan24", 26, 4),
+    ("paper_maryrose", 26, 4),
 ];
 
 /// Whether the shared data folder is there (its absence is reported as a skip).
