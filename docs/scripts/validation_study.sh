@@ -17,13 +17,14 @@
 # triangulates its points (fragments/triangulated.ron), the gate's rehearsals start from them too. Everything is
 # cached: a rerun or an interrupted study resumes where it stopped. On a 2-core machine the
 # study takes a day or more; run it niced in the background.
+# Binary: $AUGSPLAT_BIN or target/release/augsplat (a copy keeps a long study off later builds).
 # Store: $AUGSPLAT_CACHE or ./cache. Output: docs/scripts/out/validation/<scene>/ (the
 # evaluations and the gate's evidence, via --out), <scene>.summary.json and <scene>.log; the
 # tables on stdout.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 root=$(pwd)
-bin="$root/target/release/augsplat"
+bin="${AUGSPLAT_BIN:-$root/target/release/augsplat}"
 [ -x "$bin" ] || { echo "no release build: run cargo build --release first" >&2; exit 1; }
 scenes=()
 extra=()
