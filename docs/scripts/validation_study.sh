@@ -26,6 +26,8 @@ cd "$(dirname "$0")/../.."
 root=$(pwd)
 bin="${AUGSPLAT_BIN:-$root/target/release/augsplat}"
 [ -x "$bin" ] || { echo "no release build: run cargo build --release first" >&2; exit 1; }
+# The gate's rehearsals read the installed LPIPS weights.
+export AUGSPLAT_LPIPS_WEIGHTS="${AUGSPLAT_LPIPS_WEIGHTS:-$root/../shared/data/lpips}"
 scenes=()
 extra=()
 validation=false
