@@ -11,7 +11,8 @@
 //! 0-19) against 31.90 ± 0.37 dB (`docs/results.md`, *Baseline parity with gsplat*);
 //! selective Adam updates, 1.0 dB lower at seed 0, would fail here. The split's output hashes
 //! are pinned too, so a changed case fails here instead of being compared with a reference
-//! recorded on other images.
+//! recorded on other images. `AUGSPLAT_FIGURE_JSON=docs/figures/10_gsplat_parity.json` also
+//! writes the comparison as the current figures' record.
 
 mod common;
 
@@ -119,6 +120,30 @@ fn the_baseline_keeps_up_with_an_independent_gsplat_trainer() {
     );
     let (last, r) = (reference.last().unwrap().0, reference.last().unwrap().1);
     let o = ours_at(last);
+    // `AUGSPLAT_FIGURE_JSON=PATH` also writes the comparison as a benchmark record (the
+    // current figures' docs/figures/10_gsplat_parity.json).
+    if let Some(path) = std::env::var_os("AUGSPLAT_FIGURE_JSON") {
+        let finals: Vec<f64> = curves
+            .iter()
+            .map(|c| c.iter().find(|(s, _)| *s == last).map_or(f64::NAN, |p| p.1))
+            .collect();
+        let sd = (finals.iter().map(|x| (x - o).powi(2)).sum::<f64>()
+            / (finals.len().max(2) - 1) as f64)
+            .sqrt();
+        let ref_sd = reference.last().unwrap().2;
+        let record = augsplat_core::BenchRecord::now(
+            "baseline parity with an independent gsplat-1.5.3 trainer, held-out PSNR",
+            "cargo test --test gsplat_parity",
+            format!(
+                "augsplat {o:.2} ± {sd:.2} dB ({} seeds), reference {r:.2} ± {ref_sd:.2} dB (5 seeds): {:.2} dB apart, at step {last}",
+                seeds.len(),
+                (o - r).abs()
+            ),
+            o,
+            "dB",
+        );
+        record.write(Path::new(&path)).unwrap();
+    }
     assert!(
         o >= r - below,
         "mean held-out PSNR at step {last}: augsplat {o:.3} dB fell more than {below} dB below \
