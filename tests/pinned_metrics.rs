@@ -1,7 +1,8 @@
 //! Held-out metrics at the test suite's tiny sizes, pinned to recorded values: the demo
 //! (`tests/pinned/tiny_demo_metrics.json`) and a small version of the validation study's
 //! protocol — the paper's protocol on the generated scene with our presets and the scene gate,
-//! two optimiser seeds (`tests/pinned/small_study_metrics.json`). A change that moves any
+//! two optimiser seeds, each method without and with DropGaussian
+//! (`tests/pinned/small_study_metrics.json`). A change that moves any
 //! result — even in the last bits — fails here until the values are regenerated on purpose,
 //! together with the figures in the docs built on them:
 //!
@@ -20,6 +21,10 @@ use std::process::Command;
 
 const PINNED: &str = "tests/pinned/tiny_demo_metrics.json";
 const PINNED_STUDY: &str = "tests/pinned/small_study_metrics.json";
+
+/// The small study's sweep: seeds 0 and 1, each method without and with DropGaussian (as
+/// `pipelines/fragments/dropgaussian_seeds.ron` over five seeds).
+const SMALL_STUDY_SWEEP: &str = r#""baseline.seed": [0, 1, 0, 1], "staged.seed": [0, 1, 0, 1], "dual.seed": [0, 1, 0, 1], "baseline.drop_gaussians": [None, None, Some(()), Some(())], "staged.drop_gaussians": [None, None, Some(()), Some(())], "dual.drop_gaussians": [None, None, Some(()), Some(())]"#;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -156,8 +161,9 @@ fn the_small_studys_figures_equal_the_recorded_values() {
     std::fs::write(
         &p,
         format!(
-            "(extends: [{}], sweep: Zip({{ \"baseline.seed\": [0, 1], \"staged.seed\": [0, 1], \"dual.seed\": [0, 1] }}))",
-            files.join(", ")
+            "(extends: [{}], sweep: Zip({{ {} }}))",
+            files.join(", "),
+            SMALL_STUDY_SWEEP
         ),
     )
     .unwrap();
@@ -180,12 +186,12 @@ fn the_small_studys_figures_equal_the_recorded_values() {
     let evals = got.as_object().unwrap().keys();
     assert_eq!(
         evals.filter(|k| k.starts_with("eval_")).count(),
-        3 * 2 + 1,
-        "three methods at two seeds and the ensemble"
+        3 * 4 + 1,
+        "three methods at two seeds, without and with DropGaussian, and the ensemble"
     );
     check_pinned(
         PINNED_STUDY,
-        "held-out mean metrics and the gate's choice of docs/scripts/validation_study.sh's protocol on the generated scene at the tiny sizes, seeds 0 and 1; regenerate with AUGSPLAT_REPIN=1 cargo test --test pinned_metrics",
+        "held-out mean metrics and the gate's choice of docs/scripts/validation_study.sh's protocol on the generated scene at the tiny sizes, seeds 0 and 1, without and with DropGaussian; regenerate with AUGSPLAT_REPIN=1 cargo test --test pinned_metrics",
         got,
     );
 }

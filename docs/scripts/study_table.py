@@ -15,7 +15,9 @@ best checkpoint); for each method its seed-paired change of average error agains
 (per seed, method / 3DGS − 1), mean with a 95 % t interval over the seeds, beside the
 unpaired change of the means. Overall: the mean over scenes of each scene's mean paired
 change, with a 95 % t interval over the scenes (the scene is the unit), and over all
-(scene, seed) pairs. An interval that contains zero is "no measurable gain".
+(scene, seed) pairs; then the gate's choice (with and without DropGaussian) against the
+better of 3DGS and DropGaussian on each scene. An interval that contains zero is "no
+measurable gain".
 
 `--check FILE` compares the per-scene, per-method mean metrics with FILE (JSON written by
 `--json FILE`) exactly: the pinned small protocol of tests/study_pinned.rs.
@@ -53,13 +55,19 @@ def seed_of(path, method):
 
 
 def evaluations(scene_dir, method):
-    """{seed: mean metrics} of one method (its own eval folders only)."""
+    """{seed: mean metrics} of one method key (`baseline`, `staged_drop`, …): the folders of
+    its node, with DropGaussian on (`<node>.drop_gaussians=Some…` in the sweep point) or off."""
+    node, drop = (method[:-5], True) if method.endswith("_drop") else (method, False)
+    if node == "drop":
+        node = "baseline"
     out = {}
-    for p in glob.glob(os.path.join(scene_dir, f"eval_{method}@*", "eval", "metrics.json")):
+    for p in glob.glob(os.path.join(scene_dir, f"eval_{node}@*", "eval", "metrics.json")):
+        if (f"{node}.drop_gaussians=Some" in p) != drop:
+            continue
         with open(p) as f:
-            out[seed_of(p, method)] = json.load(f)["mean"]
-    single = os.path.join(scene_dir, f"eval_{method}", "eval", "metrics.json")
-    if not out and os.path.exists(single):
+            out[seed_of(p, node)] = json.load(f)["mean"]
+    single = os.path.join(scene_dir, f"eval_{node}", "eval", "metrics.json")
+    if not out and not drop and os.path.exists(single):
         with open(single) as f:
             out[0] = json.load(f)["mean"]
     return out
@@ -107,6 +115,9 @@ def load(out_dir, scenes):
         choice, evidence = gate_choice(d)
         if choice is not None and runs.get(choice):
             runs["gate"] = runs[choice]
+        with_drop = {"baseline": "drop", "staged": "staged_drop", "dual": "dual_drop"}
+        if choice is not None and runs.get(with_drop[choice]):
+            runs["gate_drop"] = runs[with_drop[choice]]
         data[s] = {"runs": {k: v for k, v in runs.items() if v}, "choice": choice,
                    "evidence": evidence}
         ens = os.path.join(d, "eval_ensemble", "eval", "metrics.json")
@@ -117,7 +128,7 @@ def load(out_dir, scenes):
 
 
 def labels():
-    return dict(METHODS + [("gate", "gate's choice")])
+    return dict(METHODS + [("gate", "gate's choice"), ("gate_drop", "gate's choice + DropGaussian")])
 
 
 def scene_table(scene, d):
@@ -161,7 +172,8 @@ def scene_table(scene, d):
 
 def overall(per_scene):
     names = labels()
-    keys = [k for k in list(dict(METHODS)) + ["gate"] if any(k in p for p in per_scene.values())]
+    keys = [k for k in list(dict(METHODS)) + ["gate", "gate_drop"]
+            if any(k in p for p in per_scene.values())]
     if not keys:
         return
     print("| method | scenes | mean paired change vs 3DGS, over scenes (95 %) | "
@@ -170,6 +182,46 @@ def overall(per_scene):
     for k in keys:
         scene_means = [statistics.mean(p[k]) for p in per_scene.values() if k in p]
         pairs = [x for p in per_scene.values() if k in p for x in p[k]]
+        m, h = interval(scene_means)
+        mp, hp = interval(pairs)
+        print(f"| {names[k]} | {len(scene_means)} | {pct(m, h)} ({verdict(m, h)}) | "
+              f"{pct(mp, hp)} ({verdict(mp, hp)}) |")
+    print()
+
+
+def versus_simple(d):
+    """Per seed, the gate's choices against the better of 3DGS and DropGaussian on this scene
+    (the one with the lower mean average error over the seeds: chosen on the held-out views,
+    which favours the baseline, not us): {key: [method / simple − 1 per seed]}, and its name."""
+    runs = d["runs"]
+    simple = [k for k in ("baseline", "drop") if k in runs]
+    if not simple:
+        return {}, None
+    mean = lambda k: statistics.mean(v["avg_error"] for v in runs[k].values())
+    best = min(simple, key=mean)
+    out = {}
+    for k in ("gate", "gate_drop"):
+        if k in runs:
+            common = sorted(set(runs[k]) & set(runs[best]))
+            out[k] = [runs[k][t]["avg_error"] / runs[best][t]["avg_error"] - 1.0 for t in common]
+    return out, best
+
+
+def overall_simple(data):
+    names = labels()
+    per_scene = {s: versus_simple(d) for s, d in data.items()}
+    if not any(v[0] for v in per_scene.values()):
+        return
+    print("Against the better of 3DGS and DropGaussian per scene (" + ", ".join(
+        f"{s}: {names[b]}" for s, (_, b) in per_scene.items() if b) + "):\n")
+    print("| method | scenes | mean paired change, over scenes (95 %) | "
+          "over (scene, seed) pairs (95 %) |")
+    print("|---|---:|---:|---:|")
+    for k in ("gate", "gate_drop"):
+        scene_means = [statistics.mean(v[0][k]) for v in per_scene.values() if v[0].get(k)]
+        pairs = [x for v in per_scene.values() for x in v[0].get(k, [])]
+        if not scene_means:
+            continue
         m, h = interval(scene_means)
         mp, hp = interval(pairs)
         print(f"| {names[k]} | {len(scene_means)} | {pct(m, h)} ({verdict(m, h)}) | "
@@ -213,6 +265,7 @@ def main():
     for s in scenes:
         per_scene[s] = scene_table(s, data[s])
     overall(per_scene)
+    overall_simple(data)
 
 
 if __name__ == "__main__":

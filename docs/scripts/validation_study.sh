@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The validation study of docs/results.md (*Validation study*): every scene through the paper's
-# protocol with our improved presets, optimiser seeds 0-4, and the scene gate beside it
+# The validation study: every scene through the paper's protocol with our improved presets,
+# optimiser seeds 0-4, each method without and with DropGaussian, and the scene gate beside it
 # (forced open, so every method runs and the gate's choice is recorded, never used to skip),
 # then the tables with seed-paired statistics (docs/scripts/study_table.py).
 #
@@ -13,9 +13,11 @@
 # commit beside its results (maryrose.commit).
 #
 # Each scene's pipeline: pipelines/paper_<scene>.ron, fragments/gate.ron,
-# fragments/improved_{baseline,staged,dual}.ron and fragments/five_seeds.ron; where the scene
-# triangulates its points (fragments/triangulated.ron), the gate's rehearsals start from them too. Everything is
-# cached: a rerun or an interrupted study resumes where it stopped. On a 2-core machine the
+# fragments/improved_{baseline,staged,dual}.ron and fragments/dropgaussian_seeds.ron (whose
+# first five points are fragments/five_seeds.ron's, with the same keys); where the scene
+# triangulates its points (fragments/triangulated.ron), the gate's rehearsals start from them
+# too. Everything is cached: a rerun or an interrupted study resumes where it stopped. On a
+# 2-core machine the
 # study takes a day or more; run it niced in the background.
 # Binary: $AUGSPLAT_BIN or target/release/augsplat (a copy keeps a long study off later builds).
 # Store: $AUGSPLAT_CACHE or ./cache. Output: docs/scripts/out/validation/<scene>/ (the
@@ -55,7 +57,7 @@ for s in "${scenes[@]}"; do
   [ -f "$root/pipelines/paper_$s.ron" ] || { echo "no pipelines/paper_$s.ron" >&2; exit 2; }
   p="$out/paper_$s.ron"
   list="\"$root/pipelines/paper_$s.ron\", \"$root/pipelines/fragments/gate.ron\""
-  for f in improved_baseline improved_staged improved_dual five_seeds; do
+  for f in improved_baseline improved_staged improved_dual dropgaussian_seeds; do
     list+=", \"$root/pipelines/fragments/$f.ron\""
   done
   nodes=""

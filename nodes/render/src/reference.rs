@@ -195,6 +195,13 @@ fn project_one(
         [-c2[1][0] / det, c2[0][0] / det],
     ];
     let mut opacity = 1.0 / (1.0 + (-g.logits[i]).exp());
+    if let Some(f) = s
+        .opacity_scale
+        .as_deref()
+        .filter(|f| f.len() == g.logits.len())
+    {
+        opacity *= f64::from(f[i]);
+    }
     if s.antialiased {
         opacity *= (det0 / det).max(MIN_COMPENSATION_RATIO).sqrt();
     }

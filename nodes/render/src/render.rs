@@ -23,6 +23,12 @@ pub struct RenderSettings {
     pub antialiased: bool,
     /// Near-plane depth; Gaussians with camera-space z below it are culled.
     pub near: f32,
+    /// A factor on each Gaussian's opacity (after the sigmoid, before the antialiasing
+    /// compensation and the per-pixel clamp), one per Gaussian: DropGaussian's 0 for a dropped
+    /// Gaussian and 1/(1 − p) for a survivor, which may lift an opacity above 1. `None`: 1
+    /// for every Gaussian. A slice of the wrong length is ignored (treated as all ones). The
+    /// CPU renderer only: the GPU backend refuses it.
+    pub opacity_scale: Option<std::sync::Arc<[f32]>>,
 }
 
 impl Default for RenderSettings {
@@ -33,6 +39,7 @@ impl Default for RenderSettings {
             max_alpha: MAX_ALPHA,
             antialiased: false,
             near: NEAR,
+            opacity_scale: None,
         }
     }
 }

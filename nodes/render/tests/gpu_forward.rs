@@ -271,3 +271,21 @@ fn a_lost_device_is_an_error_not_a_panic() {
     eprintln!("after the device was destroyed: {e}");
     assert!(matches!(e, GpuError::Device { .. }), "{e}");
 }
+
+#[test]
+fn opacity_factors_are_refused_on_the_gpu() {
+    let Some(ctx) = context("opacity_factors_are_refused_on_the_gpu") else {
+        return;
+    };
+    let cam = camera(32, 24);
+    let g = Gaussians::random_cloud(100, 4.0 / cam.fx, 3);
+    let s = RenderSettings {
+        opacity_scale: Some(vec![1.25f32; 100].into()),
+        ..Default::default()
+    };
+    let e = render_gpu(&ctx, &g, &cam, &s).unwrap_err();
+    assert!(
+        matches!(e, GpuError::Invalid(_)) && e.to_string().contains("CPU only"),
+        "{e}"
+    );
+}

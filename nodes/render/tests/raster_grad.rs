@@ -56,7 +56,15 @@ fn check_grads(s: &RenderSettings, seed: u64) {
     assert!(p10[0] / p10[2] > lim_x && -p11[1] / p11[2] > lim_y);
 
     let out = render_with_cutoff(&g, &cam, s, None, Cutoff::Smooth);
-    assert!(out.stats.visible >= 11, "visible {}", out.stats.visible);
+    let dropped = s
+        .opacity_scale
+        .as_deref()
+        .map_or(0, |f| f.iter().filter(|&&x| x == 0.0).count());
+    assert!(
+        out.stats.visible + dropped >= 11,
+        "visible {}",
+        out.stats.visible
+    );
     let npix = 26 * 19;
     let mut rng = Rng::new(seed ^ 0xabc);
     let w = Weights {
@@ -169,4 +177,36 @@ fn gradients_match_finite_differences_antialiased_with_background() {
         ..Default::default()
     };
     check_grads(&s, 2);
+}
+
+#[test]
+fn gradients_match_finite_differences_with_dropgaussian_opacity_factors() {
+    // DropGaussian's factors: a dropped Gaussian (0: culled, zero gradients), survivors at
+    // 1/(1 − 0.2) and one at 1/(1 − 0.375), lifted above opacity 1 (the per-pixel clamp then
+    // decides), and the others at 1.
+    let cam = camera(26, 19);
+    let n = scene(&cam, 3).len();
+    let mut f = vec![1.0f32; n];
+    f[2] = 0.0;
+    for i in [0, 1, 3, 4, 9] {
+        f[i] = 1.25;
+    }
+    f[5] = 1.6;
+    let s = RenderSettings {
+        opacity_scale: Some(f.into()),
+        ..Default::default()
+    };
+    check_grads(&s, 3);
+    // The dropped Gaussian is culled: not visible, zero gradients.
+    let g = scene(&cam, 3);
+    let out = render_with_cutoff(&g, &cam, &s, None, Cutoff::Smooth);
+    let grads = backward(&g, &cam, &s, &out, &vec![1.0; 26 * 19 * 3], None, None);
+    assert!(!grads.visible[2] && grads.opacity_logits[2] == 0.0 && grads.means[2] == [0.0; 3]);
+    // Some survivor's opacity really is above 1.
+    let sig = |l: f32| 1.0 / (1.0 + (-l).exp());
+    assert!(
+        1.6 * sig(g.opacity_logits[5]) > 1.0,
+        "{:?}",
+        g.opacity_logits
+    );
 }

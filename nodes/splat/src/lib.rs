@@ -23,6 +23,7 @@
 pub mod adam;
 pub mod densify;
 pub mod device;
+pub mod dropout;
 pub mod fit;
 pub mod gpu;
 pub mod init;

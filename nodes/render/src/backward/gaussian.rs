@@ -142,6 +142,7 @@ pub(super) fn gaussian_gradients(
                 cm: &cm,
                 g,
                 idx: &idx,
+                opacity_scale: s.opacity_scale.as_deref(),
                 antialiased: s.antialiased,
                 near: s.near as f64,
                 degree,
@@ -200,6 +201,8 @@ pub(super) struct LaneJob<'a> {
     pub(super) cm: &'a CameraModel,
     pub(super) g: &'a Gaussians,
     pub(super) idx: &'a [usize; LANES],
+    /// The render's opacity factors ([`crate::RenderSettings::opacity_scale`]).
+    pub(super) opacity_scale: Option<&'a [f32]>,
     pub(super) antialiased: bool,
     pub(super) near: f64,
     pub(super) degree: u32,
@@ -226,13 +229,21 @@ pub(super) fn vjp_lanes(isa: Isa, job: &LaneJob<'_>) -> LaneGrads {
             cm,
             g,
             idx,
+            opacity_scale,
             antialiased,
             near,
             degree,
             kcoef,
             screen,
         } = *job;
-        let gl = ParamLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
+        let gl = ParamLanes::<L>::gather(
+            &g.means,
+            &g.log_scales,
+            &g.quats,
+            &g.opacity_logits,
+            opacity_scale,
+            idx,
+        );
         let pg = ProjectedGradLanes::<L>::from_rows([
             screen[0], screen[1], screen[2], screen[3], screen[4], screen[5], screen[9],
         ]);

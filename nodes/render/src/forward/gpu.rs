@@ -243,6 +243,11 @@ pub fn forward_pass(
     grid: TileGrid,
     cutoff: Cutoff,
 ) -> Result<ForwardState, GpuError> {
+    if s.opacity_scale.is_some() {
+        return Err(GpuError::Invalid(
+            "per-Gaussian opacity factors (DropGaussian) are rendered on the CPU only: use the CPU backend".into(),
+        ));
+    }
     let n = g.n;
     let nn = u64::from(n);
     let kr = &ctx.kernels;

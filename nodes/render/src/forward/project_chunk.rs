@@ -99,8 +99,14 @@ pub(super) fn project_chunk<L: Lanes>(
         for (l, v) in idx.iter_mut().enumerate() {
             *v = job.first + (j0 + l).min(len - 1);
         }
-        let gl =
-            ParamLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, &idx);
+        let gl = ParamLanes::<L>::gather(
+            &g.means,
+            &g.log_scales,
+            &g.quats,
+            &g.opacity_logits,
+            s.opacity_scale.as_deref(),
+            &idx,
+        );
         let pl = project_lanes(cm, &gl, s.antialiased, s.near as f64);
         // Tile rectangles (the radius saturates as `Projected`'s i32 does).
         let r_max = c::<L>(i32::MAX as f64);

@@ -200,22 +200,29 @@ pub(crate) struct ParamLanes<L> {
     pub log_scale: [L; 3],
     pub quat: [L; 4],
     pub logit: L,
+    /// The factor on the opacity ([`crate::RenderSettings::opacity_scale`]; 1 without one).
+    /// Not a parameter: gradient lanes leave it at 1.
+    pub opacity_scale: L,
 }
 
 impl<L: Lanes> ParamLanes<L> {
-    /// Gaussians `idx[l]` of the parameter arrays.
+    /// Gaussians `idx[l]` of the parameter arrays, with their opacity factors when `scales`
+    /// holds one per Gaussian (else 1).
     #[inline(always)]
     pub fn gather(
         means: &[[f32; 3]],
         log_scales: &[[f32; 3]],
         quats: &[[f32; 4]],
         logits: &[f32],
+        scales: Option<&[f32]>,
         idx: &[usize; LANES],
     ) -> Self {
         let mut m = [[0.0; LANES]; 3];
         let mut ls = [[0.0; LANES]; 3];
         let mut q = [[0.0; LANES]; 4];
         let mut o = [0.0; LANES];
+        let mut f = [1.0; LANES];
+        let scales = scales.filter(|s| s.len() == logits.len());
         for l in 0..LANES {
             let i = idx[l];
             for k in 0..3 {
@@ -226,6 +233,9 @@ impl<L: Lanes> ParamLanes<L> {
                 q[k][l] = quats[i][k] as f64;
             }
             o[l] = logits[i] as f64;
+            if let Some(s) = scales {
+                f[l] = s[i] as f64;
+            }
         }
         ParamLanes {
             mean: [
@@ -245,6 +255,7 @@ impl<L: Lanes> ParamLanes<L> {
                 L::from_array(q[3]),
             ],
             logit: L::from_array(o),
+            opacity_scale: L::from_array(f),
         }
     }
 }
@@ -252,7 +263,7 @@ impl<L: Lanes> ParamLanes<L> {
 impl ParamLanes<P8> {
     /// One Gaussian in every lane.
     fn one(mean: [f32; 3], log_scale: [f32; 3], quat: [f32; 4], logit: f32) -> Self {
-        ParamLanes::gather(&[mean], &[log_scale], &[quat], &[logit], &[0; LANES])
+        ParamLanes::gather(&[mean], &[log_scale], &[quat], &[logit], None, &[0; LANES])
     }
 }
 
@@ -279,6 +290,11 @@ struct Inter<L> {
     det_blur: L,
     conic: [L; 3],
     ratio: L,
+    /// sigmoid(logit).
+    sigmoid: L,
+    /// The opacity factor ([`ParamLanes::opacity_scale`]).
+    opacity_scale: L,
+    /// sigmoid(logit) × the opacity factor, before the antialiasing compensation.
     opacity_base: L,
 }
 
@@ -368,6 +384,7 @@ fn intermediates<L: Lanes>(cam: &CameraModel, gl: &ParamLanes<L>, near: f64) -> 
     let inv_det = c::<L>(1.0) / det_blur;
     let conic = [r * inv_det, -q2 * inv_det, p * inv_det];
     let ratio = det_raw * inv_det;
+    let sigmoid = lanes::sigmoid(gl.logit);
     Inter {
         status,
         s,
@@ -384,7 +401,10 @@ fn intermediates<L: Lanes>(cam: &CameraModel, gl: &ParamLanes<L>, near: f64) -> 
         det_blur,
         conic,
         ratio,
-        opacity_base: lanes::sigmoid(gl.logit),
+        sigmoid,
+        opacity_scale: gl.opacity_scale,
+        // × 1 without a factor: the same bits as the sigmoid alone.
+        opacity_base: sigmoid * gl.opacity_scale,
     }
 }
 
@@ -721,8 +741,9 @@ pub(crate) fn project_vjp_lanes<L: Lanes>(
         (gqn[2] - qy * dotq) / it.qnorm,
         (gqn[3] - qz * dotq) / it.qnorm,
     ];
-    let o = it.opacity_base;
-    let logit = g_obase * o * (c::<L>(1.0) - o);
+    let o = it.sigmoid;
+    // × 1 without a factor: the same bits as before it existed.
+    let logit = g_obase * it.opacity_scale * o * (c::<L>(1.0) - o);
     // Lanes whose intermediates failed give zeros.
     let ok = it.status.visible();
     let zero = c::<L>(0.0);
@@ -737,6 +758,7 @@ pub(crate) fn project_vjp_lanes<L: Lanes>(
             keep(g_quat[3]),
         ],
         logit: keep(logit),
+        opacity_scale: c::<L>(1.0),
     }
 }
 

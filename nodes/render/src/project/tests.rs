@@ -104,6 +104,7 @@ fn a_lane_of_a_batch_is_the_single_gaussian_projection_and_its_backward() {
                 &g.log_scales,
                 &g.quats,
                 &g.opacity_logits,
+                None,
                 &idx,
             );
             let batch = project_lanes(&cam, &gl, aa, 0.01).unpack();
@@ -168,7 +169,14 @@ fn vector_lanes_project_and_differentiate_bit_for_bit_like_portable_lanes() {
         aa: bool,
         grad: [[f64; LANES]; 7],
     ) -> LaneOut {
-        let gl = ParamLanes::<L>::gather(&g.means, &g.log_scales, &g.quats, &g.opacity_logits, idx);
+        let gl = ParamLanes::<L>::gather(
+            &g.means,
+            &g.log_scales,
+            &g.quats,
+            &g.opacity_logits,
+            None,
+            idx,
+        );
         let p = project_lanes(cam, &gl, aa, 0.01);
         let pg = ProjectedGradLanes::<L>::from_rows(grad);
         (
@@ -211,6 +219,7 @@ fn vector_lanes_project_and_differentiate_bit_for_bit_like_portable_lanes() {
                     &g.log_scales,
                     &g.quats,
                     &g.opacity_logits,
+                    None,
                     &idx,
                 );
                 let p = project_lanes(&cam, &gl, aa, 0.01);

@@ -130,6 +130,11 @@ pub struct TrainArgs {
     /// the serialised args when `Dense`.
     #[serde(skip_serializing_if = "crate::adam::AdamUpdates::is_dense")]
     pub adam: crate::adam::AdamUpdates,
+    /// DropGaussian ([`crate::dropout`]): `Some((max_rate: 0.2))` drops Gaussians at random in
+    /// every training render, at a rate rising to `max_rate`. CPU backend only. Left out of
+    /// the serialised args when `None` (off), so no key of a run without it moved.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drop_gaussians: Option<crate::dropout::DropGaussian>,
 }
 
 impl Default for TrainArgs {
@@ -156,6 +161,7 @@ impl Default for TrainArgs {
             record_wall_time: false,
             backend: crate::Backend::Cpu,
             adam: crate::adam::AdamUpdates::Dense,
+            drop_gaussians: None,
         }
     }
 }
@@ -189,6 +195,12 @@ impl TrainArgs {
                 "synthetic.skip_below = {} needs pixel masks, which the GPU backend does not have yet: use backend: Cpu, or skip_below: 0",
                 self.synthetic.skip_below
             ));
+        }
+        if let Some(d) = &self.drop_gaussians {
+            d.validate()?;
+            if self.backend == crate::Backend::Gpu {
+                return Err("drop_gaussians needs per-Gaussian opacity factors, which the GPU backend does not have yet: use backend: Cpu, or drop_gaussians: None".into());
+            }
         }
         if !(self.synthetic.skip_below.is_finite() && self.synthetic.skip_below >= 0.0) {
             return Err(format!(

@@ -335,8 +335,30 @@ impl<'a> Trainer<'a> {
         Some(i)
     }
 
-    /// Adds one view to the step on the device. Returns (unweighted loss, pairs).
-    fn add_view(&mut self, view: ViewTask<'_>, settings: &RenderSettings) -> (f64, u64) {
+    /// Adds one view, the step's `render`-th render, to the step on the device (with
+    /// DropGaussian's factors for that render when it is on). Returns (unweighted loss,
+    /// pairs).
+    fn add_view(
+        &mut self,
+        view: ViewTask<'_>,
+        settings: &RenderSettings,
+        render: u64,
+    ) -> (f64, u64) {
+        let factors = self.args.drop_gaussians.as_ref().and_then(|d| {
+            let n = self.state.g.len();
+            d.factors(self.args.seed, self.step, self.args.steps, render, n)
+        });
+        let dropped;
+        let settings = match factors {
+            Some(f) => {
+                dropped = RenderSettings {
+                    opacity_scale: Some(f),
+                    ..settings.clone()
+                };
+                &dropped
+            }
+            None => settings,
+        };
         self.device
             .add_view(&mut self.state, view, settings)
             .unwrap_or_else(|e| device_failed(e))
@@ -367,7 +389,7 @@ impl<'a> Trainer<'a> {
                     scale: plan.real_weight,
                     stats: densify_on.then(|| self.args.synthetic.stat_factor(plan.real_weight)),
                 };
-                let (l, pairs) = self.add_view(view, &settings);
+                let (l, pairs) = self.add_view(view, &settings, 0);
                 rep.real_loss = Some(l);
                 rep.loss += plan.real_weight * l;
                 rep.pairs += pairs;
@@ -385,7 +407,7 @@ impl<'a> Trainer<'a> {
                 let stats = (densify_on && self.args.synthetic.densify_from_synthetic)
                     .then(|| b as f32 * self.args.synthetic.stat_factor(plan.synthetic_weight));
                 let mut sum = 0.0;
-                for i in self.draw_synthetic(step, b) {
+                for (k, i) in self.draw_synthetic(step, b).into_iter().enumerate() {
                     let view = ViewTask {
                         source: src,
                         index: i,
@@ -393,7 +415,7 @@ impl<'a> Trainer<'a> {
                         scale,
                         stats,
                     };
-                    let (l, pairs) = self.add_view(view, &settings);
+                    let (l, pairs) = self.add_view(view, &settings, 1 + k as u64);
                     sum += l;
                     rep.pairs += pairs;
                 }
