@@ -16,8 +16,9 @@ best checkpoint); for each method its seed-paired change of average error agains
 unpaired change of the means. Overall: the mean over scenes of each scene's mean paired
 change, with a 95 % t interval over the scenes (the scene is the unit), and over all
 (scene, seed) pairs; then the gate's choice (with and without DropGaussian) against the
-better of 3DGS and DropGaussian on each scene. An interval that contains zero is "no
-measurable gain".
+better of 3DGS and DropGaussian on each scene; last, the gate's choice against the method the
+held-out views favour, with the compute its choice spares (from the store's entries:
+$AUGSPLAT_CACHE or ./cache). An interval that contains zero is "no measurable gain".
 
 `--check FILE` compares the per-scene, per-method mean metrics with FILE (JSON written by
 `--json FILE`) exactly: the pinned small protocol of tests/study_pinned.rs.
@@ -57,9 +58,12 @@ def seed_of(path, method):
 def evaluations(scene_dir, method):
     """{seed: mean metrics} of one method key (`baseline`, `staged_drop`, …): the folders of
     its node, with DropGaussian on (`<node>.drop_gaussians=Some…` in the sweep point) or off."""
-    node, drop = (method[:-5], True) if method.endswith("_drop") else (method, False)
-    if node == "drop":
-        node = "baseline"
+    if method == "drop":
+        node, drop = "baseline", True
+    elif method.endswith("_drop"):
+        node, drop = method[: -len("_drop")], True
+    else:
+        node, drop = method, False
     out = {}
     for p in glob.glob(os.path.join(scene_dir, f"eval_{node}@*", "eval", "metrics.json")):
         if (f"{node}.drop_gaussians=Some" in p) != drop:
@@ -229,6 +233,59 @@ def overall_simple(data):
     print()
 
 
+CACHE = os.environ.get("AUGSPLAT_CACHE", "cache")
+# What the gate's "skip" would have spared: the ensemble and both methods with their
+# evaluations (DropGaussian's runs of Staged and Dual too).
+ENSEMBLE = ("field[", "render[", "render_test[", "aggregate", "eval_ensemble")
+
+
+def node_seconds(out_dir, scene):
+    """{instance name: compute seconds} of a scene's run, from the store's action entries."""
+    path = os.path.join(out_dir, f"{scene}.summary.json")
+    if not os.path.exists(path):
+        return {}
+    with open(path) as f:
+        nodes = json.load(f)["nodes"]
+    out = {}
+    for n in nodes:
+        entry = os.path.join(CACHE, "actions", n["key"][:2], n["key"] + ".json")
+        if os.path.exists(entry):
+            with open(entry) as f:
+                out[n["name"]] = json.load(f).get("seconds", 0.0)
+    return out
+
+
+def gate_table(out_dir, data):
+    """The gate's choice (training views only) against what the held-out views favour (the
+    better of Staged and Dual by its mean average error over the seeds when it is more than
+    1 % below 3DGS's, else neither), and the compute its choice would have spared."""
+    names = labels()
+    rows = [(s, d) for s, d in data.items() if d["choice"] is not None]
+    if not rows:
+        return
+    print("| scene | rehearsed 3DGS / Staged / Dual | gate chose | held-out favours | right | "
+          "spared s | gate s |")
+    print("|---|---|---|---|---|---:|---:|")
+    right = 0
+    for s, d in rows:
+        g, runs = d["evidence"], d["runs"]
+        mean = lambda k: statistics.mean(v["avg_error"] for v in runs[k].values())
+        best = min(("staged", "dual"), key=lambda k: mean(k) if k in runs else float("inf"))
+        favours = best if best in runs and mean(best) / mean("baseline") - 1 <= -0.01 else "baseline"
+        right += favours == d["choice"]
+        secs = node_seconds(out_dir, s)
+        skipped = {"baseline": ("staged", "dual", "eval_staged", "eval_dual") + ENSEMBLE,
+                   "staged": ("dual", "eval_dual"), "dual": ("staged", "eval_staged")}[d["choice"]]
+        spared = sum(v for k, v in secs.items() if k.startswith(skipped))
+        cost = sum(v for k, v in secs.items() if k.startswith("gate"))
+        staged = g.get("staged") or {}
+        rehearsed = (f"{g['baseline']['error']:.4f} / {staged.get('error', float('nan')):.4f} / "
+                     f"{g['method']['error']:.4f}")
+        print(f"| {s} | {rehearsed} | {names[d['choice']]} | {names[favours]} | "
+              f"{'yes' if favours == d['choice'] else 'no'} | {spared:,.0f} | {cost:,.0f} |")
+    print(f"\nThe gate chose as the held-out views favour on {right} of {len(rows)} scenes.\n")
+
+
 def snapshot(data):
     """The per-scene, per-method, per-seed metrics (for --json / --check)."""
     return {s: {k: {str(seed): {m: v[m] for m in METRICS} for seed, v in sorted(r.items())}
@@ -266,6 +323,7 @@ def main():
         per_scene[s] = scene_table(s, data[s])
     overall(per_scene)
     overall_simple(data)
+    gate_table(out_dir, data)
 
 
 if __name__ == "__main__":
