@@ -4,30 +4,13 @@
 
 mod train_util;
 
-use augsplat_core::Scene;
 use augsplat_splat::dropout::DropGaussian;
-use augsplat_splat::train::{
-    evaluate, scene_scale, RealImages, RealLoss, RealView, TrainArgs, Trainer,
-};
-use augsplat_splat::{init, Backend, Gaussians};
-use std::path::Path;
-use train_util::param_bits as bits;
+use augsplat_splat::train::{evaluate, scene_scale, RealImages, RealLoss, TrainArgs, Trainer};
+use augsplat_splat::{Backend, Gaussians};
+use train_util::{load_views, param_bits as bits};
 
-fn load_views(dir: &Path) -> Vec<RealView> {
-    let scene = Scene::load(dir).unwrap();
-    (0..scene.views.len())
-        .map(|i| RealView {
-            name: scene.views[i].name.clone(),
-            camera: scene.views[i].camera.clone(),
-            image: scene.load_image(dir, i).unwrap().data,
-        })
-        .collect()
-}
-
-fn initial(dir: &Path, sscale: f64) -> Gaussians {
-    let scene = Scene::load(dir).unwrap();
-    let cloud = scene.load_points(dir).unwrap();
-    init::from_points(&cloud, 1, &Default::default(), sscale, 1)
+fn initial(dir: &std::path::Path, sscale: f64) -> Gaussians {
+    train_util::initial(dir, 1, sscale)
 }
 
 #[test]

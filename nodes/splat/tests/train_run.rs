@@ -5,34 +5,17 @@
 
 mod train_util;
 
-use augsplat_core::{Rng, Scene};
+use augsplat_core::Rng;
 use augsplat_splat::adam::LearningRates;
 use augsplat_splat::densify::DensifyArgs;
 use augsplat_splat::train::{
     evaluate, scene_scale, RealImages, RealLoss, RealView, Schedule, Supervision, SynthView,
     SyntheticImages, TrainArgs, Trainer,
 };
-use augsplat_splat::{init, loss::WeightNorm, Gaussians};
+use augsplat_splat::{loss::WeightNorm, Gaussians};
 use std::path::Path;
 
-fn load_views(dir: &Path) -> Vec<RealView> {
-    let scene = Scene::load(dir).unwrap();
-    (0..scene.views.len())
-        .map(|i| RealView {
-            name: scene.views[i].name.clone(),
-            camera: scene.views[i].camera.clone(),
-            image: scene.load_image(dir, i).unwrap().data,
-        })
-        .collect()
-}
-
-fn initial(dir: &Path, degree: u32, sscale: f64) -> Gaussians {
-    let scene = Scene::load(dir).unwrap();
-    let cloud = scene.load_points(dir).unwrap();
-    init::from_points(&cloud, degree, &Default::default(), sscale, 1)
-}
-
-use train_util::param_bits as bits;
+use train_util::{initial, load_views, param_bits as bits};
 
 #[test]
 fn training_steps_are_bit_identical_for_1_and_2_threads() {

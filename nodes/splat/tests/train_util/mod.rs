@@ -45,6 +45,25 @@ pub fn make_scene(root: &Path, w: u32, h: u32, views: u32, points: u32) -> (Path
     (out[0].clone(), out[1].clone())
 }
 
+/// The views of a scene folder, with their photos, as the trainer's real supervision.
+pub fn load_views(dir: &Path) -> Vec<augsplat_splat::train::RealView> {
+    let scene = Scene::load(dir).unwrap();
+    (0..scene.views.len())
+        .map(|i| augsplat_splat::train::RealView {
+            name: scene.views[i].name.clone(),
+            camera: scene.views[i].camera.clone(),
+            image: scene.load_image(dir, i).unwrap().data,
+        })
+        .collect()
+}
+
+/// The scene folder's points as Gaussians of SH degree `degree` (scene scale `sscale`).
+pub fn initial(dir: &Path, degree: u32, sscale: f64) -> augsplat_splat::Gaussians {
+    let scene = Scene::load(dir).unwrap();
+    let cloud = scene.load_points(dir).unwrap();
+    augsplat_splat::init::from_points(&cloud, degree, &Default::default(), sscale, 1)
+}
+
 /// The bits of every parameter of `g` (means, log-scales, quaternions, opacity logits, SH), for
 /// comparing two runs byte for byte.
 pub fn param_bits(g: &augsplat_splat::Gaussians) -> Vec<u32> {
