@@ -2,8 +2,8 @@
 //! evaluations on the CPU) through the CLI on the tiny demo: a 50-step baseline gives the
 //! same model bytes in two fresh stores and the same held-out PSNR as the CPU backend to
 //! 0.1 dB; Staged and Dual run on the GPU too; the adapter is recorded in the model folder; a
-//! device lost mid-run ends the node with a clear message and no cache entry; a
-//! mask-needing setting is refused at plan time.
+//! device lost mid-run ends the node with a clear message and no cache entry; pixel masks
+//! (`skip_below`) train on the GPU.
 //! Skips with a message when the machine has no GPU adapter (fails under `CI=true`).
 
 use serde_json::Value;
@@ -167,14 +167,11 @@ fn training_on_the_gpu_is_deterministic_and_matches_the_cpu() {
         std::fs::read(ma.join("final.ply")).unwrap()
     );
 
-    // Pixel masks (skip_below > 0) are not on the GPU yet: refused before anything runs.
+    // Pixel masks (skip_below > 0) train on the GPU too.
     let (ok, text, _) = run(
         &dir.path().join("a"),
         &["staged.backend=Gpu", "params.skip_below=0.2"],
         &["staged"],
     );
-    assert!(
-        !ok && text.contains("GPU backend does not have yet"),
-        "{text}"
-    );
+    assert!(ok, "{text}");
 }

@@ -289,3 +289,44 @@ fn opacity_factors_are_refused_on_the_gpu() {
         "{e}"
     );
 }
+
+#[test]
+fn masked_pixels_render_as_on_the_cpu() {
+    let Some(ctx) = context("masked_pixels_render_as_on_the_cpu") else {
+        return;
+    };
+    let cam = camera(64, 48);
+    let g = Gaussians::random_cloud(3000, 4.0 / cam.fx, 17);
+    let s = RenderSettings {
+        background: [0.2, 0.4, 0.6],
+        ..Default::default()
+    };
+    // A third of the pixels masked, and a whole 16×16 tile.
+    let mask: Vec<u8> = (0..64 * 48)
+        .map(|p: usize| {
+            let corner_tile = p % 64 < 16 && p / 64 < 16;
+            u8::from(!(p.is_multiple_of(3) || corner_tile))
+        })
+        .collect();
+    let cpu = augsplat_render::render_masked(&g, &cam, &s, Some(&mask));
+    let scene = augsplat_render::gpu::GpuScene::upload(&ctx, &g).unwrap();
+    let gpu =
+        augsplat_render::gpu::render_scene_masked(&ctx, &scene, &cam, &s, Some(&mask)).unwrap();
+    assert!(max_diff(&cpu.rgb, &gpu.rgb) <= 2.0 / 255.0);
+    assert!(max_diff(&cpu.alpha, &gpu.alpha) <= 2.0 / 255.0);
+    for (p, &m) in mask.iter().enumerate() {
+        if m == 0 {
+            assert_eq!(&gpu.rgb[3 * p..3 * p + 3], &[0.2, 0.4, 0.6], "pixel {p}");
+            assert_eq!((gpu.alpha[p], gpu.depth[p]), (0.0, 0.0), "pixel {p}");
+        }
+    }
+    assert_eq!(
+        cpu.stats.pairs, gpu.stats.pairs,
+        "the same composited pairs"
+    );
+    // A mask of the wrong length is ignored, as on the CPU.
+    let all =
+        augsplat_render::gpu::render_scene_masked(&ctx, &scene, &cam, &s, Some(&[1, 0])).unwrap();
+    let plain = render_gpu(&ctx, &g, &cam, &s).unwrap();
+    assert_eq!(all.rgb, plain.rgb);
+}

@@ -534,3 +534,78 @@ fn a_50_step_dual_run_is_one_loop_over_either_device() {
     );
     assert_eq!(cpu_g.len(), gpu_g.len());
 }
+
+#[test]
+fn pixel_masks_train_on_the_gpu_as_on_the_cpu() {
+    let test = "pixel_masks_train_on_the_gpu_as_on_the_cpu";
+    let Some(gpu) = context(test) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let mut c = case(tmp.path());
+    // skip_below 0.5: the synthetic pixels of weight 0.25–0.375 are neither rendered nor
+    // back-propagated (about a third of them).
+    c.synth.views = c
+        .synth
+        .views
+        .iter()
+        .map(|v| {
+            SynthView::new(
+                v.name.clone(),
+                v.camera.clone(),
+                v.target.clone(),
+                v.weight.clone(),
+                0.5,
+            )
+        })
+        .collect();
+    let masked = c.synth.views[0].mask.as_ref().unwrap();
+    let off = masked.iter().filter(|&&m| m == 0).count();
+    assert!(off * 4 > masked.len() && off * 2 < masked.len(), "{off}");
+    let mut a = args(12, false);
+    a.schedule = short_dual();
+    a.synthetic.skip_below = 0.5;
+    assert!(
+        TrainArgs {
+            backend: augsplat_splat::Backend::Gpu,
+            ..a.clone()
+        }
+        .validate()
+        .is_ok(),
+        "masks are allowed on the GPU"
+    );
+    let (cpu, cpu_g) = train(&c, &a, true, None);
+    let (gpu_reps, gpu_g) = train(&c, &a, true, Some(&gpu));
+    let (again, again_g) = train(&c, &a, true, Some(&gpu));
+    assert_eq!(gpu_reps, again, "the same bytes run to run");
+    assert!(bits(&gpu_g) == bits(&again_g));
+    assert!(cpu.iter().any(|r| r.synthetic_loss.is_some()));
+    same_losses(&cpu, &gpu_reps, 1e-4, test);
+    // The composited pairs leave out the masked pixels on both devices.
+    for (x, y) in cpu.iter().zip(&gpu_reps) {
+        assert_eq!(x.pairs, y.pairs, "step {}", x.step);
+    }
+    let gaps = param_gaps(&cpu_g, &gpu_g, c.scale);
+    eprintln!(
+        "{test}: largest parameter gap {:.2e}",
+        gaps.iter().fold(0.0f64, |m, v| m.max(*v))
+    );
+    // Without the mask the run differs (the masked pixels really were left out).
+    let mut plain = a.clone();
+    plain.synthetic.skip_below = 0.0;
+    let unmasked = {
+        let mut c2 = case(&tmp.path().join("b"));
+        c2.synth.views = c
+            .synth
+            .views
+            .iter()
+            .map(|v| SynthView {
+                mask: None,
+                ..v.clone()
+            })
+            .collect();
+        train(&c2, &plain, true, Some(&gpu)).0
+    };
+    assert_ne!(
+        unmasked.iter().map(|r| r.pairs).sum::<u64>(),
+        gpu_reps.iter().map(|r| r.pairs).sum::<u64>()
+    );
+}

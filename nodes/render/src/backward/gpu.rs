@@ -391,7 +391,7 @@ fn backward_inner(
         )));
     }
     ctx.scoped(|| {
-        let st = forward_pass(ctx, scene, cam, s, grid, cutoff)?;
+        let st = forward_pass(ctx, scene, cam, s, grid, cutoff, None)?;
         let n = scene.len() as u64;
         let g_rgb = ctx.storage_init("colour gradients", &f32_words(d_rgb.iter().copied()))?;
         let screen =

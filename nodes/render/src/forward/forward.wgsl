@@ -15,8 +15,9 @@ struct Params {
     cutoff: u32,             // 0: hard 1/255 step; 1: the tests' C¹ smoothstep (forward/mod.rs)
     background: vec4<f32>,
     // x: the first Gaussian whose splat is in the second splat binding; y: the same for the
-    // screen-space gradients; pair_splits: the first pair slot of the pair slots' second,
-    // third and fourth bindings (buffers past one binding, gpu/chunk.rs).
+    // screen-space gradients; z: 1 when `mask` holds a pixel mask; pair_splits: the first
+    // pair slot of the pair slots' second, third and fourth bindings (buffers past one
+    // binding, gpu/chunk.rs).
     splits: vec4<u32>,
     pair_splits: vec4<u32>,
 }
@@ -35,6 +36,9 @@ struct Params {
 // backward pass can give every pair its own gradient slot).
 @group(0) @binding(10) var<storage, read_write> pair_rank: array<u32>;
 @group(0) @binding(11) var<storage, read> splats_hi: array<f32>;
+// Per pixel, 0: the pixel is neither composited nor back-propagated (background, alpha 0,
+// depth 0, no pairs: render_masked on the CPU). Read only when splits.z is 1.
+@group(0) @binding(12) var<storage, read> mask: array<u32>;
 
 // Value q of Gaussian g's splat, from whichever binding holds it.
 fn splat(g: u32, q: u32) -> f32 {
@@ -115,7 +119,11 @@ fn rasterize(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id
     let end = range.y;
     let cx = f32(px) + 0.5;
     let cy = f32(py) + 0.5;
-    var done = !inside;
+    var masked = false;
+    if (inside && p.splits.z == 1u) {
+        masked = mask[py * p.width + px] == 0u;
+    }
+    var done = !inside || masked;
     var t = 1.0;
     var c = vec3<f32>(0.0);
     var d = 0.0;

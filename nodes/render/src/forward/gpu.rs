@@ -184,8 +184,53 @@ pub fn render_scene_with_cutoff(
     s: &RenderSettings,
     cutoff: Cutoff,
 ) -> Result<GpuFrame, GpuError> {
+    render_whole(ctx, scene, cam, s, cutoff, None)
+}
+
+/// [`render_scene`] with a pixel mask, as [`crate::render_masked`]: pixels whose mask value is
+/// 0 are neither composited nor back-propagated (background, alpha 0, depth 0); a mask of
+/// the wrong length is ignored (all ones).
+pub fn render_scene_masked(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    mask: Option<&[u8]>,
+) -> Result<GpuFrame, GpuError> {
+    render_whole(ctx, scene, cam, s, Cutoff::Hard, mask)
+}
+
+/// A pixel mask as the rasteriser reads it (one word per pixel), when `mask` holds one value
+/// per pixel of `cam`.
+pub fn upload_mask(
+    ctx: &GpuContext,
+    cam: &Camera,
+    mask: Option<&[u8]>,
+) -> Result<Option<GpuBuffer>, GpuError> {
+    let pixels = cam.width as usize * cam.height as usize;
+    match mask.filter(|m| m.len() == pixels) {
+        Some(m) => {
+            let words: Vec<u32> = m.iter().map(|&v| u32::from(v != 0)).collect();
+            Ok(Some(ctx.storage_init("pixel mask", &words)?))
+        }
+        None => Ok(None),
+    }
+}
+
+/// A whole render: the forward pass, the read-back, and a reclaim of its buffers.
+fn render_whole(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    cutoff: Cutoff,
+    mask: Option<&[u8]>,
+) -> Result<GpuFrame, GpuError> {
     let grid = tile_grid(cam)?;
-    let frame = ctx.scoped(|| render_inner(ctx, scene, cam, s, grid, cutoff));
+    let frame = ctx.scoped(|| {
+        let mask = upload_mask(ctx, cam, mask)?;
+        render_inner(ctx, scene, cam, s, grid, cutoff, mask.as_deref())
+    });
     // Every encoder of the render was submitted: its buffers are free for the next one.
     ctx.reclaim();
     frame
@@ -235,6 +280,7 @@ pub struct ForwardState {
 }
 
 /// Runs the forward kernels and keeps their buffers.
+#[allow(clippy::too_many_arguments)]
 pub fn forward_pass(
     ctx: &GpuContext,
     g: &GpuScene,
@@ -242,6 +288,7 @@ pub fn forward_pass(
     s: &RenderSettings,
     grid: TileGrid,
     cutoff: Cutoff,
+    mask: Option<&wgpu::Buffer>,
 ) -> Result<ForwardState, GpuError> {
     if s.opacity_scale.is_some() {
         return Err(GpuError::Invalid(
@@ -302,7 +349,7 @@ pub fn forward_pass(
         // binding, and its pair slots to their second, third and fourth.
         w.extend(ctx.split_points(nn, SPLAT_STRIDE, 2));
         w.extend(ctx.split_points(nn, crate::backward::gpu::SCREEN_GRAD_STRIDE as u64, 2));
-        w.extend([0, 0]);
+        w.extend([u32::from(mask.is_some()), 0]);
         w.extend(ctx.split_points(u64::from(pairs), crate::backward::gpu::PAIR_STRIDE, 4));
         w.push(0);
         w
@@ -362,6 +409,14 @@ pub fn forward_pass(
         ctx.groups(pairs.div_ceil(GROUP)),
     );
     let splat_ranges = ctx.split_ranges(&splats, nn, SPLAT_STRIDE, 2);
+    let no_mask;
+    let mask = match mask {
+        Some(m) => m,
+        None => {
+            no_mask = ctx.storage("no pixel mask", 16)?;
+            &*no_mask
+        }
+    };
     ctx.dispatch_mixed(
         &mut enc,
         &kr.forward.rasterize,
@@ -373,6 +428,7 @@ pub fn forward_pass(
             (8, &image),
             (9, &info),
             (10, &pair_rank),
+            (12, mask),
         ],
         [7, 11].into_iter().zip(splat_ranges).collect(),
         [grid.tiles_x, grid.tiles_y],
@@ -401,6 +457,7 @@ pub fn forward_pass(
     })
 }
 
+#[allow(clippy::too_many_arguments)]
 fn render_inner(
     ctx: &GpuContext,
     g: &GpuScene,
@@ -408,9 +465,10 @@ fn render_inner(
     s: &RenderSettings,
     grid: TileGrid,
     cutoff: Cutoff,
+    mask: Option<&wgpu::Buffer>,
 ) -> Result<GpuFrame, GpuError> {
     let n = g.n;
-    let st = forward_pass(ctx, g, cam, s, grid, cutoff)?;
+    let st = forward_pass(ctx, g, cam, s, grid, cutoff, mask)?;
     let (image, info, meta) = (&st.image, &st.info, &st.rects);
     let pixels = u64::from(cam.width) * u64::from(cam.height);
     // Read back.

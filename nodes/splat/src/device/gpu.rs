@@ -117,11 +117,14 @@ impl TrainingDevice for GpuTraining {
         let (src, i) = (view.source, view.index);
         let sh_active = self.sh_active;
         let mut host = |rgb: &[f32], grad: &mut [f32]| src.loss(i, rgb, view.scale as f32, grad);
+        let host_mask;
         let loss = match src.gpu_loss(i) {
             Some(v) => {
                 let target = match self.targets.entry((view.synthetic, i)) {
                     Entry::Occupied(e) => e.into_mut(),
-                    Entry::Vacant(e) => e.insert(GpuTarget::upload(&ctx, v.target, v.weights)?),
+                    Entry::Vacant(e) => {
+                        e.insert(GpuTarget::upload(&ctx, v.target, v.weights, src.mask(i))?)
+                    }
                 };
                 ViewLoss::Gpu {
                     target,
@@ -129,7 +132,13 @@ impl TrainingDevice for GpuTraining {
                     scale: view.scale as f32,
                 }
             }
-            None => ViewLoss::Host(&mut host),
+            None => {
+                host_mask = crate::gpu::upload_mask(&ctx, src.camera(i), src.mask(i))?;
+                ViewLoss::Host {
+                    loss: &mut host,
+                    mask: host_mask.as_deref(),
+                }
+            }
         };
         let state = self.state.as_ref().expect("uploaded above");
         let out = state.add_view(&ctx, src.camera(i), s, loss, view.stats, sh_active);

@@ -190,12 +190,6 @@ impl TrainArgs {
                 self.real_loss.ssim_lambda
             ));
         }
-        if self.backend == crate::Backend::Gpu && self.synthetic.skip_below > 0.0 {
-            return Err(format!(
-                "synthetic.skip_below = {} needs pixel masks, which the GPU backend does not have yet: use backend: Cpu, or skip_below: 0",
-                self.synthetic.skip_below
-            ));
-        }
         if let Some(d) = &self.drop_gaussians {
             d.validate()?;
             if self.backend == crate::Backend::Gpu {

@@ -37,8 +37,13 @@ const GROUPS: [Group; 5] = [
 pub enum ViewLoss<'a> {
     /// On the host: the rendered colour (`H·W·3`) is read back, the closure writes
     /// `scale · dL/d(rgb)` into the zeroed buffer it gets and returns the loss; the gradient
-    /// is sent to the GPU.
-    Host(&'a mut dyn FnMut(&[f32], &mut [f32]) -> f64),
+    /// is sent to the GPU. `mask`: the view's pixel mask ([`crate::gpu::upload_mask`]).
+    Host {
+        /// The loss.
+        loss: &'a mut dyn FnMut(&[f32], &mut [f32]) -> f64,
+        /// The view's pixel mask, when it has one.
+        mask: Option<&'a wgpu::Buffer>,
+    },
     /// On the GPU (`loss/loss.wgsl`): the view's target, uploaded once, and its loss;
     /// `scale` multiplies the gradient.
     Gpu {
@@ -55,21 +60,33 @@ pub enum ViewLoss<'a> {
 pub struct GpuTarget {
     rgb: GpuBuffer,
     weights: Option<GpuBuffer>,
+    /// The pixel mask (`skip_below`), one word per pixel.
+    mask: Option<GpuBuffer>,
 }
 
 impl GpuTarget {
-    /// Uploads a target.
+    /// Uploads a target: colour (`H·W·3`), optional weights (`H·W`) and optional pixel mask
+    /// (`H·W`; ignored when it holds another number of values, as on the CPU).
     pub fn upload(
         ctx: &GpuContext,
         rgb: &[f32],
         weights: Option<&[f32]>,
+        mask: Option<&[u8]>,
     ) -> Result<GpuTarget, GpuError> {
         ctx.scoped(|| {
+            let pixels = rgb.len() / 3;
             Ok(GpuTarget {
                 rgb: ctx.storage_init("target colour", &f32_words(rgb.iter().copied()))?,
                 weights: match weights {
                     Some(w) => {
                         Some(ctx.storage_init("target weights", &f32_words(w.iter().copied()))?)
+                    }
+                    None => None,
+                },
+                mask: match mask.filter(|m| m.len() == pixels) {
+                    Some(m) => {
+                        let words: Vec<u32> = m.iter().map(|&v| u32::from(v != 0)).collect();
+                        Some(ctx.storage_init("pixel mask", &words)?)
                     }
                     None => None,
                 },
@@ -224,12 +241,16 @@ impl GpuTrainer {
             let n = sc.n;
             let nn = u64::from(n);
             let sh_width = 3 * sc.coeffs;
-            let st = forward_pass(ctx, sc, cam, s, grid, Cutoff::Hard)?;
+            let mask = match &loss {
+                ViewLoss::Gpu { target, .. } => target.mask.as_deref(),
+                ViewLoss::Host { mask, .. } => *mask,
+            };
+            let st = forward_pass(ctx, sc, cam, s, grid, Cutoff::Hard, mask)?;
             let px = cam.width as usize * cam.height as usize;
             let d_rgb = ctx.storage("colour gradients", 4 * 3 * px as u64)?;
             let mut enc = ctx.device.create_command_encoder(&Default::default());
             let (host_value, sums) = match loss {
-                ViewLoss::Host(f) => {
+                ViewLoss::Host { loss: f, .. } => {
                     let img = ctx.read_words(&st.image, IMAGE_STRIDE * px)?;
                     let rgb: Vec<f32> = img
                         .chunks_exact(IMAGE_STRIDE)
