@@ -609,3 +609,30 @@ fn pixel_masks_train_on_the_gpu_as_on_the_cpu() {
         gpu_reps.iter().map(|r| r.pairs).sum::<u64>()
     );
 }
+
+#[test]
+fn the_host_waits_twice_per_view_of_a_step() {
+    let test = "the_host_waits_twice_per_view_of_a_step";
+    let Some(gpu) = context(test) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let c = case(tmp.path());
+    // Dual with a batch of 3 for 4 steps, then the real view alone; no refinement.
+    let mut a = args(8, false);
+    a.schedule = short_dual();
+    let synth = Some(&c.synth as &dyn Supervision);
+    let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, synth);
+    t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
+    let mut per_step = Vec::new();
+    for _ in 0..a.steps {
+        let before = gpu.host_waits();
+        let r = t.step();
+        let views = 1 + if r.synthetic_loss.is_some() { 3 } else { 0 };
+        per_step.push((views, gpu.host_waits() - before));
+    }
+    eprintln!("{test}: (views, waits) per step {per_step:?}");
+    // Today's step: each view waits for its pair count and for its loss and pair sums; the
+    // upload and Adam do not wait. (A step at the device's speed would wait at most once.)
+    for (step, &(views, waits)) in per_step.iter().enumerate().skip(1) {
+        assert_eq!(waits, 2 * views, "step {step}: {per_step:?}");
+    }
+}

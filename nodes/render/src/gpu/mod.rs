@@ -148,6 +148,8 @@ pub struct GpuContext {
     extensions: std::sync::Mutex<KernelCache>,
     /// Buffers that were dropped, for reuse (`gpu/pool.rs`).
     pool: std::sync::Arc<pool::Pool>,
+    /// Times the host has waited for the device ([`GpuContext::host_waits`]).
+    waits: std::sync::atomic::AtomicU64,
 }
 
 /// Compiled kernel sets by type.
@@ -294,6 +296,7 @@ impl GpuContext {
             params_as_storage,
             extensions: Default::default(),
             pool: Default::default(),
+            waits: Default::default(),
         })
     }
 
@@ -526,10 +529,23 @@ impl GpuContext {
 
     /// Waits until everything submitted so far has run.
     pub fn wait(&self) -> Result<(), GpuError> {
+        self.count_wait();
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| self.device_error(format!("waiting for the GPU: {e}")))?;
         self.check_lost()
+    }
+
+    /// How many times the host has waited for the device on this context (a submission
+    /// waited for, a read-back): what a step costs in round trips, for the tests and
+    /// benchmarks that count them.
+    pub fn host_waits(&self) -> u64 {
+        self.waits.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    fn count_wait(&self) {
+        self.waits
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     }
 
     /// A [`GpuError::Device`] if the device was lost (a driver reset, a removed GPU).
@@ -609,6 +625,7 @@ impl GpuContext {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
+        self.count_wait();
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| self.device_error(format!("waiting for a read-back: {e}")))?;
