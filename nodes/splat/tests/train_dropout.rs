@@ -5,9 +5,9 @@
 mod train_util;
 
 use augsplat_splat::dropout::DropGaussian;
-use augsplat_splat::train::{evaluate, scene_scale, RealImages, RealLoss, TrainArgs, Trainer};
+use augsplat_splat::train::{evaluate, TrainArgs, Trainer};
 use augsplat_splat::{Backend, Gaussians};
-use train_util::{load_views, param_bits as bits};
+use train_util::param_bits as bits;
 
 fn initial(dir: &std::path::Path, sscale: f64) -> Gaussians {
     train_util::initial(dir, 1, sscale)
@@ -36,14 +36,7 @@ fn dropgaussian_is_off_by_default_reproducible_and_training_only() {
 
     let tmp = tempfile::tempdir().unwrap();
     let (train, test) = train_util::make_scene(tmp.path(), 48, 40, 13, 600);
-    let views = load_views(&train);
-    let test = load_views(&test);
-    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
-    let ss = scene_scale(&cams);
-    let real = RealImages {
-        views,
-        loss: RealLoss::default(),
-    };
+    let (real, test, ss) = train_util::real_case(&train, &test);
     let steps = 120;
     let args = |drop: Option<DropGaussian>| TrainArgs {
         steps,

@@ -67,14 +67,7 @@ fn training_steps_are_bit_identical_for_1_and_2_threads() {
 fn short_run_improves_held_out_psnr() {
     let tmp = tempfile::tempdir().unwrap();
     let (train, test) = train_util::make_scene(tmp.path(), 64, 48, 17, 1500);
-    let views = load_views(&train);
-    let test = load_views(&test);
-    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
-    let ss = scene_scale(&cams);
-    let real = RealImages {
-        views,
-        loss: RealLoss::default(),
-    };
+    let (real, test, ss) = train_util::real_case(&train, &test);
     let args = TrainArgs {
         steps: 300,
         sh_degree: 1,

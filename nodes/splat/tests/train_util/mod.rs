@@ -57,6 +57,26 @@ pub fn load_views(dir: &Path) -> Vec<augsplat_splat::train::RealView> {
         .collect()
 }
 
+/// The training folder's views as real supervision (default loss), the test folder's views,
+/// and the training cameras' scene scale.
+pub fn real_case(
+    train: &Path,
+    test: &Path,
+) -> (
+    augsplat_splat::train::RealImages,
+    Vec<augsplat_splat::train::RealView>,
+    f64,
+) {
+    let views = load_views(train);
+    let cams: Vec<_> = views.iter().map(|v| &v.camera).collect();
+    let scale = augsplat_splat::train::scene_scale(&cams);
+    let real = augsplat_splat::train::RealImages {
+        views,
+        loss: Default::default(),
+    };
+    (real, load_views(test), scale)
+}
+
 /// The scene folder's points as Gaussians of SH degree `degree` (scene scale `sscale`).
 pub fn initial(dir: &Path, degree: u32, sscale: f64) -> augsplat_splat::Gaussians {
     let scene = Scene::load(dir).unwrap();
