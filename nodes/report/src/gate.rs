@@ -310,10 +310,9 @@ impl GateReport {
             "the scene gate says run".to_string()
         } else if self.forced {
             "forced to skip by the pipeline's scene gate".to_string()
-        } else if self.chosen.is_some() {
+        } else if let Some(other) = self.chosen {
             format!(
-                "skipped by the scene gate: the other rehearsed method ({:?}) lowered the error more on training views held out of the rehearsal (evidence in the report)",
-                self.chosen.unwrap_or(method)
+                "skipped by the scene gate: the other rehearsed method ({other:?}) lowered the error more on training views held out of the rehearsal (evidence in the report)"
             )
         } else {
             format!(

@@ -201,13 +201,13 @@ pub fn render_scene_masked(
 }
 
 /// A pixel mask as the rasteriser reads it (one word per pixel), when `mask` holds one value
-/// per pixel of `cam`.
+/// for each of `pixels` pixels (otherwise none: a mask of the wrong length is ignored, as on
+/// the CPU).
 pub fn upload_mask(
     ctx: &GpuContext,
-    cam: &Camera,
+    pixels: usize,
     mask: Option<&[u8]>,
 ) -> Result<Option<GpuBuffer>, GpuError> {
-    let pixels = cam.width as usize * cam.height as usize;
     match mask.filter(|m| m.len() == pixels) {
         Some(m) => {
             let words: Vec<u32> = m.iter().map(|&v| u32::from(v != 0)).collect();
@@ -228,7 +228,7 @@ fn render_whole(
 ) -> Result<GpuFrame, GpuError> {
     let grid = tile_grid(cam)?;
     let frame = ctx.scoped(|| {
-        let mask = upload_mask(ctx, cam, mask)?;
+        let mask = upload_mask(ctx, cam.width as usize * cam.height as usize, mask)?;
         render_inner(ctx, scene, cam, s, grid, cutoff, mask.as_deref())
     });
     // Every encoder of the render was submitted: its buffers are free for the next one.

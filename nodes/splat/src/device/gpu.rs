@@ -133,7 +133,9 @@ impl TrainingDevice for GpuTraining {
                 }
             }
             None => {
-                host_mask = crate::gpu::upload_mask(&ctx, src.camera(i), src.mask(i))?;
+                let cam = src.camera(i);
+                let pixels = cam.width as usize * cam.height as usize;
+                host_mask = crate::gpu::upload_mask(&ctx, pixels, src.mask(i))?;
                 ViewLoss::Host {
                     loss: &mut host,
                     mask: host_mask.as_deref(),

@@ -83,13 +83,7 @@ impl GpuTarget {
                     }
                     None => None,
                 },
-                mask: match mask.filter(|m| m.len() == pixels) {
-                    Some(m) => {
-                        let words: Vec<u32> = m.iter().map(|&v| u32::from(v != 0)).collect();
-                        Some(ctx.storage_init("pixel mask", &words)?)
-                    }
-                    None => None,
-                },
+                mask: crate::gpu::upload_mask(ctx, pixels, mask)?,
             })
         })
     }
