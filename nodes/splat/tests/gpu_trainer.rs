@@ -636,3 +636,36 @@ fn the_host_waits_twice_per_view_of_a_step() {
         assert_eq!(waits, 2 * views, "step {step}: {per_step:?}");
     }
 }
+
+#[test]
+fn a_refinement_on_the_gpu_waits_once_and_brings_nothing_back() {
+    let test = "a_refinement_on_the_gpu_waits_once_and_brings_nothing_back";
+    let Some(gpu) = context(test) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let c = case(tmp.path());
+    // Refinements at steps 3, 6, 9; opacity resets at 4 and 8.
+    let mut a = args(10, true);
+    a.densify.reset_every = 4;
+    let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, None);
+    t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
+    let mut per_step = Vec::new();
+    for _ in 0..a.steps {
+        let before = gpu.host_waits();
+        let r = t.step();
+        per_step.push((r.step, r.refine, gpu.host_waits() - before));
+    }
+    // One view per step waits twice; a refinement adds one wait (its totals and split
+    // parents), a reset none: the state is never read back whole.
+    for (step, refine, waits) in &per_step {
+        let grows = [3, 6, 9].contains(step);
+        assert_eq!(*waits, 2 + u64::from(grows), "step {step}: {per_step:?}");
+        assert_eq!(refine.reset, [4, 8].contains(step), "step {step}");
+    }
+    let grown: usize = per_step.iter().map(|(_, r, _)| r.cloned + r.split).sum();
+    assert!(grown > 0, "the run densifies: {per_step:?}");
+    // The same run on the CPU refines identically (same counts at every step).
+    let (cpu, _) = train(&c, &a, false, None);
+    for ((step, g, _), c) in per_step.iter().zip(&cpu) {
+        assert_eq!(*g, c.refine, "step {step}");
+    }
+}

@@ -364,6 +364,12 @@ impl GpuContext {
         &self.limits
     }
 
+    /// The largest storage binding in bytes: the adapter's, or less (see
+    /// [`GpuContext::with_binding_limit`]). A kernel that binds a buffer whole needs it within.
+    pub fn binding_limit(&self) -> u64 {
+        self.binding_limit
+    }
+
     /// A storage buffer of `bytes` bytes (at least 16), checked against the adapter's limits.
     /// It reads as zeros; it comes from the context's buffer pool when the pool holds one of
     /// its size.

@@ -493,6 +493,15 @@ impl Adam {
             g.resize(n);
         }
     }
+    /// Resizes every group to `n` Gaussians (zero moments for new ones), for a state whose
+    /// values are then overwritten (the GPU trainer's download after densifying there).
+    pub(crate) fn set_len(&mut self, n: usize) {
+        self.n = n;
+        for g in self.groups_mut() {
+            g.resize(n);
+        }
+    }
+
     /// Zeroes the moments of one group (e.g. after an opacity reset). The group's step
     /// counter is kept, as gsplat does.
     pub fn clear_group(&mut self, group: Group) {

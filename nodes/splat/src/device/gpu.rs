@@ -3,6 +3,7 @@
 
 use super::{DeviceModel, Frame, SplatDevice, TrainState, TrainingDevice, ViewTask};
 use crate::adam::LearningRates;
+use crate::densify::{gpu::Refinement, RefineReport};
 use crate::gpu::{
     backward_gpu, render_scene, AdapterSummary, GpuContext, GpuError, GpuScene, GpuTarget,
     GpuTrainer, ViewLoss,
@@ -35,6 +36,7 @@ impl SplatDevice for GpuDevice {
             ahead: false,
             targets: HashMap::new(),
             sh_active: 0,
+            count_bound: 0,
         })
     }
 }
@@ -72,19 +74,29 @@ struct GpuTraining {
     ctx: Arc<GpuContext>,
     /// The state on the GPU, once uploaded.
     state: Option<GpuTrainer>,
-    /// Whether the GPU's state is newer than the host's (which then holds the sizes but not
-    /// the values).
+    /// Whether the GPU's state is newer than the host's (whose values, and after a
+    /// refinement on the GPU whose sizes, are then stale).
     ahead: bool,
     /// The views' targets, uploaded at their first use, by (synthetic?, view index).
     targets: HashMap<(bool, usize), GpuTarget>,
     /// The step's active SH width.
     sh_active: usize,
+    /// A bound on every Gaussian's view count in the GPU's statistics: the largest count
+    /// uploaded, plus the views added with the statistic since.
+    count_bound: u64,
 }
 
 impl GpuTraining {
     /// The state on the GPU, uploaded from the host's when there is none.
     fn state(&mut self, st: &TrainState) -> Result<&GpuTrainer, GpuError> {
         if self.state.is_none() {
+            self.count_bound = st
+                .densifier
+                .count
+                .iter()
+                .copied()
+                .max()
+                .map_or(0, u64::from);
             self.state = Some(GpuTrainer::upload(
                 &self.ctx,
                 &st.g,
@@ -142,6 +154,9 @@ impl TrainingDevice for GpuTraining {
                 }
             }
         };
+        if view.stats.is_some() {
+            self.count_bound += 1;
+        }
         let state = self.state.as_ref().expect("uploaded above");
         let out = state.add_view(&ctx, src.camera(i), s, loss, view.stats, sh_active);
         // The view's encoders were all submitted (it ends with a read-back): the next view
@@ -183,5 +198,35 @@ impl TrainingDevice for GpuTraining {
     fn discard(&mut self) {
         self.state = None;
         self.ahead = false;
+    }
+
+    fn post_update(
+        &mut self,
+        st: &mut TrainState,
+        r: &Refinement<'_>,
+        visibility: &mut dyn FnMut(&Gaussians) -> Vec<f64>,
+    ) -> Result<RefineReport, GpuError> {
+        let ctx = self.ctx.clone();
+        self.state(st)?;
+        let bound = self.count_bound;
+        let state = self.state.as_mut().expect("uploaded above");
+        match state.refine(&ctx, r, bound)? {
+            Some(rep) => {
+                if r.grows() {
+                    self.count_bound = 0;
+                }
+                self.ahead = true;
+                Ok(rep)
+            }
+            // A `KeepVisible` reset, or a set wider than one binding: on the host.
+            None => {
+                self.release(st)?;
+                Ok(super::refine_on_host(st, r, visibility))
+            }
+        }
+    }
+
+    fn gaussians(&self, st: &TrainState) -> usize {
+        self.state.as_ref().map_or(st.g.len(), GpuTrainer::len)
     }
 }

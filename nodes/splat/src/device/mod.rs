@@ -26,7 +26,8 @@ mod gpu;
 pub use cpu::add_grads;
 
 use crate::adam::{Adam, LearningRates};
-use crate::densify::Densifier;
+use crate::densify::gpu::Refinement;
+use crate::densify::{Densifier, RefineReport};
 use crate::gpu::{AdapterSummary, GpuContext, GpuError};
 use crate::supervision::Supervision;
 use crate::{Gaussians, Gradients, RenderSettings, RenderStats};
@@ -165,6 +166,42 @@ pub trait TrainingDevice {
     fn release(&mut self, st: &mut TrainState) -> Result<(), GpuError>;
     /// Drops the device's copy without reading it (the host's state was replaced).
     fn discard(&mut self);
+    /// Densification's schedule after the update of step `r.step`
+    /// ([`Densifier::step_post_update`]: refinement and opacity resets when due), wherever the
+    /// state lives; `visibility` is asked for a `KeepVisible` reset. The result is the host's
+    /// refinement to the bit on every device.
+    fn post_update(
+        &mut self,
+        st: &mut TrainState,
+        r: &Refinement<'_>,
+        visibility: &mut dyn FnMut(&Gaussians) -> Vec<f64>,
+    ) -> Result<RefineReport, GpuError> {
+        self.release(st)?;
+        Ok(refine_on_host(st, r, visibility))
+    }
+    /// The number of Gaussians in training (a device's copy may have densified since the
+    /// host's was made current).
+    fn gaussians(&self, st: &TrainState) -> usize {
+        st.g.len()
+    }
+}
+
+/// [`Densifier::step_post_update`] on the host's state.
+pub fn refine_on_host(
+    st: &mut TrainState,
+    r: &Refinement<'_>,
+    visibility: &mut dyn FnMut(&Gaussians) -> Vec<f64>,
+) -> RefineReport {
+    st.densifier.step_post_update(
+        r.step,
+        r.sched,
+        r.args,
+        &mut st.g,
+        &mut st.adam,
+        r.extents,
+        r.seed,
+        visibility,
+    )
 }
 
 /// What a device can do.

@@ -33,6 +33,15 @@ const GROUPS: [Group; 5] = [
     Group::Sh,
 ];
 
+/// The index of the opacities in [`GROUPS`].
+pub(crate) const OPACITY_GROUP: usize = 3;
+
+/// Values per Gaussian of each group's moments, in the order of [`GROUPS`], for `coeffs` SH
+/// coefficients per channel (as [`Adam::new`] lays them out).
+pub(crate) fn moment_widths(coeffs: u32) -> [u32; 5] {
+    [3, 3, 4, 1, 3 * coeffs]
+}
+
 /// How a view's loss and colour gradient are computed.
 pub enum ViewLoss<'a> {
     /// On the host: the rendered colour (`H·W·3`) is read back, the closure writes
@@ -91,18 +100,18 @@ impl GpuTarget {
 
 /// A training state on the GPU (see the module docs).
 pub struct GpuTrainer {
-    scene: GpuScene,
+    pub(crate) scene: GpuScene,
     /// First and second moments per group, in the order of [`GROUPS`].
-    moments: Vec<(GpuBuffer, GpuBuffer)>,
+    pub(crate) moments: Vec<(GpuBuffer, GpuBuffer)>,
     /// The step's summed gradients: `PARAM_GRAD_STRIDE` per Gaussian.
-    acc_grads: GpuBuffer,
+    pub(crate) acc_grads: GpuBuffer,
     /// The step's summed SH gradients, in the parameters' layout.
-    acc_sh: GpuBuffer,
+    pub(crate) acc_sh: GpuBuffer,
     /// Per Gaussian: visible in any of the step's views (1) or not (0).
-    acc_visible: GpuBuffer,
+    pub(crate) acc_visible: GpuBuffer,
     /// The densification statistic's sums and counts.
-    grad2d: GpuBuffer,
-    count: GpuBuffer,
+    pub(crate) grad2d: GpuBuffer,
+    pub(crate) count: GpuBuffer,
     /// The per-view sums and pair counts (`accumulate.wgsl`), compiled on the context once.
     kernels: std::sync::Arc<Kernels>,
     /// Adam (`adam.wgsl`), compiled on the context once.
@@ -173,13 +182,17 @@ impl GpuTrainer {
     ) -> Result<(), GpuError> {
         let n = self.len();
         let k = self.scene.coeffs as usize;
-        if g.len() != n || g.coeffs() != k || adam.len() != n || stats.grad2d.len() != n {
+        if g.coeffs() != k {
             return Err(GpuError::Invalid(format!(
-                "the host holds {} Gaussians with {} SH coefficients, the GPU {n} with {k}",
-                g.len(),
+                "the host holds Gaussians with {} SH coefficients, the GPU {k}",
                 g.coeffs()
             )));
         }
+        // Densification on the GPU changes the count: the host's arrays follow.
+        g.means.resize(n, [0.0; 3]);
+        g.log_scales.resize(n, [0.0; 3]);
+        g.quats.resize(n, [0.0; 4]);
+        adam.set_len(n);
         let floats = |buf: &wgpu::Buffer, len: usize| -> Result<Vec<f32>, GpuError> {
             Ok(ctx
                 .read_words(buf, len)?

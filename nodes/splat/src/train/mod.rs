@@ -345,7 +345,7 @@ impl<'a> Trainer<'a> {
         render: u64,
     ) -> (f64, u64) {
         let factors = self.args.drop_gaussians.as_ref().and_then(|d| {
-            let n = self.state.g.len();
+            let n = self.device.gaussians(&self.state);
             d.factors(self.args.seed, self.step, self.args.steps, render, n)
         });
         let dropped;
@@ -437,7 +437,7 @@ impl<'a> Trainer<'a> {
             .unwrap_or_else(|e| device_failed(e));
         rep.refine = self.post_update(step, &settings);
         self.step += 1;
-        rep.gaussians = self.state.g.len();
+        rep.gaussians = self.device.gaussians(&self.state);
         rep
     }
 
@@ -475,33 +475,31 @@ impl<'a> Trainer<'a> {
         ids
     }
 
-    /// Densification and opacity resets after the step's update (on the host: the device's
-    /// state is brought back first, and uploaded again by the next step).
+    /// Densification and opacity resets after the step's update, on the device that holds
+    /// the state ([`crate::device::TrainingDevice::post_update`]).
     fn post_update(&mut self, step: u64, settings: &RenderSettings) -> densify::RefineReport {
         if !densify::acts_at(step, &self.dsched, &self.args.densify) {
             return Default::default();
         }
-        self.release();
         // For a `KeepVisible` reset: each Gaussian's visibility in the real views.
         let real = self.real;
         let mut visibility = |g: &Gaussians| {
             let cams: Vec<&Camera> = (0..real.len()).map(|i| real.camera(i)).collect();
             densify::peak_alpha_ratios(g, &cams, settings.antialiased, settings.near as f64)
         };
-        let st = &mut self.state;
-        st.densifier.step_post_update(
+        let r = densify::gpu::Refinement {
             step,
-            &self.dsched,
-            &self.args.densify,
-            &mut st.g,
-            &mut st.adam,
-            Extents {
+            sched: &self.dsched,
+            args: &self.args.densify,
+            extents: Extents {
                 scene: self.scene_scale,
                 prune: self.prune_extent,
             },
-            self.args.seed ^ 0xDE45,
-            &mut visibility,
-        )
+            seed: self.args.seed ^ 0xDE45,
+        };
+        self.device
+            .post_update(&mut self.state, &r, &mut visibility)
+            .unwrap_or_else(|e| device_failed(e))
     }
 }
 

@@ -37,6 +37,11 @@
 //! over-grows the set (measured: 170k Gaussians for a 128×96 scene in 3000 steps), see
 //! [`DensifyArgs::scaled`].
 
+pub mod gpu;
+#[cfg(test)]
+mod gpu_tests;
+pub mod thresholds;
+
 use crate::adam::{Adam, Group};
 use crate::Gaussians;
 use augsplat_core::{linalg, Rng};
@@ -437,11 +442,7 @@ impl Densifier {
             if avg <= args.grad_threshold {
                 continue;
             }
-            let smax = g.log_scales[i]
-                .iter()
-                .cloned()
-                .fold(f32::NEG_INFINITY, f32::max)
-                .exp();
+            let smax = max_log_scale(&g.log_scales[i]).exp();
             if smax as f64 <= args.grow_scale3d * scene_scale {
                 clone.push(i);
             } else {
@@ -467,31 +468,15 @@ impl Densifier {
         let k3 = g.coeffs() * 3;
         let log_div = (args.split_factor as f32).ln();
         for &i in &split {
-            let q = g.quats[i];
-            let qn = {
-                let l = q.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
-                if l > 0.0 && l.is_finite() {
-                    [
-                        q[0] as f64 / l,
-                        q[1] as f64 / l,
-                        q[2] as f64 / l,
-                        q[3] as f64 / l,
-                    ]
-                } else {
-                    [1.0, 0.0, 0.0, 0.0]
-                }
+            let parent = SplitParent {
+                mean: g.means[i],
+                log_scales: g.log_scales[i],
+                quat: g.quats[i],
             };
-            let r = linalg::quat_to_mat3(qn);
-            let s: [f64; 3] = std::array::from_fn(|a| (g.log_scales[i][a] as f64).exp());
-            for _ in 0..2 {
-                let z: [f64; 3] = std::array::from_fn(|a| rng.normal() * s[a]);
-                let off = linalg::mat3_vec(&r, z);
-                let m = g.means[i];
-                g.means
-                    .push(std::array::from_fn(|a| (m[a] as f64 + off[a]) as f32));
-                let ls = g.log_scales[i];
-                g.log_scales.push(ls.map(|v| v - log_div));
-                g.quats.push(q);
+            for child in split_children(&parent, log_div, rng) {
+                g.means.push(child.mean);
+                g.log_scales.push(child.log_scales);
+                g.quats.push(g.quats[i]);
                 g.opacity_logits.push(g.opacity_logits[i]);
                 g.sh.extend_from_within(i * k3..(i + 1) * k3);
                 self.grad2d.push(0.0);
@@ -521,23 +506,9 @@ impl Densifier {
         prune_large: bool,
     ) -> usize {
         let n = g.len();
-        let thr_logit = crate::init::logit(args.prune_opacity) as f32;
-        let big = args.prune_scale3d * extent;
+        let rule = PruneRule::new(args, extent, prune_large);
         let keep: Vec<bool> = (0..n)
-            .map(|i| {
-                let o = g.opacity_logits[i];
-                if o.is_nan() || o < thr_logit {
-                    return false; // transparent or NaN
-                }
-                let smax = g.log_scales[i]
-                    .iter()
-                    .cloned()
-                    .fold(f32::NEG_INFINITY, f32::max);
-                if !smax.is_finite() || g.means[i].iter().any(|v| !v.is_finite()) {
-                    return false;
-                }
-                !(prune_large && (smax.exp() as f64) > big)
-            })
+            .map(|i| !rule.prunes(g.opacity_logits[i], &g.log_scales[i], &g.means[i]))
             .collect();
         let removed = keep.iter().filter(|&&k| !k).count();
         if removed > 0 {
@@ -554,6 +525,97 @@ impl Densifier {
         let mut it = keep.iter();
         self.count.retain(|_| *it.next().unwrap_or(&false));
     }
+}
+
+/// What a split child inherits from its parent's geometry.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SplitParent {
+    /// The parent's mean.
+    pub mean: [f32; 3],
+    /// The parent's log-scales.
+    pub log_scales: [f32; 3],
+    /// The parent's raw quaternion.
+    pub quat: [f32; 4],
+}
+
+/// A split child's mean and log-scales (its quaternion, opacity and colour are the
+/// parent's).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SplitChild {
+    /// Drawn from the parent: `μ + R·(s ⊙ n)`, n ~ N(0, I), in f64.
+    pub mean: [f32; 3],
+    /// The parent's log-scales minus `ln(split_factor)`.
+    pub log_scales: [f32; 3],
+}
+
+/// The two children of one split, drawing six normals from `rng` (three per child, in
+/// order): the one definition both the CPU's [`Densifier::grow`] and the GPU's refinement use,
+/// so that a split gives the same bits on either device.
+pub fn split_children(p: &SplitParent, log_div: f32, rng: &mut Rng) -> [SplitChild; 2] {
+    let q = p.quat;
+    let qn = {
+        let l = q.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+        if l > 0.0 && l.is_finite() {
+            [
+                q[0] as f64 / l,
+                q[1] as f64 / l,
+                q[2] as f64 / l,
+                q[3] as f64 / l,
+            ]
+        } else {
+            [1.0, 0.0, 0.0, 0.0]
+        }
+    };
+    let r = linalg::quat_to_mat3(qn);
+    let s: [f64; 3] = std::array::from_fn(|a| (p.log_scales[a] as f64).exp());
+    std::array::from_fn(|_| {
+        let z: [f64; 3] = std::array::from_fn(|a| rng.normal() * s[a]);
+        let off = linalg::mat3_vec(&r, z);
+        SplitChild {
+            mean: std::array::from_fn(|a| (p.mean[a] as f64 + off[a]) as f32),
+            log_scales: p.log_scales.map(|v| v - log_div),
+        }
+    })
+}
+
+/// The prune test of one refinement ([`Densifier::prune`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PruneRule {
+    /// Opacity logits below this are pruned.
+    pub thr_logit: f32,
+    /// Largest scales above this are pruned when `large` holds.
+    pub big: f64,
+    /// Whether oversized Gaussians are pruned (after the first reset period).
+    pub large: bool,
+}
+
+impl PruneRule {
+    /// The rule for `args` with the prune extent `extent`.
+    pub fn new(args: &DensifyArgs, extent: f64, large: bool) -> PruneRule {
+        PruneRule {
+            thr_logit: crate::init::logit(args.prune_opacity) as f32,
+            big: args.prune_scale3d * extent,
+            large,
+        }
+    }
+
+    /// Whether a Gaussian with these parameters is pruned: transparent (or a NaN opacity), a
+    /// non-finite scale or mean, or (when `large`) a largest scale above `big`.
+    pub fn prunes(&self, logit: f32, log_scales: &[f32; 3], mean: &[f32; 3]) -> bool {
+        if logit.is_nan() || logit < self.thr_logit {
+            return true;
+        }
+        let smax = max_log_scale(log_scales);
+        if !smax.is_finite() || mean.iter().any(|v| !v.is_finite()) {
+            return true;
+        }
+        self.large && (smax.exp() as f64) > self.big
+    }
+}
+
+/// The largest of three log-scales, NaNs ignored (−∞ when all are NaN).
+pub fn max_log_scale(log_scales: &[f32; 3]) -> f32 {
+    log_scales.iter().cloned().fold(f32::NEG_INFINITY, f32::max)
 }
 
 /// Clamps every opacity to at most `value` (gsplat `reset_opa`) and clears the opacity
