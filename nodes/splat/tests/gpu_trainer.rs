@@ -611,13 +611,14 @@ fn pixel_masks_train_on_the_gpu_as_on_the_cpu() {
 }
 
 #[test]
-fn the_host_waits_twice_per_view_of_a_step() {
-    let test = "the_host_waits_twice_per_view_of_a_step";
+fn the_host_waits_once_per_view_it_has_seen() {
+    let test = "the_host_waits_once_per_view_it_has_seen";
     let Some(gpu) = context(test) else { return };
     let tmp = tempfile::tempdir().unwrap();
     let c = case(tmp.path());
-    // Dual with a batch of 3 for 4 steps, then the real view alone; no refinement.
-    let mut a = args(8, false);
+    // Dual with a batch of 3 for 4 steps, then the real view alone; no refinement. The 9
+    // real views each come once per epoch.
+    let mut a = args(24, false);
     a.schedule = short_dual();
     let synth = Some(&c.synth as &dyn Supervision);
     let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, synth);
@@ -630,11 +631,21 @@ fn the_host_waits_twice_per_view_of_a_step() {
         per_step.push((views, gpu.host_waits() - before));
     }
     eprintln!("{test}: (views, waits) per step {per_step:?}");
-    // Today's step: each view waits for its pair count and for its loss and pair sums; the
-    // upload and Adam do not wait. (A step at the device's speed would wait at most once.)
+    // A view's first pass waits for its pair count and for its loss; later passes are sized
+    // from the last count and wait once, for the loss and the count together. The upload
+    // and Adam do not wait.
     for (step, &(views, waits)) in per_step.iter().enumerate().skip(1) {
-        assert_eq!(waits, 2 * views, "step {step}: {per_step:?}");
+        if step >= 9 {
+            assert_eq!(waits, views, "step {step}: {per_step:?}");
+        } else {
+            assert!(
+                waits >= views && waits <= 2 * views,
+                "step {step}: {per_step:?}"
+            );
+        }
     }
+    let first_epoch: u64 = per_step[1..9].iter().map(|s| s.1).sum();
+    assert!(first_epoch > 8, "first passes wait twice: {per_step:?}");
 }
 
 #[test]
@@ -654,11 +665,13 @@ fn a_refinement_on_the_gpu_waits_once_and_brings_nothing_back() {
         let r = t.step();
         per_step.push((r.step, r.refine, gpu.host_waits() - before));
     }
-    // One view per step waits twice; a refinement adds one wait (its totals and split
-    // parents), a reset none: the state is never read back whole.
+    // One view per step waits twice at its first pass and once after (unless densification
+    // grew its pairs past the slots: then once more); a refinement adds one wait (its totals
+    // and split parents), a reset none: the state is never read back whole.
     for (step, refine, waits) in &per_step {
         let grows = [3, 6, 9].contains(step);
-        assert_eq!(*waits, 2 + u64::from(grows), "step {step}: {per_step:?}");
+        let view = waits - u64::from(grows);
+        assert!((1..=2).contains(&view), "step {step}: {per_step:?}");
         assert_eq!(refine.reset, [4, 8].contains(step), "step {step}");
     }
     let grown: usize = per_step.iter().map(|(_, r, _)| r.cloned + r.split).sum();

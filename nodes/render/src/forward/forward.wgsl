@@ -61,7 +61,10 @@ fn gather_counts(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     }
 }
 
-// The pairs of rank r at its offset, tiles in row-major order: tile, emit position, rank.
+// The pairs of rank r at its offset, tiles in row-major order: tile + 1 (0 marks an unused
+// slot: a forward pass sized ahead of its count has `p.pairs` slots, and the zeroed slots past
+// the count sort first and belong to no tile), emit position, rank. Pairs past the slots are
+// not written (the count, `counts[n]`, then exceeds `p.pairs`: the caller discards the pass).
 @compute @workgroup_size(256)
 fn emit_pairs(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let r = linear(gid, nwg);
@@ -79,26 +82,33 @@ fn emit_pairs(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     var o = counts[r];
     for (var ty = y0; ty < y1; ty++) {
         for (var tx = x0; tx < x1; tx++) {
-            tile_keys[o] = ty * p.tiles_x + tx;
-            pair_vals[o] = o;
-            pair_rank[o] = r;
+            if (o < p.pairs) {
+                tile_keys[o] = ty * p.tiles_x + tx + 1u;
+                pair_vals[o] = o;
+                pair_rank[o] = r;
+            }
             o++;
         }
     }
 }
 
-// ranges[t] = [start, end) of tile t in the sorted pairs (zeroed by the host first).
+// ranges[t] = [start, end) of tile t in the sorted pairs (zeroed by the host first); unused
+// slots (key 0) sort first and mark nothing.
 @compute @workgroup_size(256)
 fn tile_ranges(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear(gid, nwg);
     if (i >= p.pairs) {
         return;
     }
-    let t = tile_keys[i];
-    if (i == 0u || tile_keys[i - 1u] != t) {
+    let key = tile_keys[i];
+    if (key == 0u) {
+        return;
+    }
+    let t = key - 1u;
+    if (i == 0u || tile_keys[i - 1u] != key) {
         ranges[t].x = i;
     }
-    if (i + 1u == p.pairs || tile_keys[i + 1u] != t) {
+    if (i + 1u == p.pairs || tile_keys[i + 1u] != key) {
         ranges[t].y = i + 1u;
     }
 }

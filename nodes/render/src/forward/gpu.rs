@@ -255,7 +255,8 @@ pub fn tile_grid(cam: &Camera) -> Result<TileGrid, GpuError> {
 pub struct ForwardState {
     /// Number of Gaussians.
     pub gaussians: u32,
-    /// Number of (tile, Gaussian) pairs.
+    /// Number of (tile, Gaussian) pair slots: the pairs, or more when the pass was sized
+    /// ahead of its count ([`forward_pass_in`]).
     pub pairs: u32,
     /// The forward kernels' parameters (with `pairs`).
     pub params: GpuBuffer,
@@ -279,7 +280,21 @@ pub struct ForwardState {
     pub info: GpuBuffer,
 }
 
-/// Runs the forward kernels and keeps their buffers.
+impl ForwardState {
+    /// Where the pass's pair count sits on the device (`counts[gaussians]`): read it after the
+    /// pass, in a read-back the caller makes anyway, and compare with [`Self::pairs`].
+    pub fn pair_count_at(&self) -> (&wgpu::Buffer, u64) {
+        (&self.counts, u64::from(self.gaussians))
+    }
+
+    /// Whether a pass sized ahead had more pairs (`count`, read at
+    /// [`Self::pair_count_at`]) than slots: its image and lists are then wrong.
+    pub fn overflowed_in(&self, count: u32) -> bool {
+        count > self.pairs
+    }
+}
+
+/// Runs the forward kernels and keeps their buffers (one wait, for the number of pairs).
 #[allow(clippy::too_many_arguments)]
 pub fn forward_pass(
     ctx: &GpuContext,
@@ -289,6 +304,26 @@ pub fn forward_pass(
     grid: TileGrid,
     cutoff: Cutoff,
     mask: Option<&wgpu::Buffer>,
+) -> Result<ForwardState, GpuError> {
+    forward_pass_in(ctx, g, cam, s, grid, cutoff, mask, None)
+}
+
+/// [`forward_pass`] with `slots` (tile, Gaussian) pair slots when given, so that nothing
+/// waits: the pass is recorded and submitted at once. When the pairs exceed the slots
+/// (`counts[gaussians]` > `slots`, see [`ForwardState::overflowed_in`]) the pass is wrong and
+/// must be discarded; otherwise its bytes are those of [`forward_pass`] (unused slots sort
+/// first and belong to no tile). With `None`, the pairs are counted first (one wait) and the
+/// slots are exactly the pairs.
+#[allow(clippy::too_many_arguments)]
+pub fn forward_pass_in(
+    ctx: &GpuContext,
+    g: &GpuScene,
+    cam: &Camera,
+    s: &RenderSettings,
+    grid: TileGrid,
+    cutoff: Cutoff,
+    mask: Option<&wgpu::Buffer>,
+    slots: Option<u32>,
 ) -> Result<ForwardState, GpuError> {
     if s.opacity_scale.is_some() {
         return Err(GpuError::Invalid(
@@ -363,7 +398,13 @@ pub fn forward_pass(
     );
     ctx.record_scan(&mut enc, &counts, n + 1)?;
     // The number of (tile, Gaussian) pairs: the exclusive sum at n (counts[n] was zero).
-    let pairs = ctx.read_after(enc, &[(&counts, u64::from(n), 1)])?[0][0];
+    let (pairs, mut enc) = match slots {
+        Some(slots) => (slots, enc),
+        None => (
+            ctx.read_after(enc, &[(&counts, u64::from(n), 1)])?[0][0],
+            ctx.device.create_command_encoder(&Default::default()),
+        ),
+    };
 
     // Emit the pairs in rank order, sort them by tile (stable: ranks stay ascending), find
     // each tile's range and composite.
@@ -377,7 +418,6 @@ pub fn forward_pass(
     let image = ctx.storage("image", 4 * IMAGE_STRIDE as u64 * pixels)?;
     let info = ctx.storage("pixel info", 8 * pixels)?;
     let params = ctx.uniform("forward params", &fwd_params(pairs));
-    let mut enc = ctx.device.create_command_encoder(&Default::default());
     ctx.dispatch(
         &mut enc,
         &kr.forward.emit_pairs,
@@ -392,7 +432,8 @@ pub fn forward_pass(
         ],
         ctx.groups(n.div_ceil(GROUP)),
     );
-    let tile_bits = u32::BITS - (grid.len().max(2) as u32 - 1).leading_zeros();
+    // Keys run to tiles (a tile's key is its index + 1, 0 an unused slot).
+    let tile_bits = u32::BITS - (grid.len() as u32).leading_zeros();
     let (sorted_tiles, sorted_pairs) = ctx.record_sort(
         &mut enc,
         &tile_keys,

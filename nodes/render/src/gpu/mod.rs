@@ -50,8 +50,8 @@ pub use crate::backward::gpu::{
     ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
 };
 pub use crate::forward::gpu::{
-    render_gpu, render_scene, render_scene_masked, render_scene_with_cutoff, upload_mask, GpuFrame,
-    GpuScene,
+    forward_pass_in, render_gpu, render_scene, render_scene_masked, render_scene_with_cutoff,
+    upload_mask, GpuFrame, GpuScene,
 };
 
 use pool::Contents;

@@ -37,6 +37,8 @@ impl SplatDevice for GpuDevice {
             targets: HashMap::new(),
             sh_active: 0,
             count_bound: 0,
+            tile_pairs: HashMap::new(),
+            overflows: 0,
         })
     }
 }
@@ -69,6 +71,15 @@ impl DeviceModel for GpuModel<'_> {
     }
 }
 
+/// The pair slots of a view's next forward pass from its last pair count: 1/8 more plus 1024,
+/// rounded up to one of eight sizes per octave (so that the context's pool, which reuses
+/// buffers of equal size, serves most passes).
+pub(crate) fn pair_slots(last: u32) -> u32 {
+    let need = u64::from(last) + u64::from(last / 8) + 1024;
+    let step = 1u64 << (63 - need.leading_zeros()).saturating_sub(3);
+    need.next_multiple_of(step).min(u64::from(u32::MAX)) as u32
+}
+
 /// A training run's GPU half.
 struct GpuTraining {
     ctx: Arc<GpuContext>,
@@ -81,6 +92,11 @@ struct GpuTraining {
     targets: HashMap<(bool, usize), GpuTarget>,
     /// The step's active SH width.
     sh_active: usize,
+    /// Each view's (tile, Gaussian) pairs at its last pass, by (synthetic?, view index): the
+    /// next pass is sized from them ([`pair_slots`]).
+    tile_pairs: HashMap<(bool, usize), u32>,
+    /// Passes that outgrew their slots and ran again.
+    overflows: u64,
     /// A bound on every Gaussian's view count in the GPU's statistics: the largest count
     /// uploaded, plus the views added with the statistic since.
     count_bound: u64,
@@ -127,42 +143,56 @@ impl TrainingDevice for GpuTraining {
         let ctx = self.ctx.clone();
         self.state(st)?;
         let (src, i) = (view.source, view.index);
+        let key = (view.synthetic, i);
         let sh_active = self.sh_active;
         let mut host = |rgb: &[f32], grad: &mut [f32]| src.loss(i, rgb, view.scale as f32, grad);
-        let host_mask;
-        let loss = match src.gpu_loss(i) {
+        let gpu_loss = src.gpu_loss(i);
+        let host_mask = match &gpu_loss {
             Some(v) => {
-                let target = match self.targets.entry((view.synthetic, i)) {
-                    Entry::Occupied(e) => e.into_mut(),
-                    Entry::Vacant(e) => {
-                        e.insert(GpuTarget::upload(&ctx, v.target, v.weights, src.mask(i))?)
-                    }
-                };
-                ViewLoss::Gpu {
-                    target,
-                    loss: v.loss,
-                    scale: view.scale as f32,
+                if let Entry::Vacant(e) = self.targets.entry(key) {
+                    e.insert(GpuTarget::upload(&ctx, v.target, v.weights, src.mask(i))?);
                 }
+                None
             }
             None => {
                 let cam = src.camera(i);
                 let pixels = cam.width as usize * cam.height as usize;
-                host_mask = crate::gpu::upload_mask(&ctx, pixels, src.mask(i))?;
-                ViewLoss::Host {
-                    loss: &mut host,
-                    mask: host_mask.as_deref(),
-                }
+                crate::gpu::upload_mask(&ctx, pixels, src.mask(i))?
             }
         };
         if view.stats.is_some() {
             self.count_bound += 1;
         }
         let state = self.state.as_ref().expect("uploaded above");
-        let out = state.add_view(&ctx, src.camera(i), s, loss, view.stats, sh_active);
-        // The view's encoders were all submitted (it ends with a read-back): the next view
-        // reuses its buffers.
-        ctx.reclaim();
-        out
+        // Sized from the view's last pass: no wait for its pair count. A pass that outgrew
+        // them added nothing; it runs again, counted first.
+        let ahead = self.tile_pairs.get(&key).map(|&c| pair_slots(c));
+        for slots in [ahead, None].into_iter().skip(usize::from(ahead.is_none())) {
+            let loss = match &gpu_loss {
+                Some(v) => ViewLoss::Gpu {
+                    target: &self.targets[&key],
+                    loss: v.loss,
+                    scale: view.scale as f32,
+                },
+                None => ViewLoss::Host {
+                    loss: &mut host,
+                    mask: host_mask.as_deref(),
+                },
+            };
+            let out = state.add_view(&ctx, src.camera(i), s, loss, view.stats, sh_active, slots);
+            // The view's encoders were all submitted (it ends with a read-back): the next
+            // view reuses its buffers.
+            ctx.reclaim();
+            let out = out?;
+            self.tile_pairs.insert(key, out.tile_pairs);
+            if !out.overflowed {
+                return Ok((out.loss, out.pairs));
+            }
+            self.overflows += 1;
+        }
+        Err(GpuError::Invalid(
+            "a forward pass sized by its own count overflowed".into(),
+        ))
     }
 
     fn adam_step(

@@ -11,9 +11,10 @@
 //!   run. The [`crate::train::Trainer`] writes the step and every schedule once, in terms of
 //!   [`TrainingDevice::begin_step`], [`TrainingDevice::add_view`] (render, loss, gradient and
 //!   densification statistic of one view, summed into the step's gradients in a fixed order)
-//!   and [`TrainingDevice::adam_step`]; [`TrainingDevice::sync`] and
+//!   and [`TrainingDevice::adam_step`], and densification where the state lives
+//!   ([`TrainingDevice::post_update`]); [`TrainingDevice::sync`] and
 //!   [`TrainingDevice::release`] bring the state back to the host where the host must see or
-//!   change it (densification, resets, evaluations, checkpoints).
+//!   change it (evaluations, checkpoints, resets the device cannot do).
 //!
 //! The CPU device (`device/cpu.rs`) keeps the state in the host's [`TrainState`] itself; the
 //! GPU device (`device/gpu.rs`) keeps a copy in GPU buffers between steps and holds one

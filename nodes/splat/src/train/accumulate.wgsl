@@ -17,6 +17,13 @@ struct AccConst {
     half_h: f32,
     factor: f32,
     pad: f32,
+    // With `gated`: the view's forward pass had `slots` pair slots and its pair count sits at
+    // `pair_count[count_at]`; a pass with more pairs than slots adds nothing (the trainer
+    // runs the view again with enough).
+    gated: u32,
+    slots: u32,
+    count_at: u32,
+    pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> c: AccConst;
@@ -29,11 +36,12 @@ struct AccConst {
 @group(0) @binding(7) var<storage, read_write> acc_visible: array<u32>;
 @group(0) @binding(8) var<storage, read_write> grad2d: array<f32>;
 @group(0) @binding(9) var<storage, read_write> count: array<u32>;
+@group(0) @binding(13) var<storage, read> pair_count: array<u32>;    // bound whole
 
 @compute @workgroup_size(256)
 fn accumulate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = gid.x + gid.y * nwg.x * 256u;
-    if (i >= c.n) {
+    if (i >= c.n || (c.gated != 0u && pair_count[c.count_at] > c.slots)) {
         return;
     }
     let og = i * GRAD_STRIDE;

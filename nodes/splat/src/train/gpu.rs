@@ -1,23 +1,28 @@
 //! The training step on the GPU: the Gaussians, Adam's moments, the step's gradient sums and
 //! the densification statistics live in GPU buffers from one step to the next, so a step
 //! sends nothing to the GPU but its camera and (for a loss computed on the host) one colour
-//! gradient, and reads back only the number of (tile, Gaussian) pairs and the loss.
+//! gradient, and reads back only the loss and the pair counts, once per view.
 //!
 //! Per view ([`GpuTrainer::add_view`]): the forward kernels, the loss and its colour
 //! gradient, the compositing backward, the projection backward, then `accumulate.wgsl` adds
 //! the view's gradients to the step's sums (and the densification statistic to its sums) —
-//! views one after another, so every sum has the CPU trainer's order. Per step
+//! views one after another, so every sum has the CPU trainer's order. A view's forward pass
+//! is sized from the view's last pair count (its first pass counts first: one more wait); a
+//! pass whose pairs outgrew the slots adds nothing (the accumulation checks the count on the
+//! device) and runs again, counted first, so the bytes never depend on the sizing. Per step
 //! ([`GpuTrainer::adam_step`]): `adam/adam.wgsl` once per parameter group, with the constants
-//! the CPU's `Adam` computes. The trainer brings the state back to the host
-//! ([`GpuTrainer::download`]) only where the CPU must see it: densification, opacity resets,
-//! evaluations and checkpoints; after the host changed it, it uploads a new state.
+//! the CPU's `Adam` computes. Densification and `Periodic` opacity resets run on the device
+//! too (`densify/gpu.rs`, one wait per refinement). The trainer brings the state back to the
+//! host ([`GpuTrainer::download`]) only where the CPU must see it: `KeepVisible` resets,
+//! Staged's and Dual's resets at a switch, evaluations and checkpoints; after the host changed
+//! it, it uploads a new state.
 
 use crate::adam::{Adam, GpuStepConst, Group};
 use crate::backward::gpu::{
     pair_buffer, record_backward, record_vjp, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
 };
 use crate::densify::Densifier;
-use crate::forward::gpu::{forward_pass, tile_grid, GpuScene, IMAGE_STRIDE};
+use crate::forward::gpu::{forward_pass_in, tile_grid, GpuScene, IMAGE_STRIDE};
 use crate::gpu::{f32_words, GpuBuffer, GpuContext, GpuError};
 use crate::loss::gpu::{record_loss, GpuLoss};
 use crate::render::{Cutoff, RenderSettings};
@@ -95,6 +100,31 @@ impl GpuTarget {
                 mask: crate::gpu::upload_mask(ctx, pixels, mask)?,
             })
         })
+    }
+}
+
+/// What [`GpuTrainer::add_view`] did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ViewResult {
+    /// The view's loss (without the gradient's factor).
+    pub loss: f64,
+    /// The composited (Gaussian, pixel) pairs, as the CPU renderer counts them.
+    pub pairs: u64,
+    /// The (tile, Gaussian) pairs of the forward pass (the slots a later pass of this view
+    /// needs, about).
+    pub tile_pairs: u32,
+    /// The pass had fewer slots than pairs: the view added nothing to the step.
+    pub overflowed: bool,
+}
+
+impl ViewResult {
+    fn overflow(tile_pairs: u32) -> ViewResult {
+        ViewResult {
+            loss: 0.0,
+            pairs: 0,
+            tile_pairs,
+            overflowed: true,
+        }
     }
 }
 
@@ -232,7 +262,10 @@ impl GpuTrainer {
     /// and adds the view's gradients to the step's sums; with `stats = Some(factor)` also adds
     /// the densification statistic (the screen-space mean gradient × `factor`, as
     /// `Densifier::accumulate_scaled`). `sh_active` is the number of leading SH values per
-    /// Gaussian whose gradient may be non-zero. Returns (loss, pairs).
+    /// Gaussian whose gradient may be non-zero. With `slots`, the forward pass has that many
+    /// (tile, Gaussian) pair slots and waits only once, at the end; when its pairs exceed
+    /// them the view adds nothing ([`ViewResult::overflowed`]) and must run again with more.
+    #[allow(clippy::too_many_arguments)]
     pub fn add_view(
         &self,
         ctx: &GpuContext,
@@ -241,7 +274,8 @@ impl GpuTrainer {
         loss: ViewLoss<'_>,
         stats: Option<f32>,
         sh_active: usize,
-    ) -> Result<(f64, u64), GpuError> {
+        slots: Option<u32>,
+    ) -> Result<ViewResult, GpuError> {
         let grid = tile_grid(cam)?;
         ctx.scoped(|| {
             let sc = &self.scene;
@@ -252,13 +286,23 @@ impl GpuTrainer {
                 ViewLoss::Gpu { target, .. } => target.mask.as_deref(),
                 ViewLoss::Host { mask, .. } => *mask,
             };
-            let st = forward_pass(ctx, sc, cam, s, grid, Cutoff::Hard, mask)?;
+            let st = forward_pass_in(ctx, sc, cam, s, grid, Cutoff::Hard, mask, slots)?;
+            let (count_buf, count_at) = st.pair_count_at();
             let px = cam.width as usize * cam.height as usize;
             let d_rgb = ctx.storage("colour gradients", 4 * 3 * px as u64)?;
             let mut enc = ctx.device.create_command_encoder(&Default::default());
             let (host_value, sums) = match loss {
                 ViewLoss::Host { loss: f, .. } => {
-                    let img = ctx.read_words(&st.image, IMAGE_STRIDE * px)?;
+                    let read = ctx.device.create_command_encoder(&Default::default());
+                    let mut words = ctx.read_after(
+                        read,
+                        &[(&st.image, 0, IMAGE_STRIDE * px), (count_buf, count_at, 1)],
+                    )?;
+                    let count = words[1][0];
+                    if st.overflowed_in(count) {
+                        return Ok(ViewResult::overflow(count));
+                    }
+                    let img = words.swap_remove(0);
                     let rgb: Vec<f32> = img
                         .chunks_exact(IMAGE_STRIDE)
                         .flat_map(|p| p[..3].iter().map(|w| f32::from_bits(*w)))
@@ -315,6 +359,10 @@ impl GpuTrainer {
                         (0.5 * cam.height as f32).to_bits(),
                         stats.unwrap_or(1.0).to_bits(),
                         0,
+                        u32::from(slots.is_some()),
+                        st.pairs,
+                        count_at as u32,
+                        0,
                     ],
                     0,
                 ),
@@ -328,6 +376,7 @@ impl GpuTrainer {
                     (7, &self.acc_visible, 1),
                     (8, &self.grad2d, 1),
                     (9, &self.count, 1),
+                    (13, count_buf, 0),
                 ],
                 n,
                 1,
@@ -347,14 +396,24 @@ impl GpuTrainer {
             // One round trip: the loss's partial sums and the pair counts together.
             let mut parts = sums.as_ref().map(|s| s.parts()).unwrap_or_default();
             parts.push((&pair_partials, 0, blocks));
+            parts.push((count_buf, count_at, 1));
             let mut words = ctx.read_after(enc, &parts)?;
+            let count = words.pop().unwrap_or_default()[0];
+            if st.overflowed_in(count) {
+                return Ok(ViewResult::overflow(count));
+            }
             let pair_words = words.pop().unwrap_or_default();
             let pairs = pair_words.iter().map(|&w| u64::from(w)).sum();
             let value = match &sums {
                 Some(sums) => sums.terms_from(&words).0,
                 None => host_value,
             };
-            Ok((value, pairs))
+            Ok(ViewResult {
+                loss: value,
+                pairs,
+                tile_pairs: count,
+                overflowed: false,
+            })
         })
     }
 

@@ -29,7 +29,7 @@
 //!
 //! The step is written once over the [`crate::device`] seam: [`Trainer::on_device`] moves
 //! the training to another [`Device`] (the GPU keeps the state there between steps and brings
-//! it back for densification, resets, evaluations and checkpoints). The arguments live in
+//! it back for evaluations, checkpoints and the resets it cannot do). The arguments live in
 //! `train/args.rs`.
 
 use crate::adam::Adam;
@@ -42,6 +42,8 @@ use augsplat_core::{Camera, Rng};
 
 mod args;
 pub(crate) mod gpu;
+#[cfg(test)]
+mod gpu_tests;
 
 pub use crate::device::add_grads;
 pub use args::{RealLoss, SyntheticArgs, TrainArgs};

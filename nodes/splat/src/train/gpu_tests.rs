@@ -1,0 +1,82 @@
+//! A view's forward pass sized ahead of its pair count (no wait for the count) against one
+//! sized by its count: the same bits in the step's sums and statistics when the slots
+//! suffice, nothing at all when they do not. Skips without an adapter (fails under
+//! `CI=true`).
+
+use super::gpu::{GpuTarget, GpuTrainer, ViewLoss, ViewResult};
+use crate::adam::Adam;
+use crate::densify::Densifier;
+use crate::gpu::{GpuContext, GpuError, GpuLoss};
+use crate::loss::PixelLoss;
+use crate::{Gaussians, RenderSettings};
+
+#[test]
+fn a_pass_sized_ahead_adds_the_same_bits_and_an_outgrown_one_nothing() {
+    let test = "a_pass_sized_ahead_adds_the_same_bits_and_an_outgrown_one_nothing";
+    let ctx = match GpuContext::new() {
+        Ok(c) => c,
+        Err(e @ GpuError::NoAdapter { .. }) => return augsplat_testkit::skip(test, &e.to_string()),
+        Err(e) => panic!("{test}: {e}"),
+    };
+    let cam = augsplat_testkit::cameras::square_pixels(
+        64,
+        48,
+        [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 4.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+    );
+    let g = Gaussians::random_cloud(400, 6.0 / cam.fx, 5);
+    let n = g.len();
+    let adam = Adam::new(n, g.coeffs());
+    let stats = Densifier::new(n);
+    let rgb: Vec<f32> = (0..64 * 48 * 3).map(|k| (k % 17) as f32 / 16.0).collect();
+    let target = GpuTarget::upload(&ctx, &rgb, None, None).unwrap();
+    let settings = RenderSettings::default();
+    let run = |slots: Option<u32>| -> (ViewResult, Vec<Vec<u32>>) {
+        let t = GpuTrainer::upload(&ctx, &g, &adam, &stats).unwrap();
+        t.begin_step(&ctx).unwrap();
+        let loss = ViewLoss::Gpu {
+            target: &target,
+            loss: GpuLoss::Photometric {
+                kind: PixelLoss::L1,
+                ssim_lambda: 0.2,
+            },
+            scale: 1.0,
+        };
+        let r = t
+            .add_view(&ctx, &cam, &settings, loss, Some(1.0), 12, slots)
+            .unwrap();
+        let words = |b: &wgpu::Buffer, len: usize| ctx.read_words(b, len).unwrap();
+        let sums = vec![
+            words(&t.acc_grads, crate::gpu::PARAM_GRAD_STRIDE * n),
+            words(&t.acc_sh, 3 * g.coeffs() * n),
+            words(&t.acc_visible, n),
+            words(&t.grad2d, n),
+            words(&t.count, n),
+        ];
+        (r, sums)
+    };
+    let (exact, exact_sums) = run(None);
+    assert!(!exact.overflowed && exact.tile_pairs > 1000, "{exact:?}");
+    assert!(
+        exact_sums[0].iter().any(|&w| w != 0),
+        "the view adds gradients"
+    );
+    for slots in [exact.tile_pairs, exact.tile_pairs + 1, 3 * exact.tile_pairs] {
+        let (r, sums) = run(Some(slots));
+        assert_eq!(r, exact, "{slots} slots");
+        assert!(sums == exact_sums, "{slots} slots: the sums differ");
+    }
+    let (short, sums) = run(Some(exact.tile_pairs - 1));
+    assert!(short.overflowed, "{short:?}");
+    assert_eq!(short.tile_pairs, exact.tile_pairs);
+    for (k, s) in sums.iter().enumerate() {
+        assert!(
+            s.iter().all(|&w| w == 0),
+            "array {k} changed by an outgrown pass"
+        );
+    }
+}
