@@ -5,4 +5,4 @@
 pub use augsplat_render::gpu::*;
 
 pub use crate::loss::gpu::{loss_gpu, GpuLoss};
-pub(crate) use crate::train::gpu::{GpuTarget, GpuTrainer, ViewLoss};
+pub(crate) use crate::train::gpu::{GpuTarget, GpuTrainer, PendingView, ViewLoss};

@@ -61,12 +61,15 @@ struct CpuTraining {
     sh_active: usize,
     /// `scale · dL/d(rgb)` of the current view.
     d_rgb: Vec<f32>,
+    /// The step's views' (loss, pairs) so far.
+    results: Vec<(f64, u64)>,
 }
 
 impl TrainingDevice for CpuTraining {
     fn begin_step(&mut self, _st: &mut TrainState, sh_active: usize) -> Result<(), GpuError> {
         self.acc = None;
         self.sh_active = sh_active;
+        self.results.clear();
         Ok(())
     }
 
@@ -75,7 +78,7 @@ impl TrainingDevice for CpuTraining {
         st: &mut TrainState,
         view: ViewTask<'_>,
         s: &RenderSettings,
-    ) -> Result<(f64, u64), GpuError> {
+    ) -> Result<(), GpuError> {
         let (src, i) = (view.source, view.index);
         let cam = src.camera(i);
         let out: RenderOutput = crate::render_masked(&st.g, cam, s, src.mask(i));
@@ -102,7 +105,17 @@ impl TrainingDevice for CpuTraining {
             }
             merge_grads(&mut self.acc, gr, n, st.g.coeffs() * 3, self.sh_active);
         }
-        Ok((loss, out.stats.pairs))
+        self.results.push((loss, out.stats.pairs));
+        Ok(())
+    }
+
+    fn end_views(
+        &mut self,
+        _st: &mut TrainState,
+        _views: &[ViewTask<'_>],
+        _s: &RenderSettings,
+    ) -> Result<Vec<(f64, u64)>, GpuError> {
+        Ok(std::mem::take(&mut self.results))
     }
 
     fn adam_step(

@@ -122,6 +122,7 @@ pub struct TrainState {
 }
 
 /// One view of one training step, as [`TrainingDevice::add_view`] takes it.
+#[derive(Clone, Copy)]
 pub struct ViewTask<'a> {
     /// The supervision source (real photos or synthetic targets).
     pub source: &'a dyn Supervision,
@@ -143,14 +144,25 @@ pub trait TrainingDevice {
     /// leading SH values per Gaussian whose gradient may be non-zero this step).
     fn begin_step(&mut self, st: &mut TrainState, sh_active: usize) -> Result<(), GpuError>;
     /// Renders the view, computes its loss and `scale · dL/d(rgb)`, back-propagates and adds
-    /// the gradients to the step's sums (and the densification statistic, when asked).
-    /// Returns (the loss without `scale`, composited pairs).
+    /// the gradients to the step's sums (and the densification statistic, when asked). Its
+    /// loss and counts may stay on the device until [`TrainingDevice::end_views`].
     fn add_view(
         &mut self,
         st: &mut TrainState,
         view: ViewTask<'_>,
         s: &RenderSettings,
-    ) -> Result<(f64, u64), GpuError>;
+    ) -> Result<(), GpuError>;
+    /// After the step's last view: (the loss without `scale`, composited pairs) of each view
+    /// added since [`TrainingDevice::begin_step`], in order. `views` are those views as they
+    /// were added (with `s`, the step's settings): a device that must run some again (a
+    /// forward pass that outgrew its sizing) runs them from the first such one, in order, so
+    /// the sums keep their order.
+    fn end_views(
+        &mut self,
+        st: &mut TrainState,
+        views: &[ViewTask<'_>],
+        s: &RenderSettings,
+    ) -> Result<Vec<(f64, u64)>, GpuError>;
     /// One Adam step with the step's sums: over every Gaussian with `dense`, otherwise over
     /// those some view of the step saw; `means_lr` is the means' rate at this step.
     fn adam_step(

@@ -17,13 +17,6 @@ struct AccConst {
     half_h: f32,
     factor: f32,
     pad: f32,
-    // With `gated`: the view's forward pass had `slots` pair slots and its pair count sits at
-    // `pair_count[count_at]`; a pass with more pairs than slots adds nothing (the trainer
-    // runs the view again with enough).
-    gated: u32,
-    slots: u32,
-    count_at: u32,
-    pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> c: AccConst;
@@ -36,12 +29,14 @@ struct AccConst {
 @group(0) @binding(7) var<storage, read_write> acc_visible: array<u32>;
 @group(0) @binding(8) var<storage, read_write> grad2d: array<f32>;
 @group(0) @binding(9) var<storage, read_write> count: array<u32>;
-@group(0) @binding(13) var<storage, read> pair_count: array<u32>;    // bound whole
+// The step's overflow flag (bound whole): set once a view's pairs outgrew its forward pass's
+// slots; from then on the step's views add nothing (the trainer runs them again).
+@group(0) @binding(13) var<storage, read_write> overflow: array<u32>;
 
 @compute @workgroup_size(256)
 fn accumulate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = gid.x + gid.y * nwg.x * 256u;
-    if (i >= c.n || (c.gated != 0u && pair_count[c.count_at] > c.slots)) {
+    if (i >= c.n || overflow[0] != 0u) {
         return;
     }
     let og = i * GRAD_STRIDE;
@@ -102,5 +97,24 @@ fn count_pairs(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
     }
     if (li == 0u && block < pc.blocks) {
         pair_partials[block] = part[0];
+    }
+}
+
+// The view's pair count (`pair_count[at]`, the offsets' exclusive sum) against its forward
+// pass's slots: one invocation sets the step's flag when it outgrew them.
+struct FlagConst {
+    at: u32,
+    slots: u32,
+    pad0: u32,
+    pad1: u32,
+}
+
+@group(0) @binding(14) var<uniform> fc: FlagConst;
+@group(0) @binding(15) var<storage, read> pair_count: array<u32>;
+
+@compute @workgroup_size(1)
+fn flag_overflow() {
+    if (pair_count[fc.at] > fc.slots) {
+        overflow[0] = 1u;
     }
 }

@@ -117,13 +117,69 @@ pub struct ViewResult {
     pub overflowed: bool,
 }
 
-impl ViewResult {
-    fn overflow(tile_pairs: u32) -> ViewResult {
+/// A view recorded by [`GpuTrainer::add_view`] whose loss and counts are still on the device.
+pub struct PendingView {
+    /// The loss's partial sums (a loss on the GPU).
+    sums: Option<crate::loss::gpu::LossSums>,
+    /// The loss computed on the host.
+    host_loss: f64,
+    /// The composited pairs' per-block sums, and the number of blocks.
+    pair_partials: Option<(GpuBuffer, usize)>,
+    /// The forward pass's offsets, whose entry at the index holds the pair count.
+    counts: Option<(GpuBuffer, u64)>,
+    /// The forward pass's slots.
+    slots: u32,
+    /// A pass known to have overflowed (a loss on the host reads the count first), with its
+    /// pair count.
+    known_overflow: Option<u32>,
+}
+
+impl PendingView {
+    fn overflowed(tile_pairs: u32) -> PendingView {
+        PendingView {
+            sums: None,
+            host_loss: 0.0,
+            pair_partials: None,
+            counts: None,
+            slots: 0,
+            known_overflow: Some(tile_pairs),
+        }
+    }
+
+    /// What to read back: the loss's partial sums, the pair partials, the pair count.
+    fn parts(&self) -> Vec<(&wgpu::Buffer, u64, usize)> {
+        let mut parts = self.sums.as_ref().map(|s| s.parts()).unwrap_or_default();
+        if let Some((b, blocks)) = &self.pair_partials {
+            parts.push((b, 0, *blocks));
+        }
+        if let Some((b, at)) = &self.counts {
+            parts.push((b, *at, 1));
+        }
+        parts
+    }
+
+    /// The result from the words of [`Self::parts`].
+    fn result(&self, words: &[Vec<u32>]) -> ViewResult {
+        if let Some(count) = self.known_overflow {
+            return ViewResult {
+                loss: 0.0,
+                pairs: 0,
+                tile_pairs: count,
+                overflowed: true,
+            };
+        }
+        let k = words.len();
+        let count = words[k - 1][0];
+        let pairs = words[k - 2].iter().map(|&w| u64::from(w)).sum();
+        let loss = match &self.sums {
+            Some(sums) => sums.terms_from(&words[..k - 2]).0,
+            None => self.host_loss,
+        };
         ViewResult {
-            loss: 0.0,
-            pairs: 0,
-            tile_pairs,
-            overflowed: true,
+            loss,
+            pairs,
+            tile_pairs: count,
+            overflowed: count > self.slots,
         }
     }
 }
@@ -139,6 +195,9 @@ pub struct GpuTrainer {
     pub(crate) acc_sh: GpuBuffer,
     /// Per Gaussian: visible in any of the step's views (1) or not (0).
     pub(crate) acc_visible: GpuBuffer,
+    /// The step's overflow flag: set when a view's pairs outgrew its forward pass's slots;
+    /// while it is set, views add nothing.
+    overflow: GpuBuffer,
     /// The densification statistic's sums and counts.
     pub(crate) grad2d: GpuBuffer,
     pub(crate) count: GpuBuffer,
@@ -188,6 +247,7 @@ impl GpuTrainer {
                     &f32_words(stats.grad2d.iter().copied()),
                 )?,
                 count: ctx.storage_items_init("densification counts", &stats.count)?,
+                overflow: ctx.storage("step overflow flag", 4)?,
                 moments,
                 scene,
                 kernels,
@@ -247,6 +307,13 @@ impl GpuTrainer {
         Ok(())
     }
 
+    /// Clears the step's overflow flag (before its views run again from an overflowed one).
+    pub fn clear_overflow(&self, ctx: &GpuContext) -> Result<(), GpuError> {
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&self.overflow, 0, None);
+        ctx.submit_no_wait(enc)
+    }
+
     /// Clears the step's gradient sums and visibility (before the step's first view).
     pub fn begin_step(&self, ctx: &GpuContext) -> Result<(), GpuError> {
         ctx.scoped(|| {
@@ -254,6 +321,7 @@ impl GpuTrainer {
             enc.clear_buffer(&self.acc_grads, 0, None);
             enc.clear_buffer(&self.acc_sh, 0, None);
             enc.clear_buffer(&self.acc_visible, 0, None);
+            enc.clear_buffer(&self.overflow, 0, None);
             ctx.submit_no_wait(enc)
         })
     }
@@ -263,8 +331,11 @@ impl GpuTrainer {
     /// the densification statistic (the screen-space mean gradient × `factor`, as
     /// `Densifier::accumulate_scaled`). `sh_active` is the number of leading SH values per
     /// Gaussian whose gradient may be non-zero. With `slots`, the forward pass has that many
-    /// (tile, Gaussian) pair slots and waits only once, at the end; when its pairs exceed
-    /// them the view adds nothing ([`ViewResult::overflowed`]) and must run again with more.
+    /// (tile, Gaussian) pair slots and nothing waits (a loss on the host waits for the
+    /// image); the loss and the counts stay on the device until [`GpuTrainer::finish`]. A
+    /// pass whose pairs exceed its slots sets the step's overflow flag: from then on no view
+    /// of the step adds anything ([`ViewResult::overflowed`]), and the caller runs the views
+    /// from the first overflowed one again, in order, with enough slots.
     #[allow(clippy::too_many_arguments)]
     pub fn add_view(
         &self,
@@ -275,7 +346,7 @@ impl GpuTrainer {
         stats: Option<f32>,
         sh_active: usize,
         slots: Option<u32>,
-    ) -> Result<ViewResult, GpuError> {
+    ) -> Result<PendingView, GpuError> {
         let grid = tile_grid(cam)?;
         ctx.scoped(|| {
             let sc = &self.scene;
@@ -300,7 +371,11 @@ impl GpuTrainer {
                     )?;
                     let count = words[1][0];
                     if st.overflowed_in(count) {
-                        return Ok(ViewResult::overflow(count));
+                        // Nothing more of this view: the flag stops the step's later views.
+                        let mut flag = ctx.device.create_command_encoder(&Default::default());
+                        self.record_flag(ctx, &mut flag, &st)?;
+                        ctx.submit_no_wait(flag)?;
+                        return Ok(PendingView::overflowed(count));
                     }
                     let img = words.swap_remove(0);
                     let rgb: Vec<f32> = img
@@ -346,6 +421,7 @@ impl GpuTrainer {
             record_backward(ctx, &mut enc, &st, grid, &d_rgb, &screen, n, &pair_grads);
             record_vjp(ctx, &mut enc, sc, cam, s, &screen, (&view_grads, &view_sh))?;
             let sw = u64::from(sh_width);
+            self.record_flag(ctx, &mut enc, &st)?;
             ctx.dispatch_items(
                 &mut enc,
                 &self.kernels.accumulate,
@@ -358,10 +434,6 @@ impl GpuTrainer {
                         (0.5 * cam.width as f32).to_bits(),
                         (0.5 * cam.height as f32).to_bits(),
                         stats.unwrap_or(1.0).to_bits(),
-                        0,
-                        u32::from(slots.is_some()),
-                        st.pairs,
-                        count_at as u32,
                         0,
                     ],
                     0,
@@ -376,7 +448,7 @@ impl GpuTrainer {
                     (7, &self.acc_visible, 1),
                     (8, &self.grad2d, 1),
                     (9, &self.count, 1),
-                    (13, count_buf, 0),
+                    (13, &self.overflow, 0),
                 ],
                 n,
                 1,
@@ -393,28 +465,57 @@ impl GpuTrainer {
                 &[(10, &pair_consts), (11, &st.info), (12, &pair_partials)],
                 ctx.groups(blocks as u32),
             );
-            // One round trip: the loss's partial sums and the pair counts together.
-            let mut parts = sums.as_ref().map(|s| s.parts()).unwrap_or_default();
-            parts.push((&pair_partials, 0, blocks));
-            parts.push((count_buf, count_at, 1));
-            let mut words = ctx.read_after(enc, &parts)?;
-            let count = words.pop().unwrap_or_default()[0];
-            if st.overflowed_in(count) {
-                return Ok(ViewResult::overflow(count));
-            }
-            let pair_words = words.pop().unwrap_or_default();
-            let pairs = pair_words.iter().map(|&w| u64::from(w)).sum();
-            let value = match &sums {
-                Some(sums) => sums.terms_from(&words).0,
-                None => host_value,
-            };
-            Ok(ViewResult {
-                loss: value,
-                pairs,
-                tile_pairs: count,
-                overflowed: false,
+            ctx.submit_no_wait(enc)?;
+            let (counts, count_at) = (st.counts, u64::from(st.gaussians));
+            Ok(PendingView {
+                sums,
+                host_loss: host_value,
+                pair_partials: Some((pair_partials, blocks)),
+                counts: Some((counts, count_at)),
+                slots: st.pairs,
+                known_overflow: None,
             })
         })
+    }
+
+    /// Records the check of `st`'s pair count against its slots into the step's overflow
+    /// flag (`flag_overflow` in `accumulate.wgsl`).
+    fn record_flag(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        st: &crate::forward::gpu::ForwardState,
+    ) -> Result<(), GpuError> {
+        let (counts, count_at) = st.pair_count_at();
+        let u = ctx.uniform("overflow check", &[count_at as u32, st.pairs, 0, 0]);
+        ctx.dispatch(
+            enc,
+            &self.kernels.flag_overflow,
+            &[(14, &u), (15, counts), (13, &self.overflow)],
+            [1, 1],
+        );
+        Ok(())
+    }
+
+    /// The results of `views` (in order), in one read-back.
+    pub fn finish(
+        &self,
+        ctx: &GpuContext,
+        views: &[PendingView],
+    ) -> Result<Vec<ViewResult>, GpuError> {
+        let parts: Vec<_> = views.iter().flat_map(PendingView::parts).collect();
+        let enc = ctx.device.create_command_encoder(&Default::default());
+        let words = ctx.read_after(enc, &parts)?;
+        let mut at = 0;
+        Ok(views
+            .iter()
+            .map(|v| {
+                let k = v.parts().len();
+                let r = v.result(&words[at..at + k]);
+                at += k;
+                r
+            })
+            .collect())
     }
 
     /// One Adam step over every group with the step's summed gradients; `dense` updates
@@ -494,19 +595,21 @@ fn copy_rows<const W: usize>(flat: &[f32], rows: &mut [[f32; W]]) {
 pub(crate) struct Kernels {
     accumulate: wgpu::ComputePipeline,
     count_pairs: wgpu::ComputePipeline,
+    flag_overflow: wgpu::ComputePipeline,
 }
 
 impl Kernels {
     pub(crate) fn new(m: crate::gpu::ModuleSetup<'_>) -> Kernels {
-        let [accumulate, count_pairs] = crate::gpu::pipelines(
+        let [accumulate, count_pairs, flag_overflow] = crate::gpu::pipelines(
             m,
             "accumulate.wgsl",
             include_str!("accumulate.wgsl"),
-            ["accumulate", "count_pairs"],
+            ["accumulate", "count_pairs", "flag_overflow"],
         );
         Kernels {
             accumulate,
             count_pairs,
+            flag_overflow,
         }
     }
 }

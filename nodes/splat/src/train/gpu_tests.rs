@@ -46,9 +46,10 @@ fn a_pass_sized_ahead_adds_the_same_bits_and_an_outgrown_one_nothing() {
             },
             scale: 1.0,
         };
-        let r = t
+        let pending = t
             .add_view(&ctx, &cam, &settings, loss, Some(1.0), 12, slots)
             .unwrap();
+        let r = t.finish(&ctx, &[pending]).unwrap()[0];
         let words = |b: &wgpu::Buffer, len: usize| ctx.read_words(b, len).unwrap();
         let sums = vec![
             words(&t.acc_grads, crate::gpu::PARAM_GRAD_STRIDE * n),

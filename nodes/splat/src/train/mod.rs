@@ -338,14 +338,9 @@ impl<'a> Trainer<'a> {
     }
 
     /// Adds one view, the step's `render`-th render, to the step on the device (with
-    /// DropGaussian's factors for that render when it is on). Returns (unweighted loss,
-    /// pairs).
-    fn add_view(
-        &mut self,
-        view: ViewTask<'_>,
-        settings: &RenderSettings,
-        render: u64,
-    ) -> (f64, u64) {
+    /// DropGaussian's factors for that render when it is on); its (unweighted loss, pairs)
+    /// come from [`crate::device::TrainingDevice::end_views`].
+    fn add_view(&mut self, view: ViewTask<'_>, settings: &RenderSettings, render: u64) {
         let factors = self.args.drop_gaussians.as_ref().and_then(|d| {
             let n = self.device.gaussians(&self.state);
             d.factors(self.args.seed, self.step, self.args.steps, render, n)
@@ -382,48 +377,67 @@ impl<'a> Trainer<'a> {
             ..Default::default()
         };
         let densify_on = self.args.densify.enabled && step < self.dsched.stop;
-        if plan.real_weight > 0.0 {
+        // The step's views: the real one, then the synthetic batch.
+        let mut views = Vec::new();
+        let real = plan.real_weight > 0.0;
+        if real {
             if let Some(i) = self.next_real() {
-                let view = ViewTask {
+                views.push(ViewTask {
                     source: self.real,
                     index: i,
                     synthetic: false,
                     scale: plan.real_weight,
                     stats: densify_on.then(|| self.args.synthetic.stat_factor(plan.real_weight)),
-                };
-                let (l, pairs) = self.add_view(view, &settings, 0);
-                rep.real_loss = Some(l);
-                rep.loss += plan.real_weight * l;
-                rep.pairs += pairs;
+                });
             }
         }
+        let real_views = views.len();
+        let mut batch = 0;
         if let (true, Some(src)) = (
             plan.synthetic_weight > 0.0 && plan.synthetic_batch > 0,
             self.synthetic,
         ) {
-            let b = plan.synthetic_batch.min(self.usable_synth.len());
-            if b > 0 {
-                let scale = plan.synthetic_weight / b as f64;
+            batch = plan.synthetic_batch.min(self.usable_synth.len());
+            if batch > 0 {
+                let scale = plan.synthetic_weight / batch as f64;
                 // gsplat's `× n_cameras` for the batch, and the weight's inverse when the
                 // statistic is unweighted.
                 let stats = (densify_on && self.args.synthetic.densify_from_synthetic)
-                    .then(|| b as f32 * self.args.synthetic.stat_factor(plan.synthetic_weight));
-                let mut sum = 0.0;
-                for (k, i) in self.draw_synthetic(step, b).into_iter().enumerate() {
-                    let view = ViewTask {
+                    .then(|| batch as f32 * self.args.synthetic.stat_factor(plan.synthetic_weight));
+                for i in self.draw_synthetic(step, batch) {
+                    views.push(ViewTask {
                         source: src,
                         index: i,
                         synthetic: true,
                         scale,
                         stats,
-                    };
-                    let (l, pairs) = self.add_view(view, &settings, 1 + k as u64);
-                    sum += l;
-                    rep.pairs += pairs;
+                    });
                 }
-                rep.synthetic_loss = Some(sum / b as f64);
-                rep.loss += plan.synthetic_weight * sum / b as f64;
             }
+        }
+        for (k, view) in views.iter().enumerate() {
+            // The render index: 0 for the real view, 1 + k for the batch's k-th.
+            let render = (k + 1 - real_views) as u64;
+            self.add_view(*view, &settings, render);
+        }
+        let results = self
+            .device
+            .end_views(&mut self.state, &views, &settings)
+            .unwrap_or_else(|e| device_failed(e));
+        let (real_results, synth_results) = results.split_at(real_views.min(results.len()));
+        if let Some(&(l, pairs)) = real_results.first() {
+            rep.real_loss = Some(l);
+            rep.loss += plan.real_weight * l;
+            rep.pairs += pairs;
+        }
+        if batch > 0 {
+            let mut sum = 0.0;
+            for &(l, pairs) in synth_results {
+                sum += l;
+                rep.pairs += pairs;
+            }
+            rep.synthetic_loss = Some(sum / batch as f64);
+            rep.loss += plan.synthetic_weight * sum / batch as f64;
         }
         let lr = self
             .args
