@@ -209,7 +209,7 @@ impl Fitted {
     }
 }
 
-fn point(step: u64, e: &Evaluation, g: &Gaussians, seconds: f64, loss: f64) -> CurvePoint {
+fn point(step: u64, e: &Evaluation, primitives: usize, seconds: f64, loss: f64) -> CurvePoint {
     CurvePoint {
         step,
         psnr: e.psnr,
@@ -217,7 +217,7 @@ fn point(step: u64, e: &Evaluation, g: &Gaussians, seconds: f64, loss: f64) -> C
         lpips: e.lpips,
         mse: e.mse,
         avg_error: e.avg_error,
-        primitives: g.len() as u64,
+        primitives: primitives as u64,
         seconds,
         loss,
     }
@@ -418,7 +418,7 @@ pub fn fit(
         None => {
             // steps = 0: evaluate the initialisation.
             let e = evaluate(trainer.gaussians(), test, &a.render_settings(0), lpips)?;
-            let p = point(0, &e, trainer.gaussians(), 0.0, 0.0);
+            let p = point(0, &e, trainer.primitives(), 0.0, 0.0);
             curve.points.push(p.clone());
             (p, trainer.gaussians().clone())
         }
@@ -527,12 +527,12 @@ impl Evaluating<'_> {
         let (a, done) = (self.args, trainer.steps_done());
         let (test, lpips, criterion) = (self.test, self.lpips, self.criterion);
         let settings = a.render_settings(done);
-        let e = evaluate(trainer.gaussians(), test, &settings, lpips)?;
+        let e = trainer.evaluate(test, &settings, lpips)?;
         let secs = self.started.elapsed().as_secs_f64();
         let p = point(
             done,
             &e,
-            trainer.gaussians(),
+            trainer.primitives(),
             if a.record_wall_time { secs } else { 0.0 },
             st.loss_acc / st.loss_n.max(1) as f64,
         );

@@ -683,3 +683,31 @@ fn a_refinement_on_the_gpu_waits_once_and_brings_nothing_back() {
         assert_eq!(*g, c.refine, "step {step}");
     }
 }
+
+#[test]
+fn held_out_evaluations_render_on_the_gpu_without_the_model() {
+    let test = "held_out_evaluations_render_on_the_gpu_without_the_model";
+    let Some(gpu) = context(test) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let c = case(tmp.path());
+    let a = args(6, true);
+    let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, None);
+    t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
+    for _ in 0..a.steps {
+        t.step();
+    }
+    let views = &c.real.views[..3];
+    let settings = a.render_settings(a.steps);
+    let before = gpu.host_waits();
+    let on_gpu = t.evaluate(views, &settings, None).unwrap();
+    let waits = gpu.host_waits() - before;
+    // Each view's render waits for its pair count and its image planes (4 read-backs); the
+    // model itself (17 arrays) is not read back.
+    assert!(waits <= 4 * views.len() as u64, "{waits} waits");
+    assert_eq!(t.primitives(), t.gaussians().len());
+    let on_cpu = augsplat_splat::train::evaluate(t.gaussians(), views, &settings, None).unwrap();
+    assert!(
+        (on_gpu.psnr - on_cpu.psnr).abs() < 1e-3 && (on_gpu.ssim - on_cpu.ssim).abs() < 1e-4,
+        "GPU {on_gpu:?}, CPU {on_cpu:?}"
+    );
+}

@@ -31,15 +31,7 @@ struct CpuModel<'a>(&'a Gaussians);
 
 impl DeviceModel for CpuModel<'_> {
     fn render(&self, cam: &Camera, s: &RenderSettings) -> Result<Frame, GpuError> {
-        let r = crate::render(self.0, cam, s);
-        Ok(Frame {
-            width: r.width,
-            height: r.height,
-            rgb: r.rgb,
-            alpha: r.alpha,
-            depth: r.depth,
-            stats: r.stats,
-        })
+        Ok(Frame::from(crate::render(self.0, cam, s)))
     }
     fn backward(
         &self,

@@ -322,6 +322,25 @@ impl TrainingDevice for GpuTraining {
     fn gaussians(&self, st: &TrainState) -> usize {
         self.state.as_ref().map_or(st.g.len(), GpuTrainer::len)
     }
+
+    fn render(
+        &mut self,
+        st: &mut TrainState,
+        cam: &Camera,
+        s: &RenderSettings,
+    ) -> Result<Frame, GpuError> {
+        let ctx = self.ctx.clone();
+        let state = self.state(st)?;
+        let f = render_scene(&ctx, state.scene(), cam, s)?;
+        Ok(Frame {
+            width: f.width,
+            height: f.height,
+            rgb: f.rgb,
+            alpha: f.alpha,
+            depth: f.depth,
+            stats: f.stats,
+        })
+    }
 }
 
 #[cfg(test)]

@@ -197,6 +197,30 @@ pub trait TrainingDevice {
     fn gaussians(&self, st: &TrainState) -> usize {
         st.g.len()
     }
+    /// Renders the current Gaussians from `cam` where they live (the held-out evaluations
+    /// during training: only the image comes back).
+    fn render(
+        &mut self,
+        st: &mut TrainState,
+        cam: &Camera,
+        s: &RenderSettings,
+    ) -> Result<Frame, GpuError> {
+        self.sync(st)?;
+        Ok(Frame::from(crate::render(&st.g, cam, s)))
+    }
+}
+
+impl From<crate::RenderOutput> for Frame {
+    fn from(r: crate::RenderOutput) -> Frame {
+        Frame {
+            width: r.width,
+            height: r.height,
+            rgb: r.rgb,
+            alpha: r.alpha,
+            depth: r.depth,
+            stats: r.stats,
+        }
+    }
 }
 
 /// [`Densifier::step_post_update`] on the host's state.

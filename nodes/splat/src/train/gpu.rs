@@ -261,6 +261,11 @@ impl GpuTrainer {
         self.scene.len()
     }
 
+    /// The current Gaussians, to render from.
+    pub fn scene(&self) -> &GpuScene {
+        &self.scene
+    }
+
     /// Copies the state back into the host's Gaussians, moments and statistics, which must
     /// have this state's sizes.
     pub fn download(
