@@ -711,3 +711,23 @@ fn held_out_evaluations_render_on_the_gpu_without_the_model() {
         "GPU {on_gpu:?}, CPU {on_cpu:?}"
     );
 }
+
+#[test]
+fn decoded_photos_are_kept_on_the_gpu_as_bytes() {
+    // The generated scene's photos (8-bit PNGs) decode to exactly the byte values the GPU
+    // target keeps, so they take a quarter of the memory there.
+    let tmp = tempfile::tempdir().unwrap();
+    let c = case(tmp.path());
+    for v in &c.real.views {
+        assert!(
+            augsplat_splat::gpu::pack_u8(&v.image).is_some(),
+            "{}: a value is not a byte's",
+            v.name
+        );
+    }
+    // A resized photo is not.
+    let half = augsplat_core::ImageF32::from_vec(48, 40, 3, c.real.views[0].image.clone())
+        .downscale(2)
+        .data;
+    assert!(augsplat_splat::gpu::pack_u8(&half).is_none());
+}

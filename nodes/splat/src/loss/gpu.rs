@@ -59,6 +59,8 @@ pub(crate) fn prelude() -> String {
 
 /// The compiled loss kernels (`loss/loss.wgsl`).
 pub(crate) struct LossKernels {
+    /// [`u8_values`], for targets held as bytes.
+    u8_values: wgpu::Buffer,
     pixel: wgpu::ComputePipeline,
     weighted: wgpu::ComputePipeline,
     h_moments: wgpu::ComputePipeline,
@@ -83,7 +85,19 @@ impl LossKernels {
                 "ssim_grad",
             ],
         );
+        let u8_values = m.0.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("byte values"),
+            size: 4 * 256,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: true,
+        });
+        // Mapping at creation fails only on a lost device, whose every later call fails.
+        if let Ok(mut view) = u8_values.slice(..).get_mapped_range_mut() {
+            view.copy_from_slice(&crate::gpu::words_to_bytes(&f32_words(u8_values_table())));
+        }
+        u8_values.unmap();
         LossKernels {
+            u8_values,
             pixel,
             weighted,
             h_moments,
@@ -92,6 +106,36 @@ impl LossKernels {
             ssim_grad,
         }
     }
+}
+
+/// The value of each byte of a decoded 8-bit photo (`k / 255` in f32, as the image decoder
+/// gives it): a target whose every value is one of these is kept on the GPU as bytes.
+pub fn u8_values_table() -> [f32; 256] {
+    std::array::from_fn(|k| k as f32 / 255.0)
+}
+
+/// `values` as bytes (four per word, little end first) when every value is exactly one of
+/// [`u8_values_table`]'s, else `None`.
+pub fn pack_u8(values: &[f32]) -> Option<Vec<u32>> {
+    let table = u8_values_table();
+    let mut words = vec![0u32; values.len().div_ceil(4)];
+    for (i, &v) in values.iter().enumerate() {
+        let k = (v * 255.0).round();
+        if !(0.0..=255.0).contains(&k) || table[k as usize].to_bits() != v.to_bits() {
+            return None;
+        }
+        words[i / 4] |= (k as u32) << (8 * (i % 4));
+    }
+    Some(words)
+}
+
+/// A target image on the GPU: f32 values, or bytes ([`pack_u8`]).
+#[derive(Clone, Copy)]
+pub(crate) struct TargetBuffer<'a> {
+    /// The values.
+    pub(crate) buf: &'a wgpu::Buffer,
+    /// Whether they are bytes.
+    pub(crate) bytes: bool,
 }
 
 /// One term's per-block partial sums on the GPU.
@@ -191,11 +235,21 @@ fn check_size(buf: &wgpu::Buffer, words: u64, what: &str) -> Result<(), GpuError
 }
 
 /// The uniform of `loss.wgsl`: sizes, stride, mode, gradient factors, stabilisers, window.
-fn params(width: u32, height: u32, stride: u32, mode: u32, k: f32, gs: f32) -> Vec<u32> {
+#[allow(clippy::too_many_arguments)]
+fn params(
+    width: u32,
+    height: u32,
+    stride: u32,
+    mode: u32,
+    k: f32,
+    gs: f32,
+    bytes: bool,
+) -> Vec<u32> {
     let mut w = vec![width, height, stride, mode];
     w.extend(f32_words([k, gs, SSIM_C1 as f32, SSIM_C2 as f32]));
     w.extend(f32_words(gaussian_window().map(|v| v as f32)));
     w.push(0);
+    w.extend([u32::from(bytes), 0, 0, 0]);
     w
 }
 
@@ -203,7 +257,7 @@ fn params(width: u32, height: u32, stride: u32, mode: u32, k: f32, gs: f32) -> V
 struct Images<'a> {
     pred: &'a wgpu::Buffer,
     stride: u32,
-    target: &'a wgpu::Buffer,
+    target: TargetBuffer<'a>,
     d_rgb: &'a wgpu::Buffer,
     width: u32,
     height: u32,
@@ -216,7 +270,15 @@ impl Images<'_> {
     }
     /// The words of `loss.wgsl`'s uniform with this size and stride.
     fn params(&self, mode: u32, k: f32, gs: f32) -> Vec<u32> {
-        params(self.width, self.height, self.stride, mode, k, gs)
+        params(
+            self.width,
+            self.height,
+            self.stride,
+            mode,
+            k,
+            gs,
+            self.target.bytes,
+        )
     }
 }
 
@@ -233,7 +295,7 @@ pub(crate) fn record_loss(
     enc: &mut wgpu::CommandEncoder,
     pred: &wgpu::Buffer,
     pred_stride: u32,
-    target: &wgpu::Buffer,
+    target: TargetBuffer<'_>,
     weights: Option<&wgpu::Buffer>,
     width: u32,
     height: u32,
@@ -254,7 +316,12 @@ pub(crate) fn record_loss(
         )));
     }
     check_size(pred, u64::from(pred_stride) * pixels, "prediction")?;
-    check_size(target, 3 * pixels, "target")?;
+    let target_words = if target.bytes {
+        (3 * pixels).div_ceil(4)
+    } else {
+        3 * pixels
+    };
+    check_size(target.buf, target_words, "target")?;
     check_size(d_rgb, 3 * pixels, "gradient")?;
     let im = Images {
         pred,
@@ -295,15 +362,17 @@ fn record_weighted(
     // The CPU's factor (loss/mod.rs `weighted_l2`); mode 1 writes a zero gradient.
     let g = (2.0 * scale as f64 / denominator) as f32;
     let uni = ctx.uniform("weighted L2 params", &im.params(u32::from(!live), g, 0.0));
+    let kr = ctx.kernels_of(LossKernels::new)?;
     let sums = Partials::new(ctx, "weighted L2 sums", n, denominator)?;
     ctx.dispatch(
         enc,
-        &ctx.kernels_of(LossKernels::new)?.weighted,
+        &kr.weighted,
         &[
             (0, &uni),
             (1, im.pred),
-            (2, im.target),
+            (2, im.target.buf),
             (3, weights),
+            (9, &kr.u8_values),
             (6, im.d_rgb),
             (7, &sums.buf),
         ],
@@ -348,8 +417,9 @@ fn record_photometric(
             &[
                 (0, &uni),
                 (1, im.pred),
-                (2, im.target),
+                (2, im.target.buf),
                 (6, im.d_rgb),
+                (9, &kr.u8_values),
                 (7, &pix.buf),
             ],
             groups(ctx, n),
@@ -371,7 +441,13 @@ fn record_photometric(
     ctx.dispatch(
         enc,
         &kr.h_moments,
-        &[(0, &uni), (1, im.pred), (2, im.target), (4, &moments)],
+        &[
+            (0, &uni),
+            (1, im.pred),
+            (2, im.target.buf),
+            (4, &moments),
+            (9, &kr.u8_values),
+        ],
         groups(ctx, plane),
     );
     ctx.dispatch(
@@ -392,9 +468,10 @@ fn record_photometric(
         &[
             (0, &uni),
             (1, im.pred),
-            (2, im.target),
+            (2, im.target.buf),
             (4, &moments),
             (6, im.d_rgb),
+            (9, &kr.u8_values),
             (7, &pix.buf),
         ],
         groups(ctx, n),
@@ -457,7 +534,10 @@ pub fn loss_gpu(
             &mut enc,
             &pred,
             3,
-            &tgt,
+            TargetBuffer {
+                buf: &tgt,
+                bytes: false,
+            },
             w.as_deref(),
             width,
             height,

@@ -26,16 +26,28 @@ struct Params {
     c1: f32,                   // SSIM stabilisers
     c2: f32,
     win: array<vec4<f32>, 3>,  // the 11 window taps (the last word unused)
+    // x: 1 when the target holds bytes (four per word, values `u8_values[byte]`: a photo
+    // kept as it was decoded), 0 when it holds f32 values.
+    target_form: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> pred: array<f32>;             // p.stride words per pixel
-@group(0) @binding(2) var<storage, read> tgt: array<f32>;              // the target, H·W·3
+@group(0) @binding(2) var<storage, read> tgt: array<u32>;              // the target, H·W·3
 @group(0) @binding(3) var<storage, read> weights: array<f32>;          // one per pixel
 @group(0) @binding(4) var<storage, read_write> moments: array<f32>;    // 5 planes of H·M
 @group(0) @binding(5) var<storage, read_write> part: array<f32>;       // 3 planes of (H−10)·M
 @group(0) @binding(6) var<storage, read_write> grad: array<f32>;       // H·W·3, written
 @group(0) @binding(7) var<storage, read_write> sums: array<f32>;       // one per block
+@group(0) @binding(9) var<storage, read> u8_values: array<f32>;        // 256: byte k's value
+
+// Value i of the target: its f32 bits, or its byte's value (exactly the host's).
+fn tgt_at(i: u32) -> f32 {
+    if (p.target_form.x == 0u) {
+        return bitcast<f32>(tgt[i]);
+    }
+    return u8_values[(tgt[i >> 2u] >> (8u * (i & 3u))) & 0xffu];
+}
 
 var<workgroup> red: array<f32, 256>;
 
@@ -98,7 +110,7 @@ fn pixel(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
     let i = block * LOSS_BLOCK + li;
     var contrib = 0.0;
     if (i < n) {
-        let r = pixel_step(pred_at(i) - tgt[i]);
+        let r = pixel_step(pred_at(i) - tgt_at(i));
         grad[i] = r.x;
         contrib = r.y;
     }
@@ -122,7 +134,7 @@ fn weighted(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg:
         let finite = (bits & 0x7f800000u) != 0x7f800000u;
         var g = 0.0;
         if (p.mode == 0u && finite && raw > 0.0) {
-            let d = pred_at(i) - tgt[i];
+            let d = pred_at(i) - tgt_at(i);
             g = p.k * raw * d;
             contrib = raw * d * d;
         }
@@ -151,7 +163,7 @@ fn h_moments(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
     for (var k = 0u; k < SSIM_WINDOW; k++) {
         let v = base + 3u * k;
         let x = pred_at(v);
-        let y = tgt[v];
+        let y = tgt_at(v);
         let w = tap(k);
         mx = fma(w, x, mx);
         my = fma(w, y, my);
@@ -275,7 +287,7 @@ fn ssim_grad(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
             c = fma(w, moments[2u * plane + o], c);
         }
         let x = pred_at(i);
-        let t = tgt[i];
+        let t = tgt_at(i);
         let d = fma(t, c, fma(2.0 * x, b, a));
         let r = pixel_step(x - t);
         grad[i] = fma(p.gs, d, r.x);

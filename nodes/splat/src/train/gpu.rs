@@ -24,7 +24,7 @@ use crate::backward::gpu::{
 use crate::densify::Densifier;
 use crate::forward::gpu::{forward_pass_in, tile_grid, GpuScene, IMAGE_STRIDE};
 use crate::gpu::{f32_words, GpuBuffer, GpuContext, GpuError};
-use crate::loss::gpu::{record_loss, GpuLoss};
+use crate::loss::gpu::{record_loss, GpuLoss, TargetBuffer};
 use crate::render::{Cutoff, RenderSettings};
 use crate::Gaussians;
 use augsplat_core::Camera;
@@ -70,15 +70,26 @@ pub enum ViewLoss<'a> {
     },
 }
 
-/// A view's target colour (`H·W·3`) and optional per-pixel weights (`H·W`) on the GPU.
+/// A view's target colour (`H·W·3`) and optional per-pixel weights (`H·W`) on the GPU. A
+/// colour whose every value is a decoded byte's (`k / 255`, a photo as loaded) is kept as
+/// bytes, a quarter of the memory, and read back to the same f32 values; any other (a
+/// resized photo, a radiance field's render) and the weights stay f32.
 pub struct GpuTarget {
     rgb: GpuBuffer,
+    /// Whether `rgb` holds bytes ([`crate::loss::gpu::pack_u8`]).
+    bytes: bool,
     weights: Option<GpuBuffer>,
     /// The pixel mask (`skip_below`), one word per pixel.
     mask: Option<GpuBuffer>,
 }
 
 impl GpuTarget {
+    /// Whether the colour is kept as bytes.
+    #[cfg(test)]
+    pub(crate) fn is_bytes(&self) -> bool {
+        self.bytes
+    }
+
     /// Uploads a target: colour (`H·W·3`), optional weights (`H·W`) and optional pixel mask
     /// (`H·W`; ignored when it holds another number of values, as on the CPU).
     pub fn upload(
@@ -87,10 +98,28 @@ impl GpuTarget {
         weights: Option<&[f32]>,
         mask: Option<&[u8]>,
     ) -> Result<GpuTarget, GpuError> {
+        Self::upload_as(ctx, rgb, weights, mask, true)
+    }
+
+    /// [`GpuTarget::upload`], keeping the colour as f32 unless `bytes_allowed`.
+    pub(crate) fn upload_as(
+        ctx: &GpuContext,
+        rgb: &[f32],
+        weights: Option<&[f32]>,
+        mask: Option<&[u8]>,
+        bytes_allowed: bool,
+    ) -> Result<GpuTarget, GpuError> {
         ctx.scoped(|| {
             let pixels = rgb.len() / 3;
+            let packed = bytes_allowed
+                .then(|| crate::loss::gpu::pack_u8(rgb))
+                .flatten();
             Ok(GpuTarget {
-                rgb: ctx.storage_init("target colour", &f32_words(rgb.iter().copied()))?,
+                bytes: packed.is_some(),
+                rgb: match packed {
+                    Some(words) => ctx.storage_init("target colour (bytes)", &words)?,
+                    None => ctx.storage_init("target colour", &f32_words(rgb.iter().copied()))?,
+                },
                 weights: match weights {
                     Some(w) => {
                         Some(ctx.storage_init("target weights", &f32_words(w.iter().copied()))?)
@@ -406,7 +435,10 @@ impl GpuTrainer {
                         &mut enc,
                         &st.image,
                         IMAGE_STRIDE as u32,
-                        &target.rgb,
+                        TargetBuffer {
+                            buf: &target.rgb,
+                            bytes: target.bytes,
+                        },
                         target.weights.as_deref(),
                         cam.width,
                         cam.height,

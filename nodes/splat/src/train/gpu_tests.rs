@@ -81,3 +81,71 @@ fn a_pass_sized_ahead_adds_the_same_bits_and_an_outgrown_one_nothing() {
         );
     }
 }
+
+#[test]
+fn a_photo_kept_as_bytes_gives_the_bits_of_its_f32_upload() {
+    let test = "a_photo_kept_as_bytes_gives_the_bits_of_its_f32_upload";
+    let ctx = match GpuContext::new() {
+        Ok(c) => c,
+        Err(e @ GpuError::NoAdapter { .. }) => return augsplat_testkit::skip(test, &e.to_string()),
+        Err(e) => panic!("{test}: {e}"),
+    };
+    // Which colours are kept as bytes: exactly the decoded bytes' values.
+    let table = crate::gpu::u8_values_table();
+    assert!(crate::gpu::pack_u8(&table).is_some());
+    for off in [
+        f32::from_bits(table[77].to_bits() + 1),
+        -table[1],
+        1.5,
+        f32::NAN,
+        0.5,
+    ] {
+        assert!(crate::gpu::pack_u8(&[table[3], off]).is_none(), "{off:e}");
+    }
+    let cam = augsplat_testkit::cameras::square_pixels(
+        40,
+        32,
+        [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 4.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+    );
+    let g = Gaussians::random_cloud(300, 6.0 / cam.fx, 8);
+    let n = g.len();
+    let (adam, stats) = (Adam::new(n, g.coeffs()), Densifier::new(n));
+    // A photo as decoded (odd length: the last word holds three bytes).
+    let photo: Vec<f32> = (0..40 * 32 * 3).map(|k| table[(k * 37) % 256]).collect();
+    for loss in [
+        GpuLoss::Photometric {
+            kind: PixelLoss::L1,
+            ssim_lambda: 0.2,
+        },
+        GpuLoss::Photometric {
+            kind: PixelLoss::L2,
+            ssim_lambda: 0.0,
+        },
+    ] {
+        let run = |bytes_allowed: bool| {
+            let target = GpuTarget::upload_as(&ctx, &photo, None, None, bytes_allowed).unwrap();
+            assert_eq!(target.is_bytes(), bytes_allowed);
+            let t = GpuTrainer::upload(&ctx, &g, &adam, &stats).unwrap();
+            t.begin_step(&ctx).unwrap();
+            let view = ViewLoss::Gpu {
+                target: &target,
+                loss,
+                scale: 1.0,
+            };
+            let p = t
+                .add_view(&ctx, &cam, &RenderSettings::default(), view, None, 12, None)
+                .unwrap();
+            let r = t.finish(&ctx, &[p]).unwrap()[0];
+            let grads = ctx
+                .read_words(&t.acc_grads, crate::gpu::PARAM_GRAD_STRIDE * n)
+                .unwrap();
+            (r.loss.to_bits(), grads)
+        };
+        assert!(run(true) == run(false), "{loss:?}");
+    }
+}
