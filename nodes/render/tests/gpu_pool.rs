@@ -133,3 +133,59 @@ fn idle_buffers_stay_within_the_bound() {
     ctx.reclaim();
     assert!(ctx.pool_stats().idle_bytes <= 1024);
 }
+
+#[test]
+fn kept_encoders_go_in_one_submission_in_their_order() {
+    let Some(ctx) = context("kept_encoders_go_in_one_submission_in_their_order") else {
+        return;
+    };
+    // An idle buffer of 64 bytes holding sevens, to be handed out again zeroed.
+    let old = ctx.storage("old", 64).unwrap();
+    ctx.queue.write_buffer(&old, 0, &words_to_bytes(&[7; 16]));
+    assert_eq!(ctx.read_words(&old, 16).unwrap(), vec![7; 16]);
+    drop(old);
+    ctx.reclaim();
+
+    // 60 bytes: not the idle buffer's shape.
+    let source: Vec<u32> = (1..=15).collect();
+    let a = ctx.storage_init("a", &source).unwrap();
+    let b = ctx.storage("b", 60).unwrap();
+    let c = ctx.storage("c", 60).unwrap();
+    let before = ctx.submissions();
+    // a → b, then b → c: kept, in order.
+    let mut first = ctx.device.create_command_encoder(&Default::default());
+    first.copy_buffer_to_buffer(&a, 0, &b, 0, 60);
+    ctx.defer(first).unwrap();
+    let mut second = ctx.device.create_command_encoder(&Default::default());
+    second.copy_buffer_to_buffer(&b, 0, &c, 0, 60);
+    ctx.defer(second).unwrap();
+    // The idle buffer comes back zeroed: its clear runs before the work recorded with it.
+    let reused = ctx.pool_stats().reused;
+    let zeroed = ctx.storage("zeroed", 64).unwrap();
+    assert_eq!(ctx.pool_stats().reused, reused + 1, "handed out again");
+    let d = ctx.storage("d", 64).unwrap();
+    let mut third = ctx.device.create_command_encoder(&Default::default());
+    third.copy_buffer_to_buffer(&zeroed, 0, &d, 0, 64);
+    ctx.defer(third).unwrap();
+    assert!(ctx.has_deferred());
+    assert_eq!(ctx.submissions(), before, "nothing submitted yet");
+    // Dropped buffers wait while encoders that may use them are kept.
+    drop(a);
+    ctx.reclaim();
+    assert_eq!(
+        ctx.pool_stats().quarantined,
+        1,
+        "a waits for the submission"
+    );
+
+    let words = {
+        let enc = ctx.device.create_command_encoder(&Default::default());
+        ctx.read_after(enc, &[(&c, 0, 15), (&d, 0, 16)]).unwrap()
+    };
+    assert_eq!(ctx.submissions(), before + 1, "one submission for all");
+    assert!(!ctx.has_deferred());
+    assert_eq!(words[0], source, "a → b → c in order");
+    assert_eq!(words[1], vec![0; 16], "cleared before the copy");
+    ctx.reclaim();
+    assert_eq!(ctx.pool_stats().quarantined, 0);
+}

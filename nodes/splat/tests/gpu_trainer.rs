@@ -611,8 +611,8 @@ fn pixel_masks_train_on_the_gpu_as_on_the_cpu() {
 }
 
 #[test]
-fn a_step_waits_once_when_its_views_were_seen() {
-    let test = "a_step_waits_once_when_its_views_were_seen";
+fn a_step_waits_once_and_submits_once_when_its_views_were_seen() {
+    let test = "a_step_waits_once_and_submits_once_when_its_views_were_seen";
     let Some(gpu) = context(test) else { return };
     let tmp = tempfile::tempdir().unwrap();
     let c = case(tmp.path());
@@ -624,13 +624,16 @@ fn a_step_waits_once_when_its_views_were_seen() {
     let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, synth);
     t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
     let mut per_step = Vec::new();
+    let mut submissions = Vec::new();
     for _ in 0..a.steps {
         let before = gpu.host_waits();
+        let submitted = gpu.submissions();
         let r = t.step();
         let views = 1 + if r.synthetic_loss.is_some() { 3 } else { 0 };
         per_step.push((views, gpu.host_waits() - before));
+        submissions.push(gpu.submissions() - submitted);
     }
-    eprintln!("{test}: (views, waits) per step {per_step:?}");
+    eprintln!("{test}: (views, waits) per step {per_step:?}, submissions {submissions:?}");
     // A step waits once, for every view's loss and counts together; a view's first pass
     // also waits for its pair count (later passes are sized from the last count). The
     // upload and Adam do not wait.
@@ -643,6 +646,16 @@ fn a_step_waits_once_when_its_views_were_seen() {
                 "step {step}: {per_step:?}"
             );
         }
+    }
+    // A step's views are small: once they were seen, everything of the step (its clears,
+    // its views, the last step's Adam update, the read-back) goes in one submission; a first
+    // pass submits what is kept before its count's wait.
+    for (step, &n) in submissions.iter().enumerate() {
+        let (_, waits) = per_step[step];
+        if step >= 9 {
+            assert_eq!(n, 1, "step {step}: {submissions:?}");
+        }
+        assert!(n <= 2 * waits, "step {step}: {submissions:?}, {per_step:?}");
     }
     // Every view counted its pairs once: the 9 real views and at most 9 synthetic ones.
     let first_passes: u64 = per_step.iter().map(|s| s.1 - 1).sum();

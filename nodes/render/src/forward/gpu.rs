@@ -309,7 +309,7 @@ pub fn forward_pass(
 }
 
 /// [`forward_pass`] with `slots` (tile, Gaussian) pair slots when given, so that nothing
-/// waits: the pass is recorded and submitted at once. When the pairs exceed the slots
+/// waits: the pass is recorded and kept for the next submission ([`GpuContext::defer`]). When the pairs exceed the slots
 /// (`counts[gaussians]` > `slots`, see [`ForwardState::overflowed_in`]) the pass is wrong and
 /// must be discarded; otherwise its bytes are those of [`forward_pass`] (unused slots sort
 /// first and belong to no tile). With `None`, the pairs are counted first (one wait) and the
@@ -474,8 +474,12 @@ pub fn forward_pass_in(
         [7, 11].into_iter().zip(splat_ranges).collect(),
         [grid.tiles_x, grid.tiles_y],
     );
-    // The image stays on the GPU until a caller reads it (after its own work, one wait).
-    ctx.submit_no_wait(enc)?;
+    // The image stays on the GPU until a caller reads it (after its own work, one wait). A
+    // pass sized ahead waits for the next submission with the caller's work on it.
+    match slots {
+        Some(_) => ctx.defer(enc)?,
+        None => ctx.submit_no_wait(enc)?,
+    }
     let sorted_in_first = std::ptr::eq(sorted_pairs, &*pair_vals);
     let sorted = if sorted_in_first {
         pair_vals

@@ -2,7 +2,8 @@
 //! the same splatting maths as the CPU kernels, in f32, deterministic.
 //!
 //! This module holds what every kernel family shares: the context (adapter, device, limits,
-//! error scopes, a buffer pool: `gpu/pool.rs`), the buffer layout past one binding
+//! error scopes, a buffer pool: `gpu/pool.rs`, encoders kept and submitted together:
+//! `gpu/submit.rs`), the buffer layout past one binding
 //! (`gpu/chunk.rs`), the WGSL prelude
 //! generated from the Rust constants (`gpu/prelude.rs`), and the radix sort and prefix sum
 //! (`gpu/sort.rs`, `sort.wgsl`, `scan.wgsl`). Each kernel family keeps its GPU half beside
@@ -42,6 +43,7 @@ mod chunk;
 mod pool;
 pub mod prelude;
 pub mod sort;
+mod submit;
 
 #[cfg(feature = "determinism-cost")]
 pub use crate::backward::gpu::backward_gpu_atomic;
@@ -150,6 +152,10 @@ pub struct GpuContext {
     pool: std::sync::Arc<pool::Pool>,
     /// Times the host has waited for the device ([`GpuContext::host_waits`]).
     waits: std::sync::atomic::AtomicU64,
+    /// Encoders kept for the next submission (`gpu/submit.rs`).
+    pending: std::sync::Mutex<submit::Pending>,
+    /// Submissions made ([`GpuContext::submissions`]).
+    submissions: std::sync::atomic::AtomicU64,
 }
 
 /// Compiled kernel sets by type.
@@ -297,6 +303,8 @@ impl GpuContext {
             extensions: Default::default(),
             pool: Default::default(),
             waits: Default::default(),
+            pending: Default::default(),
+            submissions: Default::default(),
         })
     }
 
@@ -432,16 +440,12 @@ impl GpuContext {
         limit: u64,
     ) -> Result<GpuBuffer, GpuError> {
         let bytes = 4 * data.len() as u64;
-        // Written whole below unless it is shorter than a buffer's 16-byte minimum.
-        let contents = if bytes >= 16 {
-            Contents::Overwritten
-        } else {
-            Contents::Zeroed
-        };
-        let buf = self.storage_shaped(what, bytes, limit, contents)?;
-        if !data.is_empty() {
-            self.queue.write_buffer(&buf, 0, &words_to_bytes(data));
-        }
+        let buf = self.storage_shaped(what, bytes, limit, Contents::Overwritten)?;
+        // Written whole, zeros past `data` up to a buffer's 16-byte minimum: a queue write
+        // never lands on a buffer whose clear is still kept (`gpu/submit.rs`).
+        let mut words = data.to_vec();
+        words.resize(words.len().max(4), 0);
+        self.queue.write_buffer(&buf, 0, &words_to_bytes(&words));
         Ok(buf)
     }
 
@@ -520,21 +524,23 @@ impl GpuContext {
     /// Submits `enc` and waits for the device; reports validation errors, out-of-memory and
     /// device loss as [`GpuError::Device`].
     pub fn submit(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
-        self.queue.submit([enc.finish()]);
+        self.submit_kept(Some(enc.finish()));
         self.wait()
     }
 
-    /// Submits `enc` without waiting for it: for work whose results stay on the GPU. The
-    /// queue runs submissions in order, so the next read-back ([`GpuContext::read_after`])
+    /// Submits what is kept ([`GpuContext::defer`]) and `enc` without waiting for them: for
+    /// work whose results stay on the GPU. The queue runs submissions in order, so the next read-back ([`GpuContext::read_after`])
     /// sees its effects; errors surface there or in the enclosing [`GpuContext::scoped`].
     pub fn submit_no_wait(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
-        self.queue.submit([enc.finish()]);
+        self.submit_kept(Some(enc.finish()));
         let _ = self.device.poll(wgpu::PollType::Poll);
         self.check_lost()
     }
 
-    /// Waits until everything submitted so far has run.
+    /// Submits what is kept ([`GpuContext::defer`]) and waits until everything submitted so
+    /// far has run.
     pub fn wait(&self) -> Result<(), GpuError> {
+        self.submit_kept(None);
         self.count_wait();
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
@@ -582,7 +588,7 @@ impl GpuContext {
     }
 
     /// Appends to `enc` a copy of each part (buffer, first word, words) into one staging
-    /// buffer, submits it, waits once and returns each part's words: one round trip for
+    /// buffer, submits it after what is kept ([`GpuContext::defer`]), waits once and returns each part's words: one round trip for
     /// several small read-backs.
     pub fn read_after(
         &self,
@@ -609,7 +615,7 @@ impl GpuContext {
             }
             at += bytes;
         }
-        self.queue.submit([enc.finish()]);
+        self.submit_kept(Some(enc.finish()));
         let read = self.map_words(&staging, parts.iter().map(|p| p.2));
         match read {
             Ok(_) => staging.unmap(),

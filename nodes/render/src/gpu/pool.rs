@@ -6,7 +6,8 @@
 //! A [`GpuBuffer`] dropped by its owner is not reusable at once: a command encoder that
 //! recorded it may not be submitted yet, and a reuse (a clear, a queue write) would run before
 //! that work. Dropped buffers wait in quarantine until [`GpuContext::reclaim`], which a caller
-//! runs where no encoder that recorded a pooled buffer is left unsubmitted: the training device
+//! runs where no encoder that recorded a pooled buffer is left unsubmitted (it waits while
+//! encoders are kept for the next submission, `gpu/submit.rs`): the training device
 //! at the start of each step, the whole-render entry points when they return. Everything
 //! submitted before a reuse runs before it (wgpu orders one queue's work), so a reclaimed
 //! buffer is free.
@@ -226,10 +227,9 @@ impl GpuContext {
         let pool = Arc::clone(&self.pool);
         if let Some(buf) = pool.take((bytes, usage)) {
             if contents == Contents::Zeroed {
-                let mut enc = self.device.create_command_encoder(&Default::default());
-                enc.clear_buffer(&buf, 0, None);
-                // Submitted now, so it runs before any write or work recorded later.
-                self.queue.submit([enc.finish()]);
+                // Idle, so no kept encoder uses it: cleared first in the next submission,
+                // before any work recorded with it (`gpu/submit.rs`).
+                self.clear_first(&buf);
             }
             return GpuBuffer {
                 buf: Some(buf),
@@ -265,11 +265,15 @@ impl GpuContext {
     }
 
     /// Makes the buffers dropped since the last call reusable. Call it only where no command
-    /// encoder that recorded a pooled buffer is still unsubmitted (between training steps,
+    /// encoder that recorded a pooled buffer is still being recorded (between training steps,
     /// after a whole render): a buffer reused while such an encoder waits would be cleared or
-    /// overwritten before that encoder's work runs.
+    /// overwritten before that encoder's work runs. While encoders are kept for the next
+    /// submission ([`GpuContext::defer`]) it does nothing: they may use the dropped buffers,
+    /// which wait for a later call.
     pub fn reclaim(&self) {
-        self.pool.reclaim();
+        if !self.has_deferred() {
+            self.pool.reclaim();
+        }
     }
 
     /// What the buffer pool has done: buffers created and reused, idle bytes.

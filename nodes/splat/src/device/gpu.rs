@@ -40,6 +40,7 @@ impl SplatDevice for GpuDevice {
             tile_pairs: HashMap::new(),
             overflows: 0,
             pending: Vec::new(),
+            kept_pixels: 0,
         })
     }
 }
@@ -81,6 +82,13 @@ pub(crate) fn pair_slots(last: u32) -> u32 {
     need.next_multiple_of(step).min(u64::from(u32::MAX)) as u32
 }
 
+/// The pixels of views a submission gathers before it goes to the device: a step's small
+/// synthetic views (a batch of 20 at 1/8 of bonsai's 800×533 is 133k pixels) go in one
+/// submission with the step's clears and the last step's Adam update, while a view this
+/// large or larger is submitted at once, so that the device starts on it while the host
+/// records the next.
+pub(crate) const SUBMIT_PIXELS: u64 = 1 << 18;
+
 /// A training run's GPU half.
 struct GpuTraining {
     ctx: Arc<GpuContext>,
@@ -100,6 +108,8 @@ struct GpuTraining {
     overflows: u64,
     /// The step's views whose loss and counts are still on the device.
     pending: Vec<PendingView>,
+    /// The pixels of the views kept for the next submission ([`SUBMIT_PIXELS`]).
+    kept_pixels: u64,
     /// A bound on every Gaussian's view count in the GPU's statistics: the largest count
     /// uploaded, plus the views added with the statistic since.
     count_bound: u64,
@@ -177,7 +187,14 @@ impl GpuTraining {
             self.sh_active,
             slots,
         );
-        // The view's encoders were all submitted: the next view reuses the buffers it let go.
+        // Submitted once enough is kept: the next view reuses the buffers this one let go
+        // (while encoders are kept, the pool waits: `GpuContext::reclaim`).
+        let cam = src.camera(i);
+        self.kept_pixels += u64::from(cam.width) * u64::from(cam.height);
+        if self.kept_pixels >= SUBMIT_PIXELS {
+            self.kept_pixels = 0;
+            ctx.flush()?;
+        }
         ctx.reclaim();
         out
     }
@@ -224,6 +241,8 @@ impl TrainingDevice for GpuTraining {
             let pending = std::mem::take(&mut self.pending);
             // One wait for every pending view's loss and counts.
             let results = self.state(st)?.finish(&ctx, &pending)?;
+            // The read-back submitted everything kept.
+            self.kept_pixels = 0;
             let first = done.len();
             let mut overflowed = None;
             for (k, r) in results.iter().enumerate() {
@@ -418,6 +437,7 @@ mod tests {
                 tile_pairs: HashMap::new(),
                 overflows: 0,
                 pending: Vec::new(),
+                kept_pixels: 0,
             };
             for (k, e) in estimates.iter().enumerate() {
                 if let Some(c) = e {

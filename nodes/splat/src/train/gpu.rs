@@ -345,7 +345,7 @@ impl GpuTrainer {
     pub fn clear_overflow(&self, ctx: &GpuContext) -> Result<(), GpuError> {
         let mut enc = ctx.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&self.overflow, 0, None);
-        ctx.submit_no_wait(enc)
+        ctx.defer(enc)
     }
 
     /// Clears the step's gradient sums and visibility (before the step's first view).
@@ -356,7 +356,7 @@ impl GpuTrainer {
             enc.clear_buffer(&self.acc_sh, 0, None);
             enc.clear_buffer(&self.acc_visible, 0, None);
             enc.clear_buffer(&self.overflow, 0, None);
-            ctx.submit_no_wait(enc)
+            ctx.defer(enc)
         })
     }
 
@@ -394,9 +394,8 @@ impl GpuTrainer {
             let st = forward_pass_in(ctx, sc, cam, s, grid, Cutoff::Hard, mask, slots)?;
             let (count_buf, count_at) = st.pair_count_at();
             let px = cam.width as usize * cam.height as usize;
-            let d_rgb = ctx.storage("colour gradients", 4 * 3 * px as u64)?;
             let mut enc = ctx.device.create_command_encoder(&Default::default());
-            let (host_value, sums) = match loss {
+            let (host_value, sums, d_rgb) = match loss {
                 ViewLoss::Host { loss: f, .. } => {
                     let read = ctx.device.create_command_encoder(&Default::default());
                     let mut words = ctx.read_after(
@@ -408,7 +407,7 @@ impl GpuTrainer {
                         // Nothing more of this view: the flag stops the step's later views.
                         let mut flag = ctx.device.create_command_encoder(&Default::default());
                         self.record_flag(ctx, &mut flag, &st)?;
-                        ctx.submit_no_wait(flag)?;
+                        ctx.defer(flag)?;
                         return Ok(PendingView::overflowed(count));
                     }
                     let img = words.swap_remove(0);
@@ -418,18 +417,15 @@ impl GpuTrainer {
                         .collect();
                     let mut grad = vec![0.0f32; rgb.len()];
                     let value = f(&rgb, &mut grad);
-                    ctx.queue.write_buffer(
-                        &d_rgb,
-                        0,
-                        &crate::gpu::words_to_bytes(&f32_words(grad)),
-                    );
-                    (value, None)
+                    let d_rgb = ctx.storage_init("colour gradients", &f32_words(grad))?;
+                    (value, None, d_rgb)
                 }
                 ViewLoss::Gpu {
                     target,
                     loss,
                     scale,
                 } => {
+                    let d_rgb = ctx.storage("colour gradients", 4 * 3 * px as u64)?;
                     let sums = record_loss(
                         ctx,
                         &mut enc,
@@ -446,7 +442,7 @@ impl GpuTrainer {
                         scale,
                         &d_rgb,
                     )?;
-                    (0.0, Some(sums))
+                    (0.0, Some(sums), d_rgb)
                 }
             };
             let screen =
@@ -502,7 +498,7 @@ impl GpuTrainer {
                 &[(10, &pair_consts), (11, &st.info), (12, &pair_partials)],
                 ctx.groups(blocks as u32),
             );
-            ctx.submit_no_wait(enc)?;
+            ctx.defer(enc)?;
             let (counts, count_at) = (st.counts, u64::from(st.gaussians));
             Ok(PendingView {
                 sums,
@@ -615,7 +611,8 @@ impl GpuTrainer {
                     width,
                 )?;
             }
-            ctx.submit_no_wait(enc)
+            // Kept for the next submission, with the next step's views.
+            ctx.defer(enc)
         })
     }
 }
