@@ -38,6 +38,7 @@ impl SplatDevice for GpuDevice {
             sh_active: 0,
             count_bound: 0,
             tile_pairs: HashMap::new(),
+            pairs_by_size: HashMap::new(),
             overflows: 0,
             pending: Vec::new(),
             kept_pixels: 0,
@@ -104,6 +105,10 @@ struct GpuTraining {
     /// Each view's (tile, Gaussian) pairs at its last pass, by (synthetic?, view index): the
     /// next pass is sized from them ([`pair_slots`]).
     tile_pairs: HashMap<(bool, usize), u32>,
+    /// The most pairs of any view of each size (width, height) at its last pass: a view's
+    /// first pass is sized from them, so that it need not wait for its own count (a pass
+    /// that outgrows them runs again, counted first, with the same results).
+    pairs_by_size: HashMap<(u32, u32), u32>,
     /// Steps whose views ran again from a pass that outgrew its slots.
     overflows: u64,
     /// The step's views whose loss and counts are still on the device.
@@ -220,11 +225,24 @@ impl TrainingDevice for GpuTraining {
         if view.stats.is_some() {
             self.count_bound += 1;
         }
-        // Sized from the view's last pass: no wait for its pair count (its first pass counts
-        // first).
+        // Sized from the view's last pass, or at its first from the largest pass of a view of
+        // its size: no wait for its pair count (the first view of a size counts first).
         let key = (view.synthetic, view.index);
-        let slots = self.tile_pairs.get(&key).map(|&c| pair_slots(c));
+        let cam = view.source.camera(view.index);
+        let slots = self
+            .tile_pairs
+            .get(&key)
+            .or_else(|| self.pairs_by_size.get(&(cam.width, cam.height)))
+            .map(|&c| pair_slots(c));
         let pending = self.record_view(view, s, slots)?;
+        if slots.is_none() {
+            // Counted first: the next views of its size start from its count.
+            let largest = self
+                .pairs_by_size
+                .entry((cam.width, cam.height))
+                .or_default();
+            *largest = (*largest).max(pending.slots);
+        }
         self.pending.push(pending);
         Ok(())
     }
@@ -254,6 +272,12 @@ impl TrainingDevice for GpuTraining {
                     ))
                 })?;
                 self.tile_pairs.insert((v.synthetic, v.index), r.tile_pairs);
+                let cam = v.source.camera(v.index);
+                let largest = self
+                    .pairs_by_size
+                    .entry((cam.width, cam.height))
+                    .or_default();
+                *largest = (*largest).max(r.tile_pairs);
                 if r.overflowed && overflowed.is_none() {
                     overflowed = Some(k);
                 }
@@ -435,6 +459,7 @@ mod tests {
                 sh_active: 12,
                 count_bound: 0,
                 tile_pairs: HashMap::new(),
+                pairs_by_size: HashMap::new(),
                 overflows: 0,
                 pending: Vec::new(),
                 kept_pixels: 0,

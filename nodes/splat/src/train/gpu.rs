@@ -156,8 +156,8 @@ pub struct PendingView {
     pair_partials: Option<(GpuBuffer, usize)>,
     /// The forward pass's offsets, whose entry at the index holds the pair count.
     counts: Option<(GpuBuffer, u64)>,
-    /// The forward pass's slots.
-    slots: u32,
+    /// The forward pass's slots (its pairs, when it counted them first).
+    pub(crate) slots: u32,
     /// A pass known to have overflowed (a loss on the host reads the count first), with its
     /// pair count.
     known_overflow: Option<u32>,
