@@ -264,7 +264,7 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
     let t = &t[..size * F];
     let simd = simd_blocks(GATHER, res);
     #[cfg(target_arch = "x86_64")]
-    let gather2 = simd && F == 2 && BLOCK == 16 && ld >= BLOCK;
+    let gather2 = simd && F == 2 && BLOCK == 16;
     // Double-buffered corners: block b + 1 is computed and prefetched while block b is
     // gathered.
     let mut idx = [[[0u32; BLOCK]; 8]; 2];
@@ -286,10 +286,11 @@ fn encode_level_impl<const F: usize, const DENSE: bool, const GATHER: bool>(
         let (idx, w) = (&idx[cur], &w[cur]);
         let cnt = (n - start).min(BLOCK);
         #[cfg(target_arch = "x86_64")]
-        if gather2 {
+        if gather2 && start + BLOCK <= ld {
             // SAFETY: `simd` is set only in the AVX2 tier; every index is a
             // valid entry (< size) and the output rows hold `start + BLOCK ≤ ld` columns
-            // (`start` is a multiple of BLOCK < n).
+            // (checked: a last block that ends past the row, where `ld` is not a multiple of
+            // BLOCK, takes the scalar loop).
             unsafe { avx2::gather2_block(t, idx, w, out, ld, start) };
             cur ^= 1;
             continue;
@@ -612,6 +613,51 @@ mod tests {
             }
         }
         p
+    }
+
+    /// A row stride that is not a multiple of the block (here `ld = n = 1000`, whose last
+    /// block ends 8 columns past the row) never writes past the output: the values just
+    /// after it keep their sentinel, and the encoding is that of padded rows.
+    #[test]
+    fn an_unpadded_row_stride_writes_nothing_past_the_output() {
+        augsplat_core::simd::for_each_isa("hash-grid encoding with ld = n = 1000", |_| {
+            let mut rng = Rng::new(3);
+            let grid = HashGrid::new(HashGridConfig {
+                levels: 3,
+                features_per_level: 2,
+                log2_table_size: 10,
+                base_resolution: 4,
+                max_resolution: 64,
+            })
+            .unwrap();
+            let mut table = vec![0f32; grid.n_params()];
+            grid.init(&mut table, &mut rng);
+            let n = 1000;
+            let p = points(&mut rng, n);
+            let pts = PointBatch {
+                px: &p[0],
+                py: &p[1],
+                pz: &p[2],
+                n,
+                ld: n,
+            };
+            let rows = grid.output_dim() * n;
+            let mut out = vec![-7.0f32; rows + 32];
+            grid.encode(&table, pts, &mut out[..rows]);
+            assert!(
+                out[rows..].iter().all(|v| *v == -7.0),
+                "written past the rows"
+            );
+            // The same values as with padded rows.
+            let ld = n.div_ceil(BLOCK) * BLOCK;
+            let mut padded = vec![0f32; grid.output_dim() * ld];
+            grid.encode(&table, PointBatch { ld, ..pts }, &mut padded);
+            for r in 0..grid.output_dim() {
+                for i in 0..n {
+                    assert_eq!(out[r * n + i].to_bits(), padded[r * ld + i].to_bits());
+                }
+            }
+        });
     }
 
     /// The dispatched level kernels of every tier (in the AVX2 tier: the AVX2 corner and blend
