@@ -13,10 +13,12 @@
 //! [`augsplat_core::simd::active`]; in the AVX2 tier the corners of every level are computed,
 //! and two-feature levels blended, by the 8-lane twins in `hashgrid/avx2.rs`, with the same
 //! operations in the same order as the scalar loops (the bits do not change; the tests compare
-//! them).
+//! them). `hashgrid/gpu.rs` and `hashgrid.wgsl` are the GPU twin, on the splatting's wgpu
+//! context.
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;
+pub mod gpu;
 
 use crate::error::FieldError;
 use serde::{Deserialize, Serialize};

@@ -1,0 +1,267 @@
+//! The hash encoding on the GPU (`hashgrid/hashgrid.wgsl`), on the renderer's context
+//! ([`GpuContext`], the same device, limits, buffer pool and error scopes as splatting): the
+//! encoding and its table gradient, the CPU's maths ([`HashGrid::encode`],
+//! [`HashGrid::backward_level`]).
+//!
+//! The gradient sum is deterministic without atomics: the (point, corner) pairs of a level are
+//! sorted by table entry with the context's stable radix sort, and each entry adds its run in
+//! (point, corner) order — the order of the CPU's point-after-point loop — so the same inputs
+//! give the same bytes on one adapter, however many samples share an entry.
+
+use super::{HashGrid, PointBatch};
+use crate::constants::HASH_PRIMES;
+use augsplat_render::gpu::{f32_words, GpuBuffer, GpuContext, GpuError};
+
+/// The compiled kernels of `hashgrid.wgsl`.
+struct HashGridKernels {
+    encode: wgpu::ComputePipeline,
+    emit: wgpu::ComputePipeline,
+    find_ranges: wgpu::ComputePipeline,
+    reduce: wgpu::ComputePipeline,
+}
+
+impl HashGridKernels {
+    fn new(m: augsplat_render::gpu::ModuleSetup<'_>) -> HashGridKernels {
+        let [encode, emit, find_ranges, reduce] = augsplat_render::gpu::pipelines(
+            m,
+            "hashgrid.wgsl",
+            include_str!("hashgrid.wgsl"),
+            ["encode", "emit", "find_ranges", "reduce"],
+        );
+        HashGridKernels {
+            encode,
+            emit,
+            find_ranges,
+            reduce,
+        }
+    }
+}
+
+/// Points on the GPU: the coordinates of a [`PointBatch`] (`n` points) and the row stride
+/// `ld` of the encoding and its gradient.
+pub struct GpuPoints {
+    px: GpuBuffer,
+    py: GpuBuffer,
+    pz: GpuBuffer,
+    n: u32,
+    ld: u32,
+}
+
+impl GpuPoints {
+    /// Uploads the first `pts.n` coordinates of each axis.
+    pub fn upload(ctx: &GpuContext, pts: PointBatch<'_>) -> Result<GpuPoints, GpuError> {
+        // Pair numbers 8·i + c must fit a u32.
+        if pts.n >= 1 << 29 || pts.ld > u32::MAX as usize || pts.ld < pts.n {
+            return Err(GpuError::Invalid(format!(
+                "{} points with row stride {}: at most 2^29 points, stride ≥ points",
+                pts.n, pts.ld
+            )));
+        }
+        let up =
+            |what: &str, v: &[f32]| ctx.storage_init(what, &f32_words(v[..pts.n].iter().copied()));
+        Ok(GpuPoints {
+            px: up("point x", pts.px)?,
+            py: up("point y", pts.py)?,
+            pz: up("point z", pts.pz)?,
+            n: pts.n as u32,
+            ld: pts.ld as u32,
+        })
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.n as usize
+    }
+
+    /// Whether there are no points.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+}
+
+/// The words of `hashgrid.wgsl`'s `Params` for `level`.
+fn level_params(grid: &HashGrid, level: usize, pts: &GpuPoints) -> Vec<u32> {
+    let f = grid.features() as u32;
+    vec![
+        pts.n,
+        pts.ld,
+        grid.resolutions[level],
+        grid.sizes[level] as u32,
+        u32::from(grid.dense[level]),
+        level as u32 * f,
+        grid.offsets[level] as u32,
+        f,
+        8 * pts.n,
+        0,
+        0,
+        0,
+        HASH_PRIMES[0],
+        HASH_PRIMES[1],
+        HASH_PRIMES[2],
+        0,
+    ]
+}
+
+/// Checks that `buf` holds at least `floats` f32 values.
+fn check_len(buf: &wgpu::Buffer, floats: usize, what: &str) -> Result<(), GpuError> {
+    if buf.size() < 4 * floats as u64 {
+        return Err(GpuError::Invalid(format!(
+            "the {what} buffer holds {} floats, {floats} needed",
+            buf.size() / 4
+        )));
+    }
+    Ok(())
+}
+
+/// Records the encoding of `pts` from `table` ([`HashGrid::n_params`] floats) into `out`
+/// (`L·F` rows of `ld`; columns past the points and values that are not finite are 0).
+pub fn record_encode(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    grid: &HashGrid,
+    table: &wgpu::Buffer,
+    pts: &GpuPoints,
+    out: &wgpu::Buffer,
+) -> Result<(), GpuError> {
+    check_len(table, grid.n_params(), "table")?;
+    check_len(out, grid.output_dim() * pts.ld as usize, "encoding")?;
+    let k = ctx.kernels_of(HashGridKernels::new)?;
+    for level in 0..grid.levels() {
+        let params = ctx.uniform("hash grid params", &level_params(grid, level, pts));
+        ctx.dispatch(
+            enc,
+            &k.encode,
+            &[
+                (0, &params),
+                (1, &pts.px),
+                (2, &pts.py),
+                (3, &pts.pz),
+                (4, table),
+                (5, out),
+            ],
+            ctx.groups(pts.ld.div_ceil(256)),
+        );
+    }
+    Ok(())
+}
+
+/// Records the table gradient of every level: for each point (in order), corner and feature,
+/// `grad[entry·F + k] += w · d_out[(level·F + k)·ld + i]`, added in the CPU's order
+/// ([`HashGrid::backward_level`]) by sorting the pairs by entry (see the module notes).
+pub fn record_backward(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    grid: &HashGrid,
+    pts: &GpuPoints,
+    d_out: &wgpu::Buffer,
+    grad: &wgpu::Buffer,
+) -> Result<(), GpuError> {
+    check_len(grad, grid.n_params(), "table gradient")?;
+    check_len(
+        d_out,
+        grid.output_dim() * pts.ld as usize,
+        "encoding gradient",
+    )?;
+    if pts.n == 0 {
+        return Ok(());
+    }
+    let k = ctx.kernels_of(HashGridKernels::new)?;
+    let pairs = 8 * pts.n;
+    let np = 4 * u64::from(pairs);
+    let keys = ctx.storage("hash grid pair entries", np)?;
+    let vals = ctx.storage("hash grid pair numbers", np)?;
+    let keys2 = ctx.storage("hash grid pair entries (scratch)", np)?;
+    let vals2 = ctx.storage("hash grid pair numbers (scratch)", np)?;
+    let weights = ctx.storage("hash grid pair weights", np)?;
+    let largest = grid.sizes.iter().copied().max().unwrap_or(1) as u64;
+    let ranges = ctx.storage("hash grid entry runs", 8 * largest)?;
+    let point_groups = ctx.groups(pts.n.div_ceil(256));
+    for level in 0..grid.levels() {
+        let size = grid.sizes[level] as u32;
+        let params = ctx.uniform("hash grid params", &level_params(grid, level, pts));
+        ctx.dispatch(
+            enc,
+            &k.emit,
+            &[
+                (0, &params),
+                (1, &pts.px),
+                (2, &pts.py),
+                (3, &pts.pz),
+                (6, &keys),
+                (7, &vals),
+                (8, &weights),
+            ],
+            point_groups,
+        );
+        let bits = u32::BITS - (size - 1).leading_zeros();
+        let (sorted_keys, sorted_vals) =
+            ctx.record_sort(enc, &keys, &vals, (&keys2, &vals2), pairs, bits)?;
+        enc.clear_buffer(&ranges, 0, Some(8 * u64::from(size)));
+        ctx.dispatch(
+            enc,
+            &k.find_ranges,
+            &[(0, &params), (6, sorted_keys), (11, &ranges)],
+            ctx.groups(pairs.div_ceil(256)),
+        );
+        ctx.dispatch(
+            enc,
+            &k.reduce,
+            &[
+                (0, &params),
+                (7, sorted_vals),
+                (8, &weights),
+                (9, d_out),
+                (10, grad),
+                (11, &ranges),
+            ],
+            ctx.groups(size.div_ceil(256)),
+        );
+    }
+    Ok(())
+}
+
+/// [`HashGrid::encode`] on the GPU: uploads `table` and the points, encodes, reads back `out`
+/// (`L·F` rows of `pts.ld`).
+pub fn encode_gpu(
+    ctx: &GpuContext,
+    grid: &HashGrid,
+    table: &[f32],
+    pts: PointBatch<'_>,
+) -> Result<Vec<f32>, GpuError> {
+    ctx.scoped(|| {
+        let table = ctx.storage_init("hash table", &f32_words(table.iter().copied()))?;
+        let points = GpuPoints::upload(ctx, pts)?;
+        let len = grid.output_dim() * pts.ld;
+        let out = ctx.storage("encoding", 4 * len as u64)?;
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        record_encode(ctx, &mut enc, grid, &table, &points, &out)?;
+        let words = ctx.read_after(enc, &[(&out, 0, len)])?;
+        ctx.reclaim();
+        Ok(words[0].iter().map(|w| f32::from_bits(*w)).collect())
+    })
+}
+
+/// Every level's [`HashGrid::backward_level`] on the GPU: adds the table gradient of the
+/// points `pts` and the encoding gradient `d_out` (`L·F` rows of `pts.ld`) to `grad`
+/// ([`HashGrid::n_params`] floats).
+pub fn backward_gpu(
+    ctx: &GpuContext,
+    grid: &HashGrid,
+    pts: PointBatch<'_>,
+    d_out: &[f32],
+    grad: &mut [f32],
+) -> Result<(), GpuError> {
+    ctx.scoped(|| {
+        let points = GpuPoints::upload(ctx, pts)?;
+        let d = ctx.storage_init("encoding gradient", &f32_words(d_out.iter().copied()))?;
+        let g = ctx.storage_init("table gradient", &f32_words(grad.iter().copied()))?;
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        record_backward(ctx, &mut enc, grid, &points, &d, &g)?;
+        let words = ctx.read_after(enc, &[(&g, 0, grad.len())])?;
+        ctx.reclaim();
+        for (v, w) in grad.iter_mut().zip(&words[0]) {
+            *v = f32::from_bits(*w);
+        }
+        Ok(())
+    })
+}
