@@ -203,3 +203,40 @@ fn the_gpu_table_gradient_matches_finite_differences_of_the_gpu_encoding() {
         );
     }
 }
+
+/// The float-atomic variant kept for measuring (`determinism-cost`) adds the same terms in
+/// another order: the same gradient up to rounding.
+#[cfg(feature = "determinism-cost")]
+#[test]
+fn the_float_atomic_gradient_agrees_up_to_rounding() {
+    use augsplat_field::hashgrid::gpu::{record_backward_atomic, GpuPoints};
+    use augsplat_render::gpu::f32_words;
+    let test = "the_float_atomic_gradient_agrees_up_to_rounding";
+    let Some(ctx) = context(test) else { return };
+    let mut rng = Rng::new(13);
+    let grid = &grids()[2];
+    let n = 2000;
+    let p = points(&mut rng, n);
+    let pts = batch(&p, n, n);
+    let d_out: Vec<f32> = (0..grid.output_dim() * n)
+        .map(|_| rng.uniform(-1.0, 1.0) as f32)
+        .collect();
+    let mut sorted = vec![0.0f32; grid.n_params()];
+    backward_gpu(&ctx, grid, pts, &d_out, &mut sorted).unwrap();
+    let points = GpuPoints::upload(&ctx, pts).unwrap();
+    let d = ctx
+        .storage_init("d", &f32_words(d_out.iter().copied()))
+        .unwrap();
+    let g = ctx.storage("g", 4 * grid.n_params() as u64).unwrap();
+    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    record_backward_atomic(&ctx, &mut enc, grid, &points, &d, &g).unwrap();
+    let words = ctx.read_after(enc, &[(&g, 0, grid.n_params())]).unwrap();
+    let scale = sorted.iter().fold(0f32, |m, v| m.max(v.abs()));
+    for (j, (a, w)) in sorted.iter().zip(&words[0]).enumerate() {
+        let b = f32::from_bits(*w);
+        assert!(
+            (a - b).abs() <= 1e-4 * scale,
+            "{test}: entry {j}: {a} vs {b}"
+        );
+    }
+}

@@ -12,6 +12,67 @@ use super::{HashGrid, PointBatch};
 use crate::constants::HASH_PRIMES;
 use augsplat_render::gpu::{f32_words, GpuBuffer, GpuContext, GpuError};
 
+/// The float-atomic variant of the table gradient (`hashgrid_atomic.wgsl`), which exists only
+/// to measure what the deterministic sum costs (`examples/gpu_hashgrid_cost.rs`).
+#[cfg(feature = "determinism-cost")]
+struct AtomicKernels {
+    scatter: wgpu::ComputePipeline,
+}
+
+#[cfg(feature = "determinism-cost")]
+impl AtomicKernels {
+    fn new(m: augsplat_render::gpu::ModuleSetup<'_>) -> AtomicKernels {
+        let src = concat!(
+            include_str!("hashgrid.wgsl"),
+            include_str!("hashgrid_atomic.wgsl")
+        );
+        let [scatter] =
+            augsplat_render::gpu::pipelines(m, "hashgrid_atomic.wgsl", src, ["scatter_atomic"]);
+        AtomicKernels { scatter }
+    }
+}
+
+/// [`record_backward`] with float atomics instead of the sorted sum: each term is added
+/// straight into its entry with a compare-exchange loop, so the sum's order (and its last
+/// bits) depends on how the invocations ran. For measuring only.
+#[cfg(feature = "determinism-cost")]
+pub fn record_backward_atomic(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    grid: &HashGrid,
+    pts: &GpuPoints,
+    d_out: &wgpu::Buffer,
+    grad: &wgpu::Buffer,
+) -> Result<(), GpuError> {
+    check_len(grad, grid.n_params(), "table gradient")?;
+    check_len(
+        d_out,
+        grid.output_dim() * pts.ld as usize,
+        "encoding gradient",
+    )?;
+    if pts.n == 0 {
+        return Ok(());
+    }
+    let k = ctx.kernels_of(AtomicKernels::new)?;
+    for level in 0..grid.levels() {
+        let params = ctx.uniform("hash grid params", &level_params(grid, level, pts));
+        ctx.dispatch(
+            enc,
+            &k.scatter,
+            &[
+                (0, &params),
+                (1, &pts.px),
+                (2, &pts.py),
+                (3, &pts.pz),
+                (9, d_out),
+                (12, grad),
+            ],
+            ctx.groups(pts.n.div_ceil(256)),
+        );
+    }
+    Ok(())
+}
+
 /// The compiled kernels of `hashgrid.wgsl`.
 struct HashGridKernels {
     encode: wgpu::ComputePipeline,
