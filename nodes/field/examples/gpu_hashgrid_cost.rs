@@ -1,7 +1,7 @@
-//! What the hash table's deterministic GPU gradient costs: the sorted sum of
+//! What the hash table's deterministic GPU gradients cost: the sorted sum of
 //! `hashgrid/gpu.rs` (each level's (point, corner) pairs sorted by table entry, each entry
-//! adding its run in the CPU's order) against a float-atomic variant written only for this
-//! comparison (`record_backward_atomic`: every term added straight into its entry with a
+//! adding its run in the CPU's order) and the 64-bit fixed-point sum (integer atomics, order-
+//! free) against a float-atomic variant written only for this comparison (`record_backward_atomic`: every term added straight into its entry with a
 //! compare-exchange loop), beside the encoding's forward and the CPU's backward.
 //!
 //! Per row: the median wall time of REPS runs of each (after one warm-up; the points, table
@@ -17,7 +17,7 @@
 
 use augsplat_core::Rng;
 use augsplat_field::hashgrid::gpu::{
-    record_backward, record_backward_atomic, record_encode, GpuPoints,
+    record_backward, record_backward_atomic, record_backward_fixed, record_encode, GpuPoints,
 };
 use augsplat_field::hashgrid::{HashGrid, HashGridConfig, PointBatch};
 use augsplat_render::gpu::{f32_words, GpuContext};
@@ -115,6 +115,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (fwd, _) = time(&|enc| record_encode(&ctx, enc, &grid, &table_buf, &points, &out))?;
     let (sorted, sorted_bits) =
         time(&|enc| record_backward(&ctx, enc, &grid, &points, &d_buf, &grad))?;
+    let (fixed, fixed_bits) =
+        time(&|enc| record_backward_fixed(&ctx, enc, &grid, &points, &d_buf, &grad).map(|_| ()))?;
     let (atomic, atomic_bits) =
         time(&|enc| record_backward_atomic(&ctx, enc, &grid, &points, &d_buf, &grad))?;
 
@@ -128,6 +130,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .zip(&cpu_grad)
         .map(|(a, b)| (f32::from_bits(*a) - b).abs())
         .fold(0f32, f32::max);
+    let worst_fixed = fixed_bits[0]
+        .iter()
+        .zip(&cpu_grad)
+        .map(|(a, b)| (f32::from_bits(*a) - b).abs())
+        .fold(0f32, f32::max);
+    println!(
+        "fixed point: same bytes every run {}, largest difference from the CPU {worst_fixed:e}",
+        same(&fixed_bits)
+    );
     let extra = (5 * 8 * n as u64 + 2 * grid.sizes.iter().max().copied().unwrap_or(0) as u64) * 4;
     let rate = |t: f64| n as f64 / t;
     println!("adapter: {}", ctx.adapter());
@@ -144,6 +155,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ("CPU backward (1 thread)", median(cpu_bwd)),
         ("GPU encode", median(fwd)),
         ("GPU backward, sorted (deterministic)", median(sorted)),
+        (
+            "GPU backward, 64-bit fixed point (deterministic)",
+            median(fixed),
+        ),
         ("GPU backward, float atomics", median(atomic)),
     ] {
         println!("| {name} | {:.2} | {:.3e} |", 1e3 * t, rate(t));

@@ -240,3 +240,67 @@ fn the_float_atomic_gradient_agrees_up_to_rounding() {
         );
     }
 }
+
+#[test]
+fn the_fixed_point_gradient_is_deterministic_and_matches_the_cpu() {
+    use augsplat_field::hashgrid::gpu::backward_gpu_fixed;
+    let test = "the_fixed_point_gradient_is_deterministic_and_matches_the_cpu";
+    let Some(ctx) = context(test) else { return };
+    let mut rng = Rng::new(17);
+    for grid in grids() {
+        let n = 1500;
+        let p = points(&mut rng, n);
+        let pts = batch(&p, n, n + 5);
+        // Terms over nine orders of magnitude, signed.
+        let d_out: Vec<f32> = (0..grid.output_dim() * (n + 5))
+            .map(|k| rng.uniform(-1.0, 1.0) as f32 * 10f32.powi((k % 10) as i32 - 8))
+            .collect();
+        let start: Vec<f32> = (0..grid.n_params())
+            .map(|_| rng.uniform(-1e-3, 1e-3) as f32)
+            .collect();
+        let mut cpu = start.clone();
+        for level in 0..grid.levels() {
+            let r = grid.level_range(level);
+            grid.backward_level(level, pts, &d_out, &mut cpu[r]);
+        }
+        let mut fixed = start.clone();
+        backward_gpu_fixed(&ctx, &grid, pts, &d_out, &mut fixed).unwrap();
+        let mut worst = 0f32;
+        for level in 0..grid.levels() {
+            let r = grid.level_range(level);
+            let scale = cpu[r.clone()].iter().fold(0f32, |m, v| m.max(v.abs()));
+            for j in r {
+                let err = (cpu[j] - fixed[j]).abs() / scale;
+                worst = worst.max(err);
+                assert!(
+                    err <= 1e-5,
+                    "{test}: level {level} entry {j}: CPU {}, GPU {}",
+                    cpu[j],
+                    fixed[j]
+                );
+            }
+        }
+        eprintln!(
+            "{test}: F={}: worst error {worst:e} of the level's largest",
+            grid.features()
+        );
+        let mut again = start.clone();
+        backward_gpu_fixed(&ctx, &grid, pts, &d_out, &mut again).unwrap();
+        assert!(
+            again
+                .iter()
+                .zip(&fixed)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{test}: two runs differ"
+        );
+    }
+    // A gradient that is not finite is an error naming its level, not a silent NaN.
+    let grid = &grids()[0];
+    let n = 64;
+    let p = points(&mut rng, n);
+    let mut d_out = vec![0.5f32; grid.output_dim() * n];
+    d_out[2 * grid.features() * n + 7] = f32::NAN;
+    let mut g = vec![0f32; grid.n_params()];
+    let err = backward_gpu_fixed(&ctx, grid, batch(&p, n, n), &d_out, &mut g).unwrap_err();
+    assert!(err.to_string().contains("level 2"), "{err}");
+}

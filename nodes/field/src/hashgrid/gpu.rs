@@ -3,10 +3,18 @@
 //! encoding and its table gradient, the CPU's maths ([`HashGrid::encode`],
 //! [`HashGrid::backward_level`]).
 //!
-//! The gradient sum is deterministic without atomics: the (point, corner) pairs of a level are
-//! sorted by table entry with the context's stable radix sort, and each entry adds its run in
-//! (point, corner) order — the order of the CPU's point-after-point loop — so the same inputs
-//! give the same bytes on one adapter, however many samples share an entry.
+//! Two deterministic gradient sums, neither with float atomics:
+//!
+//! - [`record_backward`]: the (point, corner) pairs of a level are sorted by table entry with
+//!   the context's stable radix sort, and each entry adds its run in (point, corner) order —
+//!   the order of the CPU's point-after-point loop, so the sums round as the CPU's do;
+//! - [`record_backward_fixed`] (`hashgrid_fixed.wgsl`): each term is scaled by a power of two
+//!   chosen per level, rounded to an integer and added to a 64-bit accumulator with integer
+//!   atomics, whose sum does not depend on the order; its range is bounded by construction.
+//!   Far cheaper than the sort (`docs/notes/benchmarks.md`), one rounding per term.
+//!
+//! Either way the same inputs give the same bytes on one adapter, however many samples share
+//! an entry.
 
 use super::{HashGrid, PointBatch};
 use crate::constants::HASH_PRIMES;
@@ -71,6 +79,97 @@ pub fn record_backward_atomic(
         );
     }
     Ok(())
+}
+
+/// The fixed-point table gradient (`hashgrid_fixed.wgsl` after `hashgrid.wgsl`).
+struct FixedKernels {
+    level_max: wgpu::ComputePipeline,
+    scatter: wgpu::ComputePipeline,
+    to_float: wgpu::ComputePipeline,
+}
+
+impl FixedKernels {
+    fn new(m: augsplat_render::gpu::ModuleSetup<'_>) -> FixedKernels {
+        let src = concat!(
+            include_str!("hashgrid.wgsl"),
+            include_str!("hashgrid_fixed.wgsl")
+        );
+        let [level_max, scatter, to_float] = augsplat_render::gpu::pipelines(
+            m,
+            "hashgrid_fixed.wgsl",
+            src,
+            ["level_max_abs", "scatter_fixed", "fixed_to_float"],
+        );
+        FixedKernels {
+            level_max,
+            scatter,
+            to_float,
+        }
+    }
+}
+
+/// Records the table gradient of [`record_backward`] summed in 64-bit fixed point
+/// (`hashgrid_fixed.wgsl`): every term is scaled by a power of two chosen per level from the
+/// level's largest `|d_out|`, so that no entry's sum can overflow, rounded to an integer and
+/// added with integer atomics, whose sum does not depend on the order. Deterministic, with
+/// one rounding per term (about 2^-40 of the level's largest term at a million points) where
+/// the sorted sum rounds as the CPU does; each entry's sum is then added to `grad`.
+///
+/// Returns two words per level: the bits of its largest finite `|d_out|`, and 1 where the
+/// level held a value that is not finite (such terms are left out, where the CPU's sum would
+/// turn NaN).
+pub fn record_backward_fixed(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    grid: &HashGrid,
+    pts: &GpuPoints,
+    d_out: &wgpu::Buffer,
+    grad: &wgpu::Buffer,
+) -> Result<GpuBuffer, GpuError> {
+    check_len(grad, grid.n_params(), "table gradient")?;
+    check_len(
+        d_out,
+        grid.output_dim() * pts.ld as usize,
+        "encoding gradient",
+    )?;
+    let levels = ctx.storage("hash grid level maxima", 8 * grid.levels() as u64)?;
+    if pts.n == 0 {
+        return Ok(levels);
+    }
+    let k = ctx.kernels_of(FixedKernels::new)?;
+    let fixed = ctx.storage("hash grid fixed-point sums", 8 * grid.n_params() as u64)?;
+    let point_groups = ctx.groups(pts.n.div_ceil(256));
+    for level in 0..grid.levels() {
+        let params = ctx.uniform("hash grid params", &level_params(grid, level, pts));
+        ctx.dispatch(
+            enc,
+            &k.level_max,
+            &[(0, &params), (9, d_out), (13, &levels)],
+            point_groups,
+        );
+        ctx.dispatch(
+            enc,
+            &k.scatter,
+            &[
+                (0, &params),
+                (1, &pts.px),
+                (2, &pts.py),
+                (3, &pts.pz),
+                (9, d_out),
+                (12, &fixed),
+                (13, &levels),
+            ],
+            point_groups,
+        );
+        let floats = grid.sizes[level] as u32 * grid.features() as u32;
+        ctx.dispatch(
+            enc,
+            &k.to_float,
+            &[(0, &params), (10, grad), (12, &fixed), (13, &levels)],
+            ctx.groups(floats.div_ceil(256)),
+        );
+    }
+    Ok(levels)
 }
 
 /// The compiled kernels of `hashgrid.wgsl`.
@@ -153,7 +252,7 @@ fn level_params(grid: &HashGrid, level: usize, pts: &GpuPoints) -> Vec<u32> {
         grid.offsets[level] as u32,
         f,
         8 * pts.n,
-        0,
+        level as u32,
         0,
         0,
         HASH_PRIMES[0],
@@ -320,6 +419,35 @@ pub fn backward_gpu(
         record_backward(ctx, &mut enc, grid, &points, &d, &g)?;
         let words = ctx.read_after(enc, &[(&g, 0, grad.len())])?;
         ctx.reclaim();
+        for (v, w) in grad.iter_mut().zip(&words[0]) {
+            *v = f32::from_bits(*w);
+        }
+        Ok(())
+    })
+}
+
+/// [`backward_gpu`] through [`record_backward_fixed`]: a [`GpuError::Invalid`] naming the level
+/// when `d_out` holds a value that is not finite.
+pub fn backward_gpu_fixed(
+    ctx: &GpuContext,
+    grid: &HashGrid,
+    pts: PointBatch<'_>,
+    d_out: &[f32],
+    grad: &mut [f32],
+) -> Result<(), GpuError> {
+    ctx.scoped(|| {
+        let points = GpuPoints::upload(ctx, pts)?;
+        let d = ctx.storage_init("encoding gradient", &f32_words(d_out.iter().copied()))?;
+        let g = ctx.storage_init("table gradient", &f32_words(grad.iter().copied()))?;
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let levels = record_backward_fixed(ctx, &mut enc, grid, &points, &d, &g)?;
+        let words = ctx.read_after(enc, &[(&g, 0, grad.len()), (&levels, 0, 2 * grid.levels())])?;
+        ctx.reclaim();
+        if let Some(level) = (0..grid.levels()).find(|l| words[1][2 * l + 1] != 0) {
+            return Err(GpuError::Invalid(format!(
+                "the encoding gradient of level {level} holds a value that is not finite"
+            )));
+        }
         for (v, w) in grad.iter_mut().zip(&words[0]) {
             *v = f32::from_bits(*w);
         }

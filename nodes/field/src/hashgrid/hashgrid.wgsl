@@ -19,7 +19,7 @@ struct Params {
     table_off: u32,  // first float of the level in the table and its gradient
     features: u32,   // F
     pairs: u32,      // 8 · n
-    pad0: u32,
+    level: u32,      // the level's number
     pad1: u32,
     pad2: u32,
     primes: vec4<u32>, // the hash's primes (x, y, z)
