@@ -7,6 +7,10 @@
 //! ([`volume`]). Training ([`train`]) uses Adam over fixed ray chunks with a fixed-order
 //! gradient reduction, so results are bit-identical for any thread count. [`mod@reference`] holds
 //! naive f64 versions of every kernel for tests. The node kinds are in [`node`].
+//!
+//! The GPU path is being built kernel family by kernel family on the splatting's wgpu context:
+//! so far the hash encoding and its deterministic table gradients ([`hashgrid::gpu`]); the
+//! nodes train and render on the CPU.
 
 // Kernels index several parallel arrays (SoA rows, accumulators, weights) with one index;
 // iterator zips over four or five slices would hide the maths.
