@@ -52,12 +52,7 @@ pub fn record_backward_atomic(
     d_out: &wgpu::Buffer,
     grad: &wgpu::Buffer,
 ) -> Result<(), GpuError> {
-    check_len(grad, grid.n_params(), "table gradient")?;
-    check_len(
-        d_out,
-        grid.output_dim() * pts.ld as usize,
-        "encoding gradient",
-    )?;
+    check_backward_buffers(grid, pts, d_out, grad)?;
     if pts.n == 0 {
         return Ok(());
     }
@@ -126,12 +121,7 @@ pub fn record_backward_fixed(
     d_out: &wgpu::Buffer,
     grad: &wgpu::Buffer,
 ) -> Result<GpuBuffer, GpuError> {
-    check_len(grad, grid.n_params(), "table gradient")?;
-    check_len(
-        d_out,
-        grid.output_dim() * pts.ld as usize,
-        "encoding gradient",
-    )?;
+    check_backward_buffers(grid, pts, d_out, grad)?;
     let levels = ctx.storage("hash grid level maxima", 8 * grid.levels() as u64)?;
     if pts.n == 0 {
         return Ok(levels);
@@ -273,6 +263,21 @@ fn check_len(buf: &wgpu::Buffer, floats: usize, what: &str) -> Result<(), GpuErr
     Ok(())
 }
 
+/// Checks the buffers of a table gradient: `grad` holds the table, `d_out` the encoding.
+fn check_backward_buffers(
+    grid: &HashGrid,
+    pts: &GpuPoints,
+    d_out: &wgpu::Buffer,
+    grad: &wgpu::Buffer,
+) -> Result<(), GpuError> {
+    check_len(grad, grid.n_params(), "table gradient")?;
+    check_len(
+        d_out,
+        grid.output_dim() * pts.ld as usize,
+        "encoding gradient",
+    )
+}
+
 /// Records the encoding of `pts` from `table` ([`HashGrid::n_params`] floats) into `out`
 /// (`L·F` rows of `ld`; columns past the points and values that are not finite are 0).
 pub fn record_encode(
@@ -316,12 +321,7 @@ pub fn record_backward(
     d_out: &wgpu::Buffer,
     grad: &wgpu::Buffer,
 ) -> Result<(), GpuError> {
-    check_len(grad, grid.n_params(), "table gradient")?;
-    check_len(
-        d_out,
-        grid.output_dim() * pts.ld as usize,
-        "encoding gradient",
-    )?;
+    check_backward_buffers(grid, pts, d_out, grad)?;
     if pts.n == 0 {
         return Ok(());
     }
@@ -403,7 +403,7 @@ pub fn encode_gpu(
 
 /// Every level's [`HashGrid::backward_level`] on the GPU: adds the table gradient of the
 /// points `pts` and the encoding gradient `d_out` (`L·F` rows of `pts.ld`) to `grad`
-/// ([`HashGrid::n_params`] floats).
+/// ([`HashGrid::n_params`] floats), summed as [`record_backward`] sums.
 pub fn backward_gpu(
     ctx: &GpuContext,
     grid: &HashGrid,
@@ -411,19 +411,7 @@ pub fn backward_gpu(
     d_out: &[f32],
     grad: &mut [f32],
 ) -> Result<(), GpuError> {
-    ctx.scoped(|| {
-        let points = GpuPoints::upload(ctx, pts)?;
-        let d = ctx.storage_init("encoding gradient", &f32_words(d_out.iter().copied()))?;
-        let g = ctx.storage_init("table gradient", &f32_words(grad.iter().copied()))?;
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
-        record_backward(ctx, &mut enc, grid, &points, &d, &g)?;
-        let words = ctx.read_after(enc, &[(&g, 0, grad.len())])?;
-        ctx.reclaim();
-        for (v, w) in grad.iter_mut().zip(&words[0]) {
-            *v = f32::from_bits(*w);
-        }
-        Ok(())
-    })
+    backward_on_gpu(ctx, grid, pts, d_out, grad, false)
 }
 
 /// [`backward_gpu`] through [`record_backward_fixed`]: a [`GpuError::Invalid`] naming the level
@@ -435,18 +423,41 @@ pub fn backward_gpu_fixed(
     d_out: &[f32],
     grad: &mut [f32],
 ) -> Result<(), GpuError> {
+    backward_on_gpu(ctx, grid, pts, d_out, grad, true)
+}
+
+/// Uploads, records the sorted (`fixed` false) or fixed-point sum, and reads `grad` back.
+fn backward_on_gpu(
+    ctx: &GpuContext,
+    grid: &HashGrid,
+    pts: PointBatch<'_>,
+    d_out: &[f32],
+    grad: &mut [f32],
+    fixed: bool,
+) -> Result<(), GpuError> {
     ctx.scoped(|| {
         let points = GpuPoints::upload(ctx, pts)?;
         let d = ctx.storage_init("encoding gradient", &f32_words(d_out.iter().copied()))?;
         let g = ctx.storage_init("table gradient", &f32_words(grad.iter().copied()))?;
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        let levels = record_backward_fixed(ctx, &mut enc, grid, &points, &d, &g)?;
-        let words = ctx.read_after(enc, &[(&g, 0, grad.len()), (&levels, 0, 2 * grid.levels())])?;
+        let levels = if fixed {
+            Some(record_backward_fixed(ctx, &mut enc, grid, &points, &d, &g)?)
+        } else {
+            record_backward(ctx, &mut enc, grid, &points, &d, &g)?;
+            None
+        };
+        let mut parts = vec![(&*g, 0, grad.len())];
+        if let Some(levels) = &levels {
+            parts.push((levels, 0, 2 * grid.levels()));
+        }
+        let words = ctx.read_after(enc, &parts)?;
         ctx.reclaim();
-        if let Some(level) = (0..grid.levels()).find(|l| words[1][2 * l + 1] != 0) {
-            return Err(GpuError::Invalid(format!(
-                "the encoding gradient of level {level} holds a value that is not finite"
-            )));
+        if let Some(flags) = words.get(1) {
+            if let Some(level) = (0..grid.levels()).find(|l| flags[2 * l + 1] != 0) {
+                return Err(GpuError::Invalid(format!(
+                    "the encoding gradient of level {level} holds a value that is not finite"
+                )));
+            }
         }
         for (v, w) in grad.iter_mut().zip(&words[0]) {
             *v = f32::from_bits(*w);
