@@ -22,6 +22,10 @@ pub enum FieldError {
         /// What is wrong.
         message: String,
     },
+    /// The GPU backend failed: no adapter, a lost device, out of memory (the message names
+    /// the adapter).
+    #[error(transparent)]
+    Gpu(#[from] augsplat_render::gpu::GpuError),
     /// Training produced non-finite values for too long.
     #[error("training diverged: {0}")]
     Diverged(String),

@@ -21,6 +21,7 @@ pub mod constants;
 pub mod contraction;
 pub mod error;
 pub mod field;
+pub mod gpu;
 pub mod hashgrid;
 pub mod io;
 pub mod mlp;

@@ -270,14 +270,14 @@ struct ChunkResult {
 
 /// A drawn training ray with its supervision.
 #[derive(Clone, Copy, Debug)]
-struct TrainRay {
-    ray: RayInput,
-    target: [f32; 3],
+pub(crate) struct TrainRay {
+    pub(crate) ray: RayInput,
+    pub(crate) target: [f32; 3],
     /// Target distance along the ray and its weight (0 = none).
-    depth: (f32, f32),
+    pub(crate) depth: (f32, f32),
 }
 
-fn draw_ray(views: &[ViewData], rng: &mut Rng, opts: &TrainOptions) -> TrainRay {
+pub(crate) fn draw_ray(views: &[ViewData], rng: &mut Rng, opts: &TrainOptions) -> TrainRay {
     let v = rng.below(views.len() as u64) as usize;
     let view = &views[v];
     let (w, h) = (view.camera.width, view.camera.height);
@@ -360,6 +360,54 @@ impl Adam {
     }
 }
 
+/// Cells per chunk of an occupancy refresh (each chunk draws from its own random stream).
+pub(crate) const OCCUPANCY_CHUNK_CELLS: usize = 4096;
+
+/// The jittered sample points of occupancy chunk `c` (cells `c·4096 ..`), seeded by
+/// `(seed, step)`, in hash coordinates, with the world step the marcher takes there (0 outside
+/// the contracted ball): `[px, py, pz, scale]`.
+pub(crate) fn occupancy_points(
+    field: &Field,
+    occ: &OccupancyGrid,
+    seed: u64,
+    step: u32,
+    c: usize,
+) -> [Vec<f32>; 4] {
+    let n = occ.len();
+    let delta = field.config.contracted_step();
+    let rw = field.config.radius as f32;
+    let mut rng = Rng::stream(
+        seed ^ 0x6f63_6375_7061_6e63,
+        ((step as u64) << 32) | c as u64,
+    );
+    let lo = c * OCCUPANCY_CHUNK_CELLS;
+    let hi = (lo + OCCUPANCY_CHUNK_CELLS).min(n);
+    let mut px = Vec::with_capacity(hi - lo);
+    let mut py = Vec::with_capacity(hi - lo);
+    let mut pz = Vec::with_capacity(hi - lo);
+    let mut scale = Vec::with_capacity(hi - lo);
+    for i in lo..hi {
+        let (corner, edge) = occ.cell_box(i);
+        let p = [
+            corner[0] + edge * rng.next_f32(),
+            corner[1] + edge * rng.next_f32(),
+            corner[2] + edge * rng.next_f32(),
+        ];
+        let rho = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        px.push((p[0] + 2.0) * 0.25);
+        py.push((p[1] + 2.0) * 0.25);
+        pz.push((p[2] + 2.0) * 0.25);
+        // σ·step with the world step the marcher takes there; cells outside the
+        // contracted ball are never visited.
+        scale.push(if rho < CONTRACTED_RADIUS {
+            delta * rw / max_stretch(uncontract_radius(rho))
+        } else {
+            0.0
+        });
+    }
+    [px, py, pz, scale]
+}
+
 /// Refreshes the occupancy grid from the current density (one jittered point per cell,
 /// seeded by `(seed, step)`).
 pub fn update_occupancy(
@@ -369,44 +417,13 @@ pub fn update_occupancy(
     seed: u64,
     step: u32,
 ) {
-    const CELLS: usize = 4096;
     let n = occ.len();
-    let delta = field.config.contracted_step();
-    let rw = field.config.radius as f32;
     let occ_ro = occ.clone();
-    let values: Vec<f32> = (0..n.div_ceil(CELLS))
+    let values: Vec<f32> = (0..n.div_ceil(OCCUPANCY_CHUNK_CELLS))
         .into_par_iter()
         .map(|c| {
             with_chunk_state(false, |st| {
-                let mut rng = Rng::stream(
-                    seed ^ 0x6f63_6375_7061_6e63,
-                    ((step as u64) << 32) | c as u64,
-                );
-                let lo = c * CELLS;
-                let hi = (lo + CELLS).min(n);
-                let mut px = Vec::with_capacity(hi - lo);
-                let mut py = Vec::with_capacity(hi - lo);
-                let mut pz = Vec::with_capacity(hi - lo);
-                let mut scale = Vec::with_capacity(hi - lo);
-                for i in lo..hi {
-                    let (corner, edge) = occ_ro.cell_box(i);
-                    let p = [
-                        corner[0] + edge * rng.next_f32(),
-                        corner[1] + edge * rng.next_f32(),
-                        corner[2] + edge * rng.next_f32(),
-                    ];
-                    let rho = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-                    px.push((p[0] + 2.0) * 0.25);
-                    py.push((p[1] + 2.0) * 0.25);
-                    pz.push((p[2] + 2.0) * 0.25);
-                    // σ·step with the world step the marcher takes there; cells outside the
-                    // contracted ball are never visited.
-                    scale.push(if rho < CONTRACTED_RADIUS {
-                        delta * rw / max_stretch(uncontract_radius(rho))
-                    } else {
-                        0.0
-                    });
-                }
+                let [px, py, pz, scale] = occupancy_points(field, &occ_ro, seed, step, c);
                 let sigma = field.density_batch(params, &px, &py, &pz, st);
                 sigma
                     .iter()

@@ -218,6 +218,33 @@ impl GpuPoints {
         })
     }
 
+    /// Points already on the GPU (`n` coordinates per axis; the encoding's row stride `ld`).
+    pub fn from_buffers(
+        px: GpuBuffer,
+        py: GpuBuffer,
+        pz: GpuBuffer,
+        n: usize,
+        ld: usize,
+    ) -> Result<GpuPoints, GpuError> {
+        if n >= 1 << 29 || ld > u32::MAX as usize || ld < n || px.size() < 4 * n as u64 {
+            return Err(GpuError::Invalid(format!(
+                "{n} points with row stride {ld}: at most 2^29 points, stride ≥ points"
+            )));
+        }
+        Ok(GpuPoints {
+            px,
+            py,
+            pz,
+            n: n as u32,
+            ld: ld as u32,
+        })
+    }
+
+    /// The x, y and z coordinate buffers.
+    pub fn buffers(&self) -> [&GpuBuffer; 3] {
+        [&self.px, &self.py, &self.pz]
+    }
+
     /// Number of points.
     pub fn len(&self) -> usize {
         self.n as usize

@@ -34,6 +34,7 @@
 #[cfg(target_arch = "x86_64")]
 mod avx2;
 mod dispatch;
+pub mod gpu;
 mod portable;
 #[cfg(test)]
 mod tests;

@@ -1,0 +1,313 @@
+//! Rendering a field on the GPU: forward only, many views per pass. Rays march through the
+//! occupancy grid (empty cells give no samples), the density network runs on every marched
+//! sample, each ray composites up to the sample after which its transmittance falls below the
+//! cut-off, and only the samples before it whose weight reaches
+//! [`RENDER_MIN_COLOR_WEIGHT`] are compacted (prefix sum) and go through the colour network —
+//! the CPU renderer's maths ([`crate::render::render_camera`]), including its opacity and
+//! depth sums over the kept samples.
+//!
+//! A pass holds up to [`SAMPLE_BUDGET`] samples: the rays of consecutive views are batched
+//! until their samples would pass it. Each pass waits twice: for its sample count and for its
+//! pixels.
+
+use super::*;
+use crate::render::{RenderStats, RenderedImage};
+use augsplat_core::Camera;
+
+/// Rays of the first pass of a render (later passes are sized from the samples per ray seen).
+const FIRST_PASS_RAYS: usize = 1 << 14;
+
+/// Most rays in one pass.
+const MAX_PASS_RAYS: usize = 1 << 18;
+
+/// A field's state on the GPU, ready to render.
+pub struct GpuFieldRef<'a> {
+    /// The architecture.
+    pub field: &'a Field,
+    /// All parameters.
+    pub params: &'a wgpu::Buffer,
+    /// Occupancy flags (u32 per cell).
+    pub occupied: &'a wgpu::Buffer,
+    /// The mean appearance embedding (see [`mean_embedding_buffer`]).
+    pub mean_emb: &'a wgpu::Buffer,
+}
+
+/// What one ray rendered.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RayPixel {
+    /// Colour over the background.
+    pub rgb: [f32; 3],
+    /// Opacity.
+    pub acc: f32,
+    /// `Σ w t` (divide by the opacity for the expected distance).
+    pub depth: f32,
+    /// Marching steps.
+    pub steps: u32,
+    /// Samples in occupied cells (all through the density network).
+    pub marched: u32,
+    /// Samples through the colour network.
+    pub color: u32,
+}
+
+impl RayPixel {
+    /// The ray's counters.
+    pub fn stats(&self) -> RenderStats {
+        RenderStats {
+            steps: u64::from(self.steps),
+            marched: u64::from(self.marched),
+            density: u64::from(self.marched),
+            color: u64::from(self.color),
+        }
+    }
+}
+
+/// Renders ray records (`field.wgsl`) in passes; returns each ray's pixel.
+pub fn render_rays_gpu(
+    ctx: &GpuContext,
+    model: &GpuFieldRef<'_>,
+    rays: &[[f32; RAY_FLOATS]],
+) -> Result<Vec<RayPixel>, GpuError> {
+    let mut out = Vec::with_capacity(rays.len());
+    let mut batch = FIRST_PASS_RAYS;
+    let mut at = 0;
+    while at < rays.len() {
+        let end = (at + batch).min(rays.len());
+        match render_pass(ctx, model, &rays[at..end])? {
+            Some(pixels) => {
+                // Size the next pass from this one's samples per ray.
+                let marched: u64 = pixels.iter().map(|p| u64::from(p.marched)).sum();
+                let per_ray = (marched as f64 / (end - at) as f64).max(1.0);
+                batch = ((SAMPLE_BUDGET as f64 / per_ray * 0.9) as usize).clamp(64, MAX_PASS_RAYS);
+                out.extend(pixels);
+                at = end;
+            }
+            None => batch = (end - at).div_ceil(2),
+        }
+    }
+    Ok(out)
+}
+
+/// One pass over `rays`; `None` when their samples pass the budget (and there is more than
+/// one ray to split).
+fn render_pass(
+    ctx: &GpuContext,
+    model: &GpuFieldRef<'_>,
+    rays: &[[f32; RAY_FLOATS]],
+) -> Result<Option<Vec<RayPixel>>, GpuError> {
+    let field = model.field;
+    let k = kernels(ctx)?;
+    let n_rays = rays.len() as u32;
+    let rays_buf = ctx.storage_init(
+        "field rays",
+        &f32_words(rays.iter().flat_map(|r| r.iter().copied())),
+    )?;
+    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let counted = record_count(
+        ctx,
+        &mut enc,
+        field,
+        RayBatch {
+            rays: &rays_buf,
+            occupied: model.occupied,
+            n_rays,
+        },
+    )?;
+    let n = ctx.read_after(enc, &[(&counted.0, u64::from(n_rays), 1)])?[0][0];
+    if n > SAMPLE_BUDGET && n_rays > 1 {
+        return Ok(None);
+    }
+    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let marched = record_write(
+        ctx,
+        &mut enc,
+        field,
+        RayBatch {
+            rays: &rays_buf,
+            occupied: model.occupied,
+            n_rays,
+        },
+        counted,
+        n,
+    )?;
+    let ld = marched.ld;
+    let dens = record_density(ctx, &mut enc, field, model.params, &marched.points, ld, n)?;
+    let wg = ctx.storage("sample weights", 8 * u64::from(ld))?;
+    let flags = ctx.storage("live samples", 4 * (u64::from(n) + 1))?;
+    let ray_out = ctx.storage(
+        "field ray outputs",
+        4 * (RAY_OUT_FLOATS as u64) * u64::from(n_rays),
+    )?;
+    let u = ctx.uniform(
+        "field params",
+        &field_words(
+            field,
+            PassSettings {
+                n_rays,
+                ld,
+                n,
+                min_color_w: RENDER_MIN_COLOR_WEIGHT,
+                ..Default::default()
+            },
+        ),
+    );
+    ctx.dispatch(
+        &mut enc,
+        &k.ray_render,
+        &[
+            (0, &u),
+            (3, &marched.starts),
+            (7, &marched.samp),
+            (9, dens.out()),
+            (16, &wg),
+            (19, &ray_out),
+            (20, &flags),
+        ],
+        ctx.groups(n_rays.div_ceil(256)),
+    );
+    ctx.record_scan(&mut enc, &flags, n + 1)?;
+    let alive = ctx.storage("live sample indices", 4 * u64::from(n.max(1)))?;
+    let alive_count = ctx.storage("live sample count", 16)?;
+    ctx.dispatch(
+        &mut enc,
+        &k.compact,
+        &[(0, &u), (12, &alive), (13, &alive_count), (20, &flags)],
+        ctx.groups((n + 1).div_ceil(256)),
+    );
+    let color = record_color(
+        ctx,
+        &mut enc,
+        field,
+        model.params,
+        &rays_buf,
+        &marched,
+        &dens,
+        model.mean_emb,
+        Some((&alive, &alive_count)),
+    )?;
+    let cout = &color.acts[color.acts.len() - 1];
+    ctx.dispatch(
+        &mut enc,
+        &k.ray_composite,
+        &[
+            (0, &u),
+            (1, &rays_buf),
+            (3, &marched.starts),
+            (15, cout),
+            (16, &wg),
+            (19, &ray_out),
+            (20, &flags),
+        ],
+        ctx.groups(n_rays.div_ceil(256)),
+    );
+    let words = ctx.read_after(
+        enc,
+        &[
+            (&ray_out, 0, RAY_OUT_FLOATS * rays.len()),
+            (&marched.steps, 0, rays.len()),
+        ],
+    )?;
+    ctx.reclaim();
+    let f = |w: u32| f32::from_bits(w);
+    let pixels = words[0]
+        .chunks_exact(RAY_OUT_FLOATS)
+        .zip(&words[1])
+        .map(|(o, &steps)| RayPixel {
+            rgb: [f(o[0]), f(o[1]), f(o[2])],
+            acc: f(o[3]),
+            depth: f(o[4]),
+            steps,
+            marched: o[10],
+            color: o[8],
+        })
+        .collect();
+    Ok(Some(pixels))
+}
+
+/// Renders cameras as [`crate::render::render_camera`] does (every pixel, mean embedding,
+/// jitter ½), batching the rays of consecutive views into shared passes.
+pub fn render_views_gpu(
+    ctx: &GpuContext,
+    model: &GpuFieldRef<'_>,
+    cams: &[Camera],
+    background: [f32; 3],
+) -> Result<Vec<RenderedImage>, GpuError> {
+    let mut rays = Vec::new();
+    let mut cosines = Vec::new();
+    for cam in cams {
+        let (recs, cos) = camera_rays(cam, background);
+        rays.extend(recs);
+        cosines.extend(cos);
+    }
+    let pixels = render_rays_gpu(ctx, model, &rays)?;
+    let mut images = Vec::with_capacity(cams.len());
+    let mut at = 0;
+    for cam in cams {
+        let n = cam.width as usize * cam.height as usize;
+        let mut img = RenderedImage {
+            width: cam.width,
+            height: cam.height,
+            rgb: Vec::with_capacity(3 * n),
+            depth: Vec::with_capacity(n),
+            acc: Vec::with_capacity(n),
+            stats: RenderStats::default(),
+        };
+        for (px, cos) in pixels[at..at + n].iter().zip(&cosines[at..at + n]) {
+            img.rgb.extend_from_slice(&px.rgb);
+            img.depth.push(if px.acc > 1e-6 {
+                px.depth / px.acc * cos
+            } else {
+                0.0
+            });
+            img.acc.push(px.acc);
+            img.stats.add(&px.stats());
+        }
+        images.push(img);
+        at += n;
+    }
+    Ok(images)
+}
+
+/// Uploads a trained field (parameters and occupancy) and renders `cams` on the GPU.
+pub fn render_cameras_gpu(
+    ctx: &GpuContext,
+    field: &Field,
+    params: &[f32],
+    occupancy: &crate::occupancy::OccupancyGrid,
+    cams: &[Camera],
+    background: [f32; 3],
+) -> Result<Vec<RenderedImage>, GpuError> {
+    ctx.scoped(|| {
+        let p = ctx.storage_init("field parameters", &f32_words(params.iter().copied()))?;
+        let occ = ctx.storage_init("occupancy", &occupancy_words(occupancy))?;
+        let mean = mean_embedding_buffer(ctx, field, params)?;
+        let model = GpuFieldRef {
+            field,
+            params: &p,
+            occupied: &occ,
+            mean_emb: &mean,
+        };
+        let images = render_views_gpu(ctx, &model, cams, background)?;
+        ctx.reclaim();
+        Ok(images)
+    })
+}
+
+/// The ray records of every pixel of `cam` (row-major), as the CPU renderer casts them, and
+/// each ray's cosine to the optical axis (for depth along the axis).
+pub fn camera_rays(cam: &Camera, background: [f32; 3]) -> (Vec<[f32; RAY_FLOATS]>, Vec<f32>) {
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let fwd = cam.forward();
+    (0..w * h)
+        .map(|p| {
+            let (o, d) = cam.pixel_ray((p / w) as u32, (p % w) as u32);
+            let ray = RayInput {
+                origin: o.map(|x| x as f32),
+                dir: d.map(|x| x as f32),
+                image: NO_IMAGE,
+                background,
+            };
+            let cos = (d[0] * fwd[0] + d[1] * fwd[1] + d[2] * fwd[2]) as f32;
+            (ray_record(&ray, [0.0; 3], (0.0, 0.0), 0.5), cos)
+        })
+        .unzip()
+}

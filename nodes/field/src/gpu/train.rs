@@ -1,0 +1,715 @@
+//! Field training on the GPU: the CPU loop's twin ([`crate::train::train_resumable`]) with the
+//! parameters, Adam's moments and the occupancy grid kept on the device.
+//!
+//! A step draws its rays on the host exactly as the CPU does (the same random streams, so the
+//! same rays), uploads them, and waits once: for its sample count (the marching pass's prefix
+//! sum), read together with the previous step's losses and verdict. Everything else — the
+//! samples, both networks, the losses and their gradients, the guard and Adam — stays on the
+//! device; a step whose gradient is not finite leaves the parameters alone there, as on the
+//! CPU. The loop settles the last step (one more wait) only where it needs its numbers: at an
+//! evaluation, a checkpoint and the end.
+
+use super::render::{render_views_gpu, GpuFieldRef};
+use super::*;
+use crate::checkpoint::{read_field_checkpoint, write_field_checkpoint, FieldLoop};
+use crate::error::FieldError;
+use crate::hashgrid::gpu::record_backward_fixed;
+use crate::mlp::gpu::{record_mlp_backward, GpuMlp, InputGradOut};
+use crate::occupancy::OccupancyGrid;
+use crate::train::{
+    check_divergence, draw_ray, learning_rate, occupancy_points, Adam, FieldCheckpoints,
+    StepReport, StepStats, TrainOptions, TrainState, ViewData, OCCUPANCY_CHUNK_CELLS,
+};
+use augsplat_core::Rng;
+
+/// Words of a step's status (see `step.wgsl`).
+const STATUS_WORDS: usize = 8;
+
+/// Cells per batch of an occupancy refresh on the GPU (16 of the CPU's chunks).
+const OCCUPANCY_BATCH_CELLS: usize = 16 * OCCUPANCY_CHUNK_CELLS;
+
+/// The rays of training step `step`, drawn as [`crate::train::train_step`] draws them (chunk
+/// by chunk, each from its own stream: the rays, then their jitters), as ray records.
+pub fn step_rays(views: &[ViewData], opts: &TrainOptions, step: u32) -> Vec<[f32; RAY_FLOATS]> {
+    let chunk = opts.chunk_rays.max(1) as usize;
+    let total = opts.rays_per_step.max(1) as usize;
+    let mut out = Vec::with_capacity(total);
+    for c in 0..total.div_ceil(chunk) {
+        let mut rng = Rng::stream(opts.seed, ((step as u64) << 32) | c as u64);
+        let count = chunk.min(total - c * chunk);
+        let rays: Vec<_> = (0..count)
+            .map(|_| draw_ray(views, &mut rng, opts))
+            .collect();
+        for tr in rays {
+            let jitter = rng.next_f32();
+            out.push(ray_record(&tr.ray, tr.target, tr.depth, jitter));
+        }
+    }
+    out
+}
+
+/// A step's numbers once read: its statistics (loss sums over rays, not yet divided by the
+/// ray count) and how many gradient values were not finite.
+#[derive(Clone, Copy, Debug)]
+pub struct Settled {
+    /// The statistics.
+    pub stats: StepStats,
+    /// Non-finite gradient values (a level whose encoding gradient was not finite counts 1).
+    pub nonfinite: u64,
+}
+
+/// The device-side state of a training run.
+pub struct GpuTrainer<'a> {
+    ctx: &'a GpuContext,
+    field: &'a Field,
+    params: GpuBuffer,
+    adam_m: GpuBuffer,
+    adam_v: GpuBuffer,
+    /// Applied steps so far (Adam's `t`), as far as the host has read.
+    adam_t: u32,
+    ema: GpuBuffer,
+    occupied: GpuBuffer,
+    /// The last recorded step whose status is not read yet.
+    pending: Option<(u32, GpuBuffer, u32)>,
+}
+
+/// A recorded step's device buffers that its callers may read.
+pub struct StepBuffers {
+    /// Samples of the step.
+    pub n: u32,
+    /// The parameter gradient.
+    pub grad: GpuBuffer,
+    /// Per-ray outputs ([`RAY_OUT_FLOATS`] each).
+    pub ray_out: GpuBuffer,
+    /// The step's status (see `step.wgsl`).
+    pub status: GpuBuffer,
+}
+
+impl<'a> GpuTrainer<'a> {
+    /// Uploads a state and Adam's moments.
+    pub fn new(
+        ctx: &'a GpuContext,
+        field: &'a Field,
+        state: &TrainState,
+        adam: &Adam,
+    ) -> Result<GpuTrainer<'a>, GpuError> {
+        let up = |what: &str, v: &[f32]| ctx.storage_init(what, &f32_words(v.iter().copied()));
+        Ok(GpuTrainer {
+            ctx,
+            field,
+            params: up("field parameters", &state.params)?,
+            adam_m: up("adam m", &adam.m)?,
+            adam_v: up("adam v", &adam.v)?,
+            adam_t: adam.t,
+            ema: up("occupancy ema", &state.occupancy.ema)?,
+            occupied: ctx.storage_init("occupancy", &occupancy_words(&state.occupancy))?,
+            pending: None,
+        })
+    }
+
+    /// Records the passes of one step on `rays` up to the parameter gradient (no Adam) and
+    /// returns its buffers; `before` is read in the same wait as the sample count.
+    pub fn record_gradient(
+        &self,
+        rays: &[[f32; RAY_FLOATS]],
+        opts: &TrainOptions,
+        before: &[(&wgpu::Buffer, u64, usize)],
+    ) -> Result<(StepBuffers, Vec<Vec<u32>>, wgpu::CommandEncoder), GpuError> {
+        let (ctx, field) = (self.ctx, self.field);
+        let k = kernels(ctx)?;
+        let n_rays = rays.len() as u32;
+        let rays_buf = ctx.storage_init(
+            "field rays",
+            &f32_words(rays.iter().flat_map(|r| r.iter().copied())),
+        )?;
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let counted = record_count(
+            ctx,
+            &mut enc,
+            field,
+            RayBatch {
+                rays: &rays_buf,
+                occupied: &self.occupied,
+                n_rays,
+            },
+        )?;
+        let mut parts = vec![(&*counted.0, u64::from(n_rays), 1)];
+        parts.extend_from_slice(before);
+        let mut read = ctx.read_after(enc, &parts)?;
+        let n = read[0][0];
+        let earlier = read.split_off(1);
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let marched = record_write(
+            ctx,
+            &mut enc,
+            field,
+            RayBatch {
+                rays: &rays_buf,
+                occupied: &self.occupied,
+                n_rays,
+            },
+            counted,
+            n,
+        )?;
+        let ld = marched.ld;
+        let params = &self.params;
+        let dens = record_density(ctx, &mut enc, field, params, &marched.points, ld, n)?;
+        let no_mean = ctx.storage("no mean embedding", 16)?;
+        let color = record_color(
+            ctx, &mut enc, field, params, &rays_buf, &marched, &dens, &no_mean, None,
+        )?;
+        let col =
+            |rows: usize| ctx.storage("field sample gradient", 4 * rows as u64 * u64::from(ld));
+        let wg = col(2)?;
+        let d_dout = col(1 + GEO_FEAT_DIM)?;
+        let dc2 = col(3)?;
+        let ray_out = ctx.storage(
+            "field ray outputs",
+            4 * (RAY_OUT_FLOATS as u64) * u64::from(n_rays),
+        )?;
+        let inv_rays = 1.0 / n_rays.max(1) as f32;
+        let u = ctx.uniform(
+            "field params",
+            &field_words(
+                field,
+                PassSettings {
+                    n_rays,
+                    ld,
+                    n,
+                    inv_rays,
+                    depth_w: opts.depth_loss_weight,
+                    depth_sigma: opts.depth_sigma,
+                    dist_w: opts.distortion_loss_weight,
+                    ..Default::default()
+                },
+            ),
+        );
+        let cout = &color.acts[color.acts.len() - 1];
+        ctx.dispatch(
+            &mut enc,
+            &k.ray_train,
+            &[
+                (0, &u),
+                (1, &rays_buf),
+                (3, &marched.starts),
+                (7, &marched.samp),
+                (9, dens.out()),
+                (15, cout),
+                (16, &wg),
+                (17, &d_dout),
+                (18, &dc2),
+                (19, &ray_out),
+            ],
+            ctx.groups(n_rays.div_ceil(256)),
+        );
+        let grad = ctx.storage("field gradient", 4 * field.n_params as u64)?;
+        let e = field.config.appearance_dim;
+        let d_emb = col(e.max(1) as usize)?;
+        let geo = GEO_FEAT_DIM as u32;
+        let mut outs = vec![InputGradOut {
+            dst: &d_dout,
+            rows: 0..geo,
+            row0: 1,
+        }];
+        let emb_rows = geo + SH_COMPONENTS as u32;
+        if e > 0 {
+            outs.push(InputGradOut {
+                dst: &d_emb,
+                rows: emb_rows..emb_rows + e,
+                row0: 0,
+            });
+        }
+        let batch = GpuBatch {
+            ld,
+            cols: n,
+            count: None,
+        };
+        record_mlp_backward(
+            ctx,
+            &mut enc,
+            GpuMlp {
+                mlp: &field.color,
+                params,
+                base: field.color_offset,
+            },
+            &color.input,
+            &color.acts,
+            &dc2,
+            &grad,
+            &outs,
+            batch,
+        )?;
+        let lf = field.grid.output_dim() as u32;
+        let d_enc = col(lf as usize)?;
+        record_mlp_backward(
+            ctx,
+            &mut enc,
+            GpuMlp {
+                mlp: &field.density,
+                params,
+                base: field.density_offset,
+            },
+            &dens.enc,
+            &dens.acts,
+            &d_dout,
+            &grad,
+            &[InputGradOut {
+                dst: &d_enc,
+                rows: 0..lf,
+                row0: 0,
+            }],
+            batch,
+        )?;
+        let levels =
+            record_backward_fixed(ctx, &mut enc, &field.grid, &marched.points, &d_enc, &grad)?;
+        let su = self.step_uniform(n_rays, ld, 0.0);
+        if e > 0 {
+            let ray_emb = ctx.storage("ray embedding gradient", 4 * u64::from(n_rays * e))?;
+            ctx.dispatch(
+                &mut enc,
+                &k.emb_ray,
+                &[
+                    (0, &su),
+                    (4, &ray_out),
+                    (9, &d_emb),
+                    (10, &marched.starts),
+                    (11, &ray_emb),
+                ],
+                ctx.groups((n_rays * e).div_ceil(256)),
+            );
+            ctx.dispatch(
+                &mut enc,
+                &k.emb_reduce,
+                &[(0, &su), (11, &ray_emb), (12, &rays_buf), (13, &grad)],
+                ctx.groups((field.config.n_images * e).div_ceil(256)),
+            );
+        }
+        let status = ctx.storage("field step status", 4 * STATUS_WORDS as u64)?;
+        ctx.dispatch(
+            &mut enc,
+            &k.count_nonfinite,
+            &[(0, &su), (1, &grad), (3, &status)],
+            ctx.groups((field.n_params as u32).div_ceil(256)),
+        );
+        ctx.dispatch(
+            &mut enc,
+            &k.finish_step,
+            &[(0, &su), (2, &status), (4, &ray_out), (5, &levels)],
+            [1, 1],
+        );
+        Ok((
+            StepBuffers {
+                n,
+                grad,
+                ray_out,
+                status,
+            },
+            earlier,
+            enc,
+        ))
+    }
+
+    /// `step.wgsl`'s parameter block; `lr` sets Adam's step for the next applied step.
+    fn step_uniform(&self, n_rays: u32, ld: u32, lr: f32) -> GpuBuffer {
+        let t = self.adam_t + 1;
+        let bc1 = 1.0 - ADAM_BETA1.powi(t as i32);
+        let bc2 = 1.0 - ADAM_BETA2.powi(t as i32);
+        let field = self.field;
+        self.ctx.uniform(
+            "field step params",
+            &[
+                field.n_params as u32,
+                n_rays,
+                field.config.appearance_dim,
+                field.config.n_images,
+                field.embedding_offset as u32,
+                field.grid.levels() as u32,
+                ld,
+                0,
+                (lr / bc1).to_bits(),
+                (1.0 / bc2).to_bits(),
+                ADAM_BETA1.to_bits(),
+                (1.0 - ADAM_BETA1).to_bits(),
+                ADAM_BETA2.to_bits(),
+                (1.0 - ADAM_BETA2).to_bits(),
+                ADAM_EPS.to_bits(),
+                0,
+            ],
+        )
+    }
+
+    /// Records training step `step` (Adam included) and submits it without waiting. Returns
+    /// the previous step's statistics (its step number and stats) when they were pending: they
+    /// are read in this step's one wait.
+    pub fn step(
+        &mut self,
+        views: &[ViewData],
+        opts: &TrainOptions,
+        step: u32,
+    ) -> Result<Option<(u32, Settled)>, GpuError> {
+        self.ctx.count_training_step();
+        let rays = step_rays(views, opts, step);
+        let pending = self.pending.take();
+        let before: Vec<(&wgpu::Buffer, u64, usize)> = pending
+            .iter()
+            .map(|(_, s, _)| (&**s, 0, STATUS_WORDS))
+            .collect();
+        let (bufs, earlier, mut enc) = self.record_gradient(&rays, opts, &before)?;
+        let previous = match (&pending, earlier.first()) {
+            (Some((s, _, n)), Some(words)) => Some((*s, self.account(words, *n))),
+            _ => None,
+        };
+        let k = kernels(self.ctx)?;
+        let su = self.step_uniform(rays.len() as u32, 0, learning_rate(opts, step));
+        self.ctx.dispatch(
+            &mut enc,
+            &k.adam,
+            &[
+                (0, &su),
+                (1, &bufs.grad),
+                (2, &bufs.status),
+                (6, &self.params),
+                (7, &self.adam_m),
+                (8, &self.adam_v),
+            ],
+            self.ctx.groups((self.field.n_params as u32).div_ceil(256)),
+        );
+        self.ctx.submit_no_wait(enc)?;
+        self.pending = Some((step, bufs.status, bufs.n));
+        Ok(previous)
+    }
+
+    /// Reads the pending step's statistics (one wait), if a step is pending.
+    pub fn settle(&mut self) -> Result<Option<(u32, Settled)>, GpuError> {
+        let Some((s, status, n)) = self.pending.take() else {
+            return Ok(None);
+        };
+        let words = self.ctx.read_words(&status, STATUS_WORDS)?;
+        Ok(Some((s, self.account(&words, n))))
+    }
+
+    /// A step's statistics from its status words (and Adam's count when it was applied).
+    fn account(&mut self, words: &[u32], n: u32) -> Settled {
+        let applied = words[1] == 0;
+        if applied {
+            self.adam_t += 1;
+        }
+        let stats = StepStats {
+            rgb_loss: f32::from_bits(words[2]) as f64,
+            depth_loss: f32::from_bits(words[3]) as f64,
+            distortion_loss: f32::from_bits(words[4]) as f64,
+            samples: u64::from(n),
+            color_samples: u64::from(words[5]),
+            applied,
+        };
+        Settled {
+            stats,
+            nonfinite: u64::from(words[0]),
+        }
+    }
+
+    /// Refreshes the occupancy grid as [`crate::train::update_occupancy`] does (the same
+    /// jittered points), on the device, without waiting.
+    pub fn update_occupancy(&self, seed: u64, step: u32) -> Result<(), GpuError> {
+        let (ctx, field) = (self.ctx, self.field);
+        let k = kernels(ctx)?;
+        let res = field.config.occupancy_resolution;
+        let shape = OccupancyGrid::full(res);
+        let cells = shape.len();
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let chunks = cells.div_ceil(OCCUPANCY_CHUNK_CELLS);
+        let per_batch = OCCUPANCY_BATCH_CELLS / OCCUPANCY_CHUNK_CELLS;
+        for b in 0..chunks.div_ceil(per_batch) {
+            let mut pts: [Vec<f32>; 4] = Default::default();
+            for c in b * per_batch..((b + 1) * per_batch).min(chunks) {
+                let part = occupancy_points(field, &shape, seed, step, c);
+                for (dst, src) in pts.iter_mut().zip(part) {
+                    dst.extend(src);
+                }
+            }
+            let n = pts[0].len() as u32;
+            let ld = batch_stride(n);
+            let points = GpuPoints::upload(
+                ctx,
+                crate::hashgrid::PointBatch {
+                    px: &pts[0],
+                    py: &pts[1],
+                    pz: &pts[2],
+                    n: n as usize,
+                    ld: ld as usize,
+                },
+            )?;
+            let scale = ctx.storage_init("occupancy step", &f32_words(pts[3].iter().copied()))?;
+            let dens = record_density(ctx, &mut enc, field, &self.params, &points, ld, n)?;
+            let u = ctx.uniform(
+                "field params",
+                &field_words(
+                    field,
+                    PassSettings {
+                        ld,
+                        n,
+                        first: (b * OCCUPANCY_BATCH_CELLS) as u32,
+                        ..Default::default()
+                    },
+                ),
+            );
+            ctx.dispatch(
+                &mut enc,
+                &k.occ_values,
+                &[(0, &u), (9, dens.out()), (21, &scale), (22, &self.ema)],
+                ctx.groups(n.div_ceil(256)),
+            );
+        }
+        let u = ctx.uniform(
+            "field params",
+            &field_words(
+                field,
+                PassSettings {
+                    n: cells as u32,
+                    ..Default::default()
+                },
+            ),
+        );
+        ctx.dispatch(
+            &mut enc,
+            &k.occ_flags,
+            &[(0, &u), (22, &self.ema), (34, &self.occupied)],
+            [1, 1],
+        );
+        ctx.submit_no_wait(enc)
+    }
+
+    /// The parameters, occupancy grid and Adam's moments, read back (one wait).
+    pub fn download(&self) -> Result<(Vec<f32>, OccupancyGrid, Adam), GpuError> {
+        let np = self.field.n_params;
+        let cells = OccupancyGrid::full(self.field.config.occupancy_resolution).len();
+        let enc = self.ctx.device.create_command_encoder(&Default::default());
+        let words = self.ctx.read_after(
+            enc,
+            &[
+                (&self.params, 0, np),
+                (&self.adam_m, 0, np),
+                (&self.adam_v, 0, np),
+                (&self.ema, 0, cells),
+                (&self.occupied, 0, cells),
+            ],
+        )?;
+        let floats = |w: &Vec<u32>| w.iter().map(|b| f32::from_bits(*b)).collect::<Vec<f32>>();
+        let occ = OccupancyGrid {
+            res: self.field.config.occupancy_resolution,
+            ema: floats(&words[3]),
+            occupied: words[4].iter().map(|&o| o as u8).collect(),
+        };
+        let adam = Adam {
+            m: floats(&words[1]),
+            v: floats(&words[2]),
+            t: self.adam_t,
+        };
+        Ok((floats(&words[0]), occ, adam))
+    }
+
+    /// The parameter and occupancy buffers, for rendering from the device state.
+    pub fn model(&self) -> (&GpuBuffer, &GpuBuffer) {
+        (&self.params, &self.occupied)
+    }
+}
+
+/// [`crate::train::train_resumable`] on the GPU: the same options, curve and checkpoints.
+pub fn train_gpu(
+    ctx: &GpuContext,
+    field: &Field,
+    views: &[ViewData],
+    test: Option<&[ViewData]>,
+    opts: &TrainOptions,
+    checkpoints: Option<FieldCheckpoints<'_>>,
+    on_step: &mut dyn FnMut(StepReport<'_>),
+) -> Result<(TrainState, augsplat_core::artifacts::TrainingCurve), FieldError> {
+    if views.is_empty() {
+        return Err(FieldError::Data("no training views".into()));
+    }
+    let mut state = TrainState {
+        params: field.init_params(opts.seed),
+        occupancy: OccupancyGrid::full(field.config.occupancy_resolution),
+        skipped_steps: 0,
+        nonfinite_values: 0,
+    };
+    let mut lp = FieldLoop {
+        step: 0,
+        adam: Adam::new(field.n_params),
+        curve: augsplat_core::artifacts::TrainingCurve {
+            label: "field".into(),
+            points: Vec::new(),
+        },
+        consecutive_bad: 0,
+        loss_acc: (0.0, 0),
+    };
+    let mut ckpt = checkpoints;
+    if let Some(c) = ckpt.as_mut() {
+        if let Some(bytes) = c.resume.take() {
+            match read_field_checkpoint(
+                &bytes,
+                field.n_params,
+                field.config.occupancy_resolution,
+                opts.steps,
+            ) {
+                Ok((s, l)) => {
+                    state = s;
+                    lp = l;
+                    (c.log)(format!("resumed from the checkpoint at step {}", lp.step));
+                }
+                Err(e) => (c.log)(format!(
+                    "cannot continue from the saved checkpoint ({e}); starting afresh"
+                )),
+            }
+        }
+    }
+    let total = opts.rays_per_step.max(1) as f64;
+    let run = ctx.scoped(|| {
+        let mut trainer = GpuTrainer::new(ctx, field, &state, &lp.adam)?;
+        let mut account = |lp: &mut FieldLoop,
+                           state: &mut TrainState,
+                           got: Option<(u32, Settled)>|
+         -> Result<(), FieldError> {
+            let Some((s, settled)) = got else {
+                return Ok(());
+            };
+            let mut stats = settled.stats;
+            stats.rgb_loss /= total;
+            stats.depth_loss /= total;
+            stats.distortion_loss /= total;
+            if stats.applied {
+                lp.consecutive_bad = 0;
+                lp.loss_acc.0 += stats.rgb_loss;
+                lp.loss_acc.1 += 1;
+            } else {
+                state.skipped_steps += 1;
+                state.nonfinite_values += settled.nonfinite;
+                lp.consecutive_bad += 1;
+                check_divergence(lp.consecutive_bad, s)?;
+            }
+            on_step(StepReport {
+                step: s + 1,
+                stats: &stats,
+            });
+            Ok(())
+        };
+        let mut result: Result<(), FieldError> = Ok(());
+        for step in lp.step..opts.steps {
+            if step >= opts.occupancy_warmup
+                && (step - opts.occupancy_warmup).is_multiple_of(OCCUPANCY_UPDATE_EVERY)
+            {
+                trainer.update_occupancy(opts.seed, step)?;
+            }
+            let prev = trainer.step(views, opts, step)?;
+            if let Err(e) = account(&mut lp, &mut state, prev) {
+                result = Err(e);
+                break;
+            }
+            let done = step + 1;
+            let eval_now =
+                done == opts.steps || (opts.eval_every > 0 && done % opts.eval_every == 0);
+            let ckpt_now = ckpt.as_ref().is_some_and(|c| {
+                c.every > 0 && (done as u64).is_multiple_of(c.every) && done < opts.steps
+            });
+            if eval_now || ckpt_now {
+                let last = trainer.settle()?;
+                if let Err(e) = account(&mut lp, &mut state, last) {
+                    result = Err(e);
+                    break;
+                }
+            }
+            if eval_now {
+                let (p, m) = match test {
+                    Some(t) if !t.is_empty() => evaluate_gpu(ctx, field, &trainer, t, opts)?,
+                    _ => (0.0, 0.0),
+                };
+                lp.curve.points.push(augsplat_core::artifacts::CurvePoint {
+                    step: done as u64,
+                    psnr: p,
+                    ssim: 0.0,
+                    lpips: None,
+                    mse: m,
+                    avg_error: None,
+                    primitives: 0,
+                    seconds: 0.0,
+                    loss: if lp.loss_acc.1 > 0 {
+                        lp.loss_acc.0 / lp.loss_acc.1 as f64
+                    } else {
+                        0.0
+                    },
+                });
+                lp.loss_acc = (0.0, 0);
+            }
+            if ckpt_now {
+                if let Some(c) = ckpt.as_mut() {
+                    lp.step = done;
+                    let (params, occupancy, adam) = trainer.download()?;
+                    state.params = params;
+                    state.occupancy = occupancy;
+                    lp.adam = adam;
+                    match (c.save)(write_field_checkpoint(&state, &lp, opts.steps)) {
+                        Ok(()) => (c.log)(format!("checkpoint at step {done}")),
+                        Err(e) => (c.log)(format!(
+                            "warning: could not save the checkpoint at step {done}: {e}"
+                        )),
+                    }
+                }
+            }
+        }
+        if result.is_ok() {
+            let last = trainer.settle()?;
+            result = account(&mut lp, &mut state, last);
+        }
+        let (params, occupancy, adam) = trainer.download()?;
+        state.params = params;
+        state.occupancy = occupancy;
+        lp.adam = adam;
+        Ok(result)
+    });
+    run??;
+    if state.params.iter().any(|p| !p.is_finite()) {
+        return Err(FieldError::Diverged("parameters became non-finite".into()));
+    }
+    Ok((state, lp.curve))
+}
+
+/// Held-out PSNR and MSE of the device state, rendered on the GPU.
+fn evaluate_gpu(
+    ctx: &GpuContext,
+    field: &Field,
+    trainer: &GpuTrainer<'_>,
+    views: &[ViewData],
+    opts: &TrainOptions,
+) -> Result<(f64, f64), GpuError> {
+    let (params, occupied) = trainer.model();
+    let e = field.config.appearance_dim as usize;
+    let emb = if e > 0 {
+        let n = field.config.n_images as usize * e;
+        let w = ctx.read_after(
+            ctx.device.create_command_encoder(&Default::default()),
+            &[(params, field.embedding_offset as u64, n)],
+        )?;
+        w[0].iter().map(|b| f32::from_bits(*b)).collect()
+    } else {
+        Vec::new()
+    };
+    let mut host = vec![0f32; field.embedding_offset];
+    host.extend(emb);
+    let mean = mean_embedding_buffer(ctx, field, &host)?;
+    let model = GpuFieldRef {
+        field,
+        params,
+        occupied,
+        mean_emb: &mean,
+    };
+    let cams: Vec<_> = views.iter().map(|v| v.camera.clone()).collect();
+    let images = render_views_gpu(ctx, &model, &cams, opts.background)?;
+    let (mut p, mut m) = (0.0, 0.0);
+    for (img, v) in images.iter().zip(views) {
+        let (ps, ms) = crate::render::psnr(&img.rgb, &v.rgb);
+        p += ps;
+        m += ms;
+    }
+    let n = views.len().max(1) as f64;
+    Ok((p / n, m / n))
+}

@@ -1,0 +1,383 @@
+//! The radiance field on the GPU (`gpu/`, on CI Mesa's lavapipe) against the CPU field: a
+//! training step's per-ray outputs, losses and every gradient group (hash levels, each MLP
+//! layer's weights and biases, appearance embeddings), renders, finite differences of the
+//! GPU path itself, identical bytes run to run and seeds that differ; on a partly occupied
+//! grid, an empty one, and a 16-entry table where nearly every corner collides. Skips with a
+//! message when no GPU adapter is found (fails under `CI=true`).
+#![allow(clippy::needless_range_loop)]
+
+mod common;
+
+use augsplat_core::Rng;
+use augsplat_field::field::{ChunkState, Field, FieldConfig, RayInput};
+use augsplat_field::gpu::render::render_cameras_gpu;
+use augsplat_field::gpu::train::{step_rays, train_gpu, GpuTrainer};
+use augsplat_field::gpu::{RAY_FLOATS, RAY_OUT_FLOATS};
+use augsplat_field::hashgrid::HashGridConfig;
+use augsplat_field::occupancy::OccupancyGrid;
+use augsplat_field::train::{
+    load_views, render_camera, train, train_step, Adam, TrainOptions, TrainState, ViewData,
+};
+use augsplat_render::gpu::{GpuContext, GpuError};
+use std::path::Path;
+
+fn context(test: &str) -> Option<GpuContext> {
+    match GpuContext::new() {
+        Ok(c) => Some(c),
+        Err(e @ GpuError::NoAdapter { .. }) => {
+            augsplat_testkit::skip(test, &e.to_string());
+            None
+        }
+        Err(e) => panic!("{test}: {e}"),
+    }
+}
+
+fn config(log2_table: u32, appearance_dim: u32, n_images: u32) -> FieldConfig {
+    FieldConfig {
+        grid: HashGridConfig {
+            levels: 6,
+            features_per_level: 2,
+            log2_table_size: log2_table,
+            base_resolution: 8,
+            max_resolution: 128,
+        },
+        hidden_width: 32,
+        appearance_dim,
+        n_images,
+        center: [0.0; 3],
+        radius: 1.2,
+        near: 0.05,
+        far: 4.5,
+        march_steps: 48,
+        occupancy_resolution: 16,
+    }
+}
+
+fn options(seed: u64, steps: u32) -> TrainOptions {
+    TrainOptions {
+        seed,
+        steps,
+        rays_per_step: 96,
+        chunk_rays: 32,
+        learning_rate: 1e-2,
+        lr_final_factor: 0.1,
+        depth_loss_weight: 0.1,
+        depth_sigma: 0.05,
+        distortion_loss_weight: 0.01,
+        random_background: true,
+        background: [0.0; 3],
+        occupancy_warmup: 4,
+        eval_every: 0,
+    }
+}
+
+/// The generated scene (16×12 views, sparse depth) in `root`, loaded.
+fn scene(root: &Path) -> (Vec<ViewData>, Vec<ViewData>) {
+    common::split_scene(root, 8, 16, 12, 0.3);
+    let (_, train) = load_views(&root.join("train"), 1).unwrap();
+    let (_, test) = load_views(&root.join("test"), 1).unwrap();
+    (train, test)
+}
+
+/// An occupancy grid with about `fraction` of its cells occupied (seeded).
+fn occupancy(res: u32, fraction: f64, seed: u64) -> OccupancyGrid {
+    let mut occ = OccupancyGrid::full(res);
+    let mut rng = Rng::new(seed);
+    for o in &mut occ.occupied {
+        *o = u8::from(rng.next_f64() < fraction);
+    }
+    occ
+}
+
+/// Max |a − b| over a group, relative to the group's largest |b|.
+fn rel_err(a: &[f32], b: &[f32]) -> (f64, f64) {
+    let scale = b.iter().fold(0f64, |m, v| m.max(v.abs() as f64));
+    let err = a
+        .iter()
+        .zip(b)
+        .fold(0f64, |m, (x, y)| m.max((*x as f64 - *y as f64).abs()));
+    (err / scale.max(1e-30), scale)
+}
+
+/// The gradient groups of a field: hash levels, each MLP layer's weights and biases,
+/// embeddings.
+fn groups(field: &Field) -> Vec<(String, std::ops::Range<usize>)> {
+    let mut g = Vec::new();
+    for l in 0..field.grid.levels() {
+        g.push((format!("hash level {l}"), field.grid.level_range(l)));
+    }
+    for (name, mlp, base) in [
+        ("density", &field.density, field.density_offset),
+        ("colour", &field.color, field.color_offset),
+    ] {
+        let mut off = base;
+        for (l, s) in mlp.layers.iter().enumerate() {
+            let w = s.inp * s.out;
+            g.push((format!("{name} layer {l} weights"), off..off + w));
+            g.push((format!("{name} layer {l} biases"), off + w..off + w + s.out));
+            off += s.params();
+        }
+    }
+    if field.n_params > field.embedding_offset {
+        g.push(("embeddings".into(), field.embedding_offset..field.n_params));
+    }
+    g
+}
+
+/// One step's gradient, per-ray outputs and status on the GPU.
+fn gpu_step(
+    ctx: &GpuContext,
+    field: &Field,
+    state: &TrainState,
+    views: &[ViewData],
+    opts: &TrainOptions,
+    step: u32,
+) -> (Vec<f32>, Vec<f32>, Vec<u32>) {
+    let adam = Adam::new(field.n_params);
+    let trainer = GpuTrainer::new(ctx, field, state, &adam).unwrap();
+    let rays = step_rays(views, opts, step);
+    let (bufs, _, enc) = trainer.record_gradient(&rays, opts, &[]).unwrap();
+    let words = ctx
+        .read_after(
+            enc,
+            &[
+                (&bufs.grad, 0, field.n_params),
+                (&bufs.ray_out, 0, RAY_OUT_FLOATS * rays.len()),
+                (&bufs.status, 0, 8),
+            ],
+        )
+        .unwrap();
+    let f = |w: &Vec<u32>| w.iter().map(|b| f32::from_bits(*b)).collect::<Vec<f32>>();
+    (f(&words[0]), f(&words[1]), words[2].clone())
+}
+
+/// The CPU forward pass over the same rays (outputs only).
+fn cpu_outputs(
+    field: &Field,
+    params: &[f32],
+    occ: &OccupancyGrid,
+    rays: &[[f32; RAY_FLOATS]],
+) -> Vec<[f32; 5]> {
+    let inputs: Vec<RayInput> = rays
+        .iter()
+        .map(|r| RayInput {
+            origin: [r[0], r[1], r[2]],
+            dir: [r[3], r[4], r[5]],
+            image: r[15].to_bits(),
+            background: [r[6], r[7], r[8]],
+        })
+        .collect();
+    let mut st = ChunkState::default();
+    let mean = field.mean_embedding(params);
+    field.forward_chunk(params, occ, &inputs, &|r| rays[r][14], &mean, &mut st);
+    st.out
+        .iter()
+        .map(|o| [o.rgb[0], o.rgb[1], o.rgb[2], o.acc, o.depth])
+        .collect()
+}
+
+#[test]
+fn a_training_step_matches_the_cpu_field() {
+    let Some(ctx) = context("a_training_step_matches_the_cpu_field") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (views, _) = scene(dir.path());
+    let nv = views.len() as u32;
+    // Partly occupied grid with embeddings; full grid without; a 16-entry table.
+    for (log2_table, e, fraction) in [(12, 4, 0.6), (12, 0, 1.0), (4, 0, 0.8)] {
+        let field = Field::new(config(log2_table, e, nv)).unwrap();
+        let opts = options(3, 10);
+        let mut state = TrainState {
+            params: field.init_params(5),
+            occupancy: occupancy(16, fraction, 9),
+            skipped_steps: 0,
+            nonfinite_values: 0,
+        };
+        // A few CPU steps first, so the densities and gradients are not those of the start.
+        let mut adam = Adam::new(field.n_params);
+        let mut grad = Vec::new();
+        for step in 0..3 {
+            train_step(
+                &field, &mut state, &mut adam, &views, &opts, step, &mut grad,
+            )
+            .unwrap();
+        }
+        let step = 3;
+        let (g_gpu, out_gpu, status) = gpu_step(&ctx, &field, &state, &views, &opts, step);
+        let rays = step_rays(&views, &opts, step);
+        let out_cpu = cpu_outputs(&field, &state.params, &state.occupancy, &rays);
+        let mut worst_out = 0f64;
+        for (r, o) in out_cpu.iter().enumerate() {
+            for k in 0..5 {
+                let d = (out_gpu[RAY_OUT_FLOATS * r + k] - o[k]).abs() as f64;
+                worst_out = worst_out.max(d / (1.0 + o[k].abs() as f64));
+            }
+        }
+        assert!(worst_out < 1e-4, "outputs differ by {worst_out:e}");
+        let mut cpu_state = state.clone();
+        let mut adam2 = Adam::new(field.n_params);
+        let stats = train_step(
+            &field,
+            &mut cpu_state,
+            &mut adam2,
+            &views,
+            &opts,
+            step,
+            &mut grad,
+        )
+        .unwrap();
+        assert!(stats.applied);
+        assert_eq!(status[1], 0, "the GPU rejected the step");
+        let n = opts.rays_per_step as f64;
+        let rgb = f32::from_bits(status[2]) as f64 / n;
+        assert!(
+            (rgb - stats.rgb_loss).abs() <= 1e-4 * stats.rgb_loss.max(1e-6),
+            "rgb loss {rgb} vs {}",
+            stats.rgb_loss
+        );
+        let depth = f32::from_bits(status[3]) as f64 / n;
+        assert!((depth - stats.depth_loss).abs() <= 1e-4 * stats.depth_loss.abs().max(1e-3));
+        let dist = f32::from_bits(status[4]) as f64 / n;
+        assert!((dist - stats.distortion_loss).abs() <= 1e-4 * stats.distortion_loss.max(1e-3));
+        for (name, range) in groups(&field) {
+            let (err, scale) = rel_err(&g_gpu[range.clone()], &grad[range]);
+            assert!(
+                err <= 1e-3,
+                "table 2^{log2_table}, E {e}: {name}: error {err:e} of its largest {scale:e}"
+            );
+        }
+    }
+}
+
+#[test]
+fn finite_differences_of_the_gpu_loss_match_its_gradient() {
+    let Some(ctx) = context("finite_differences_of_the_gpu_loss_match_its_gradient") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (views, _) = scene(dir.path());
+    let field = Field::new(config(12, 4, views.len() as u32)).unwrap();
+    let opts = options(4, 10);
+    let mut state = TrainState {
+        params: field.init_params(1),
+        occupancy: occupancy(16, 0.7, 2),
+        skipped_steps: 0,
+        nonfinite_values: 0,
+    };
+    let mut adam = Adam::new(field.n_params);
+    let mut grad = Vec::new();
+    for step in 0..5 {
+        train_step(
+            &field, &mut state, &mut adam, &views, &opts, step, &mut grad,
+        )
+        .unwrap();
+    }
+    let loss = |params: &[f32]| -> f64 {
+        let s = TrainState {
+            params: params.to_vec(),
+            ..state.clone()
+        };
+        let (_, _, status) = gpu_step(&ctx, &field, &s, &views, &opts, 5);
+        let n = opts.rays_per_step as f64;
+        let l = |k: usize| f32::from_bits(status[k]) as f64 / n;
+        l(2) + opts.depth_loss_weight as f64 * l(3) + opts.distortion_loss_weight as f64 * l(4)
+    };
+    let (g, _, _) = gpu_step(&ctx, &field, &state, &views, &opts, 5);
+    // The largest entry of each group (a parameter the loss depends on strongly).
+    let mut checked = 0;
+    for (name, range) in groups(&field) {
+        let Some(i) = range
+            .clone()
+            .max_by(|&a, &b| g[a].abs().total_cmp(&g[b].abs()))
+        else {
+            continue;
+        };
+        if g[i].abs() < 1e-4 {
+            continue;
+        }
+        let h = 1e-2 * state.params[i].abs().max(0.05);
+        let mut p = state.params.clone();
+        p[i] += h;
+        let up = loss(&p);
+        p[i] -= 2.0 * h;
+        let down = loss(&p);
+        let fd = (up - down) / (2.0 * h as f64);
+        let err = (fd - g[i] as f64).abs() / (g[i] as f64).abs();
+        assert!(
+            err < 0.05,
+            "{name}: finite difference {fd:e}, gradient {:e}",
+            g[i]
+        );
+        checked += 1;
+    }
+    assert!(checked >= 8, "only {checked} groups had a gradient");
+}
+
+#[test]
+fn training_repeats_to_the_byte_and_seeds_differ() {
+    let Some(ctx) = context("training_repeats_to_the_byte_and_seeds_differ") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (views, test) = scene(dir.path());
+    let field = Field::new(config(12, 4, views.len() as u32)).unwrap();
+    let run = |seed: u64| {
+        let mut opts = options(seed, 12);
+        opts.eval_every = 6;
+        train_gpu(&ctx, &field, &views, Some(&test), &opts, None, &mut |_| {}).unwrap()
+    };
+    let (a, curve_a) = run(0);
+    let (b, curve_b) = run(0);
+    let (c, _) = run(1);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    assert_eq!(bits(&a.params), bits(&b.params));
+    assert_eq!(a.occupancy, b.occupancy);
+    assert_eq!(curve_a, curve_b);
+    assert_ne!(bits(&a.params), bits(&c.params));
+    assert!(
+        a.occupancy.occupied_fraction() < 1.0,
+        "the occupancy grid was never refreshed"
+    );
+    let cams: Vec<_> = test.iter().map(|v| v.camera.clone()).collect();
+    let r1 = render_cameras_gpu(&ctx, &field, &a.params, &a.occupancy, &cams, [0.2; 3]).unwrap();
+    let r2 = render_cameras_gpu(&ctx, &field, &a.params, &a.occupancy, &cams, [0.2; 3]).unwrap();
+    assert_eq!(r1, r2);
+}
+
+#[test]
+fn renders_match_the_cpu_field() {
+    let Some(ctx) = context("renders_match_the_cpu_field") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (views, test) = scene(dir.path());
+    let field = Field::new(config(12, 4, views.len() as u32)).unwrap();
+    let (state, _) = train(&field, &views, None, &options(2, 40), &mut |_| {}).unwrap();
+    let cams: Vec<_> = test.iter().map(|v| v.camera.clone()).collect();
+    let empty = OccupancyGrid {
+        occupied: vec![0; state.occupancy.len()],
+        ..state.occupancy.clone()
+    };
+    for (what, occ) in [("trained grid", &state.occupancy), ("empty grid", &empty)] {
+        let gpu =
+            render_cameras_gpu(&ctx, &field, &state.params, occ, &cams, [0.2, 0.5, 0.9]).unwrap();
+        for (cam, g) in cams.iter().zip(&gpu) {
+            let c = render_camera(&field, &state.params, occ, cam, [0.2, 0.5, 0.9], 64);
+            let worst = |a: &[f32], b: &[f32]| {
+                a.iter()
+                    .zip(b)
+                    .fold(0f32, |m, (x, y)| m.max((x - y).abs() / (1.0 + y.abs())))
+            };
+            assert!(worst(&g.rgb, &c.rgb) < 1e-4, "{what}: colour");
+            assert!(worst(&g.acc, &c.acc) < 1e-4, "{what}: opacity");
+            assert!(worst(&g.depth, &c.depth) < 1e-4, "{what}: depth");
+            assert_eq!(g.stats.steps, c.stats.steps, "{what}: marching steps");
+            assert_eq!(g.stats.marched, c.stats.marched, "{what}: samples");
+            if occ.occupied_fraction() == 0.0 {
+                assert!(g.acc.iter().all(|&a| a == 0.0));
+                assert!(g.rgb.chunks(3).all(|p| p == [0.2, 0.5, 0.9]));
+            }
+        }
+    }
+}
