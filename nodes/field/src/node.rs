@@ -7,6 +7,8 @@ use crate::io::{self, WeightsMeta};
 use crate::train::{self, TrainOptions};
 use augsplat_core::artifacts::{self, files, PoseSet, RenderSet, RenderedView};
 use augsplat_graph::{InputDecl, Node, NodeError, RunContext, Threads};
+use augsplat_render::gpu::GpuContext;
+use augsplat_render::Backend;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -67,6 +69,12 @@ pub struct TrainFieldArgs {
     pub eval_every: u32,
     /// Integer downscale of the training (and test) images.
     pub downscale: u32,
+    /// Where the field trains: `Cpu` (default) or `Gpu` (wgpu: marching, both networks, the
+    /// losses, the hash table's gradient, the occupancy grid and Adam on the device; identical
+    /// bytes run to run on one adapter, within the tests' tolerances of the CPU). Left out of
+    /// the serialised args when `Cpu`, so CPU keys did not change when it was added.
+    #[serde(skip_serializing_if = "Backend::is_cpu")]
+    pub backend: Backend,
 }
 
 impl Default for TrainFieldArgs {
@@ -97,6 +105,7 @@ impl Default for TrainFieldArgs {
             occupancy_warmup: 256,
             eval_every: 0,
             downscale: 1,
+            backend: Backend::Cpu,
         }
     }
 }
@@ -268,6 +277,10 @@ impl Node for TrainField {
         let start = std::time::Instant::now();
         let opts = a.options();
         let steps = a.steps;
+        let gpu = open_gpu(a.backend)?;
+        if let Some(g) = &gpu {
+            ctx.log(format!("training on the GPU: {}", g.adapter()));
+        }
         let (state, curve) = {
             let ctx_ref = &*ctx;
             let mut on_step = |r: train::StepReport<'_>| {
@@ -293,14 +306,25 @@ impl Node for TrainField {
                     save: &mut save,
                     log: &mut log,
                 });
-            train::train_resumable(
-                &field,
-                &views,
-                test.as_deref(),
-                &opts,
-                checkpoints,
-                &mut on_step,
-            )?
+            match &gpu {
+                Some(g) => crate::gpu::train::train_gpu(
+                    g,
+                    &field,
+                    &views,
+                    test.as_deref(),
+                    &opts,
+                    checkpoints,
+                    &mut on_step,
+                )?,
+                None => train::train_resumable(
+                    &field,
+                    &views,
+                    test.as_deref(),
+                    &opts,
+                    checkpoints,
+                    &mut on_step,
+                )?,
+            }
         };
         for p in &curve.points {
             ctx.log(format!(
@@ -325,11 +349,28 @@ impl Node for TrainField {
         };
         io::save(&out, &meta, &field, &state.params, &state.occupancy)?;
         artifacts::write_json(&out.join(files::CURVE), &curve)?;
+        if let Some(g) = &gpu {
+            artifacts::write_json(&out.join(DEVICE_FILE), g.adapter())?;
+        }
         Ok(())
     }
 }
 
 use crate::hashgrid::HashGrid;
+
+/// The file naming the GPU adapter an output was computed on (absent for the CPU).
+pub const DEVICE_FILE: &str = "device.json";
+
+/// The GPU context a node's `backend` asks for: none for the CPU, an error naming what was
+/// found when the machine has no adapter (never a fall-back to the CPU).
+fn open_gpu(backend: Backend) -> Result<Option<GpuContext>, NodeError> {
+    match backend {
+        Backend::Cpu => Ok(None),
+        Backend::Gpu => GpuContext::new()
+            .map(Some)
+            .map_err(|e| NodeError::new(format!("backend: Gpu: {e}"))),
+    }
+}
 
 /// Arguments of [`RenderField`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -341,6 +382,10 @@ pub struct RenderFieldArgs {
     pub downscale: u32,
     /// Background colour; `None` = the one stored with the weights.
     pub background: Option<[f32; 3]>,
+    /// Where the views render: `Cpu` (default) or `Gpu` (wgpu, the views' rays batched into
+    /// shared passes). Left out of the serialised args when `Cpu`.
+    #[serde(skip_serializing_if = "Backend::is_cpu")]
+    pub backend: Backend,
 }
 
 impl Default for RenderFieldArgs {
@@ -349,6 +394,7 @@ impl Default for RenderFieldArgs {
             chunk_rays: 256,
             downscale: 1,
             background: None,
+            backend: Backend::Cpu,
         }
     }
 }
@@ -400,60 +446,90 @@ impl Node for RenderField {
             })?;
             cams.push(pv.camera.downscaled(a.downscale));
         }
-        // Views render in parallel, each in parallel chunks (rayon balances the two levels):
-        // no barrier between views, and each view's file is written by the thread that
-        // rendered it. Every view's pixels are the same as rendered alone.
         let done = AtomicU64::new(0);
         let ctx_ref = &*ctx;
-        let views: Vec<(RenderedView, u64, train::RenderStats)> = cams
-            .into_par_iter()
-            .zip(poses.views.par_iter())
-            .enumerate()
-            .map(|(i, (cam, pv))| -> Result<_, NodeError> {
-                let img = train::render_camera(
+        // Writes view `i`'s planes and reports progress.
+        let write = |i: usize,
+                     cam: augsplat_core::Camera,
+                     name: &str,
+                     img: &train::RenderedImage|
+         -> Result<(RenderedView, u64, train::RenderStats), NodeError> {
+            let file = format!("view_{i:04}.exr");
+            let plane = |c: usize| {
+                img.rgb
+                    .iter()
+                    .skip(c)
+                    .step_by(3)
+                    .copied()
+                    .collect::<Vec<f32>>()
+            };
+            let (r, g, b) = (plane(0), plane(1), plane(2));
+            augsplat_core::image::write_exr(
+                &out.join(&file),
+                cam.width,
+                cam.height,
+                &[
+                    ("R", &r),
+                    ("G", &g),
+                    ("B", &b),
+                    ("D", &img.depth),
+                    ("A", &img.acc),
+                ],
+            )?;
+            let rays = cam.width as u64 * cam.height as u64;
+            let finished = done.fetch_add(1, Ordering::Relaxed) + 1;
+            ctx_ref.progress(finished, total, name);
+            Ok((
+                RenderedView {
+                    name: name.to_string(),
+                    camera: cam,
+                    file,
+                },
+                rays,
+                img.stats,
+            ))
+        };
+        let gpu = open_gpu(a.backend)?;
+        let views: Vec<(RenderedView, u64, train::RenderStats)> = match &gpu {
+            Some(g) => {
+                ctx_ref.log(format!("rendering on the GPU: {}", g.adapter()));
+                let images = crate::gpu::render::render_cameras_gpu(
+                    g,
                     &loaded.field,
                     &loaded.params,
                     &loaded.occupancy,
-                    &cam,
+                    &cams,
                     bg,
-                    a.chunk_rays as usize,
-                );
-                let file = format!("view_{i:04}.exr");
-                let plane = |c: usize| {
-                    img.rgb
-                        .iter()
-                        .skip(c)
-                        .step_by(3)
-                        .copied()
-                        .collect::<Vec<f32>>()
-                };
-                let (r, g, b) = (plane(0), plane(1), plane(2));
-                augsplat_core::image::write_exr(
-                    &out.join(&file),
-                    cam.width,
-                    cam.height,
-                    &[
-                        ("R", &r),
-                        ("G", &g),
-                        ("B", &b),
-                        ("D", &img.depth),
-                        ("A", &img.acc),
-                    ],
-                )?;
-                let rays = cam.width as u64 * cam.height as u64;
-                let finished = done.fetch_add(1, Ordering::Relaxed) + 1;
-                ctx_ref.progress(finished, total, &pv.name);
-                Ok((
-                    RenderedView {
-                        name: pv.name.clone(),
-                        camera: cam,
-                        file,
-                    },
-                    rays,
-                    img.stats,
-                ))
-            })
-            .collect::<Result<_, _>>()?;
+                )
+                .map_err(|e| NodeError::new(e.to_string()))?;
+                let mut views = Vec::with_capacity(cams.len());
+                for (i, ((cam, pv), img)) in
+                    cams.into_iter().zip(&poses.views).zip(&images).enumerate()
+                {
+                    views.push(write(i, cam, &pv.name, img)?);
+                }
+                views
+            }
+            // Views render in parallel, each in parallel chunks (rayon balances the two
+            // levels): no barrier between views, and each view's file is written by the thread
+            // that rendered it. Every view's pixels are the same as rendered alone.
+            None => cams
+                .into_par_iter()
+                .zip(poses.views.par_iter())
+                .enumerate()
+                .map(|(i, (cam, pv))| {
+                    let img = train::render_camera(
+                        &loaded.field,
+                        &loaded.params,
+                        &loaded.occupancy,
+                        &cam,
+                        bg,
+                        a.chunk_rays as usize,
+                    );
+                    write(i, cam, &pv.name, &img)
+                })
+                .collect::<Result<_, _>>()?,
+        };
         let mut set = RenderSet::default();
         let (mut rays, mut stats) = (0u64, train::RenderStats::default());
         for (view, r, s) in views {
@@ -462,6 +538,9 @@ impl Node for RenderField {
             set.views.push(view);
         }
         artifacts::write_json(&out.join(files::RENDERS), &set)?;
+        if let Some(g) = &gpu {
+            artifacts::write_json(&out.join(DEVICE_FILE), g.adapter())?;
+        }
         let per_ray = |v: u64| v as f64 / rays.max(1) as f64;
         ctx.log(format!(
             "{total} views, {rays} rays; per ray: {:.1} marching steps, {:.1} samples in occupied cells, {:.1} through the density network (early termination), {:.1} through the colour network",

@@ -28,6 +28,7 @@
 //! [`gpu`] holds what the GPU families share: the context, the buffer layout past one
 //! binding, the WGSL prelude generated from the Rust constants, and sort and scan.
 
+pub mod backend;
 pub mod backward;
 mod buffers;
 pub mod constants;
@@ -43,6 +44,7 @@ pub mod render;
 pub mod sh;
 pub mod tiles;
 
+pub use backend::Backend;
 pub use backward::ParamGrads;
 pub use error::SplatError;
 pub use gaussians::Gaussians;

@@ -231,38 +231,53 @@ pub fn render_views_gpu(
     cams: &[Camera],
     background: [f32; 3],
 ) -> Result<Vec<RenderedImage>, GpuError> {
-    let mut rays = Vec::new();
-    let mut cosines = Vec::new();
-    for cam in cams {
-        let (recs, cos) = camera_rays(cam, background);
-        rays.extend(recs);
-        cosines.extend(cos);
-    }
-    let pixels = render_rays_gpu(ctx, model, &rays)?;
     let mut images = Vec::with_capacity(cams.len());
-    let mut at = 0;
-    for cam in cams {
-        let n = cam.width as usize * cam.height as usize;
-        let mut img = RenderedImage {
-            width: cam.width,
-            height: cam.height,
-            rgb: Vec::with_capacity(3 * n),
-            depth: Vec::with_capacity(n),
-            acc: Vec::with_capacity(n),
-            stats: RenderStats::default(),
-        };
-        for (px, cos) in pixels[at..at + n].iter().zip(&cosines[at..at + n]) {
-            img.rgb.extend_from_slice(&px.rgb);
-            img.depth.push(if px.acc > 1e-6 {
-                px.depth / px.acc * cos
-            } else {
-                0.0
-            });
-            img.acc.push(px.acc);
-            img.stats.add(&px.stats());
+    let mut first = 0;
+    while first < cams.len() {
+        // Views whose rays fit one batch of ray records (at least one view).
+        let mut end = first + 1;
+        let mut rays_in = cams[first].width as usize * cams[first].height as usize;
+        while end < cams.len() {
+            let more = cams[end].width as usize * cams[end].height as usize;
+            if rays_in + more > MAX_PASS_RAYS {
+                break;
+            }
+            rays_in += more;
+            end += 1;
         }
-        images.push(img);
-        at += n;
+        let mut rays = Vec::with_capacity(rays_in);
+        let mut cosines = Vec::with_capacity(rays_in);
+        for cam in &cams[first..end] {
+            let (recs, cos) = camera_rays(cam, background);
+            rays.extend(recs);
+            cosines.extend(cos);
+        }
+        let pixels = render_rays_gpu(ctx, model, &rays)?;
+        let mut at = 0;
+        for cam in &cams[first..end] {
+            let n = cam.width as usize * cam.height as usize;
+            let mut img = RenderedImage {
+                width: cam.width,
+                height: cam.height,
+                rgb: Vec::with_capacity(3 * n),
+                depth: Vec::with_capacity(n),
+                acc: Vec::with_capacity(n),
+                stats: RenderStats::default(),
+            };
+            for (px, cos) in pixels[at..at + n].iter().zip(&cosines[at..at + n]) {
+                img.rgb.extend_from_slice(&px.rgb);
+                img.depth.push(if px.acc > 1e-6 {
+                    px.depth / px.acc * cos
+                } else {
+                    0.0
+                });
+                img.acc.push(px.acc);
+                img.stats.add(&px.stats());
+            }
+            images.push(img);
+            at += n;
+        }
+        first = end;
     }
     Ok(images)
 }

@@ -1,0 +1,142 @@
+//! The radiance field on the GPU through the CLI: the tiny demo with `fragments/gpu.ron`
+//! (every field, render, splatting and evaluation node on the GPU) runs end to end with a
+//! complete report; two fresh stores hold the same field bytes; the adapter is recorded; a
+//! device lost mid-training ends the field node with the device's message and no cache entry.
+//! Skips with a message when the machine has no GPU adapter (fails under `CI=true`).
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// A pipeline file: the tiny demo with the GPU fragment.
+fn pipeline(dir: &Path) -> PathBuf {
+    let root = augsplat_testkit::workspace_root();
+    let p = dir.join("tiny_gpu.ron");
+    std::fs::write(
+        &p,
+        format!(
+            "(extends: [{:?}, {:?}])",
+            augsplat_testkit::tiny::pipeline(),
+            root.join("pipelines/fragments/gpu.ron")
+        ),
+    )
+    .unwrap();
+    p
+}
+
+/// Runs `pipe` in `cache` up to `targets`; returns (success, output, summary).
+fn run(pipe: &Path, cache: &Path, targets: &[&str], env: &[(&str, &str)]) -> (bool, String, Value) {
+    let summary = cache.with_extension("json");
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_augsplat"));
+    cmd.arg("run")
+        .arg(pipe)
+        .arg("--cache")
+        .arg(cache)
+        .arg("--summary-json")
+        .arg(&summary)
+        .arg("-q");
+    for t in targets {
+        cmd.arg("--target").arg(t);
+    }
+    cmd.envs(env.iter().copied());
+    let out = cmd.output().unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v = std::fs::read(&summary)
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok())
+        .unwrap_or(Value::Null);
+    (out.status.success(), text, v)
+}
+
+/// The folder of output `output` of node `name`.
+fn output(cache: &Path, summary: &Value, name: &str, output: &str) -> PathBuf {
+    let node = summary["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["name"] == name)
+        .unwrap_or_else(|| panic!("no node {name}"));
+    let store = augsplat_graph::Store::open(cache).unwrap();
+    let key = augsplat_graph::store::unhex(node["key"].as_str().unwrap()).unwrap();
+    let action = store.action(&key).unwrap().unwrap();
+    store.output_dir(&augsplat_graph::store::unhex(&action.outputs[output]).unwrap())
+}
+
+fn status(summary: &Value, name: &str) -> Value {
+    summary["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["name"] == name)
+        .map(|n| n["status"].clone())
+        .unwrap_or(Value::Null)
+}
+
+#[test]
+fn the_demo_runs_on_the_gpu_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let pipe = pipeline(dir.path());
+    let (ok, text, a) = run(&pipe, &dir.path().join("a"), &["report"], &[]);
+    if !ok && text.contains("no GPU adapter was found") {
+        augsplat_testkit::skip("the_demo_runs_on_the_gpu_end_to_end", &text);
+        return;
+    }
+    assert!(ok, "{text}");
+    let report = output(&dir.path().join("a"), &a, "report", "report");
+    let html = std::fs::read_to_string(report.join("index.html")).unwrap();
+    for label in ["3DGS", "Staged", "Dual"] {
+        assert!(html.contains(label), "the report lacks {label}");
+    }
+    for (node, out) in [
+        ("field[0]", "weights"),
+        ("render[0]", "renders"),
+        ("baseline", "model"),
+    ] {
+        let d = output(&dir.path().join("a"), &a, node, out);
+        let device: Value =
+            serde_json::from_slice(&std::fs::read(d.join("device.json")).unwrap()).unwrap();
+        assert!(
+            device["name"].as_str().is_some_and(|s| !s.is_empty()),
+            "{node}: {device}"
+        );
+    }
+    // A second fresh store: the same field and render bytes.
+    let (ok, text, b) = run(&pipe, &dir.path().join("b"), &["render[0]"], &[]);
+    assert!(ok, "{text}");
+    for (node, out, file) in [
+        ("field[0]", "weights", "field.safetensors"),
+        ("render[0]", "renders", "view_0000.exr"),
+    ] {
+        assert_eq!(
+            std::fs::read(output(&dir.path().join("a"), &a, node, out).join(file)).unwrap(),
+            std::fs::read(output(&dir.path().join("b"), &b, node, out).join(file)).unwrap(),
+            "{node}/{file} differs between two GPU runs"
+        );
+    }
+    // A device lost after 5 field steps ends the node with the device's message and no
+    // cache entry: the rerun trains it and gets the bytes of the first store.
+    let lost = dir.path().join("lost");
+    let (ok, text, _) = run(
+        &pipe,
+        &lost,
+        &["field[0]"],
+        &[("AUGSPLAT_TEST_LOSE_GPU_AFTER", "5")],
+    );
+    assert!(!ok, "{text}");
+    assert!(text.contains("the GPU device was lost"), "{text}");
+    let (ok, text, again) = run(&pipe, &lost, &["field[0]"], &[]);
+    assert!(ok, "{text}");
+    assert_eq!(status(&again, "field[0]"), Value::from("ran"), "{again}");
+    assert_eq!(
+        std::fs::read(output(&lost, &again, "field[0]", "weights").join("field.safetensors"))
+            .unwrap(),
+        std::fs::read(
+            output(&dir.path().join("a"), &a, "field[0]", "weights").join("field.safetensors")
+        )
+        .unwrap()
+    );
+}
