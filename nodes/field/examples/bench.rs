@@ -4,6 +4,9 @@
 //!   2^17 table, 64-wide MLPs) for 1024- and 4096-ray steps on a random scene: median, best
 //!   and mean of `steps` timed steps (default 10), chunks of `chunk rays` (default 64);
 //! - `kernels`: per-kernel timings on one chunk (best of 30);
+//! - `gpu`: the same steps on the GPU (`gpu/`: the whole step on the device, one wait per
+//!   step), forward+backward samples per second over `steps` steps after one warm-up, and
+//!   rays per second rendering the 8 views (128×96) on the GPU and on the CPU;
 //! - `mlp`: GFLOP/s of the dense-layer kernels (forward, weight gradient, input gradient) on
 //!   chunk-sized batches, best of 300, next to a register-only FMA peak probe (one thread, then
 //!   `threads` threads at once: the machine's ceiling for the dense layers).
@@ -101,6 +104,7 @@ fn main() {
     let (what, figure, value, unit) = pool.install(|| match what.as_str() {
         "kernels" => kernels(&field),
         "mlp" => mlp_kernels(threads),
+        "gpu" => gpu_bench(&field, &views, steps, chunk),
         _ => {
             let mut medians = Vec::new();
             for rays in [1024u32, 4096] {
@@ -389,4 +393,93 @@ fn peak(acc: &mut [[f32; 16]; 24], iters: usize) {
     }
     #[cfg(not(target_arch = "x86_64"))]
     let _ = (acc, iters);
+}
+
+/// Forward+backward samples/s of GPU training steps and rays/s of GPU renders, beside the
+/// CPU's render of the same views.
+fn gpu_bench(field: &Field, views: &[ViewData], steps: usize, chunk: u32) -> Headline {
+    use augsplat_field::gpu::render::render_cameras_gpu;
+    use augsplat_field::gpu::train::GpuTrainer;
+    let ctx = augsplat_render::gpu::GpuContext::new().unwrap_or_else(|e| {
+        eprintln!("{e}");
+        std::process::exit(2)
+    });
+    println!("GPU: {}", ctx.adapter());
+    let mut rates = Vec::new();
+    for rays in [1024u32, 4096] {
+        let opts = TrainOptions {
+            seed: 1,
+            steps: 100,
+            rays_per_step: rays,
+            chunk_rays: chunk,
+            learning_rate: 1e-2,
+            lr_final_factor: 0.1,
+            depth_loss_weight: 0.0,
+            depth_sigma: 0.02,
+            distortion_loss_weight: 0.0,
+            random_background: true,
+            background: [0.0; 3],
+            occupancy_warmup: 1000,
+            eval_every: 0,
+        };
+        let state = TrainState {
+            params: field.init_params(1),
+            occupancy: OccupancyGrid::full(64),
+            skipped_steps: 0,
+            nonfinite_values: 0,
+        };
+        let mut trainer = GpuTrainer::new(&ctx, field, &state, &Adam::new(field.n_params)).unwrap();
+        trainer.step(views, &opts, 0).unwrap();
+        trainer.settle().unwrap();
+        let waits = ctx.host_waits();
+        let t0 = Instant::now();
+        let mut samples = 0u64;
+        for s in 1..=steps as u32 {
+            if let Some((_, done)) = trainer.step(views, &opts, s).unwrap() {
+                samples += done.stats.samples;
+            }
+        }
+        if let Some((_, done)) = trainer.settle().unwrap() {
+            samples += done.stats.samples;
+        }
+        let dt = t0.elapsed().as_secs_f64();
+        let rate = samples as f64 / dt;
+        rates.push(rate);
+        println!(
+            "GPU, {rays} rays/step: {:.3} s/step, {:.0} samples/step, {:.0} forward+backward samples/s over {steps} steps, {:.2} host waits per step",
+            dt / steps as f64,
+            samples as f64 / steps as f64,
+            rate,
+            (ctx.host_waits() - waits) as f64 / steps as f64
+        );
+    }
+    let params = field.init_params(1);
+    let occ = OccupancyGrid::full(64);
+    let cams: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
+    let rays: usize = cams.iter().map(|c| (c.width * c.height) as usize).sum();
+    render_cameras_gpu(&ctx, field, &params, &occ, &cams[..1], [0.0; 3]).unwrap();
+    let t0 = Instant::now();
+    render_cameras_gpu(&ctx, field, &params, &occ, &cams, [0.0; 3]).unwrap();
+    let gpu_render = rays as f64 / t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    for c in &cams {
+        train::render_camera(field, &params, &occ, c, [0.0; 3], 256);
+    }
+    let cpu_render = rays as f64 / t0.elapsed().as_secs_f64();
+    println!(
+        "render, {} views of 128×96 (untrained field, every cell occupied): GPU {gpu_render:.0} rays/s, CPU {cpu_render:.0} rays/s",
+        cams.len()
+    );
+    (
+        "hash-grid field on the GPU, forward+backward".into(),
+        format!(
+            "{:.2} M samples/s with 1,024-ray steps, {:.2} M with 4,096; renders {:.0} rays/s (CPU {:.0})",
+            rates[0] / 1e6,
+            rates[1] / 1e6,
+            gpu_render,
+            cpu_render
+        ),
+        rates[0],
+        "samples/s",
+    )
 }

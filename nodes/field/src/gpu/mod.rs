@@ -32,8 +32,28 @@ pub const RAY_OUT_FLOATS: usize = 12;
 pub const NO_IMAGE: u32 = u32::MAX;
 
 /// Samples a pass may hold at once (about 1.1 KiB of activations each at the default widths):
-/// a render batch whose rays march more is split.
+/// a render batch whose rays march more is split. Lowered further where the adapter binds
+/// less than a batch row of that many samples ([`sample_budget`]).
 pub const SAMPLE_BUDGET: u32 = 1 << 20;
+
+/// The most samples one pass of `field` may hold on `ctx`: [`SAMPLE_BUDGET`], or fewer where
+/// the widest per-sample batch (`rows × samples` floats) would not fit one binding.
+pub fn sample_budget(ctx: &GpuContext, field: &Field) -> u32 {
+    let rows = [
+        field.grid.output_dim(),
+        field.config.hidden_width as usize,
+        field.color.input_dim(),
+        1 + GEO_FEAT_DIM,
+        4,
+    ]
+    .into_iter()
+    .max()
+    .unwrap_or(1) as u64;
+    let fit = ctx.binding_limit() / (4 * rows);
+    // Rounded down to the batch stride's granularity (the rows are padded to it).
+    let fit = (fit / 4096 * 4096).min(u64::from(SAMPLE_BUDGET));
+    fit.max(4096) as u32
+}
 
 /// The field's own WGSL constants, from the Rust ones.
 fn constants() -> String {

@@ -77,7 +77,8 @@ pub fn render_rays_gpu(
                 // Size the next pass from this one's samples per ray.
                 let marched: u64 = pixels.iter().map(|p| u64::from(p.marched)).sum();
                 let per_ray = (marched as f64 / (end - at) as f64).max(1.0);
-                batch = ((SAMPLE_BUDGET as f64 / per_ray * 0.9) as usize).clamp(64, MAX_PASS_RAYS);
+                batch = ((sample_budget(ctx, model.field) as f64 / per_ray * 0.9) as usize)
+                    .clamp(64, MAX_PASS_RAYS);
                 out.extend(pixels);
                 at = end;
             }
@@ -113,7 +114,8 @@ fn render_pass(
         },
     )?;
     let n = ctx.read_after(enc, &[(&counted.0, u64::from(n_rays), 1)])?[0][0];
-    if n > SAMPLE_BUDGET && n_rays > 1 {
+    let budget = sample_budget(ctx, field);
+    if n > budget && n_rays > 1 {
         return Ok(None);
     }
     let mut enc = ctx.device.create_command_encoder(&Default::default());

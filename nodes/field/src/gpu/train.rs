@@ -137,6 +137,13 @@ impl<'a> GpuTrainer<'a> {
         parts.extend_from_slice(before);
         let mut read = ctx.read_after(enc, &parts)?;
         let n = read[0][0];
+        let budget = sample_budget(ctx, field);
+        if n > budget {
+            return Err(GpuError::Invalid(format!(
+                "a step of {n_rays} rays marched {n} samples; this adapter holds at most {budget} \
+                 per pass: lower rays_per_step"
+            )));
+        }
         let earlier = read.split_off(1);
         let mut enc = ctx.device.create_command_encoder(&Default::default());
         let marched = record_write(

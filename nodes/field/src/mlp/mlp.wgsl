@@ -40,8 +40,41 @@ const TILE_I: u32 = 64u;
 @group(0) @binding(4) var<storage, read> mask: array<f32>;
 @group(0) @binding(5) var<storage, read> count: array<u32>;
 
-var<workgroup> w_tile: array<f32, 512>; // TILE_O × TILE_I
+// The tile: for input ii of the tile, outputs o0..o0+3 in w_tile[2·ii] and o0+4..o0+7 in
+// w_tile[2·ii + 1], so each input is two 4-wide multiply-adds.
+var<workgroup> w_tile: array<vec4<f32>, 128>; // TILE_O × TILE_I
 var<workgroup> wg_cols: u32;
+
+fn tile_weight(o: u32, i: u32) -> f32 {
+    if (o < d.o_end && i < d.inp) {
+        return w[d.w_off + o * d.w_so + i * d.w_si];
+    }
+    return 0.0;
+}
+
+fn bias(o: u32) -> f32 {
+    if (d.b_off != NO_BIAS && o < d.o_end) {
+        return w[d.b_off + o];
+    }
+    return 0.0;
+}
+
+fn store_out(o: u32, c: u32, acc: f32) {
+    if (o >= d.o_end) {
+        return;
+    }
+    var v = acc;
+    if (d.store == 1u) {
+        if (!(v > 0.0)) {
+            v = 0.0;
+        }
+    } else if (d.store == 2u) {
+        if (!(mask[o * d.ld + c] > 0.0)) {
+            v = 0.0;
+        }
+    }
+    y[(o - d.o_begin + d.y_row0) * d.ld + c] = v;
+}
 
 @compute @workgroup_size(256)
 fn dense(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -65,59 +98,40 @@ fn dense(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
         if (o0 >= d.o_end) {
             break;
         }
-        var acc: array<f32, 8>;
-        for (var k = 0u; k < TILE_O; k++) {
-            let o = o0 + k;
-            var b = 0.0;
-            if (d.b_off != NO_BIAS && o < d.o_end) {
-                b = w[d.b_off + o];
-            }
-            acc[k] = b;
-        }
+        var lo = vec4<f32>(bias(o0), bias(o0 + 1u), bias(o0 + 2u), bias(o0 + 3u));
+        var hi = vec4<f32>(bias(o0 + 4u), bias(o0 + 5u), bias(o0 + 6u), bias(o0 + 7u));
         var i0 = 0u;
         loop {
             if (i0 >= d.inp) {
                 break;
             }
             workgroupBarrier();
-            for (var t = lid; t < TILE_O * TILE_I; t += 256u) {
-                let o = o0 + t / TILE_I;
-                let i = i0 + t % TILE_I;
-                var v = 0.0;
-                if (o < d.o_end && i < d.inp) {
-                    v = w[d.w_off + o * d.w_so + i * d.w_si];
-                }
-                w_tile[t] = v;
+            if (lid < 2u * TILE_I) {
+                let i = i0 + lid / 2u;
+                let k = o0 + 4u * (lid % 2u);
+                w_tile[lid] = vec4<f32>(tile_weight(k, i), tile_weight(k + 1u, i),
+                                        tile_weight(k + 2u, i), tile_weight(k + 3u, i));
             }
             workgroupBarrier();
             if (live) {
                 let ni = min(TILE_I, d.inp - i0);
                 for (var ii = 0u; ii < ni; ii++) {
-                    let xv = x[(i0 + ii) * d.ld + c];
-                    for (var k = 0u; k < TILE_O; k++) {
-                        acc[k] = fma(w_tile[k * TILE_I + ii], xv, acc[k]);
-                    }
+                    let xv = vec4<f32>(x[(i0 + ii) * d.ld + c]);
+                    lo = fma(w_tile[2u * ii], xv, lo);
+                    hi = fma(w_tile[2u * ii + 1u], xv, hi);
                 }
             }
             i0 += TILE_I;
         }
         if (live) {
-            for (var k = 0u; k < TILE_O; k++) {
-                let o = o0 + k;
-                if (o < d.o_end) {
-                    var v = acc[k];
-                    if (d.store == 1u) {
-                        if (!(v > 0.0)) {
-                            v = 0.0;
-                        }
-                    } else if (d.store == 2u) {
-                        if (!(mask[o * d.ld + c] > 0.0)) {
-                            v = 0.0;
-                        }
-                    }
-                    y[(o - d.o_begin + d.y_row0) * d.ld + c] = v;
-                }
-            }
+            store_out(o0, c, lo.x);
+            store_out(o0 + 1u, c, lo.y);
+            store_out(o0 + 2u, c, lo.z);
+            store_out(o0 + 3u, c, lo.w);
+            store_out(o0 + 4u, c, hi.x);
+            store_out(o0 + 5u, c, hi.y);
+            store_out(o0 + 6u, c, hi.z);
+            store_out(o0 + 7u, c, hi.w);
         }
         o0 += TILE_O;
     }
