@@ -400,7 +400,7 @@ fn a_run_continued_from_a_checkpoint_repeats_the_uninterrupted_one() {
             Ok(())
         };
         let mut log = |_: String| {};
-        let ckpt = (every > 0).then(|| FieldCheckpoints {
+        let ckpt = (every > 0).then_some(FieldCheckpoints {
             every,
             resume,
             save: &mut save,
