@@ -1,7 +1,8 @@
 //! The radiance field on the GPU through the CLI: the tiny demo with `fragments/gpu.ron`
 //! (every field, render, splatting and evaluation node on the GPU) runs end to end with a
 //! complete report; two fresh stores hold the same field bytes; the adapter is recorded; a
-//! device lost mid-training ends the field node with the device's message and no cache entry.
+//! device lost mid-training ends the field node with the device's message and no cache entry;
+//! an adapter that is not there is an error, never a fall-back to the CPU.
 //! Skips with a message when the machine has no GPU adapter (fails under `CI=true`).
 
 use serde_json::Value;
@@ -117,6 +118,22 @@ fn the_demo_runs_on_the_gpu_end_to_end() {
             "{node}/{file} differs between two GPU runs"
         );
     }
+    // An adapter that is not there is an error naming the adapters there are, never a
+    // fall-back to the CPU, and the field node leaves nothing behind.
+    let none = dir.path().join("none");
+    let (ok, text, summary) = run(
+        &pipe,
+        &none,
+        &["field[0]"],
+        &[("WGPU_ADAPTER_NAME", "no-such-gpu-anywhere")],
+    );
+    assert!(!ok, "{text}");
+    assert!(text.contains("no-such-gpu-anywhere"), "{text}");
+    assert_ne!(
+        status(&summary, "field[0]"),
+        Value::from("ran"),
+        "{summary}"
+    );
     // A device lost after 5 field steps ends the node with the device's message and no
     // cache entry: the rerun trains it and gets the bytes of the first store.
     let lost = dir.path().join("lost");

@@ -552,3 +552,28 @@ impl Node for RenderField {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `backend: Cpu` is left out of the serialised args (so no key from before the field
+    /// had a backend moved); `Gpu` is written and read back.
+    #[test]
+    fn the_cpu_backend_is_left_out_of_the_args() {
+        let cpu = serde_json::to_string(&TrainFieldArgs::default()).unwrap();
+        assert!(!cpu.contains("backend"), "{cpu}");
+        let cpu = serde_json::to_string(&RenderFieldArgs::default()).unwrap();
+        assert!(!cpu.contains("backend"), "{cpu}");
+        let gpu = TrainFieldArgs {
+            backend: Backend::Gpu,
+            ..TrainFieldArgs::default()
+        };
+        let text = serde_json::to_string(&gpu).unwrap();
+        assert!(text.contains("\"backend\":\"Gpu\""), "{text}");
+        let back: TrainFieldArgs = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, gpu);
+        let render: RenderFieldArgs = ron::from_str("(backend: Gpu)").unwrap();
+        assert_eq!(render.backend, Backend::Gpu);
+    }
+}

@@ -184,8 +184,9 @@ fn a_training_step_matches_the_cpu_field() {
     let dir = tempfile::tempdir().unwrap();
     let (views, _) = scene(dir.path());
     let nv = views.len() as u32;
-    // Partly occupied grid with embeddings; full grid without; a 16-entry table.
-    for (log2_table, e, fraction) in [(12, 4, 0.6), (12, 0, 1.0), (4, 0, 0.8)] {
+    // Partly occupied grid with embeddings; full grid without; a 16-entry table; an empty
+    // grid (every ray misses: no samples, only the background).
+    for (log2_table, e, fraction) in [(12, 4, 0.6), (12, 0, 1.0), (4, 0, 0.8), (12, 4, 0.0)] {
         let field = Field::new(config(log2_table, e, nv)).unwrap();
         let opts = options(3, 10);
         let mut state = TrainState {
