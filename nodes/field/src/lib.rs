@@ -1,4 +1,4 @@
-//! augsplat-field: the radiance-field ensemble member of AugSplat, on the CPU.
+//! augsplat-field: the radiance-field ensemble member of AugSplat, on the CPU and the GPU.
 //!
 //! A nerfacto-like field — multiresolution hash encoding ([`hashgrid`]), density MLP with
 //! truncated exp and colour MLP on geometry features + SH-encoded view direction ([`field`],
@@ -8,9 +8,10 @@
 //! gradient reduction, so results are bit-identical for any thread count. [`mod@reference`] holds
 //! naive f64 versions of every kernel for tests. The node kinds are in [`node`].
 //!
-//! The GPU path is being built kernel family by kernel family on the splatting's wgpu context:
-//! so far the hash encoding and its deterministic table gradients ([`hashgrid::gpu`]); the
-//! nodes train and render on the CPU.
+//! The GPU path ([`gpu`], `backend: Gpu` on the nodes) runs the same maths through wgpu on the
+//! splatting's context: marching, the hash encoding and its deterministic table gradients
+//! ([`hashgrid::gpu`]), both MLPs ([`mlp::gpu`]), volume rendering, the losses and their
+//! backward, the occupancy grid and Adam, for training and for rendering.
 
 // Kernels index several parallel arrays (SoA rows, accumulators, weights) with one index;
 // iterator zips over four or five slices would hide the maths.

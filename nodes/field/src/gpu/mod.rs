@@ -481,7 +481,7 @@ pub(crate) fn record_color(
 }
 
 /// The mean embedding as a buffer (at least one float, so it can be bound).
-pub(crate) fn mean_embedding_buffer(
+pub fn mean_embedding_buffer(
     ctx: &GpuContext,
     field: &Field,
     params: &[f32],
@@ -492,6 +492,6 @@ pub(crate) fn mean_embedding_buffer(
 }
 
 /// Occupancy flags as u32 words.
-pub(crate) fn occupancy_words(occ: &crate::occupancy::OccupancyGrid) -> Vec<u32> {
+pub fn occupancy_words(occ: &crate::occupancy::OccupancyGrid) -> Vec<u32> {
     occ.occupied.iter().map(|&o| u32::from(o)).collect()
 }
