@@ -360,11 +360,20 @@ fn renders_match_the_cpu_field() {
         occupied: vec![0; state.occupancy.len()],
         ..state.occupancy.clone()
     };
-    for (what, occ) in [("trained grid", &state.occupancy), ("empty grid", &empty)] {
-        let gpu =
-            render_cameras_gpu(&ctx, &field, &state.params, occ, &cams, [0.2, 0.5, 0.9]).unwrap();
+    // An opaque field (the density's output bias raised): rays stop early, so the densities
+    // run segment by segment up to the cut-off.
+    let mut opaque = state.params.clone();
+    let s1 = field.density.layers[0].params();
+    let last = field.density.layers[1];
+    opaque[field.density_offset + s1 + last.inp * last.out] += 4.0;
+    for (what, occ, params) in [
+        ("trained grid", &state.occupancy, &state.params),
+        ("empty grid", &empty, &state.params),
+        ("opaque field", &state.occupancy, &opaque),
+    ] {
+        let gpu = render_cameras_gpu(&ctx, &field, params, occ, &cams, [0.2, 0.5, 0.9]).unwrap();
         for (cam, g) in cams.iter().zip(&gpu) {
-            let c = render_camera(&field, &state.params, occ, cam, [0.2, 0.5, 0.9], 64);
+            let c = render_camera(&field, params, occ, cam, [0.2, 0.5, 0.9], 64);
             let worst = |a: &[f32], b: &[f32]| {
                 a.iter()
                     .zip(b)
@@ -375,6 +384,18 @@ fn renders_match_the_cpu_field() {
             assert!(worst(&g.depth, &c.depth) < 1e-4, "{what}: depth");
             assert_eq!(g.stats.steps, c.stats.steps, "{what}: marching steps");
             assert_eq!(g.stats.marched, c.stats.marched, "{what}: samples");
+            assert_eq!(g.stats.density, c.stats.density, "{what}: density samples");
+            assert_eq!(g.stats.color, c.stats.color, "{what}: colour samples");
+            eprintln!(
+                "{what}: {} samples marched, {} through the density network, {} through the colour network",
+                g.stats.marched, g.stats.density, g.stats.color
+            );
+            if what == "opaque field" {
+                assert!(
+                    g.stats.density < g.stats.marched / 2,
+                    "rays did not stop early"
+                );
+            }
             if occ.occupied_fraction() == 0.0 {
                 assert!(g.acc.iter().all(|&a| a == 0.0));
                 assert!(g.rgb.chunks(3).all(|p| p == [0.2, 0.5, 0.9]));

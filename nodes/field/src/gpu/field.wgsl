@@ -56,6 +56,14 @@ struct FieldParams {
 @group(0) @binding(20) var<storage, read_write> flags: array<u32>;
 @group(0) @binding(21) var<storage, read> occ_scale: array<f32>;
 @group(0) @binding(22) var<storage, read_write> ema: array<f32>;
+@group(0) @binding(23) var<storage, read_write> ray_state: array<u32>;
+@group(0) @binding(24) var<storage, read_write> seg_off: array<u32>;
+@group(0) @binding(25) var<storage, read_write> seg_idx: array<u32>;
+@group(0) @binding(26) var<storage, read> dout_seg: array<f32>;
+@group(0) @binding(27) var<storage, read_write> dout_all: array<f32>;
+@group(0) @binding(28) var<storage, read_write> gpx: array<f32>;
+@group(0) @binding(29) var<storage, read_write> gpy: array<f32>;
+@group(0) @binding(30) var<storage, read_write> gpz: array<f32>;
 @group(0) @binding(34) var<storage, read_write> occ_out: array<u32>;
 
 fn index(wid: vec3<u32>, nwg: vec3<u32>, lid: u32) -> u32 {
@@ -304,7 +312,8 @@ fn color_input(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
 // Training along a ray: weights, compositing, the losses and their gradient, the weights'
 // backward (`volume.rs`, `Field::add_ray_output_grad`, the loss loop of `train_step`).
 // ray_out per ray: rgb (3), opacity, Σ w t, rgb loss, depth loss, distortion loss, coloured
-// samples (u32 bits), kept samples (u32 bits), marched samples (u32 bits, rendering), 1 spare.
+// samples (u32 bits), kept samples (u32 bits); rendering: marched samples, samples through the
+// density network (u32 bits).
 
 fn sigma_of(i: u32) -> f32 {
     return trunc_exp(dout[i]);
@@ -449,6 +458,98 @@ fn ray_train(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
 }
 
 // ---------------------------------------------------------------------------------------------
+// Rendering: densities segment by segment (`Field::densities_until_termination`). Each round
+// evaluates the next `f.mode` samples of every ray still going (16, 32, 64, then 128), and a
+// ray stops once its transmittance falls below the cut-off — computed as `ray_render` computes
+// it. ray_state per ray: the next sample (once stopped: the end of the evaluated ones), going
+// (1/0), transmittance, samples evaluated.
+
+@compute @workgroup_size(256)
+fn seg_count(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+             @builtin(local_invocation_index) lid: u32) {
+    let r = index(wid, nwg, lid);
+    if (r >= f.n_rays) {
+        return;
+    }
+    let end = starts[r + 1u];
+    if (f.first == 0u) {
+        ray_state[4u * r] = starts[r];
+        ray_state[4u * r + 1u] = u32(end > starts[r]);
+        ray_state[4u * r + 2u] = bitcast<u32>(1.0);
+        ray_state[4u * r + 3u] = 0u;
+    }
+    var cnt = 0u;
+    if (ray_state[4u * r + 1u] == 1u) {
+        cnt = min(f.mode, end - ray_state[4u * r]);
+    }
+    seg_off[r] = cnt;
+}
+
+// After the exclusive scan of the counts: each ray's segment, gathered.
+@compute @workgroup_size(256)
+fn seg_gather(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+              @builtin(local_invocation_index) lid: u32) {
+    let r = index(wid, nwg, lid);
+    if (r >= f.n_rays) {
+        return;
+    }
+    let first = ray_state[4u * r];
+    let o = seg_off[r];
+    let cnt = seg_off[r + 1u] - o;
+    for (var j = 0u; j < cnt; j++) {
+        let i = first + j;
+        seg_idx[o + j] = i;
+        gpx[o + j] = px[i];
+        gpy[o + j] = py[i];
+        gpz[o + j] = pz[i];
+    }
+}
+
+// The segment's network outputs back to their samples' columns (`f.first` = the segment
+// batch's row stride, `f.n` = its samples).
+@compute @workgroup_size(256)
+fn seg_scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+               @builtin(local_invocation_index) lid: u32) {
+    let q = index(wid, nwg, lid);
+    if (q >= f.n) {
+        return;
+    }
+    let i = seg_idx[q];
+    for (var k = 0u; k < 1u + F_GEO; k++) {
+        dout_all[k * f.ld + i] = dout_seg[k * f.first + q];
+    }
+}
+
+@compute @workgroup_size(256)
+fn seg_advance(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+               @builtin(local_invocation_index) lid: u32) {
+    let r = index(wid, nwg, lid);
+    if (r >= f.n_rays || ray_state[4u * r + 1u] == 0u) {
+        return;
+    }
+    let first = ray_state[4u * r];
+    let cnt = seg_off[r + 1u] - seg_off[r];
+    var tr = bitcast<f32>(ray_state[4u * r + 2u]);
+    var going = 1u;
+    var next = first + cnt;
+    for (var i = first; i < first + cnt; i++) {
+        tr *= exp(-trunc_exp(dout_all[i]) * samp[4u * i + 1u]);
+        if (tr < F_TRANSMITTANCE) {
+            going = 0u;
+            next = i + 1u;
+            break;
+        }
+    }
+    if (next >= starts[r + 1u]) {
+        going = 0u;
+    }
+    ray_state[4u * r] = next;
+    ray_state[4u * r + 1u] = going;
+    ray_state[4u * r + 2u] = bitcast<u32>(tr);
+    ray_state[4u * r + 3u] += cnt;
+}
+
+// ---------------------------------------------------------------------------------------------
 // Rendering along a ray: weights until the transmittance cut-off, and which samples get a
 // colour (weight ≥ min_color_w); then, after the colour network, the composite.
 
@@ -460,7 +561,10 @@ fn ray_render(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
         return;
     }
     let a = starts[r];
-    let b = starts[r + 1u];
+    let end = starts[r + 1u];
+    // Only the samples whose densities were evaluated (the transmittance falls below the
+    // cut-off at the last of them, or they are all the ray's).
+    let b = min(ray_state[4u * r], end);
     var trans_acc = 1.0;
     var acc = 0.0;
     var dep = 0.0;
@@ -483,14 +587,15 @@ fn ray_render(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nw
             break;
         }
     }
-    for (var k = kept; k < b; k++) {
+    for (var k = kept; k < end; k++) {
         flags[k] = 0u;
     }
     let o = 12u * r;
     ray_out[o + 3u] = acc;
     ray_out[o + 4u] = dep;
     ray_out[o + 9u] = bitcast<f32>(kept - a);
-    ray_out[o + 10u] = bitcast<f32>(b - a);
+    ray_out[o + 10u] = bitcast<f32>(end - a);
+    ray_out[o + 11u] = bitcast<f32>(ray_state[4u * r + 3u]);
 }
 
 // After the in-place exclusive scan of `flags` (n + 1 words): the live samples' indices in

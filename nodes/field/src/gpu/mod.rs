@@ -91,6 +91,10 @@ pub(crate) struct FieldKernels {
     pub(crate) ray_composite: wgpu::ComputePipeline,
     pub(crate) occ_values: wgpu::ComputePipeline,
     pub(crate) occ_flags: wgpu::ComputePipeline,
+    pub(crate) seg_count: wgpu::ComputePipeline,
+    pub(crate) seg_gather: wgpu::ComputePipeline,
+    pub(crate) seg_scatter: wgpu::ComputePipeline,
+    pub(crate) seg_advance: wgpu::ComputePipeline,
     pub(crate) emb_ray: wgpu::ComputePipeline,
     pub(crate) emb_reduce: wgpu::ComputePipeline,
     pub(crate) count_nonfinite: wgpu::ComputePipeline,
@@ -101,7 +105,7 @@ pub(crate) struct FieldKernels {
 impl FieldKernels {
     fn new(m: ModuleSetup<'_>) -> FieldKernels {
         let extra = constants();
-        let [march_count, march_write, color_input, ray_train, ray_render, compact, ray_composite, occ_values, occ_flags] =
+        let [march_count, march_write, color_input, ray_train, ray_render, compact, ray_composite, occ_values, occ_flags, seg_count, seg_gather, seg_scatter, seg_advance] =
             augsplat_render::gpu::pipelines_with(
                 m,
                 "field.wgsl",
@@ -117,6 +121,10 @@ impl FieldKernels {
                     "ray_composite",
                     "occ_values",
                     "occ_flags",
+                    "seg_count",
+                    "seg_gather",
+                    "seg_scatter",
+                    "seg_advance",
                 ],
             );
         let [emb_ray, emb_reduce, count_nonfinite, finish_step, adam] =
@@ -143,6 +151,10 @@ impl FieldKernels {
             ray_composite,
             occ_values,
             occ_flags,
+            seg_count,
+            seg_gather,
+            seg_scatter,
+            seg_advance,
             emb_ray,
             emb_reduce,
             count_nonfinite,
@@ -412,8 +424,8 @@ pub(crate) struct ColorPass {
     pub(crate) acts: Vec<GpuBuffer>,
 }
 
-/// Records the colour network's input (geometry features, SH of the direction, embedding)
-/// and its forward pass. With `live` (compacted sample indices and their count on the
+/// Records the colour network's input (geometry features from the density network's output
+/// `dout`, SH of the direction, embedding) and its forward pass. With `live` (compacted sample indices and their count on the
 /// device) the columns are the live samples; otherwise every sample.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn record_color(
@@ -423,7 +435,7 @@ pub(crate) fn record_color(
     params: &wgpu::Buffer,
     rays: &wgpu::Buffer,
     marched: &Marched,
-    density: &DensityPass,
+    dout: &wgpu::Buffer,
     mean_emb: &wgpu::Buffer,
     live: Option<(&wgpu::Buffer, &wgpu::Buffer)>,
 ) -> Result<ColorPass, GpuError> {
@@ -456,7 +468,7 @@ pub(crate) fn record_color(
             (0, &u),
             (1, rays),
             (7, &marched.samp),
-            (9, density.out()),
+            (9, dout),
             (10, params),
             (11, &input),
             (12, alive),

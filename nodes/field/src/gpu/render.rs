@@ -43,8 +43,10 @@ pub struct RayPixel {
     pub depth: f32,
     /// Marching steps.
     pub steps: u32,
-    /// Samples in occupied cells (all through the density network).
+    /// Samples in occupied cells.
     pub marched: u32,
+    /// Samples through the density network (segments up to the transmittance cut-off).
+    pub density: u32,
     /// Samples through the colour network.
     pub color: u32,
 }
@@ -55,7 +57,7 @@ impl RayPixel {
         RenderStats {
             steps: u64::from(self.steps),
             marched: u64::from(self.marched),
-            density: u64::from(self.marched),
+            density: u64::from(self.density),
             color: u64::from(self.color),
         }
     }
@@ -86,6 +88,109 @@ pub fn render_rays_gpu(
         }
     }
     Ok(out)
+}
+
+/// Evaluates the density network segment by segment (16, 32, 64, then 128 samples of every
+/// ray still going, as [`crate::field::Field`]'s renderer does) until each ray's transmittance
+/// falls below the cut-off or its samples run out: one wait per round, for the round's sample
+/// count. Records nothing more after `enc` (which it submits). Returns the network's output for
+/// every evaluated sample (`1 + GEO_FEAT_DIM` rows of the pass's stride) and the rays' state
+/// (`field.wgsl`'s `ray_state`).
+fn record_densities_until_termination(
+    ctx: &GpuContext,
+    model: &GpuFieldRef<'_>,
+    marched: &Marched,
+    n_rays: u32,
+    mut enc: wgpu::CommandEncoder,
+) -> Result<(GpuBuffer, GpuBuffer), GpuError> {
+    let field = model.field;
+    let k = kernels(ctx)?;
+    let ld = marched.ld;
+    let dout = ctx.storage(
+        "density outputs",
+        4 * (1 + GEO_FEAT_DIM as u64) * u64::from(ld),
+    )?;
+    let state = ctx.storage("ray march state", 16 * u64::from(n_rays.max(1)))?;
+    let counts = ctx.storage("segment offsets", 4 * (u64::from(n_rays) + 1))?;
+    let [px, py, pz] = marched.points.buffers();
+    for round in 0u32.. {
+        let settings = PassSettings {
+            n_rays,
+            ld,
+            n: marched.n,
+            mode: 16 << round.min(3),
+            first: round,
+            ..Default::default()
+        };
+        let u = ctx.uniform("field params", &field_words(field, settings));
+        ctx.dispatch(
+            &mut enc,
+            &k.seg_count,
+            &[(0, &u), (3, &marched.starts), (23, &state), (24, &counts)],
+            ctx.groups(n_rays.div_ceil(256)),
+        );
+        ctx.record_scan(&mut enc, &counts, n_rays + 1)?;
+        let m = ctx.read_after(enc, &[(&counts, u64::from(n_rays), 1)])?[0][0];
+        enc = ctx.device.create_command_encoder(&Default::default());
+        if m == 0 {
+            break;
+        }
+        let ldm = batch_stride(m);
+        let column = |what: &str| ctx.storage(what, 4 * u64::from(ldm));
+        let (idx, gx, gy, gz) = (
+            column("segment samples")?,
+            column("segment x")?,
+            column("segment y")?,
+            column("segment z")?,
+        );
+        ctx.dispatch(
+            &mut enc,
+            &k.seg_gather,
+            &[
+                (0, &u),
+                (4, px),
+                (5, py),
+                (6, pz),
+                (23, &state),
+                (24, &counts),
+                (25, &idx),
+                (28, &gx),
+                (29, &gy),
+                (30, &gz),
+            ],
+            ctx.groups(n_rays.div_ceil(256)),
+        );
+        let points = GpuPoints::from_buffers(gx, gy, gz, m as usize, ldm as usize)?;
+        let dens = record_density(ctx, &mut enc, field, model.params, &points, ldm, m)?;
+        let scatter = PassSettings {
+            ld,
+            n: m,
+            first: ldm,
+            ..Default::default()
+        };
+        let u2 = ctx.uniform("field params", &field_words(field, scatter));
+        ctx.dispatch(
+            &mut enc,
+            &k.seg_scatter,
+            &[(0, &u2), (25, &idx), (26, dens.out()), (27, &dout)],
+            ctx.groups(m.div_ceil(256)),
+        );
+        ctx.dispatch(
+            &mut enc,
+            &k.seg_advance,
+            &[
+                (0, &u),
+                (3, &marched.starts),
+                (7, &marched.samp),
+                (23, &state),
+                (24, &counts),
+                (27, &dout),
+            ],
+            ctx.groups(n_rays.div_ceil(256)),
+        );
+    }
+    ctx.defer(enc)?;
+    Ok((dout, state))
 }
 
 /// One pass over `rays`; `None` when their samples pass the budget (and there is more than
@@ -132,7 +237,8 @@ fn render_pass(
         n,
     )?;
     let ld = marched.ld;
-    let dens = record_density(ctx, &mut enc, field, model.params, &marched.points, ld, n)?;
+    let (dout, ray_state) = record_densities_until_termination(ctx, model, &marched, n_rays, enc)?;
+    let mut enc = ctx.device.create_command_encoder(&Default::default());
     let wg = ctx.storage("sample weights", 8 * u64::from(ld))?;
     let flags = ctx.storage("live samples", 4 * (u64::from(n) + 1))?;
     let ray_out = ctx.storage(
@@ -159,10 +265,11 @@ fn render_pass(
             (0, &u),
             (3, &marched.starts),
             (7, &marched.samp),
-            (9, dens.out()),
+            (9, &dout),
             (16, &wg),
             (19, &ray_out),
             (20, &flags),
+            (23, &ray_state),
         ],
         ctx.groups(n_rays.div_ceil(256)),
     );
@@ -182,7 +289,7 @@ fn render_pass(
         model.params,
         &rays_buf,
         &marched,
-        &dens,
+        &dout,
         model.mean_emb,
         Some((&alive, &alive_count)),
     )?;
@@ -219,6 +326,7 @@ fn render_pass(
             depth: f(o[4]),
             steps,
             marched: o[10],
+            density: o[11],
             color: o[8],
         })
         .collect();

@@ -163,7 +163,15 @@ impl<'a> GpuTrainer<'a> {
         let dens = record_density(ctx, &mut enc, field, params, &marched.points, ld, n)?;
         let no_mean = ctx.storage("no mean embedding", 16)?;
         let color = record_color(
-            ctx, &mut enc, field, params, &rays_buf, &marched, &dens, &no_mean, None,
+            ctx,
+            &mut enc,
+            field,
+            params,
+            &rays_buf,
+            &marched,
+            dens.out(),
+            &no_mean,
+            None,
         )?;
         let col =
             |rows: usize| ctx.storage("field sample gradient", 4 * rows as u64 * u64::from(ld));
