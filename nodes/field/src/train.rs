@@ -594,6 +594,88 @@ pub fn train_step(
     Ok(stats)
 }
 
+/// A run's starting point: fresh parameters, a full occupancy grid and a new loop, or what
+/// the checkpoint to resume holds (a checkpoint that does not fit is logged and ignored).
+pub(crate) fn start_or_resume(
+    field: &Field,
+    opts: &TrainOptions,
+    ckpt: Option<&mut FieldCheckpoints<'_>>,
+) -> (TrainState, FieldLoop) {
+    let mut state = TrainState {
+        params: field.init_params(opts.seed),
+        occupancy: OccupancyGrid::full(field.config.occupancy_resolution),
+        skipped_steps: 0,
+        nonfinite_values: 0,
+    };
+    let mut lp = FieldLoop {
+        step: 0,
+        adam: Adam::new(field.n_params),
+        curve: augsplat_core::artifacts::TrainingCurve {
+            label: "field".into(),
+            points: Vec::new(),
+        },
+        consecutive_bad: 0,
+        loss_acc: (0.0, 0),
+    };
+    if let Some(c) = ckpt {
+        if let Some(bytes) = c.resume.take() {
+            match read_field_checkpoint(
+                &bytes,
+                field.n_params,
+                field.config.occupancy_resolution,
+                opts.steps,
+            ) {
+                Ok((s, l)) => {
+                    state = s;
+                    lp = l;
+                    (c.log)(format!("resumed from the checkpoint at step {}", lp.step));
+                }
+                Err(e) => (c.log)(format!(
+                    "cannot continue from the saved checkpoint ({e}); starting afresh"
+                )),
+            }
+        }
+    }
+    (state, lp)
+}
+
+/// Adds the curve point of an evaluation after `done` steps (held-out PSNR and MSE, the mean
+/// training loss since the last point; SSIM 0 and no time, so the curve is deterministic).
+pub(crate) fn push_curve_point(lp: &mut FieldLoop, done: u32, psnr: f64, mse: f64) {
+    lp.curve.points.push(augsplat_core::artifacts::CurvePoint {
+        step: done as u64,
+        psnr,
+        ssim: 0.0,
+        lpips: None,
+        mse,
+        avg_error: None,
+        primitives: 0,
+        seconds: 0.0,
+        loss: if lp.loss_acc.1 > 0 {
+            lp.loss_acc.0 / lp.loss_acc.1 as f64
+        } else {
+            0.0
+        },
+    });
+    lp.loss_acc = (0.0, 0);
+}
+
+/// Saves a checkpoint of `state` and `lp` (whose `step` says where it is) and logs it.
+pub(crate) fn save_checkpoint(
+    c: &mut FieldCheckpoints<'_>,
+    state: &TrainState,
+    lp: &FieldLoop,
+    steps: u32,
+) {
+    let done = lp.step;
+    match (c.save)(write_field_checkpoint(state, lp, steps)) {
+        Ok(()) => (c.log)(format!("checkpoint at step {done}")),
+        Err(e) => (c.log)(format!(
+            "warning: could not save the checkpoint at step {done}: {e}"
+        )),
+    }
+}
+
 /// Checks that a training run has not diverged.
 pub fn check_divergence(consecutive_bad: u32, step: u32) -> Result<(), FieldError> {
     if consecutive_bad >= MAX_CONSECUTIVE_BAD_STEPS {
@@ -640,42 +722,8 @@ pub fn train_resumable(
     if views.is_empty() {
         return Err(FieldError::Data("no training views".into()));
     }
-    let mut state = TrainState {
-        params: field.init_params(opts.seed),
-        occupancy: OccupancyGrid::full(field.config.occupancy_resolution),
-        skipped_steps: 0,
-        nonfinite_values: 0,
-    };
-    let mut lp = FieldLoop {
-        step: 0,
-        adam: Adam::new(field.n_params),
-        curve: augsplat_core::artifacts::TrainingCurve {
-            label: "field".into(),
-            points: Vec::new(),
-        },
-        consecutive_bad: 0,
-        loss_acc: (0.0, 0),
-    };
     let mut ckpt = checkpoints;
-    if let Some(c) = ckpt.as_mut() {
-        if let Some(bytes) = c.resume.take() {
-            match read_field_checkpoint(
-                &bytes,
-                field.n_params,
-                field.config.occupancy_resolution,
-                opts.steps,
-            ) {
-                Ok((s, l)) => {
-                    state = s;
-                    lp = l;
-                    (c.log)(format!("resumed from the checkpoint at step {}", lp.step));
-                }
-                Err(e) => (c.log)(format!(
-                    "cannot continue from the saved checkpoint ({e}); starting afresh"
-                )),
-            }
-        }
-    }
+    let (mut state, mut lp) = start_or_resume(field, opts, ckpt.as_mut());
     let mut grad = Vec::new();
     for step in lp.step..opts.steps {
         if step >= opts.occupancy_warmup
@@ -718,32 +766,12 @@ pub fn train_resumable(
                 ),
                 _ => (0.0, 0.0),
             };
-            lp.curve.points.push(augsplat_core::artifacts::CurvePoint {
-                step: done as u64,
-                psnr: p,
-                ssim: 0.0,
-                lpips: None,
-                mse: m,
-                avg_error: None,
-                primitives: 0,
-                seconds: 0.0,
-                loss: if lp.loss_acc.1 > 0 {
-                    lp.loss_acc.0 / lp.loss_acc.1 as f64
-                } else {
-                    0.0
-                },
-            });
-            lp.loss_acc = (0.0, 0);
+            push_curve_point(&mut lp, done, p, m);
         }
         if let Some(c) = ckpt.as_mut() {
             if c.every > 0 && (done as u64).is_multiple_of(c.every) && done < opts.steps {
                 lp.step = done;
-                match (c.save)(write_field_checkpoint(&state, &lp, opts.steps)) {
-                    Ok(()) => (c.log)(format!("checkpoint at step {done}")),
-                    Err(e) => (c.log)(format!(
-                        "warning: could not save the checkpoint at step {done}: {e}"
-                    )),
-                }
+                save_checkpoint(c, &state, &lp, opts.steps);
             }
         }
     }

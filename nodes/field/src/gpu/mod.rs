@@ -273,6 +273,49 @@ pub(crate) struct Marched {
     pub(crate) samp: GpuBuffer,
 }
 
+/// Rays uploaded and counted: their buffer, each ray's first sample and steps (see
+/// [`record_count`]), the samples in all, and the words of the extra parts read in the same
+/// wait.
+pub(crate) struct Counted {
+    pub(crate) rays: GpuBuffer,
+    pub(crate) starts: (GpuBuffer, GpuBuffer),
+    pub(crate) n: u32,
+    pub(crate) earlier: Vec<Vec<u32>>,
+}
+
+/// Uploads ray records and counts their samples through `occupied` (one wait, which also reads
+/// `before`).
+pub(crate) fn count_samples(
+    ctx: &GpuContext,
+    field: &Field,
+    rays: &[[f32; RAY_FLOATS]],
+    occupied: &wgpu::Buffer,
+    before: &[(&wgpu::Buffer, u64, usize)],
+) -> Result<Counted, GpuError> {
+    let n_rays = rays.len() as u32;
+    let buf = ctx.storage_init(
+        "field rays",
+        &f32_words(rays.iter().flat_map(|r| r.iter().copied())),
+    )?;
+    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let batch = RayBatch {
+        rays: &buf,
+        occupied,
+        n_rays,
+    };
+    let starts = record_count(ctx, &mut enc, field, batch)?;
+    let mut parts = vec![(&*starts.0, u64::from(n_rays), 1)];
+    parts.extend_from_slice(before);
+    let mut read = ctx.read_after(enc, &parts)?;
+    let earlier = read.split_off(1);
+    Ok(Counted {
+        rays: buf,
+        starts,
+        n: read[0][0],
+        earlier,
+    })
+}
+
 /// Records the sample count of every ray (`march_count` and the prefix sum): `starts` then
 /// holds each ray's first sample and, at `n_rays`, the total.
 pub(crate) fn record_count(

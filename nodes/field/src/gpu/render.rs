@@ -203,39 +203,23 @@ fn render_pass(
     let field = model.field;
     let k = kernels(ctx)?;
     let n_rays = rays.len() as u32;
-    let rays_buf = ctx.storage_init(
-        "field rays",
-        &f32_words(rays.iter().flat_map(|r| r.iter().copied())),
-    )?;
-    let mut enc = ctx.device.create_command_encoder(&Default::default());
-    let counted = record_count(
-        ctx,
-        &mut enc,
-        field,
-        RayBatch {
-            rays: &rays_buf,
-            occupied: model.occupied,
-            n_rays,
-        },
-    )?;
-    let n = ctx.read_after(enc, &[(&counted.0, u64::from(n_rays), 1)])?[0][0];
+    let Counted {
+        rays: rays_buf,
+        starts,
+        n,
+        ..
+    } = count_samples(ctx, field, rays, model.occupied, &[])?;
     let budget = sample_budget(ctx, field);
     if n > budget && n_rays > 1 {
         return Ok(None);
     }
     let mut enc = ctx.device.create_command_encoder(&Default::default());
-    let marched = record_write(
-        ctx,
-        &mut enc,
-        field,
-        RayBatch {
-            rays: &rays_buf,
-            occupied: model.occupied,
-            n_rays,
-        },
-        counted,
-        n,
-    )?;
+    let batch = RayBatch {
+        rays: &rays_buf,
+        occupied: model.occupied,
+        n_rays,
+    };
+    let marched = record_write(ctx, &mut enc, field, batch, starts, n)?;
     let ld = marched.ld;
     let (dout, ray_state) = record_densities_until_termination(ctx, model, &marched, n_rays, enc)?;
     let mut enc = ctx.device.create_command_encoder(&Default::default());

@@ -11,14 +11,15 @@
 
 use super::render::{render_views_gpu, GpuFieldRef};
 use super::*;
-use crate::checkpoint::{read_field_checkpoint, write_field_checkpoint, FieldLoop};
+use crate::checkpoint::FieldLoop;
 use crate::error::FieldError;
 use crate::hashgrid::gpu::record_backward_fixed;
 use crate::mlp::gpu::{record_mlp_backward, GpuMlp, InputGradOut};
 use crate::occupancy::OccupancyGrid;
 use crate::train::{
-    check_divergence, draw_ray, learning_rate, occupancy_points, Adam, FieldCheckpoints,
-    StepReport, StepStats, TrainOptions, TrainState, ViewData, OCCUPANCY_CHUNK_CELLS,
+    check_divergence, draw_ray, learning_rate, occupancy_points, push_curve_point, save_checkpoint,
+    start_or_resume, Adam, FieldCheckpoints, StepReport, StepStats, TrainOptions, TrainState,
+    ViewData, OCCUPANCY_CHUNK_CELLS,
 };
 use augsplat_core::Rng;
 
@@ -118,25 +119,12 @@ impl<'a> GpuTrainer<'a> {
         let (ctx, field) = (self.ctx, self.field);
         let k = kernels(ctx)?;
         let n_rays = rays.len() as u32;
-        let rays_buf = ctx.storage_init(
-            "field rays",
-            &f32_words(rays.iter().flat_map(|r| r.iter().copied())),
-        )?;
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
-        let counted = record_count(
-            ctx,
-            &mut enc,
-            field,
-            RayBatch {
-                rays: &rays_buf,
-                occupied: &self.occupied,
-                n_rays,
-            },
-        )?;
-        let mut parts = vec![(&*counted.0, u64::from(n_rays), 1)];
-        parts.extend_from_slice(before);
-        let mut read = ctx.read_after(enc, &parts)?;
-        let n = read[0][0];
+        let Counted {
+            rays: rays_buf,
+            starts,
+            n,
+            earlier,
+        } = count_samples(ctx, field, rays, &self.occupied, before)?;
         let budget = sample_budget(ctx, field);
         if n > budget {
             return Err(GpuError::Invalid(format!(
@@ -144,20 +132,13 @@ impl<'a> GpuTrainer<'a> {
                  per pass: lower rays_per_step"
             )));
         }
-        let earlier = read.split_off(1);
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        let marched = record_write(
-            ctx,
-            &mut enc,
-            field,
-            RayBatch {
-                rays: &rays_buf,
-                occupied: &self.occupied,
-                n_rays,
-            },
-            counted,
-            n,
-        )?;
+        let batch = RayBatch {
+            rays: &rays_buf,
+            occupied: &self.occupied,
+            n_rays,
+        };
+        let marched = record_write(ctx, &mut enc, field, batch, starts, n)?;
         let ld = marched.ld;
         let params = &self.params;
         let dens = record_density(ctx, &mut enc, field, params, &marched.points, ld, n)?;
@@ -542,42 +523,8 @@ pub fn train_gpu(
     if views.is_empty() {
         return Err(FieldError::Data("no training views".into()));
     }
-    let mut state = TrainState {
-        params: field.init_params(opts.seed),
-        occupancy: OccupancyGrid::full(field.config.occupancy_resolution),
-        skipped_steps: 0,
-        nonfinite_values: 0,
-    };
-    let mut lp = FieldLoop {
-        step: 0,
-        adam: Adam::new(field.n_params),
-        curve: augsplat_core::artifacts::TrainingCurve {
-            label: "field".into(),
-            points: Vec::new(),
-        },
-        consecutive_bad: 0,
-        loss_acc: (0.0, 0),
-    };
     let mut ckpt = checkpoints;
-    if let Some(c) = ckpt.as_mut() {
-        if let Some(bytes) = c.resume.take() {
-            match read_field_checkpoint(
-                &bytes,
-                field.n_params,
-                field.config.occupancy_resolution,
-                opts.steps,
-            ) {
-                Ok((s, l)) => {
-                    state = s;
-                    lp = l;
-                    (c.log)(format!("resumed from the checkpoint at step {}", lp.step));
-                }
-                Err(e) => (c.log)(format!(
-                    "cannot continue from the saved checkpoint ({e}); starting afresh"
-                )),
-            }
-        }
-    }
+    let (mut state, mut lp) = start_or_resume(field, opts, ckpt.as_mut());
     let total = opts.rays_per_step.max(1) as f64;
     let run = ctx.scoped(|| {
         let mut trainer = GpuTrainer::new(ctx, field, &state, &lp.adam)?;
@@ -638,22 +585,7 @@ pub fn train_gpu(
                     Some(t) if !t.is_empty() => evaluate_gpu(ctx, field, &trainer, t, opts)?,
                     _ => (0.0, 0.0),
                 };
-                lp.curve.points.push(augsplat_core::artifacts::CurvePoint {
-                    step: done as u64,
-                    psnr: p,
-                    ssim: 0.0,
-                    lpips: None,
-                    mse: m,
-                    avg_error: None,
-                    primitives: 0,
-                    seconds: 0.0,
-                    loss: if lp.loss_acc.1 > 0 {
-                        lp.loss_acc.0 / lp.loss_acc.1 as f64
-                    } else {
-                        0.0
-                    },
-                });
-                lp.loss_acc = (0.0, 0);
+                push_curve_point(&mut lp, done, p, m);
             }
             if ckpt_now {
                 if let Some(c) = ckpt.as_mut() {
@@ -662,12 +594,7 @@ pub fn train_gpu(
                     state.params = params;
                     state.occupancy = occupancy;
                     lp.adam = adam;
-                    match (c.save)(write_field_checkpoint(&state, &lp, opts.steps)) {
-                        Ok(()) => (c.log)(format!("checkpoint at step {done}")),
-                        Err(e) => (c.log)(format!(
-                            "warning: could not save the checkpoint at step {done}: {e}"
-                        )),
-                    }
+                    save_checkpoint(c, &state, &lp, opts.steps);
                 }
             }
         }
