@@ -5,9 +5,10 @@
 //! an adapter that is not there is an error, never a fall-back to the CPU.
 //! Skips with a message when the machine has no GPU adapter (fails under `CI=true`).
 
+mod common;
+
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// A pipeline file: the tiny demo with the GPU fragment.
 fn pipeline(dir: &Path) -> PathBuf {
@@ -28,7 +29,7 @@ fn pipeline(dir: &Path) -> PathBuf {
 /// Runs `pipe` in `cache` up to `targets`; returns (success, output, summary).
 fn run(pipe: &Path, cache: &Path, targets: &[&str], env: &[(&str, &str)]) -> (bool, String, Value) {
     let summary = cache.with_extension("json");
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_augsplat"));
+    let mut cmd = common::augsplat();
     cmd.arg("run")
         .arg(pipe)
         .arg("--cache")
@@ -55,24 +56,16 @@ fn run(pipe: &Path, cache: &Path, targets: &[&str], env: &[(&str, &str)]) -> (bo
 
 /// The folder of output `output` of node `name`.
 fn output(cache: &Path, summary: &Value, name: &str, output: &str) -> PathBuf {
-    let node = summary["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["name"] == name)
-        .unwrap_or_else(|| panic!("no node {name}"));
-    let store = augsplat_graph::Store::open(cache).unwrap();
-    let key = augsplat_graph::store::unhex(node["key"].as_str().unwrap()).unwrap();
-    let action = store.action(&key).unwrap().unwrap();
-    store.output_dir(&augsplat_graph::store::unhex(&action.outputs[output]).unwrap())
+    let nodes = summary["nodes"].as_array().expect("a run summary");
+    let key = common::node(nodes, name)["key"].as_str().unwrap();
+    common::output_dir(cache, key, Some(output))
 }
 
+/// The status of node `name` in a run summary (`Null` when it is not there).
 fn status(summary: &Value, name: &str) -> Value {
     summary["nodes"]
         .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["name"] == name)
+        .and_then(|nodes| nodes.iter().find(|n| n["name"] == name))
         .map(|n| n["status"].clone())
         .unwrap_or(Value::Null)
 }
