@@ -323,9 +323,10 @@ fn training_repeats_to_the_byte_and_seeds_differ() {
     let dir = tempfile::tempdir().unwrap();
     let (views, test) = scene(dir.path());
     let field = Field::new(config(12, 4, views.len() as u32)).unwrap();
+    // 100 steps: occupancy refreshes from step 4 on, every 16 steps.
     let run = |seed: u64| {
-        let mut opts = options(seed, 12);
-        opts.eval_every = 6;
+        let mut opts = options(seed, 100);
+        opts.eval_every = 50;
         train_gpu(&ctx, &field, &views, Some(&test), &opts, None, &mut |_| {}).unwrap()
     };
     let (a, curve_a) = run(0);
