@@ -330,6 +330,11 @@ fn training_repeats_to_the_byte_and_seeds_differ() {
         train_gpu(&ctx, &field, &views, Some(&test), &opts, None, &mut |_| {}).unwrap()
     };
     let (a, curve_a) = run(0);
+    // A step's buffers go back to the context's pool: later steps reuse them, and nothing is
+    // left waiting once the run is over.
+    let pool = ctx.pool_stats();
+    assert!(pool.reused > 10 * pool.created, "{pool:?}");
+    assert_eq!(pool.quarantined, 0, "{pool:?}");
     let (b, curve_b) = run(0);
     let (c, _) = run(1);
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();

@@ -344,6 +344,9 @@ impl<'a> GpuTrainer<'a> {
         step: u32,
     ) -> Result<Option<(u32, Settled)>, GpuError> {
         self.ctx.count_training_step();
+        // Everything recorded so far is submitted: the buffers earlier steps dropped can go
+        // back to the pool.
+        self.ctx.reclaim();
         let rays = step_rays(views, opts, step);
         let pending = self.pending.take();
         let before: Vec<(&wgpu::Buffer, u64, usize)> = pending
@@ -606,6 +609,8 @@ pub fn train_gpu(
         state.params = params;
         state.occupancy = occupancy;
         lp.adam = adam;
+        drop(trainer);
+        ctx.reclaim();
         Ok(result)
     });
     run??;
