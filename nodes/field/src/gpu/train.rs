@@ -84,6 +84,9 @@ pub struct StepBuffers {
     pub ray_out: GpuBuffer,
     /// The step's status (see `step.wgsl`).
     pub status: GpuBuffer,
+    /// Per hash level: the bits of its largest finite |encoding gradient| and a non-finite
+    /// flag ([`crate::hashgrid::gpu::record_backward_fixed`]).
+    pub levels: GpuBuffer,
 }
 
 impl<'a> GpuTrainer<'a> {
@@ -299,6 +302,7 @@ impl<'a> GpuTrainer<'a> {
                 grad,
                 ray_out,
                 status,
+                levels,
             },
             earlier,
             enc,
