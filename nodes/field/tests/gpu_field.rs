@@ -482,3 +482,75 @@ fn a_300_step_field_reaches_the_cpu_fields_psnr() {
     assert!(pc > 15.0, "the CPU field did not train ({pc} dB)");
     assert!((pc - pg).abs() <= 0.2, "CPU {pc} dB, GPU {pg} dB");
 }
+
+/// The two weight-gradient kernels (one invocation per weight; workgroup tiles) give the same
+/// bits, and the f64 sums to rounding, for shapes whose blocks and chunks do not divide evenly.
+#[test]
+fn both_weight_gradient_kernels_give_the_same_bits() {
+    use augsplat_field::mlp::gpu::{record_weight_grad, GpuBatch, WeightGradKernel};
+    use augsplat_field::mlp::LayerShape;
+    use augsplat_render::gpu::f32_words;
+    let Some(ctx) = context("both_weight_gradient_kernels_give_the_same_bits") else {
+        return;
+    };
+    let mut rng = Rng::new(11);
+    for (inp, out, cols) in [(31usize, 64usize, 2500u32), (64, 3, 1100), (32, 16, 70)] {
+        let ld = cols.div_ceil(64) * 64;
+        let mut gen = |rows: usize| -> Vec<f32> {
+            (0..rows * ld as usize)
+                .map(|k| {
+                    if (k % ld as usize) < cols as usize {
+                        rng.uniform(-1.0, 1.0) as f32
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        };
+        let (dy, x) = (gen(out), gen(inp));
+        let s = LayerShape { inp, out };
+        let run = |kernel| {
+            let up = |v: &[f32]| {
+                ctx.storage_init("test", &f32_words(v.iter().copied()))
+                    .unwrap()
+            };
+            let (dyb, xb) = (up(&dy), up(&x));
+            let grad = up(&vec![0.0; s.params()]);
+            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let batch = GpuBatch {
+                ld,
+                cols,
+                count: None,
+            };
+            record_weight_grad(&ctx, &mut enc, s, (&dyb, &xb), &grad, 0, batch, kernel).unwrap();
+            ctx.read_after(enc, &[(&grad, 0, s.params())])
+                .unwrap()
+                .remove(0)
+        };
+        let per_weight = run(WeightGradKernel::PerWeight);
+        assert_eq!(per_weight, run(WeightGradKernel::Tiled), "{inp} → {out}");
+        for o in 0..out {
+            for i in 0..=inp {
+                let want: f64 = (0..cols as usize)
+                    .map(|c| {
+                        let xv = if i == inp {
+                            1.0
+                        } else {
+                            x[i * ld as usize + c] as f64
+                        };
+                        dy[o * ld as usize + c] as f64 * xv
+                    })
+                    .sum();
+                let got = f32::from_bits(if i == inp {
+                    per_weight[inp * out + o]
+                } else {
+                    per_weight[o * inp + i]
+                }) as f64;
+                assert!(
+                    (got - want).abs() < 1e-4 * (1.0 + want.abs()),
+                    "{o},{i}: {got} vs {want}"
+                );
+            }
+        }
+    }
+}

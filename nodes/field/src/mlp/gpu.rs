@@ -4,7 +4,9 @@
 //!
 //! Sums run in a fixed order: a layer output adds its inputs in order (with fused
 //! multiply-adds); a weight gradient sums each chunk of [`WGRAD_CHUNK`] columns in order, then
-//! the chunks in order. The same inputs give the same bytes on one adapter; against the CPU,
+//! the chunks in order. The forward and input-gradient products load their weights, and the
+//! weight gradients their rows of the batches, tile by tile into workgroup memory. The same
+//! inputs give the same bytes on one adapter; against the CPU,
 //! which sums a weight gradient along the whole batch, the last bits differ.
 
 use super::{LayerShape, Mlp};
@@ -20,22 +22,30 @@ const NO_BIAS: u32 = u32::MAX;
 pub(crate) struct MlpKernels {
     dense: wgpu::ComputePipeline,
     wgrad_partial: wgpu::ComputePipeline,
+    wgrad_partial_tiled: wgpu::ComputePipeline,
     wgrad_reduce: wgpu::ComputePipeline,
 }
 
 impl MlpKernels {
     fn new(m: ModuleSetup<'_>) -> MlpKernels {
         let extra = augsplat_render::gpu::prelude::constant_u32("WGRAD_CHUNK", WGRAD_CHUNK as u64);
-        let [dense, wgrad_partial, wgrad_reduce] = augsplat_render::gpu::pipelines_with(
-            m,
-            "mlp.wgsl",
-            &extra,
-            include_str!("mlp.wgsl"),
-            ["dense", "wgrad_partial", "wgrad_reduce"],
-        );
+        let [dense, wgrad_partial, wgrad_partial_tiled, wgrad_reduce] =
+            augsplat_render::gpu::pipelines_with(
+                m,
+                "mlp.wgsl",
+                &extra,
+                include_str!("mlp.wgsl"),
+                [
+                    "dense",
+                    "wgrad_partial",
+                    "wgrad_partial_tiled",
+                    "wgrad_reduce",
+                ],
+            );
         MlpKernels {
             dense,
             wgrad_partial,
+            wgrad_partial_tiled,
             wgrad_reduce,
         }
     }
@@ -230,7 +240,8 @@ pub fn record_mlp_backward(
     for l in (0..nl).rev() {
         let s = mlp.layers[l];
         let input: &wgpu::Buffer = if l == 0 { x } else { &acts[l - 1] };
-        record_weight_grad(ctx, enc, s, dy, input, grad, offs[l], batch)?;
+        let tiles = WeightGradKernel::for_adapter(ctx);
+        record_weight_grad(ctx, enc, s, (dy, input), grad, offs[l], batch, tiles)?;
         // Input gradient through the transposed weights: W(o', i') = w[i'·inp + o'].
         let w = (offs[l] as u32, 1, s.inp as u32);
         if l > 0 {
@@ -264,17 +275,41 @@ pub fn record_mlp_backward(
     Ok(())
 }
 
-/// Adds `Σ_c dy[o][c] x[i][c]` to the gradient of W and `Σ_c dy[o][c]` to that of b.
+/// How the weight gradient's chunk sums are computed (the same bits either way).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WeightGradKernel {
+    /// One invocation per (chunk, weight), reading the batches straight from memory.
+    PerWeight,
+    /// 16 × 16 weights a workgroup, their rows of the batches tiled through workgroup memory.
+    Tiled,
+}
+
+impl WeightGradKernel {
+    /// Tiles on a GPU; one invocation per weight on a software adapter (lavapipe), where each
+    /// workgroup barrier costs more than the tiles save (1,024-ray field steps: 3.6 s per
+    /// weight, 4.95 s tiled; `docs/notes/benchmarks.md`).
+    pub fn for_adapter(ctx: &GpuContext) -> WeightGradKernel {
+        if ctx.adapter().device_type == "Cpu" {
+            WeightGradKernel::PerWeight
+        } else {
+            WeightGradKernel::Tiled
+        }
+    }
+}
+
+/// Adds `Σ_c dy[o][c] x[i][c]` to the gradient of W and `Σ_c dy[o][c]` to that of b, for a
+/// layer of shape `s` whose weights start at `w_off` in `grad`; `(dy, x)` are the output
+/// gradient and the input batch.
 #[allow(clippy::too_many_arguments)]
-fn record_weight_grad(
+pub fn record_weight_grad(
     ctx: &GpuContext,
     enc: &mut wgpu::CommandEncoder,
     s: LayerShape,
-    dy: &wgpu::Buffer,
-    x: &wgpu::Buffer,
+    (dy, x): (&wgpu::Buffer, &wgpu::Buffer),
     grad: &wgpu::Buffer,
     w_off: usize,
     batch: GpuBatch<'_>,
+    kernel: WeightGradKernel,
 ) -> Result<(), GpuError> {
     let k = ctx.kernels_of(MlpKernels::new)?;
     let cols = batch.cols;
@@ -300,12 +335,25 @@ fn record_weight_grad(
         "weight gradient chunks",
         4 * u64::from(q) * u64::from(chunks),
     )?;
-    ctx.dispatch(
-        enc,
-        &k.wgrad_partial,
-        &[(2, x), (6, &u), (7, dy), (8, &partial)],
-        ctx.groups((q * chunks).div_ceil(256)),
-    );
+    let bindings = [(2, x), (6, &*u), (7, dy), (8, &*partial)];
+    match kernel {
+        WeightGradKernel::PerWeight => ctx.dispatch(
+            enc,
+            &k.wgrad_partial,
+            &bindings,
+            ctx.groups((q * chunks).div_ceil(256)),
+        ),
+        // One workgroup per (chunk, block of 16 outputs × 16 inputs including the bias).
+        WeightGradKernel::Tiled => {
+            let blocks = (s.out as u32).div_ceil(16) * (s.inp as u32 + 1).div_ceil(16);
+            ctx.dispatch(
+                enc,
+                &k.wgrad_partial_tiled,
+                &bindings,
+                ctx.groups(chunks * blocks),
+            )
+        }
+    }
     ctx.dispatch(
         enc,
         &k.wgrad_reduce,

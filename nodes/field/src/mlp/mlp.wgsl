@@ -10,9 +10,12 @@
 //   mask[o][c] > 0 (the ReLU backward through the layer below), else 0.
 //   Columns from `count[0]` on are left alone when `use_count` is 1 (a batch sized on the
 //   device), from `ncols` on otherwise.
-// wgrad_partial / wgrad_reduce: the weight and bias gradients without atomics. The batch is cut
-//   into chunks of WGRAD_CHUNK columns; each (chunk, weight) sums its chunk's columns in order,
-//   then each weight adds its chunks in order: the same bytes for any scheduling.
+// wgrad_partial[_tiled] / wgrad_reduce: the weight and bias gradients without atomics. The
+//   batch is cut into chunks of WGRAD_CHUNK columns; each (chunk, weight) sums its chunk's
+//   columns in order, then each weight adds its chunks in order: the same bytes for any
+//   scheduling. wgrad_partial reads the batches straight from memory, one invocation per
+//   (chunk, weight); wgrad_partial_tiled takes 16 × 16 weights a workgroup and brings their
+//   rows of dy and x through workgroup memory — the same sums, bit for bit.
 
 struct Dense {
     inp: u32,      // inputs summed over
@@ -179,6 +182,69 @@ fn wgrad_partial(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups)
         }
     }
     partial[idx] = s;
+}
+
+// Workgroup (chunk, block of 16 outputs × 16 inputs), one weight per invocation: the block's
+// rows of dy and x go through workgroup memory 64 columns at a time, and each weight adds its
+// chunk's columns in order (the bias is the input whose x is 1). Writes partial[chunk][q],
+// q = o·(inp + 1) + i.
+const WG_BLOCK: u32 = 16u;
+const WG_COLS: u32 = 64u;
+
+var<workgroup> dy_tile: array<f32, 1024>; // WG_BLOCK × WG_COLS
+var<workgroup> x_tile: array<f32, 1024>;
+
+@compute @workgroup_size(256)
+fn wgrad_partial_tiled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                       @builtin(local_invocation_index) lid: u32) {
+    let group = wid.x + wid.y * nwg.x;
+    let o_blocks = (wg.out + WG_BLOCK - 1u) / WG_BLOCK;
+    let i_blocks = (wg.inp + 1u + WG_BLOCK - 1u) / WG_BLOCK;
+    if (group >= wg.chunks * o_blocks * i_blocks) {
+        return;
+    }
+    let chunk = group / (o_blocks * i_blocks);
+    let rest = group % (o_blocks * i_blocks);
+    let o_first = (rest / i_blocks) * WG_BLOCK;
+    let i_first = (rest % i_blocks) * WG_BLOCK;
+    let lo = lid / WG_BLOCK;
+    let li = lid % WG_BLOCK;
+    let c0 = chunk * WGRAD_CHUNK;
+    let c1 = min(c0 + WGRAD_CHUNK, wg.ncols);
+    var s = 0.0;
+    for (var ct = c0; ct < c1; ct += WG_COLS) {
+        workgroupBarrier();
+        for (var t = lid; t < WG_BLOCK * WG_COLS; t += 256u) {
+            let row = t / WG_COLS;
+            let c = ct + t % WG_COLS;
+            var dv = 0.0;
+            var xv = 0.0;
+            if (c < c1) {
+                let o = o_first + row;
+                if (o < wg.out) {
+                    dv = dy[o * wg.ld + c];
+                }
+                let i = i_first + row;
+                if (i < wg.inp) {
+                    xv = x[i * wg.ld + c];
+                } else if (i == wg.inp) {
+                    xv = 1.0;
+                }
+            }
+            dy_tile[t] = dv;
+            x_tile[t] = xv;
+        }
+        workgroupBarrier();
+        let nc = min(WG_COLS, c1 - ct);
+        for (var cc = 0u; cc < nc; cc++) {
+            s = fma(dy_tile[lo * WG_COLS + cc], x_tile[li * WG_COLS + cc], s);
+        }
+    }
+    let o = o_first + lo;
+    let i = i_first + li;
+    if (o < wg.out && i <= wg.inp) {
+        partial[chunk * wg.out * (wg.inp + 1u) + o * (wg.inp + 1u) + i] = s;
+    }
 }
 
 @compute @workgroup_size(256)
