@@ -639,6 +639,24 @@ pub(crate) fn start_or_resume(
     (state, lp)
 }
 
+/// Counts a step in the loop: an applied step's loss goes into the next curve point and ends
+/// a run of rejected steps; a rejected one lengthens it, an error once it is too long.
+pub(crate) fn tally_step(
+    lp: &mut FieldLoop,
+    stats: &StepStats,
+    step: u32,
+) -> Result<(), FieldError> {
+    if stats.applied {
+        lp.consecutive_bad = 0;
+        lp.loss_acc.0 += stats.rgb_loss;
+        lp.loss_acc.1 += 1;
+    } else {
+        lp.consecutive_bad += 1;
+        check_divergence(lp.consecutive_bad, step)?;
+    }
+    Ok(())
+}
+
 /// Adds the curve point of an evaluation after `done` steps (held-out PSNR and MSE, the mean
 /// training loss since the last point; SSIM 0 and no time, so the curve is deterministic).
 pub(crate) fn push_curve_point(lp: &mut FieldLoop, done: u32, psnr: f64, mse: f64) {
@@ -740,14 +758,7 @@ pub fn train_resumable(
             step,
             &mut grad,
         )?;
-        if stats.applied {
-            lp.consecutive_bad = 0;
-            lp.loss_acc.0 += stats.rgb_loss;
-            lp.loss_acc.1 += 1;
-        } else {
-            lp.consecutive_bad += 1;
-            check_divergence(lp.consecutive_bad, step)?;
-        }
+        tally_step(&mut lp, &stats, step)?;
         on_step(StepReport {
             step: step + 1,
             stats: &stats,

@@ -325,6 +325,12 @@ impl Field {
 
     /// The mean appearance embedding (empty when embeddings are off).
     pub fn mean_embedding(&self, params: &[f32]) -> Vec<f32> {
+        self.mean_of_embeddings(&params[self.embedding_offset..])
+    }
+
+    /// The mean of the embedding rows `emb` (`n_images × E`, the parameters from
+    /// [`Field::embedding_offset`] on); empty when embeddings are off.
+    pub fn mean_of_embeddings(&self, emb: &[f32]) -> Vec<f32> {
         let e = self.config.appearance_dim as usize;
         let n = self.config.n_images as usize;
         let mut m = vec![0f32; e];
@@ -333,7 +339,7 @@ impl Field {
         }
         for i in 0..n {
             for k in 0..e {
-                m[k] += params[self.embedding_offset + i * e + k];
+                m[k] += emb[i * e + k];
             }
         }
         m.iter_mut().for_each(|v| *v /= n as f32);

@@ -541,7 +541,12 @@ pub fn mean_embedding_buffer(
     field: &Field,
     params: &[f32],
 ) -> Result<GpuBuffer, GpuError> {
-    let mut m = field.mean_embedding(params);
+    mean_buffer(ctx, field.mean_embedding(params))
+}
+
+/// A mean embedding (see [`Field::mean_of_embeddings`]) as a buffer of at least one float.
+pub(crate) fn mean_buffer(ctx: &GpuContext, mean: Vec<f32>) -> Result<GpuBuffer, GpuError> {
+    let mut m = mean;
     m.resize(m.len().max(4), 0.0);
     ctx.storage_init("mean embedding", &f32_words(m))
 }

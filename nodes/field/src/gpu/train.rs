@@ -17,9 +17,9 @@ use crate::hashgrid::gpu::record_backward_fixed;
 use crate::mlp::gpu::{record_mlp_backward, GpuMlp, InputGradOut};
 use crate::occupancy::OccupancyGrid;
 use crate::train::{
-    check_divergence, draw_ray, learning_rate, occupancy_points, push_curve_point, save_checkpoint,
-    start_or_resume, Adam, FieldCheckpoints, StepReport, StepStats, TrainOptions, TrainState,
-    ViewData, OCCUPANCY_CHUNK_CELLS,
+    draw_ray, learning_rate, occupancy_points, push_curve_point, save_checkpoint, start_or_resume,
+    tally_step, Adam, FieldCheckpoints, StepReport, StepStats, TrainOptions, TrainState, ViewData,
+    OCCUPANCY_CHUNK_CELLS,
 };
 use augsplat_core::Rng;
 
@@ -546,16 +546,11 @@ pub fn train_gpu(
             stats.rgb_loss /= total;
             stats.depth_loss /= total;
             stats.distortion_loss /= total;
-            if stats.applied {
-                lp.consecutive_bad = 0;
-                lp.loss_acc.0 += stats.rgb_loss;
-                lp.loss_acc.1 += 1;
-            } else {
+            if !stats.applied {
                 state.skipped_steps += 1;
                 state.nonfinite_values += settled.nonfinite;
-                lp.consecutive_bad += 1;
-                check_divergence(lp.consecutive_bad, s)?;
             }
+            tally_step(lp, &stats, s)?;
             on_step(StepReport {
                 step: s + 1,
                 stats: &stats,
@@ -644,9 +639,7 @@ fn evaluate_gpu(
     } else {
         Vec::new()
     };
-    let mut host = vec![0f32; field.embedding_offset];
-    host.extend(emb);
-    let mean = mean_embedding_buffer(ctx, field, &host)?;
+    let mean = mean_buffer(ctx, field.mean_of_embeddings(&emb))?;
     let model = GpuFieldRef {
         field,
         params,
