@@ -11,7 +11,7 @@ mod train_util;
 
 use augsplat_core::Scene;
 use augsplat_splat::adam::AdamUpdates;
-use augsplat_splat::densify::DensifyArgs;
+use augsplat_splat::densify::{DensifyArgs, OpacityReset};
 use augsplat_splat::gpu::{GpuContext, GpuError};
 use augsplat_splat::train::{
     scene_scale, RealImages, RealLoss, RealView, Schedule, StepReport, Supervision, SynthView,
@@ -467,8 +467,7 @@ fn a_50_step_dual_run_is_one_loop_over_either_device() {
     let tmp = tempfile::tempdir().unwrap();
     let c = case(tmp.path());
     // Dual with densification (a refinement every 10 steps), its branch switched off at step 21 (w̃ = 2·4^(−t/20) < 0.5)
-    // with the opacity reset there: the state crosses to the host at every refinement and at
-    // the switch.
+    // with the opacity reset there (on the device, as every refinement).
     let mut a = args(50, true);
     a.densify.every = 10;
     a.densify.grad_threshold = 1e-4;
@@ -616,10 +615,14 @@ fn a_step_waits_once_and_submits_once() {
     let Some(gpu) = context(test) else { return };
     let tmp = tempfile::tempdir().unwrap();
     let c = case(tmp.path());
-    // Dual with a batch of 3 for 4 steps, then the real view alone; no refinement. The 9
-    // real views each come once per epoch.
+    // Dual with a batch of 3 for 5 steps, then the real view alone, with the opacity reset
+    // at the switch (on the device: no wait); no refinement. The 9 real views each come
+    // once per epoch.
     let mut a = args(24, false);
     a.schedule = short_dual();
+    if let Schedule::Dual { reset_at_off, .. } = &mut a.schedule {
+        *reset_at_off = true;
+    }
     let synth = Some(&c.synth as &dyn Supervision);
     let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, synth);
     t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
@@ -659,32 +662,42 @@ fn a_refinement_on_the_gpu_waits_once_and_brings_nothing_back() {
     let Some(gpu) = context(test) else { return };
     let tmp = tempfile::tempdir().unwrap();
     let c = case(tmp.path());
-    // Refinements at steps 3, 6, 9; opacity resets at 4 and 8.
-    let mut a = args(10, true);
-    a.densify.reset_every = 4;
-    let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, None);
-    t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
-    let mut per_step = Vec::new();
-    for _ in 0..a.steps {
-        let before = gpu.host_waits();
-        let r = t.step();
-        per_step.push((r.step, r.refine, gpu.host_waits() - before));
-    }
-    // A step of one view waits once, twice at the view's first pass (or when densification
-    // grew its pairs past the slots); a refinement adds one wait (its totals and split
-    // parents), a reset none: the state is never read back whole.
-    for (step, refine, waits) in &per_step {
-        let grows = [3, 6, 9].contains(step);
-        let view = waits - u64::from(grows);
-        assert!((1..=2).contains(&view), "step {step}: {per_step:?}");
-        assert_eq!(refine.reset, [4, 8].contains(step), "step {step}");
-    }
-    let grown: usize = per_step.iter().map(|(_, r, _)| r.cloned + r.split).sum();
-    assert!(grown > 0, "the run densifies: {per_step:?}");
-    // The same run on the CPU refines identically (same counts at every step).
-    let (cpu, _) = train(&c, &a, false, None);
-    for ((step, g, _), c) in per_step.iter().zip(&cpu) {
-        assert_eq!(*g, c.refine, "step {step}");
+    // Refinements at steps 3, 6, 9; opacity resets at 4 and 8, of either kind.
+    for reset in [OpacityReset::Periodic, OpacityReset::KeepVisible] {
+        let mut a = args(10, true);
+        a.densify.reset_every = 4;
+        a.densify.reset = reset;
+        let mut t = Trainer::new(a.clone(), c.init.clone(), c.scale, &c.real, None);
+        t.on_device(&augsplat_splat::Device::gpu(gpu.clone()));
+        let mut per_step = Vec::new();
+        for _ in 0..a.steps {
+            let before = gpu.host_waits();
+            let r = t.step();
+            per_step.push((r.step, r.refine, gpu.host_waits() - before));
+        }
+        // A step of one view waits once, twice at the view's first pass (or when
+        // densification grew its pairs past the slots); a refinement adds one wait (its
+        // totals and split parents), a reset none: the state is never read back whole.
+        for (step, refine, waits) in &per_step {
+            let grows = [3, 6, 9].contains(step);
+            let view = waits - u64::from(grows);
+            assert!(
+                (1..=2).contains(&view),
+                "{reset:?}, step {step}: {per_step:?}"
+            );
+            assert_eq!(
+                refine.reset,
+                [4, 8].contains(step),
+                "{reset:?}, step {step}"
+            );
+        }
+        let grown: usize = per_step.iter().map(|(_, r, _)| r.cloned + r.split).sum();
+        assert!(grown > 0, "the run densifies: {per_step:?}");
+        // The same run on the CPU refines identically (same counts at every step).
+        let (cpu, _) = train(&c, &a, false, None);
+        for ((step, g, _), c) in per_step.iter().zip(&cpu) {
+            assert_eq!(*g, c.refine, "{reset:?}, step {step}");
+        }
     }
 }
 

@@ -101,6 +101,31 @@ fn keep_visible_reset_never_starves_a_gaussian() {
 }
 
 #[test]
+fn keep_visible_keeps_no_floor_for_a_gaussian_no_opacity_keeps_visible() {
+    use augsplat_splat::densify::{keep_visible_floor, KEEP_VISIBLE_MAX_OPACITY};
+    let cutoff = 1.0 / 255.0f32;
+    // A peak that the ceiling keeps at the cutoff or above gets the ceiling at most.
+    let lowest = f64::from(cutoff) / KEEP_VISIBLE_MAX_OPACITY;
+    assert_eq!(
+        keep_visible_floor(lowest * 1.000001),
+        KEEP_VISIBLE_MAX_OPACITY
+    );
+    assert!((keep_visible_floor(0.5) - KEEP_VISIBLE_ALPHA / 0.5).abs() < 1e-15);
+    // Below it no opacity makes the Gaussian visible: no floor (reset as by `Periodic`).
+    for r in [lowest * 0.999999, 1e-82, 0.0] {
+        assert_eq!(keep_visible_floor(r), 0.0, "ratio {r:e}");
+    }
+    let mut g = gaussians();
+    let mut adam = Adam::new(g.len(), 1);
+    let mut ratios = vec![0.5; g.len()];
+    ratios[0] = 1e-82;
+    densify::reset_opacities_keep_visible(&mut g, &mut adam, 0.01, &ratios);
+    assert!((sigmoid(f64::from(g.opacity_logits[0])) - 0.01).abs() < 1e-6);
+    let kept = sigmoid(f64::from(g.opacity_logits[1]));
+    assert!((kept - KEEP_VISIBLE_ALPHA / 0.5).abs() < 1e-6, "{kept}");
+}
+
+#[test]
 fn reset_modes_through_the_strategy() {
     // One large Gaussian (scale 0.5 > prune_scale3d × scene scale 1 = 0.1), one small.
     let base = {

@@ -294,6 +294,49 @@ impl ForwardState {
     }
 }
 
+/// Where [`record_projection`] writes, per Gaussian: its splat ([`SPLAT_STRIDE`] words:
+/// mean2d, conic, opacity, colour, depth), its tile rectangle (4 words: packed x and y
+/// ranges, tile count, status — 0 visible, 1 culled, 2 invalid) and its depth sort key.
+#[derive(Clone, Copy)]
+pub struct Projection<'a> {
+    /// [`SPLAT_STRIDE`] f32 words per Gaussian.
+    pub splats: &'a wgpu::Buffer,
+    /// 4 u32 words per Gaussian.
+    pub rects: &'a wgpu::Buffer,
+    /// 1 u32 word per Gaussian (0xffffffff when culled).
+    pub keys: &'a wgpu::Buffer,
+}
+
+/// Records the projection (`project.wgsl`) of every Gaussian of `g` with the opacity logits
+/// `logits` (the scene's own, or another array of one logit per Gaussian) from the camera
+/// `camera_w` ([`camera_words`]), in as few dispatches as the binding limit allows.
+pub fn record_projection(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    g: &GpuScene,
+    logits: &wgpu::Buffer,
+    camera_w: &[u32],
+    out: Projection<'_>,
+) -> Result<(), GpuError> {
+    ctx.dispatch_items(
+        enc,
+        &ctx.kernels.project.project,
+        (camera_w, CAMERA_COUNT_WORD),
+        &[
+            (1, &g.means, 3),
+            (2, &g.scales, 3),
+            (3, &g.quats, 4),
+            (4, logits, 1),
+            (5, &g.sh, 3 * u64::from(g.coeffs)),
+            (6, out.splats, SPLAT_STRIDE),
+            (7, out.rects, 4),
+            (8, out.keys, 1),
+        ],
+        g.n,
+        1,
+    )
+}
+
 /// Runs the forward kernels and keeps their buffers (one wait, for the number of pairs).
 #[allow(clippy::too_many_arguments)]
 pub fn forward_pass(
@@ -345,23 +388,17 @@ pub fn forward_pass_in(
 
     // Project, sort by (depth, index), count each rank's tiles and scan them.
     let mut enc = ctx.device.create_command_encoder(&Default::default());
-    let k3 = 3 * u64::from(g.coeffs);
-    ctx.dispatch_items(
+    record_projection(
+        ctx,
         &mut enc,
-        &kr.project.project,
-        (&camera_w, CAMERA_COUNT_WORD),
-        &[
-            (1, &g.means, 3),
-            (2, &g.scales, 3),
-            (3, &g.quats, 4),
-            (4, &g.logits, 1),
-            (5, &g.sh, k3),
-            (6, &splats, SPLAT_STRIDE),
-            (7, &meta, 4),
-            (8, &keys, 1),
-        ],
-        n,
-        1,
+        g,
+        &g.logits,
+        &camera_w,
+        Projection {
+            splats: &splats,
+            rects: &meta,
+            keys: &keys,
+        },
     )?;
     let (_, sorted_order) = ctx.record_sort(&mut enc, &keys, &vals, (&keys2, &vals2), n, 32)?;
     let order_in_vals = std::ptr::eq(sorted_order, &*vals);

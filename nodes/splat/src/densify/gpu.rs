@@ -15,14 +15,16 @@
 //!    (their colours gathered from their parents), and the statistics start at zero.
 //!
 //! An opacity reset (`Periodic`) clamps the logits on the device (`clamp_logits`) and clears
-//! the opacity moments. A `KeepVisible` reset needs each Gaussian's visibility in the
-//! training views, measured on the host; such steps, and sets whose arrays exceed one storage
-//! binding, refine on the host instead (the device's refinement declines them).
+//! the opacity moments. A `KeepVisible` reset measures each Gaussian's visibility in the
+//! training views on the device too (`keep_visible.wgsl`: the projection with unit opacity
+//! from each view, then each Gaussian's peak alpha and its clamp, in f32, so within rounding
+//! of the host's f64 caps). Sets whose arrays exceed one storage binding refine on the host
+//! instead (the device's refinement declines them).
 
 use super::thresholds::{grow_keys, log_scale_key_at_most, ord_key};
 use super::{
     split_children, DensifyArgs, DensifySchedule, Extents, OpacityReset, PruneRule, RefineReport,
-    SplitChild, SplitParent,
+    SplitChild, SplitParent, VisibilityViews, KEEP_VISIBLE_ALPHA, KEEP_VISIBLE_MAX_OPACITY,
 };
 use crate::gpu::{f32_words, GpuBuffer, GpuContext, GpuError, GpuScene};
 use crate::train::gpu::GpuTrainer;
@@ -48,6 +50,8 @@ pub struct Refinement<'a> {
     pub extents: Extents,
     /// The seed of the split children's stream (drawn per step).
     pub seed: u64,
+    /// The views a `KeepVisible` reset measures visibility in.
+    pub views: VisibilityViews<'a>,
 }
 
 impl Refinement<'_> {
@@ -74,6 +78,8 @@ pub(crate) struct Kernels {
     compact: wgpu::ComputePipeline,
     gather: wgpu::ComputePipeline,
     clamp_logits: wgpu::ComputePipeline,
+    peak_ratio: wgpu::ComputePipeline,
+    keep_visible: wgpu::ComputePipeline,
 }
 
 impl Kernels {
@@ -84,12 +90,20 @@ impl Kernels {
             include_str!("densify.wgsl"),
             ["decide", "take", "compact", "gather", "clamp_logits"],
         );
+        let [peak_ratio, keep_visible] = crate::gpu::pipelines(
+            m,
+            "keep_visible.wgsl",
+            include_str!("keep_visible.wgsl"),
+            ["peak_ratio", "keep_visible"],
+        );
         Kernels {
             decide,
             take,
             compact,
             gather,
             clamp_logits,
+            peak_ratio,
+            keep_visible,
         }
     }
 }
@@ -118,8 +132,8 @@ impl GpuTrainer {
     /// Runs the refinement `r` on the device: grows and prunes when due, then resets
     /// opacities when due. `count_bound` bounds every Gaussian's view count since the
     /// statistics were last cleared. `None` (with the state untouched) when the device cannot
-    /// do it: a `KeepVisible` reset, arrays wider than one binding, or too large a bound; the
-    /// caller then refines on the host.
+    /// do it: arrays wider than one binding, or too large a bound; the caller then refines
+    /// on the host.
     pub(crate) fn refine(
         &mut self,
         ctx: &GpuContext,
@@ -128,7 +142,7 @@ impl GpuTrainer {
     ) -> Result<Option<RefineReport>, GpuError> {
         let mut rep = RefineReport::default();
         let reset = r.reset();
-        if reset == Some(OpacityReset::KeepVisible) || !self.binds_whole(ctx, self.len() as u64) {
+        if !self.binds_whole(ctx, self.len() as u64) {
             return Ok(None);
         }
         let kernels = ctx.kernels_of(Kernels::new)?;
@@ -149,10 +163,15 @@ impl GpuTrainer {
             rep.pruned = (n + u64::from(d.cloned) + u64::from(d.split) - new_n) as usize;
             self.rebuild(ctx, &kernels, &d, new_n as u32)?;
         }
-        if reset == Some(OpacityReset::Periodic) {
-            self.reset_opacities(ctx, &kernels, 2.0 * r.args.prune_opacity)?;
-            rep.reset = true;
+        let value = 2.0 * r.args.prune_opacity;
+        match reset {
+            Some(OpacityReset::Periodic) => self.reset_opacities(ctx, &kernels, value)?,
+            Some(OpacityReset::KeepVisible) => {
+                self.reset_keep_visible(ctx, &kernels, value, &r.views)?
+            }
+            Some(OpacityReset::Never) | None => {}
         }
+        rep.reset = reset.is_some();
         Ok(Some(rep))
     }
 
@@ -422,26 +441,133 @@ impl GpuTrainer {
         })
     }
 
-    /// `Periodic` opacity reset: logits clamped to `logit(value)`, opacity moments cleared.
-    fn reset_opacities(&self, ctx: &GpuContext, kr: &Kernels, value: f64) -> Result<(), GpuError> {
-        let cap = crate::init::logit(value) as f32;
-        let n = self.scene.n;
+    /// The opacity reset of a Staged switch or Dual's switch-off: logits clamped to
+    /// `logit(value)`, then every moment and the densification statistics cleared (the
+    /// host clears Adam's step counters). Kept for the next submission.
+    pub(crate) fn reset_for_switch(&self, ctx: &GpuContext, value: f64) -> Result<(), GpuError> {
+        let kernels = ctx.kernels_of(Kernels::new)?;
         ctx.scoped(|| {
             let mut enc = ctx.device.create_command_encoder(&Default::default());
-            let u = ctx.uniform(
-                "opacity reset constants",
-                &[n, cap.to_bits(), ord_key(cap), 0],
-            );
-            ctx.dispatch(
+            self.record_clamp(ctx, &kernels, &mut enc, value);
+            for (m, v) in &self.moments {
+                enc.clear_buffer(m, 0, None);
+                enc.clear_buffer(v, 0, None);
+            }
+            enc.clear_buffer(&self.grad2d, 0, None);
+            enc.clear_buffer(&self.count, 0, None);
+            ctx.defer(enc)
+        })
+    }
+
+    /// `KeepVisible` opacity reset ([`super::reset_opacities_keep_visible`] with
+    /// [`super::peak_alpha_ratios`], in f32): each Gaussian projected with unit opacity
+    /// from every view of `views`, its largest alpha per unit opacity kept, its logit clamped
+    /// to that of `max(value, floor)` ([`super::keep_visible_floor`]); the opacity moments
+    /// cleared. Recorded in one submission, without a wait.
+    fn reset_keep_visible(
+        &self,
+        ctx: &GpuContext,
+        kr: &Kernels,
+        value: f64,
+        views: &VisibilityViews<'_>,
+    ) -> Result<(), GpuError> {
+        use augsplat_render::forward::gpu::{
+            camera_words, record_projection, tile_grid, Projection, SPLAT_STRIDE,
+        };
+        let n = self.scene.n;
+        let nn = u64::from(n);
+        // The CPU's unit opacity (1 − 2⁻²⁴): the projection's opacity is the compensation.
+        let unit_logit = 16.6f32.to_bits();
+        let settings = crate::RenderSettings {
+            antialiased: views.antialiased,
+            near: views.near,
+            sh_degree: 0,
+            ..Default::default()
+        };
+        let consts = |w: u32, h: u32| {
+            [
+                n,
+                w,
+                h,
+                (value as f32).to_bits(),
+                (KEEP_VISIBLE_ALPHA as f32).to_bits(),
+                (KEEP_VISIBLE_MAX_OPACITY as f32).to_bits(),
+                0,
+                0,
+            ]
+        };
+        ctx.scoped(|| {
+            let unit =
+                ctx.storage_items_init("unit opacity logits", &vec![unit_logit; n as usize])?;
+            let ratios = ctx.storage_items("peak alpha ratios", 4 * nn)?;
+            let splats = ctx.storage_items("splats", 4 * SPLAT_STRIDE * nn)?;
+            let rects = ctx.storage_items("tile rectangles", 16 * nn)?;
+            let keys = ctx.storage_items("depth keys", 4 * nn)?;
+            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            for cam in views.cameras {
+                let words = camera_words(&self.scene, cam, &settings, tile_grid(cam)?);
+                let out = Projection {
+                    splats: &splats,
+                    rects: &rects,
+                    keys: &keys,
+                };
+                record_projection(ctx, &mut enc, &self.scene, &unit, &words, out)?;
+                ctx.dispatch_items(
+                    &mut enc,
+                    &kr.peak_ratio,
+                    (&consts(cam.width, cam.height), 0),
+                    &[(1, &splats, SPLAT_STRIDE), (2, &rects, 4), (3, &ratios, 1)],
+                    n,
+                    1,
+                )?;
+            }
+            ctx.dispatch_items(
                 &mut enc,
-                &kr.clamp_logits,
-                &[(22, &u), (23, &self.scene.logits)],
-                ctx.groups(n.div_ceil(256)),
-            );
+                &kr.keep_visible,
+                (&consts(0, 0), 0),
+                &[(3, &ratios, 1), (4, &self.scene.logits, 1)],
+                n,
+                1,
+            )?;
             let (m, v) = &self.moments[crate::train::gpu::OPACITY_GROUP];
             enc.clear_buffer(m, 0, None);
             enc.clear_buffer(v, 0, None);
-            ctx.submit_no_wait(enc)
+            ctx.defer(enc)
         })
+    }
+
+    /// `Periodic` opacity reset: logits clamped to `logit(value)`, opacity moments cleared.
+    /// Kept for the next submission.
+    fn reset_opacities(&self, ctx: &GpuContext, kr: &Kernels, value: f64) -> Result<(), GpuError> {
+        ctx.scoped(|| {
+            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            self.record_clamp(ctx, kr, &mut enc, value);
+            let (m, v) = &self.moments[crate::train::gpu::OPACITY_GROUP];
+            enc.clear_buffer(m, 0, None);
+            enc.clear_buffer(v, 0, None);
+            ctx.defer(enc)
+        })
+    }
+
+    /// Records every logit clamped to at most `logit(value)` (a NaN becomes the cap).
+    fn record_clamp(
+        &self,
+        ctx: &GpuContext,
+        kr: &Kernels,
+        enc: &mut wgpu::CommandEncoder,
+        value: f64,
+    ) {
+        let cap = crate::init::logit(value) as f32;
+        let n = self.scene.n;
+        let u = ctx.uniform(
+            "opacity reset constants",
+            &[n, cap.to_bits(), ord_key(cap), 0],
+        );
+        ctx.dispatch(
+            enc,
+            &kr.clamp_logits,
+            &[(22, &u), (23, &self.scene.logits)],
+            ctx.groups(n.div_ceil(256)),
+        );
     }
 }

@@ -628,10 +628,26 @@ pub fn reset_opacities(g: &mut Gaussians, adam: &mut Adam, value: f64) {
     adam.clear_group(Group::Opacities);
 }
 
-/// [`reset_opacities`] that lowers Gaussian `i` to no less than the opacity at which its
-/// most visible pixel keeps alpha [`KEEP_VISIBLE_ALPHA`]: `max(value, KEEP_VISIBLE_ALPHA /
-/// ratios[i])`, where `ratios[i]` is its largest pixel alpha per unit opacity
-/// ([`peak_alpha_ratios`]; 0 when it reaches no pixel). Opacities already below stay.
+/// The highest opacity a `KeepVisible` reset keeps a Gaussian at.
+pub const KEEP_VISIBLE_MAX_OPACITY: f64 = 0.99;
+
+/// The opacity below which a `KeepVisible` reset lowers no Gaussian whose largest pixel
+/// alpha per unit opacity is `ratio` ([`peak_alpha_ratios`]): the one at which that pixel
+/// keeps alpha [`KEEP_VISIBLE_ALPHA`], at most [`KEEP_VISIBLE_MAX_OPACITY`]; 0 for a Gaussian
+/// that no opacity keeps visible (its peak pixel stays under the rasteriser's 1/255 cutoff
+/// even at that ceiling, or it reaches no pixel).
+pub fn keep_visible_floor(ratio: f64) -> f64 {
+    let cutoff = f64::from(augsplat_render::constants::ALPHA_THRESHOLD);
+    if KEEP_VISIBLE_MAX_OPACITY * ratio >= cutoff {
+        (KEEP_VISIBLE_ALPHA / ratio).min(KEEP_VISIBLE_MAX_OPACITY)
+    } else {
+        0.0
+    }
+}
+
+/// [`reset_opacities`] that lowers Gaussian `i` to no less than
+/// [`keep_visible_floor`]`(ratios[i])`, where `ratios[i]` is its largest pixel alpha per unit
+/// opacity ([`peak_alpha_ratios`]; 0 when it reaches no pixel). Opacities already below stay.
 pub fn reset_opacities_keep_visible(
     g: &mut Gaussians,
     adam: &mut Adam,
@@ -640,12 +656,7 @@ pub fn reset_opacities_keep_visible(
 ) {
     assert_eq!(ratios.len(), g.len(), "one visibility ratio per Gaussian");
     for (o, &r) in g.opacity_logits.iter_mut().zip(ratios) {
-        let floor = if r > 0.0 {
-            (KEEP_VISIBLE_ALPHA / r).min(0.99)
-        } else {
-            0.0
-        };
-        let cap = crate::init::logit(value.max(floor)) as f32;
+        let cap = crate::init::logit(value.max(keep_visible_floor(r))) as f32;
         *o = o.min(cap);
     }
     adam.clear_group(Group::Opacities);
@@ -699,6 +710,32 @@ pub fn peak_alpha_ratios(
             best
         })
         .collect()
+}
+
+/// The training views in which a `KeepVisible` reset measures each Gaussian's visibility
+/// ([`peak_alpha_ratios`]), with the projection's settings.
+#[derive(Clone, Copy, Debug)]
+pub struct VisibilityViews<'a> {
+    /// The views' cameras.
+    pub cameras: &'a [&'a augsplat_core::Camera],
+    /// Whether the projection compensates for the antialiasing blur.
+    pub antialiased: bool,
+    /// The near plane.
+    pub near: f32,
+}
+
+impl VisibilityViews<'_> {
+    /// No views (every Gaussian reaches no pixel).
+    pub const NONE: VisibilityViews<'static> = VisibilityViews {
+        cameras: &[],
+        antialiased: false,
+        near: 0.01,
+    };
+
+    /// [`peak_alpha_ratios`] of `g` in these views.
+    pub fn peak_alpha_ratios(&self, g: &Gaussians) -> Vec<f64> {
+        peak_alpha_ratios(g, self.cameras, self.antialiased, f64::from(self.near))
+    }
 }
 
 /// Keeps the Gaussians with `keep[i]`, in order.

@@ -340,7 +340,6 @@ impl TrainingDevice for GpuTraining {
         &mut self,
         st: &mut TrainState,
         r: &Refinement<'_>,
-        visibility: &mut dyn FnMut(&Gaussians) -> Vec<f64>,
     ) -> Result<RefineReport, GpuError> {
         let ctx = self.ctx.clone();
         self.state(st)?;
@@ -354,12 +353,27 @@ impl TrainingDevice for GpuTraining {
                 self.ahead = true;
                 Ok(rep)
             }
-            // A `KeepVisible` reset, or a set wider than one binding: on the host.
+            // A set wider than one binding: on the host.
             None => {
                 self.release(st)?;
-                Ok(super::refine_on_host(st, r, visibility))
+                Ok(super::refine_on_host(st, r))
             }
         }
+    }
+
+    fn reset_for_switch(&mut self, st: &mut TrainState, value: f64) -> Result<(), GpuError> {
+        let Some(state) = &self.state else {
+            super::reset_for_switch_on_host(st, value);
+            return Ok(());
+        };
+        state.reset_for_switch(&self.ctx, value)?;
+        // The step counters live on the host; its moments and statistics are stale until the
+        // next sync, which brings the device's back.
+        st.adam.clear();
+        st.densifier.clear();
+        self.count_bound = 0;
+        self.ahead = true;
+        Ok(())
     }
 
     fn gaussians(&self, st: &TrainState) -> usize {

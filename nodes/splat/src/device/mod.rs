@@ -11,10 +11,11 @@
 //!   run. The [`crate::train::Trainer`] writes the step and every schedule once, in terms of
 //!   [`TrainingDevice::begin_step`], [`TrainingDevice::add_view`] (render, loss, gradient and
 //!   densification statistic of one view, summed into the step's gradients in a fixed order)
-//!   and [`TrainingDevice::adam_step`], and densification where the state lives
-//!   ([`TrainingDevice::post_update`]); [`TrainingDevice::sync`] and
-//!   [`TrainingDevice::release`] bring the state back to the host where the host must see or
-//!   change it (evaluations, checkpoints, resets the device cannot do).
+//!   and [`TrainingDevice::adam_step`], and densification and opacity resets where the state
+//!   lives ([`TrainingDevice::post_update`], [`TrainingDevice::reset_for_switch`]);
+//!   [`TrainingDevice::sync`] and [`TrainingDevice::release`] bring the state back to the host
+//!   where the host must see or change it (checkpoints, the end of a run, a refinement the
+//!   device cannot do).
 //!
 //! The CPU device (`device/cpu.rs`) keeps the state in the host's [`TrainState`] itself; the
 //! GPU device (`device/gpu.rs`) keeps a copy in GPU buffers between steps and holds one
@@ -142,16 +143,23 @@ pub trait TrainingDevice {
     fn discard(&mut self);
     /// Densification's schedule after the update of step `r.step`
     /// ([`Densifier::step_post_update`]: refinement and opacity resets when due), wherever the
-    /// state lives; `visibility` is asked for a `KeepVisible` reset. The result is the host's
-    /// refinement to the bit on every device.
+    /// state lives. The result is the host's refinement to the bit on every device, but for
+    /// a `KeepVisible` reset on a GPU (its caps in f32, within rounding of the host's).
     fn post_update(
         &mut self,
         st: &mut TrainState,
         r: &Refinement<'_>,
-        visibility: &mut dyn FnMut(&Gaussians) -> Vec<f64>,
     ) -> Result<RefineReport, GpuError> {
         self.release(st)?;
-        Ok(refine_on_host(st, r, visibility))
+        Ok(refine_on_host(st, r))
+    }
+    /// The opacity reset of a Staged switch or Dual's switch-off, wherever the state lives:
+    /// every opacity clamped to at most `value` ([`crate::densify::reset_opacities`]), then
+    /// every moment and step counter of Adam and the densification statistics cleared.
+    fn reset_for_switch(&mut self, st: &mut TrainState, value: f64) -> Result<(), GpuError> {
+        self.release(st)?;
+        reset_for_switch_on_host(st, value);
+        Ok(())
     }
     /// The number of Gaussians in training (a device's copy may have densified since the
     /// host's was made current).
@@ -185,11 +193,7 @@ impl From<crate::RenderOutput> for Frame {
 }
 
 /// [`Densifier::step_post_update`] on the host's state.
-pub fn refine_on_host(
-    st: &mut TrainState,
-    r: &Refinement<'_>,
-    visibility: &mut dyn FnMut(&Gaussians) -> Vec<f64>,
-) -> RefineReport {
+pub fn refine_on_host(st: &mut TrainState, r: &Refinement<'_>) -> RefineReport {
     st.densifier.step_post_update(
         r.step,
         r.sched,
@@ -198,8 +202,15 @@ pub fn refine_on_host(
         &mut st.adam,
         r.extents,
         r.seed,
-        visibility,
+        &mut |g| r.views.peak_alpha_ratios(g),
     )
+}
+
+/// [`TrainingDevice::reset_for_switch`] on the host's state.
+pub fn reset_for_switch_on_host(st: &mut TrainState, value: f64) {
+    crate::densify::reset_opacities(&mut st.g, &mut st.adam, value);
+    st.adam.clear();
+    st.densifier.clear();
 }
 
 /// What a device can do.

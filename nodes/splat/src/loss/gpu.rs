@@ -564,6 +564,11 @@ mod tests {
         ("loss.wgsl", include_str!("loss.wgsl")),
         ("adam.wgsl", include_str!("../adam/adam.wgsl")),
         ("accumulate.wgsl", include_str!("../train/accumulate.wgsl")),
+        ("densify.wgsl", include_str!("../densify/densify.wgsl")),
+        (
+            "keep_visible.wgsl",
+            include_str!("../densify/keep_visible.wgsl"),
+        ),
     ];
 
     #[test]

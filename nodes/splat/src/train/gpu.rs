@@ -11,11 +11,12 @@
 //! pass whose pairs outgrew the slots adds nothing (the accumulation checks the count on the
 //! device) and runs again, counted first, so the bytes never depend on the sizing. Per step
 //! ([`GpuTrainer::adam_step`]): `adam/adam.wgsl` once per parameter group, with the constants
-//! the CPU's `Adam` computes. Densification and `Periodic` opacity resets run on the device
-//! too (`densify/gpu.rs`, one wait per refinement). The trainer brings the state back to the
-//! host ([`GpuTrainer::download`]) only where the CPU must see it: `KeepVisible` resets,
-//! Staged's and Dual's resets at a switch, evaluations and checkpoints; after the host changed
-//! it, it uploads a new state.
+//! the CPU's `Adam` computes. Densification, every opacity reset (`Periodic`, `KeepVisible`,
+//! and Staged's and Dual's at a switch) run on the device too (`densify/gpu.rs`, one wait per
+//! refinement, none per reset). The trainer brings the state back to the host
+//! ([`GpuTrainer::download`]) only where the CPU must see it: checkpoints, the end of the run,
+//! and a set too wide for the device's densification; after the host changed it, it uploads
+//! a new state.
 
 use crate::adam::{Adam, GpuStepConst, Group};
 use crate::backward::gpu::{

@@ -211,14 +211,6 @@ impl<'a> Trainer<'a> {
             .unwrap_or_else(|e| device_failed(e));
     }
 
-    /// Brings the state back from the device, which drops its copy: the host is about to
-    /// change it.
-    fn release(&mut self) {
-        self.device
-            .release(&mut self.state)
-            .unwrap_or_else(|e| device_failed(e));
-    }
-
     /// The number of Gaussians now (without bringing them back from the device).
     pub fn primitives(&self) -> usize {
         self.device.gaussians(&self.state)
@@ -491,11 +483,9 @@ impl<'a> Trainer<'a> {
                 reset_at_off: true, ..
             } = self.args.schedule
             {
-                self.release();
-                let st = &mut self.state;
-                densify::reset_opacities(&mut st.g, &mut st.adam, 0.1);
-                st.adam.clear();
-                st.densifier.clear();
+                self.device
+                    .reset_for_switch(&mut self.state, 0.1)
+                    .unwrap_or_else(|e| device_failed(e));
             }
         }
     }
@@ -520,11 +510,7 @@ impl<'a> Trainer<'a> {
             return Default::default();
         }
         // For a `KeepVisible` reset: each Gaussian's visibility in the real views.
-        let real = self.real;
-        let mut visibility = |g: &Gaussians| {
-            let cams: Vec<&Camera> = (0..real.len()).map(|i| real.camera(i)).collect();
-            densify::peak_alpha_ratios(g, &cams, settings.antialiased, settings.near as f64)
-        };
+        let cameras: Vec<&Camera> = (0..self.real.len()).map(|i| self.real.camera(i)).collect();
         let r = densify::gpu::Refinement {
             step,
             sched: &self.dsched,
@@ -534,9 +520,14 @@ impl<'a> Trainer<'a> {
                 prune: self.prune_extent,
             },
             seed: self.args.seed ^ 0xDE45,
+            views: densify::VisibilityViews {
+                cameras: &cameras,
+                antialiased: settings.antialiased,
+                near: settings.near,
+            },
         };
         self.device
-            .post_update(&mut self.state, &r, &mut visibility)
+            .post_update(&mut self.state, &r)
             .unwrap_or_else(|e| device_failed(e))
     }
 }
