@@ -8,8 +8,9 @@
 #   bash docs/scripts/gpu_lease.sh run [PARTS]    # there, carrying out/lease; writes under
 #                                                 # $OUT (default out/lease-results)
 #
-# PARTS (default: field step bonsai paper), each stopped at its own time limit in seconds
-# (`LEASE_<PART>_SECONDS`, defaults 60, 60, 240 and 150: under 540 s in all):
+# PARTS (default: field step bonsai; then `run paper` in a second call), each stopped at its
+# own time limit in seconds (`LEASE_<PART>_SECONDS`, defaults 45, 60, 420 and 540: one call
+# stays under 540 s):
 #   field   field.txt  the radiance field's step on the GPU (forward+backward samples/s at
 #                      1,024 and 4,096 rays) and its renders (rays/s), CPU beside it
 #   step    step.txt   whole splatting steps, GPU only: 200k and 1M Gaussians at 800×533
@@ -17,7 +18,7 @@
 #                      Gaussian cap (log.txt: the node's evaluations and refinements with
 #                      their times and counts; summary.json when it finishes in time)
 #   paper   paper/     paper_bonsai.ron with fragments/gpu.ron until the time is up
-#                      (summary.json: each finished node's seconds)
+#                      (status.txt: each finished node's seconds; summary.json if it ends)
 # gpu.csv samples nvidia-smi every 200 ms (utilisation %, memory MiB) throughout, when the
 # machine has it; machine.txt names the adapter, the driver and the commit.
 #
@@ -69,7 +70,7 @@ run() {
   [ -x "$lease/bin/augsplat" ] || { echo "no $lease/bin: pack first and carry out/lease" >&2; exit 1; }
   local bin="$lease/bin"
   local parts=("$@")
-  [ ${#parts[@]} -gt 0 ] || parts=(field step bonsai paper)
+  [ ${#parts[@]} -gt 0 ] || parts=(field step bonsai)
   # The pipelines read ../../shared/data beside pipelines/: a copy of pipelines/ in a work
   # folder whose shared/ is the carried data.
   local work="$out/work"
@@ -93,7 +94,7 @@ run() {
     echo "== $part ($(date -u +%T))" >>"$out/parts.txt"
     case "$part" in
       field)
-        timed "${LEASE_FIELD_SECONDS:-60}" "$out/field.txt" \
+        timed "${LEASE_FIELD_SECONDS:-45}" "$out/field.txt" \
           "$bin/bench" "$(nproc)" gpu "$([ -n "$smoke" ] && echo 2 || echo 20)"
         ;;
       step)
@@ -116,7 +117,7 @@ run() {
           sets+=(--set scene.downscale=1 --set params.gs_steps=30000 --set params.eval_every=3000)
           local pipeline="$work/repo/pipelines/bonsai.ron"
         fi
-        timed "${LEASE_BONSAI_SECONDS:-240}" "$out/bonsai/log.txt" \
+        timed "${LEASE_BONSAI_SECONDS:-420}" "$out/bonsai/log.txt" \
           "$bin/augsplat" run "$pipeline" "${sets[@]}" --target eval_baseline --log -q \
           --cache "$work/store-bonsai" --summary-json "$out/bonsai/summary.json"
         ;;
@@ -125,7 +126,7 @@ run() {
         printf '(extends: ["%s", "fragments/gpu.ron"])\n' \
           "$([ -n "$smoke" ] && echo demo.ron || echo paper_bonsai.ron)" \
           >"$work/repo/pipelines/lease_paper.ron"
-        timed "${LEASE_PAPER_SECONDS:-150}" "$out/paper/log.txt" \
+        timed "${LEASE_PAPER_SECONDS:-540}" "$out/paper/log.txt" \
           "$bin/augsplat" run "$work/repo/pipelines/lease_paper.ron" --log -q \
           --cache "$work/store-paper" --summary-json "$out/paper/summary.json"
         # What finished, with its seconds, even when the time ran out first.
@@ -143,5 +144,5 @@ run() {
 case "${1:-}" in
   pack) pack ;;
   run) shift; run "$@" ;;
-  *) sed -n 2,26p "$0"; exit 2 ;;
+  *) sed -n 2,27p "$0"; exit 2 ;;
 esac
