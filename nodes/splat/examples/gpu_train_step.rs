@@ -3,10 +3,15 @@
 //! densification statistics all on the GPU, the state kept there) and on the CPU, for N
 //! Gaussians at W×H.
 //!
-//! `cargo run --release -p augsplat-splat --example gpu_train_step -- [N,N,... [WxH,... [STEPS]]] [--no-cpu]`
+//! `cargo run --release -p augsplat-splat --example gpu_train_step -- [N,N,... [WxH,... [STEPS]]] [--no-cpu] [--synthetic B]`
 //! Defaults: 20000 at 256×256, 20 timed steps after 3 warm-up steps. Prints per case the
-//! median and best step time on each backend and their ratio, and the GPU state's size.
-//! `--no-cpu` times the GPU alone (the CPU at 1 M Gaussians and 1080p takes seconds a step).
+//! median and best step time on each backend and their ratio, and the median time the host
+//! spent per GPU step outside its waits for the device (recording and submitting: time in
+//! which a device that finished its work sits idle; a software adapter such as lavapipe may
+//! run a large submission's work before `submit` returns, which then counts here too). `--no-cpu` times the GPU alone (the CPU
+//! at 1 M Gaussians and 1080p takes seconds a step); `--synthetic B` adds B synthetic views
+//! of an eighth of the size to every step (Dual at constant weights), as Staged's and Dual's
+//! batches.
 //!
 //! The Gaussians are a random cloud in front of one camera (footprints of a few pixels, SH
 //! degree 3, all bands active), the target a smooth colour ramp; densification is off so
@@ -16,7 +21,9 @@
 mod gpu_bench;
 
 use augsplat_splat::densify::DensifyArgs;
-use augsplat_splat::train::{RealImages, RealView, TrainArgs, Trainer};
+use augsplat_splat::loss::WeightNorm;
+use augsplat_splat::supervision::{Supervision, SynthView, SyntheticImages};
+use augsplat_splat::train::{RealImages, RealView, Schedule, TrainArgs, Trainer};
 use augsplat_splat::Gaussians;
 use std::sync::Arc;
 use std::time::Instant;
@@ -39,14 +46,15 @@ fn view(w: u32, h: u32) -> RealView {
     }
 }
 
-/// Median and best seconds per step of `steps` steps after 3 warm-up steps.
+/// Seconds per step of `steps` steps after 3 warm-up steps, with `synthetic` synthetic views
+/// of an eighth of the size beside the real view in every step (Dual at constant weights).
 fn time_steps(
     n: usize,
-    w: u32,
-    h: u32,
+    (w, h): (u32, u32),
     steps: usize,
+    synthetic: usize,
     gpu: Option<Arc<augsplat_splat::gpu::GpuContext>>,
-) -> (f64, f64) {
+) -> StepTimes {
     let real = RealImages {
         views: vec![view(w, h)],
         loss: Default::default(),
@@ -64,48 +72,109 @@ fn time_steps(
         },
         ..Default::default()
     };
-    let mut trainer = Trainer::new(args, g, 1.0, &real, None);
-    if let Some(gpu) = gpu {
+    let (sw, sh) = ((w / 8).max(1), (h / 8).max(1));
+    let synth = SyntheticImages {
+        views: (0..synthetic)
+            .map(|k| {
+                let v = view(sw, sh);
+                let weight = vec![1.0; (sw * sh) as usize];
+                SynthView::new(format!("synthetic {k}"), v.camera, v.image, weight, 0.0)
+            })
+            .collect(),
+        norm: WeightNorm::WeightSum,
+    };
+    let args = TrainArgs {
+        schedule: if synthetic > 0 {
+            Schedule::Dual {
+                w_nerf0: 1.0,
+                w_real: 1.0,
+                quarter_decay: 1e12,
+                off_below: None,
+                synthetic_batch: synthetic,
+                reset_at_off: false,
+            }
+        } else {
+            Schedule::Baseline
+        },
+        ..args
+    };
+    let synth = (synthetic > 0).then_some(&synth as &dyn Supervision);
+    let mut trainer = Trainer::new(args, g, 1.0, &real, synth);
+    if let Some(gpu) = gpu.clone() {
         trainer.on_device(&augsplat_splat::Device::gpu(gpu));
     }
     let mut times = Vec::with_capacity(steps);
+    let mut host = Vec::with_capacity(steps);
     for i in 0..steps + 3 {
+        let waited = gpu.as_ref().map_or(0.0, |g| g.host_wait_seconds());
         let t = Instant::now();
         let rep = trainer.step();
         // The step's loss came back to the host: the GPU's work for it is done.
         std::hint::black_box(rep.loss);
         if i >= 3 {
-            times.push(t.elapsed().as_secs_f64());
+            let wall = t.elapsed().as_secs_f64();
+            times.push(wall);
+            let waits = gpu.as_ref().map_or(0.0, |g| g.host_wait_seconds()) - waited;
+            host.push(wall - waits);
         }
     }
     let best = times.iter().copied().fold(f64::INFINITY, f64::min);
-    (gpu_bench::median(times), best)
+    StepTimes {
+        median: gpu_bench::median(times),
+        best,
+        host: gpu_bench::median(host),
+    }
+}
+
+/// Seconds per step: the median and best wall time, and the median of the time the host
+/// spent outside its waits for the device (recording and submitting the step: on the GPU,
+/// the time in which a device that finished its work sits idle; on the CPU, all of it).
+struct StepTimes {
+    median: f64,
+    best: f64,
+    host: f64,
 }
 
 fn main() {
     let no_cpu = std::env::args().any(|a| a == "--no-cpu");
+    let synthetic = {
+        let argv: Vec<String> = std::env::args().collect();
+        argv.iter()
+            .position(|a| a == "--synthetic")
+            .and_then(|i| argv.get(i + 1))
+            .and_then(|b| b.parse().ok())
+            .unwrap_or(0)
+    };
     let a = gpu_bench::args(20);
     let ctx = Arc::new(gpu_bench::context());
     println!("adapter: {}", ctx.adapter());
+    if synthetic > 0 {
+        println!("each step: the real view and {synthetic} synthetic views of 1/8 its size");
+    }
     println!(
-        "| N | size | GPU step (median / best) | CPU step (median / best) | CPU / GPU |\n|---:|---|---:|---:|---:|"
+        "| N | size | GPU step (median / best) | GPU host outside waits | CPU step (median / best) | CPU / GPU |\n|---:|---|---:|---:|---:|---:|"
     );
     let mut headline = None;
     for &(w, h) in &a.sizes {
         for &n in &a.counts {
-            let (gm, gb) = time_steps(n, w, h, a.reps, Some(ctx.clone()));
-            headline.get_or_insert((n, w, h, gm, gb));
+            let gpu = time_steps(n, (w, h), a.reps, synthetic, Some(ctx.clone()));
+            headline.get_or_insert((n, w, h, gpu.median, gpu.best));
             let cpu = if no_cpu {
-                "—".to_string()
+                "— | —".to_string()
             } else {
-                let (cm, cb) = time_steps(n, w, h, a.reps, None);
-                format!("{:.1} / {:.1} ms | {:.1}×", cm * 1e3, cb * 1e3, cm / gm)
+                let cpu = time_steps(n, (w, h), a.reps, synthetic, None);
+                format!(
+                    "{:.1} / {:.1} ms | {:.1}×",
+                    cpu.median * 1e3,
+                    cpu.best * 1e3,
+                    cpu.median / gpu.median
+                )
             };
-            let cpu = if no_cpu { format!("{cpu} | —") } else { cpu };
             println!(
-                "| {n} | {w}×{h} | {:.2} / {:.2} ms | {cpu} |",
-                gm * 1e3,
-                gb * 1e3
+                "| {n} | {w}×{h} | {:.2} / {:.2} ms | {:.2} ms | {cpu} |",
+                gpu.median * 1e3,
+                gpu.best * 1e3,
+                gpu.host * 1e3
             );
         }
     }

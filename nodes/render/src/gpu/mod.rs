@@ -152,6 +152,8 @@ pub struct GpuContext {
     pool: std::sync::Arc<pool::Pool>,
     /// Times the host has waited for the device ([`GpuContext::host_waits`]).
     waits: std::sync::atomic::AtomicU64,
+    /// Nanoseconds the host has spent in those waits ([`GpuContext::host_wait_seconds`]).
+    wait_nanos: std::sync::atomic::AtomicU64,
     /// Encoders kept for the next submission (`gpu/submit.rs`).
     pending: std::sync::Mutex<submit::Pending>,
     /// Submissions made ([`GpuContext::submissions`]).
@@ -303,6 +305,7 @@ impl GpuContext {
             extensions: Default::default(),
             pool: Default::default(),
             waits: Default::default(),
+            wait_nanos: Default::default(),
             pending: Default::default(),
             submissions: Default::default(),
         })
@@ -542,9 +545,10 @@ impl GpuContext {
     pub fn wait(&self) -> Result<(), GpuError> {
         self.submit_kept(None);
         self.count_wait();
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| self.device_error(format!("waiting for the GPU: {e}")))?;
+        let started = std::time::Instant::now();
+        let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
+        self.add_wait_time(started);
+        polled.map_err(|e| self.device_error(format!("waiting for the GPU: {e}")))?;
         self.check_lost()
     }
 
@@ -558,6 +562,19 @@ impl GpuContext {
     fn count_wait(&self) {
         self.waits
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// The seconds the host has spent waiting for the device on this context: a step's wall
+    /// time less its waits is what the host spent recording and submitting it (the time in
+    /// which a GPU that finished its work sits idle).
+    pub fn host_wait_seconds(&self) -> f64 {
+        self.wait_nanos.load(std::sync::atomic::Ordering::Relaxed) as f64 * 1e-9
+    }
+
+    fn add_wait_time(&self, started: std::time::Instant) {
+        let nanos = u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        self.wait_nanos
+            .fetch_add(nanos, std::sync::atomic::Ordering::Relaxed);
     }
 
     /// A [`GpuError::Device`] if the device was lost (a driver reset, a removed GPU).
@@ -638,9 +655,10 @@ impl GpuContext {
             let _ = tx.send(r);
         });
         self.count_wait();
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| self.device_error(format!("waiting for a read-back: {e}")))?;
+        let started = std::time::Instant::now();
+        let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
+        self.add_wait_time(started);
+        polled.map_err(|e| self.device_error(format!("waiting for a read-back: {e}")))?;
         self.check_lost()?;
         // The wait ran the mapping's callback if the copy ran; never block on it (a device
         // that was destroyed or lost may keep the callback forever).
