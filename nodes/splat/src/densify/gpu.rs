@@ -463,7 +463,7 @@ impl GpuTrainer {
     /// [`super::peak_alpha_ratios`], in f32): each Gaussian projected with unit opacity
     /// from every view of `views`, its largest alpha per unit opacity kept, its logit clamped
     /// to that of `max(value, floor)` ([`super::keep_visible_floor`]); the opacity moments
-    /// cleared. Recorded in one submission, without a wait.
+    /// cleared. Kept for the next submission, without a wait.
     fn reset_keep_visible(
         &self,
         ctx: &GpuContext,
@@ -475,6 +475,9 @@ impl GpuTrainer {
             camera_words, record_projection, tile_grid, Projection, SPLAT_STRIDE,
         };
         let n = self.scene.n;
+        if n == 0 {
+            return Ok(());
+        }
         let nn = u64::from(n);
         // The CPU's unit opacity (1 − 2⁻²⁴): the projection's opacity is the compensation.
         let unit_logit = 16.6f32.to_bits();

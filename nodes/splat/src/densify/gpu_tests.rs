@@ -351,6 +351,23 @@ fn a_keep_visible_reset_on_the_gpu_gives_the_cpus_caps() {
         assert!(close * 100 >= 99 * n, "{close} of {n} within 1e-5");
         assert!(kept > 100 && unseen > 50, "{kept} kept, {unseen} unseen");
     }
+    // An empty set resets too (nothing to clamp).
+    let empty = state(0, &args, extents, 6);
+    let mut gpu = GpuTrainer::upload(&ctx, &empty.g, &empty.adam, &empty.stats).unwrap();
+    let sched = DensifySchedule {
+        every: 7,
+        ..schedule()
+    };
+    let r = Refinement {
+        step: 60,
+        sched: &sched,
+        args: &args,
+        extents,
+        seed: 1,
+        views: VisibilityViews::NONE,
+    };
+    let rep = gpu.refine(&ctx, &r, 100).unwrap().expect("on the device");
+    assert!(rep.reset && gpu.len() == 0, "{rep:?}");
 }
 
 #[test]
