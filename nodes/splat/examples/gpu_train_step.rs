@@ -8,7 +8,8 @@
 //! median and best step time on each backend and their ratio, and the median time the host
 //! spent per GPU step outside its waits for the device (recording and submitting: time in
 //! which a device that finished its work sits idle; a software adapter such as lavapipe may
-//! run a large submission's work before `submit` returns, which then counts here too). `--no-cpu` times the GPU alone (the CPU
+//! run a large submission's work before `submit` returns, which then counts here too), then
+//! per case the GPU context's waits, submissions and pooled and created buffers per step. `--no-cpu` times the GPU alone (the CPU
 //! at 1 M Gaussians and 1080p takes seconds a step); `--synthetic B` adds B synthetic views
 //! of an eighth of the size to every step (Dual at constant weights), as Staged's and Dual's
 //! batches.
@@ -105,7 +106,11 @@ fn time_steps(
     }
     let mut times = Vec::with_capacity(steps);
     let mut host = Vec::with_capacity(steps);
+    let mut counts_at_start = None;
     for i in 0..steps + 3 {
+        if i == 3 {
+            counts_at_start = gpu.as_ref().map(|g| DeviceCounts::of(g));
+        }
         let waited = gpu.as_ref().map_or(0.0, |g| g.host_wait_seconds());
         let t = Instant::now();
         let rep = trainer.step();
@@ -119,10 +124,46 @@ fn time_steps(
         }
     }
     let best = times.iter().copied().fold(f64::INFINITY, f64::min);
+    let per_step = match (&gpu, counts_at_start) {
+        (Some(g), Some(start)) => DeviceCounts::of(g).since(&start, steps as f64),
+        _ => DeviceCounts::default(),
+    };
     StepTimes {
         median: gpu_bench::median(times),
         best,
         host: gpu_bench::median(host),
+        per_step,
+    }
+}
+
+/// The GPU context's counters: host waits, submissions, buffers taken from the pool and
+/// buffers created (absolute, or per timed step after [`DeviceCounts::since`]).
+#[derive(Clone, Copy, Default)]
+struct DeviceCounts {
+    waits: f64,
+    submissions: f64,
+    reused: f64,
+    created: f64,
+}
+
+impl DeviceCounts {
+    fn of(g: &augsplat_splat::gpu::GpuContext) -> DeviceCounts {
+        let pool = g.pool_stats();
+        DeviceCounts {
+            waits: g.host_waits() as f64,
+            submissions: g.submissions() as f64,
+            reused: pool.reused as f64,
+            created: pool.created as f64,
+        }
+    }
+
+    fn since(&self, start: &DeviceCounts, steps: f64) -> DeviceCounts {
+        DeviceCounts {
+            waits: (self.waits - start.waits) / steps,
+            submissions: (self.submissions - start.submissions) / steps,
+            reused: (self.reused - start.reused) / steps,
+            created: (self.created - start.created) / steps,
+        }
     }
 }
 
@@ -133,6 +174,8 @@ struct StepTimes {
     median: f64,
     best: f64,
     host: f64,
+    /// The GPU's counters per timed step (zeros on the CPU).
+    per_step: DeviceCounts,
 }
 
 fn main() {
@@ -155,6 +198,7 @@ fn main() {
         "| N | size | GPU step (median / best) | GPU host outside waits | CPU step (median / best) | CPU / GPU |\n|---:|---|---:|---:|---:|---:|"
     );
     let mut headline = None;
+    let mut counts = Vec::new();
     for &(w, h) in &a.sizes {
         for &n in &a.counts {
             let gpu = time_steps(n, (w, h), a.reps, synthetic, Some(ctx.clone()));
@@ -176,7 +220,16 @@ fn main() {
                 gpu.best * 1e3,
                 gpu.host * 1e3
             );
+            let c = gpu.per_step;
+            counts.push(format!(
+                "{n} at {w}×{h}, per GPU step: {:.2} waits, {:.2} submissions, {:.1} buffers \
+                 from the pool, {:.1} created",
+                c.waits, c.submissions, c.reused, c.created
+            ));
         }
+    }
+    for line in counts {
+        println!("{line}");
     }
     if let Some((n, w, h, gm, gb)) = headline {
         gpu_bench::record(
