@@ -9,14 +9,16 @@
 #                                                 # $OUT (default out/lease-results)
 #
 # PARTS (default: field step bonsai; then `run paper` in a second call), each stopped at its
-# own time limit in seconds (`LEASE_<PART>_SECONDS`, defaults 45, 60 (twice), 360 and 540:
-# one call stays under 540 s):
+# own time limit in seconds (`LEASE_<PART>_SECONDS`, defaults 45, 60 (twice) and 30 (twice,
+# `LEASE_RESOLVED_SECONDS`), 330 and 540: one call stays under 560 s):
 #   field   field.txt  the radiance field's step on the GPU (forward+backward samples/s at
 #                      1,024 and 4,096 rays) and its renders (rays/s), CPU beside it
 #   step    step.txt   whole splatting steps, GPU only: 200k and 1M Gaussians at 800×533,
 #                      and the host's time per step outside its waits (the GPU's idle time);
 #                      step_synthetic.txt the same with Staged's and Dual's batch of 20
-#                      synthetic views at 1/8 the size
+#                      synthetic views at 1/8 the size; step_resolved.txt both at 200k with
+#                      each step resolved before the next is recorded (`--resolved`: no
+#                      overlap of host and device, for the comparison)
 #   bonsai  bonsai/    the bonsai baseline on the GPU at 800×533 for 30,000 steps without a
 #                      Gaussian cap (log.txt: the node's evaluations and refinements with
 #                      their times and counts; summary.json when it finishes in time)
@@ -111,6 +113,10 @@ run() {
             "$bin/gpu_train_step" 200000,1000000 800x533 20 --no-cpu
           timed "${LEASE_STEP_SECONDS:-60}" "$out/step_synthetic.txt" \
             "$bin/gpu_train_step" 200000 800x533 20 --no-cpu --synthetic 20
+          timed "${LEASE_RESOLVED_SECONDS:-30}" "$out/step_resolved.txt" \
+            "$bin/gpu_train_step" 200000 800x533 20 --no-cpu --resolved
+          timed "${LEASE_RESOLVED_SECONDS:-30}" "$out/step_resolved.txt" \
+            "$bin/gpu_train_step" 200000 800x533 20 --no-cpu --synthetic 20 --resolved
         fi
         ;;
       bonsai)
@@ -124,7 +130,7 @@ run() {
           sets+=(--set scene.downscale=1 --set params.gs_steps=30000 --set params.eval_every=3000)
           local pipeline="$work/repo/pipelines/bonsai.ron"
         fi
-        timed "${LEASE_BONSAI_SECONDS:-360}" "$out/bonsai/log.txt" \
+        timed "${LEASE_BONSAI_SECONDS:-330}" "$out/bonsai/log.txt" \
           "$bin/augsplat" run "$pipeline" "${sets[@]}" --target eval_baseline --log -q \
           --cache "$work/store-bonsai" --summary-json "$out/bonsai/summary.json"
         ;;

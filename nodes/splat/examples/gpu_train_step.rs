@@ -1,15 +1,19 @@
-//! Benchmark of whole training steps through the trainer (`Trainer::step`), on the GPU
+//! Benchmark of whole training steps through the trainer (`Trainer::advance`, as a training
+//! node runs them: a step's losses come back while the GPU runs the next), on the GPU
 //! (`backend: Gpu`: render, L2 + SSIM loss, backward, gradient sums, Adam and the
 //! densification statistics all on the GPU, the state kept there) and on the CPU, for N
 //! Gaussians at W×H.
 //!
-//! `cargo run --release -p augsplat-splat --example gpu_train_step -- [N,N,... [WxH,... [STEPS]]] [--no-cpu] [--synthetic B]`
+//! `cargo run --release -p augsplat-splat --example gpu_train_step -- [N,N,... [WxH,... [STEPS]]] [--no-cpu] [--synthetic B] [--resolved]`
 //! Defaults: 20000 at 256×256, 20 timed steps after 3 warm-up steps. Prints per case the
 //! median and best step time on each backend and their ratio, and the median time the host
-//! spent per GPU step outside its waits for the device (recording and submitting: time in
-//! which a device that finished its work sits idle; a software adapter such as lavapipe may
+//! spent per GPU step outside its waits for the device (recording and submitting: with
+//! `--resolved`, time in which a device that finished its work sits idle; otherwise the
+//! device runs the step before meanwhile, unless a wait drained it; a software adapter such as lavapipe may
 //! run a large submission's work before `submit` returns, which then counts here too), then
-//! per case the GPU context's waits, submissions and pooled and created buffers per step. `--no-cpu` times the GPU alone (the CPU
+//! per case the GPU context's waits (and of them the draining ones, after which the device had
+//! nothing queued), submissions and pooled and created buffers per step. `--resolved` resolves
+//! each step before the next is recorded (`Trainer::step`), for a comparison. `--no-cpu` times the GPU alone (the CPU
 //! at 1 M Gaussians and 1080p takes seconds a step); `--synthetic B` adds B synthetic views
 //! of an eighth of the size to every step (Dual at constant weights), as Staged's and Dual's
 //! batches.
@@ -55,6 +59,7 @@ fn time_steps(
     steps: usize,
     synthetic: usize,
     gpu: Option<Arc<augsplat_splat::gpu::GpuContext>>,
+    resolved: bool,
 ) -> StepTimes {
     let real = RealImages {
         views: vec![view(w, h)],
@@ -113,9 +118,13 @@ fn time_steps(
         }
         let waited = gpu.as_ref().map_or(0.0, |g| g.host_wait_seconds());
         let t = Instant::now();
-        let rep = trainer.step();
-        // The step's loss came back to the host: the GPU's work for it is done.
-        std::hint::black_box(rep.loss);
+        if resolved {
+            // The step's loss came back to the host: the GPU's work for it is done.
+            std::hint::black_box(trainer.step().loss);
+        } else {
+            // The step before came back; this one runs on the GPU meanwhile.
+            std::hint::black_box(trainer.advance());
+        }
         if i >= 3 {
             let wall = t.elapsed().as_secs_f64();
             times.push(wall);
@@ -123,6 +132,7 @@ fn time_steps(
             host.push(wall - waits);
         }
     }
+    std::hint::black_box(trainer.finish_steps());
     let best = times.iter().copied().fold(f64::INFINITY, f64::min);
     let per_step = match (&gpu, counts_at_start) {
         (Some(g), Some(start)) => DeviceCounts::of(g).since(&start, steps as f64),
@@ -141,6 +151,7 @@ fn time_steps(
 #[derive(Clone, Copy, Default)]
 struct DeviceCounts {
     waits: f64,
+    draining: f64,
     submissions: f64,
     reused: f64,
     created: f64,
@@ -151,6 +162,7 @@ impl DeviceCounts {
         let pool = g.pool_stats();
         DeviceCounts {
             waits: g.host_waits() as f64,
+            draining: g.draining_waits() as f64,
             submissions: g.submissions() as f64,
             reused: pool.reused as f64,
             created: pool.created as f64,
@@ -160,6 +172,7 @@ impl DeviceCounts {
     fn since(&self, start: &DeviceCounts, steps: f64) -> DeviceCounts {
         DeviceCounts {
             waits: (self.waits - start.waits) / steps,
+            draining: (self.draining - start.draining) / steps,
             submissions: (self.submissions - start.submissions) / steps,
             reused: (self.reused - start.reused) / steps,
             created: (self.created - start.created) / steps,
@@ -180,6 +193,7 @@ struct StepTimes {
 
 fn main() {
     let no_cpu = std::env::args().any(|a| a == "--no-cpu");
+    let resolved = std::env::args().any(|a| a == "--resolved");
     let synthetic = {
         let argv: Vec<String> = std::env::args().collect();
         argv.iter()
@@ -201,12 +215,12 @@ fn main() {
     let mut counts = Vec::new();
     for &(w, h) in &a.sizes {
         for &n in &a.counts {
-            let gpu = time_steps(n, (w, h), a.reps, synthetic, Some(ctx.clone()));
+            let gpu = time_steps(n, (w, h), a.reps, synthetic, Some(ctx.clone()), resolved);
             headline.get_or_insert((n, w, h, gpu.median, gpu.best));
             let cpu = if no_cpu {
                 "— | —".to_string()
             } else {
-                let cpu = time_steps(n, (w, h), a.reps, synthetic, None);
+                let cpu = time_steps(n, (w, h), a.reps, synthetic, None, resolved);
                 format!(
                     "{:.1} / {:.1} ms | {:.1}×",
                     cpu.median * 1e3,
@@ -222,9 +236,9 @@ fn main() {
             );
             let c = gpu.per_step;
             counts.push(format!(
-                "{n} at {w}×{h}, per GPU step: {:.2} waits, {:.2} submissions, {:.1} buffers \
-                 from the pool, {:.1} created",
-                c.waits, c.submissions, c.reused, c.created
+                "{n} at {w}×{h}, per GPU step: {:.2} waits ({:.2} draining), {:.2} submissions, \
+                 {:.1} buffers from the pool, {:.1} created",
+                c.waits, c.draining, c.submissions, c.reused, c.created
             ));
         }
     }

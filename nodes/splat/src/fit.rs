@@ -371,17 +371,30 @@ pub fn fit(
     let mut had_synthetic = false;
     // Only Dual switches a branch off to save time; Staged's switch is its method.
     let dual = matches!(a.schedule, crate::train::Schedule::Dual { .. });
+    // The seconds of each step recorded and not yet reported, oldest first: on a GPU a
+    // step's report comes back while the device runs the next one (`Trainer::advance`).
+    let mut seconds = std::collections::VecDeque::new();
     while trainer.steps_done() < a.steps {
         let ts = std::time::Instant::now();
-        let rep = trainer.step();
-        timing.record(&rep, ts.elapsed().as_secs_f64(), dual, &mut had_synthetic);
-        st.loss_acc += rep.loss;
-        st.loss_n += 1;
+        let mut reports = trainer.advance();
         let done = trainer.steps_done();
-        if let Some(line) = refine_line(done, &rep) {
-            on_event(FitEvent::Log(line));
+        let eval_due = done.is_multiple_of(a.eval_every) || done == a.steps;
+        let save_due = save.is_some() && every > 0 && done.is_multiple_of(every) && done < a.steps;
+        if eval_due || save_due {
+            // The curve's mean loss and a checkpoint count every step up to this one.
+            reports.extend(trainer.finish_steps());
         }
-        if done.is_multiple_of(a.eval_every) || done == a.steps {
+        seconds.push_back(ts.elapsed().as_secs_f64());
+        for rep in reports {
+            let took = seconds.pop_front().unwrap_or_default();
+            timing.record(&rep, took, dual, &mut had_synthetic);
+            st.loss_acc += rep.loss;
+            st.loss_n += 1;
+            if let Some(line) = refine_line(rep.step + 1, &rep) {
+                on_event(FitEvent::Log(line));
+            }
+        }
+        if eval_due {
             let eval = Evaluating {
                 args: a,
                 test,
@@ -394,14 +407,12 @@ pub fn fit(
                 break;
             }
         }
-        if let Some(save) = save.as_mut() {
-            if every > 0 && done.is_multiple_of(every) && done < a.steps {
-                let line = match save(write_checkpoint(&mut trainer, &st, a.steps)) {
-                    Ok(()) => format!("checkpoint at step {done}"),
-                    Err(e) => format!("warning: could not save the checkpoint at step {done}: {e}"),
-                };
-                on_event(FitEvent::Log(line));
-            }
+        if let Some(save) = save.as_mut().filter(|_| save_due) {
+            let line = match save(write_checkpoint(&mut trainer, &st, a.steps)) {
+                Ok(()) => format!("checkpoint at step {done}"),
+                Err(e) => format!("warning: could not save the checkpoint at step {done}: {e}"),
+            };
+            on_event(FitEvent::Log(line));
         }
         on_event(FitEvent::Progress {
             done,

@@ -5,4 +5,4 @@
 pub use augsplat_render::gpu::*;
 
 pub use crate::loss::gpu::{loss_gpu, pack_u8, u8_values_table, GpuLoss};
-pub(crate) use crate::train::gpu::{GpuTarget, GpuTrainer, PendingView, ViewLoss};
+pub(crate) use crate::train::gpu::{GpuTarget, GpuTrainer, PendingView, ViewLoss, ViewResult};

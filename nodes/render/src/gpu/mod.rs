@@ -44,6 +44,7 @@ mod pool;
 pub mod prelude;
 pub mod sort;
 mod submit;
+mod ticket;
 
 #[cfg(feature = "determinism-cost")]
 pub use crate::backward::gpu::backward_gpu_atomic;
@@ -59,6 +60,7 @@ pub use crate::forward::gpu::{
 use pool::Contents;
 pub use pool::{GpuBuffer, PoolStats, DEFAULT_IDLE_BYTES};
 use std::sync::mpsc;
+pub use ticket::ReadTicket;
 
 /// What can go wrong on the GPU.
 #[derive(Debug, thiserror::Error)]
@@ -152,6 +154,8 @@ pub struct GpuContext {
     pool: std::sync::Arc<pool::Pool>,
     /// Times the host has waited for the device ([`GpuContext::host_waits`]).
     waits: std::sync::atomic::AtomicU64,
+    /// Of those, the waits for the latest submission ([`GpuContext::draining_waits`]).
+    draining_waits: std::sync::atomic::AtomicU64,
     /// Nanoseconds the host has spent in those waits ([`GpuContext::host_wait_seconds`]).
     wait_nanos: std::sync::atomic::AtomicU64,
     /// Encoders kept for the next submission (`gpu/submit.rs`).
@@ -305,6 +309,7 @@ impl GpuContext {
             extensions: Default::default(),
             pool: Default::default(),
             waits: Default::default(),
+            draining_waits: Default::default(),
             wait_nanos: Default::default(),
             pending: Default::default(),
             submissions: Default::default(),
@@ -544,7 +549,7 @@ impl GpuContext {
     /// far has run.
     pub fn wait(&self) -> Result<(), GpuError> {
         self.submit_kept(None);
-        self.count_wait();
+        self.count_wait(true);
         let started = std::time::Instant::now();
         let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
         self.add_wait_time(started);
@@ -559,9 +564,23 @@ impl GpuContext {
         self.waits.load(std::sync::atomic::Ordering::Relaxed)
     }
 
-    fn count_wait(&self) {
+    /// How many of [`GpuContext::host_waits`] waited for the latest submission: the device
+    /// had nothing queued behind the awaited work, so it sat idle from the end of that work
+    /// until the host submitted again. A wait for an earlier submission
+    /// ([`ReadTicket::wait`] while later work is queued) leaves the device busy.
+    pub fn draining_waits(&self) -> u64 {
+        self.draining_waits
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Counts a wait (`draining`: for the latest submission).
+    pub(crate) fn count_wait(&self, draining: bool) {
         self.waits
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        if draining {
+            self.draining_waits
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
     }
 
     /// The seconds the host has spent waiting for the device on this context: a step's wall
@@ -571,7 +590,7 @@ impl GpuContext {
         self.wait_nanos.load(std::sync::atomic::Ordering::Relaxed) as f64 * 1e-9
     }
 
-    fn add_wait_time(&self, started: std::time::Instant) {
+    pub(crate) fn add_wait_time(&self, started: std::time::Instant) {
         let nanos = u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX);
         self.wait_nanos
             .fetch_add(nanos, std::sync::atomic::Ordering::Relaxed);
@@ -654,7 +673,7 @@ impl GpuContext {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.count_wait();
+        self.count_wait(true);
         let started = std::time::Instant::now();
         let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
         self.add_wait_time(started);

@@ -89,15 +89,19 @@ impl GpuContext {
     }
 
     /// Submits the kept encoders and then `last`, in one submission (none when there is
-    /// nothing to submit).
-    pub(crate) fn submit_kept(&self, last: Option<wgpu::CommandBuffer>) {
+    /// nothing to submit): the submission's number ([`GpuContext::submissions`] after it)
+    /// and wgpu's index of it.
+    pub(crate) fn submit_kept(
+        &self,
+        last: Option<wgpu::CommandBuffer>,
+    ) -> Option<(u64, wgpu::SubmissionIndex)> {
         let kept = self
             .pending
             .lock()
             .map(|mut p| std::mem::take(&mut *p))
             .unwrap_or_default();
         if kept.is_empty() && last.is_none() {
-            return;
+            return None;
         }
         let all: Vec<wgpu::CommandBuffer> = kept
             .clears
@@ -106,7 +110,10 @@ impl GpuContext {
             .chain(kept.buffers)
             .chain(last)
             .collect();
-        self.count_submission();
-        self.queue.submit(all);
+        let number = self
+            .submissions
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+            + 1;
+        Some((number, self.queue.submit(all)))
     }
 }

@@ -39,11 +39,15 @@ struct AdamConst {
 @group(0) @binding(3) var<storage, read_write> m1: array<f32>;
 @group(0) @binding(4) var<storage, read_write> m2: array<f32>;
 @group(0) @binding(5) var<storage, read> visible: array<u32>;
+// The training state's overflow flag (bound whole): while a step's views are incomplete (one
+// outgrew its pair slots), its update and those recorded behind it change nothing; the host
+// runs them again once it has seen the flag.
+@group(0) @binding(6) var<storage, read> overflow: array<u32>;
 
 @compute @workgroup_size(256)
 fn adam(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let idx = gid.x + gid.y * nwg.x * 256u;
-    if (idx >= c.n * c.width) {
+    if (idx >= c.n * c.width || overflow[0] != 0u) {
         return;
     }
     let i = idx / c.width;

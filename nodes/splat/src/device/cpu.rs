@@ -106,8 +106,8 @@ impl TrainingDevice for CpuTraining {
         _st: &mut TrainState,
         _views: &[ViewTask<'_>],
         _s: &RenderSettings,
-    ) -> Result<Vec<(f64, u64)>, GpuError> {
-        Ok(std::mem::take(&mut self.results))
+    ) -> Result<Option<Vec<(f64, u64)>>, GpuError> {
+        Ok(Some(std::mem::take(&mut self.results)))
     }
 
     fn adam_step(

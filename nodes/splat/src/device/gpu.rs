@@ -1,16 +1,16 @@
 //! The GPU device: the WGSL kernels through one shared [`GpuContext`], with the training state
 //! kept in GPU buffers between steps ([`crate::gpu::GpuTrainer`]).
 
-use super::{DeviceModel, Frame, SplatDevice, TrainState, TrainingDevice, ViewTask};
-use crate::adam::LearningRates;
+use super::{DeviceModel, Frame, SplatDevice, StepViews, TrainState, TrainingDevice, ViewTask};
+use crate::adam::{GpuStepConst, LearningRates};
 use crate::densify::{gpu::Refinement, RefineReport};
 use crate::gpu::{
     backward_gpu, render_scene, AdapterSummary, GpuContext, GpuError, GpuScene, GpuTarget,
-    GpuTrainer, PendingView, ViewLoss,
+    GpuTrainer, PendingView, ReadTicket, ViewLoss, ViewResult,
 };
 use crate::{Gaussians, Gradients, RenderSettings};
 use augsplat_core::Camera;
-use std::collections::{hash_map::Entry, HashMap};
+use std::collections::{hash_map::Entry, HashMap, VecDeque};
 use std::sync::Arc;
 
 /// A GPU behind its context.
@@ -41,6 +41,7 @@ impl SplatDevice for GpuDevice {
             pairs_by_size: HashMap::new(),
             overflows: 0,
             pending: Vec::new(),
+            in_flight: VecDeque::new(),
             kept_pixels: 0,
         })
     }
@@ -113,6 +114,8 @@ struct GpuTraining {
     overflows: u64,
     /// The step's views whose loss and counts are still on the device.
     pending: Vec<PendingView>,
+    /// The steps whose results are on their way back, oldest first.
+    in_flight: VecDeque<InFlightStep>,
     /// The pixels of the views kept for the next submission ([`SUBMIT_PIXELS`]).
     kept_pixels: u64,
     /// A bound on every Gaussian's view count in the GPU's statistics: the largest count
@@ -205,6 +208,95 @@ impl GpuTraining {
     }
 }
 
+impl GpuTraining {
+    /// An error unless every step is resolved: the state may lack a step's update until the
+    /// trainer resolves it ([`TrainingDevice::resolve`]).
+    fn settled(&self) -> Result<(), GpuError> {
+        match self.in_flight.len() {
+            0 => Ok(()),
+            k => Err(GpuError::Invalid(format!(
+                "{k} training steps are still in flight: resolve them first"
+            ))),
+        }
+    }
+
+    /// Keeps each view's pair counts for its next pass (and its size's largest); the index
+    /// of the first view whose pass outgrew its slots.
+    fn note_counts(
+        &mut self,
+        views: &[ViewTask<'_>],
+        results: &[ViewResult],
+    ) -> Result<Option<usize>, GpuError> {
+        let mut overflowed = None;
+        for (k, r) in results.iter().enumerate() {
+            let v = views.get(k).ok_or_else(|| {
+                GpuError::Invalid(format!("{} views added, {} given", k + 1, views.len()))
+            })?;
+            self.tile_pairs.insert((v.synthetic, v.index), r.tile_pairs);
+            let cam = v.source.camera(v.index);
+            let largest = self
+                .pairs_by_size
+                .entry((cam.width, cam.height))
+                .or_default();
+            *largest = (*largest).max(r.tile_pairs);
+            if r.overflowed && overflowed.is_none() {
+                overflowed = Some(k);
+            }
+        }
+        Ok(overflowed)
+    }
+
+    /// Runs `views` in order, each pass counted first (so none outgrows its slots), and waits
+    /// for their results.
+    fn run_counted(
+        &mut self,
+        st: &mut TrainState,
+        views: &[ViewTask<'_>],
+        s: &RenderSettings,
+    ) -> Result<Vec<(f64, u64)>, GpuError> {
+        let ctx = self.ctx.clone();
+        let mut pending = Vec::with_capacity(views.len());
+        for v in views {
+            pending.push(self.record_view(*v, s, None)?);
+        }
+        let results = self.state(st)?.finish(&ctx, &pending)?;
+        self.kept_pixels = 0;
+        drop(pending);
+        ctx.reclaim();
+        if let Some(k) = self.note_counts(views, &results)? {
+            return Err(GpuError::Invalid(format!(
+                "view {k} of a step run again outgrew the slots it counted"
+            )));
+        }
+        Ok(results.iter().map(|r| (r.loss, r.pairs)).collect())
+    }
+
+    /// Records a step's update again, with the constants it was first recorded with.
+    fn replay_update(
+        &mut self,
+        st: &mut TrainState,
+        update: Option<([GpuStepConst; 5], bool)>,
+    ) -> Result<(), GpuError> {
+        if let Some((consts, dense)) = update {
+            let ctx = self.ctx.clone();
+            self.state(st)?.adam_step(&ctx, &consts, dense)?;
+        }
+        Ok(())
+    }
+}
+
+/// A step whose views' results are on their way back ([`TrainingDevice::resolve`]).
+struct InFlightStep {
+    /// The views, as recorded.
+    views: Vec<PendingView>,
+    /// Their losses' and counts' read-back.
+    ticket: ReadTicket,
+    /// The step's active SH width.
+    sh_active: usize,
+    /// The step's update once recorded: Adam's constants and whether it is dense.
+    adam: Option<([GpuStepConst; 5], bool)>,
+}
+
 impl TrainingDevice for GpuTraining {
     fn begin_step(&mut self, st: &mut TrainState, sh_active: usize) -> Result<(), GpuError> {
         self.sh_active = sh_active;
@@ -251,54 +343,90 @@ impl TrainingDevice for GpuTraining {
         &mut self,
         st: &mut TrainState,
         views: &[ViewTask<'_>],
-        s: &RenderSettings,
-    ) -> Result<Vec<(f64, u64)>, GpuError> {
+        _s: &RenderSettings,
+    ) -> Result<Option<Vec<(f64, u64)>>, GpuError> {
+        let pending = std::mem::take(&mut self.pending);
+        if pending.len() != views.len() {
+            return Err(GpuError::Invalid(format!(
+                "{} views added, {} given",
+                pending.len(),
+                views.len()
+            )));
+        }
+        // Submitted with the step's last views, collected by `resolve` (a step later in a
+        // training loop, while the device runs the next step).
         let ctx = self.ctx.clone();
-        let mut done: Vec<(f64, u64)> = Vec::with_capacity(views.len());
-        while !self.pending.is_empty() {
-            let pending = std::mem::take(&mut self.pending);
-            // One wait for every pending view's loss and counts.
-            let results = self.state(st)?.finish(&ctx, &pending)?;
-            // The read-back submitted everything kept.
-            self.kept_pixels = 0;
-            let first = done.len();
-            let mut overflowed = None;
-            for (k, r) in results.iter().enumerate() {
-                let v = views.get(first + k).ok_or_else(|| {
-                    GpuError::Invalid(format!(
-                        "{} views added, {} given",
-                        first + k + 1,
-                        views.len()
-                    ))
-                })?;
-                self.tile_pairs.insert((v.synthetic, v.index), r.tile_pairs);
-                let cam = v.source.camera(v.index);
-                let largest = self
-                    .pairs_by_size
-                    .entry((cam.width, cam.height))
-                    .or_default();
-                *largest = (*largest).max(r.tile_pairs);
-                if r.overflowed && overflowed.is_none() {
-                    overflowed = Some(k);
-                }
-                if overflowed.is_none() {
-                    done.push((r.loss, r.pairs));
-                }
-            }
-            drop(pending);
+        let ticket = self.state(st)?.read_later(&ctx, &pending)?;
+        self.kept_pixels = 0;
+        // Everything recorded so far is submitted: the buffers the step let go are free
+        // (those its results sit in go when it is resolved).
+        ctx.reclaim();
+        self.in_flight.push_back(InFlightStep {
+            views: pending,
+            ticket,
+            sh_active: self.sh_active,
+            adam: None,
+        });
+        Ok(None)
+    }
+
+    fn in_flight(&self) -> usize {
+        self.in_flight.len()
+    }
+
+    fn resolve(
+        &mut self,
+        st: &mut TrainState,
+        steps: &[StepViews<'_>],
+        keep: usize,
+    ) -> Result<Vec<Vec<(f64, u64)>>, GpuError> {
+        if steps.len() != self.in_flight.len() {
+            return Err(GpuError::Invalid(format!(
+                "{} steps in flight, {} given",
+                self.in_flight.len(),
+                steps.len()
+            )));
+        }
+        let ctx = self.ctx.clone();
+        let mut out: Vec<Vec<(f64, u64)>> = Vec::with_capacity(steps.len());
+        while self.in_flight.len() > keep {
+            let Some(step) = self.in_flight.pop_front() else {
+                break;
+            };
+            let at = steps[out.len()];
+            let words = step.ticket.wait(&ctx)?;
+            let results = GpuTrainer::results(&step.views, &words);
+            drop(step.views);
             ctx.reclaim();
-            if let Some(k) = overflowed {
-                // The views from the first that outgrew its slots added nothing: run them
-                // again in order, each counted first.
-                self.overflows += 1;
-                self.state(st)?.clear_overflow(&ctx)?;
-                for v in &views[first + k..] {
-                    let p = self.record_view(*v, s, None)?;
-                    self.pending.push(p);
-                }
+            let overflowed = self.note_counts(at.views, &results)?;
+            let kept = overflowed.unwrap_or(results.len());
+            let mut done: Vec<(f64, u64)> =
+                results[..kept].iter().map(|r| (r.loss, r.pairs)).collect();
+            let Some(k) = overflowed else {
+                out.push(done);
+                continue;
+            };
+            // The views from the first that outgrew its slots added nothing, and the flag
+            // kept every later step's clears, sums and updates from running: this step runs
+            // again from that view, each pass counted first, then every later step whole.
+            self.overflows += 1;
+            self.state(st)?.clear_overflow(&ctx)?;
+            self.sh_active = step.sh_active;
+            done.extend(self.run_counted(st, &at.views[k..], at.settings)?);
+            self.replay_update(st, step.adam)?;
+            out.push(done);
+            for later in std::mem::take(&mut self.in_flight) {
+                let at = steps[out.len()];
+                drop(later.ticket);
+                drop(later.views);
+                self.sh_active = later.sh_active;
+                self.state(st)?.begin_step(&ctx)?;
+                let done = self.run_counted(st, at.views, at.settings)?;
+                self.replay_update(st, later.adam)?;
+                out.push(done);
             }
         }
-        Ok(done)
+        Ok(out)
     }
 
     fn adam_step(
@@ -311,11 +439,19 @@ impl TrainingDevice for GpuTraining {
         let ctx = self.ctx.clone();
         let consts = st.adam.next_gpu_consts(self.sh_active, lr, means_lr);
         self.state(st)?.adam_step(&ctx, &consts, dense)?;
+        if let Some(step) = self.in_flight.back_mut() {
+            if step.adam.replace((consts, dense)).is_some() {
+                return Err(GpuError::Invalid(
+                    "two updates recorded for one step".into(),
+                ));
+            }
+        }
         self.ahead = true;
         Ok(())
     }
 
     fn sync(&mut self, st: &mut TrainState) -> Result<(), GpuError> {
+        self.settled()?;
         if self.ahead {
             if let Some(gs) = &self.state {
                 gs.download(&self.ctx, &mut st.g, &mut st.adam, &mut st.densifier)?;
@@ -334,6 +470,8 @@ impl TrainingDevice for GpuTraining {
     fn discard(&mut self) {
         self.state = None;
         self.ahead = false;
+        self.pending.clear();
+        self.in_flight.clear();
     }
 
     fn post_update(
@@ -341,6 +479,7 @@ impl TrainingDevice for GpuTraining {
         st: &mut TrainState,
         r: &Refinement<'_>,
     ) -> Result<RefineReport, GpuError> {
+        self.settled()?;
         let ctx = self.ctx.clone();
         self.state(st)?;
         let bound = self.count_bound;
@@ -362,6 +501,7 @@ impl TrainingDevice for GpuTraining {
     }
 
     fn reset_for_switch(&mut self, st: &mut TrainState, value: f64) -> Result<(), GpuError> {
+        self.settled()?;
         let Some(state) = &self.state else {
             super::reset_for_switch_on_host(st, value);
             return Ok(());
@@ -386,6 +526,7 @@ impl TrainingDevice for GpuTraining {
         cam: &Camera,
         s: &RenderSettings,
     ) -> Result<Frame, GpuError> {
+        self.settled()?;
         let ctx = self.ctx.clone();
         let state = self.state(st)?;
         let f = render_scene(&ctx, state.scene(), cam, s)?;
@@ -403,24 +544,29 @@ impl TrainingDevice for GpuTraining {
 #[cfg(test)]
 mod tests {
     //! Views sized too small run again from the first that outgrew its slots: the same
-    //! results and the same bits in the step's sums as views counted first. Skips without an
-    //! adapter (fails under `CI=true`).
+    //! results and the same bits in the step's sums as views counted first — also when the
+    //! step is resolved a step late, behind a step recorded on the flagged state. Skips
+    //! without an adapter (fails under `CI=true`).
 
     use super::*;
     use crate::adam::Adam;
     use crate::densify::Densifier;
     use crate::train::{RealImages, RealLoss, RealView};
 
-    #[test]
-    fn views_that_outgrew_their_slots_run_again_in_order() {
-        let test = "views_that_outgrew_their_slots_run_again_in_order";
-        let ctx = match GpuContext::new() {
-            Ok(c) => Arc::new(c),
+    /// A context, or `None` when the test skips.
+    fn context(test: &str) -> Option<Arc<GpuContext>> {
+        match GpuContext::new() {
+            Ok(c) => Some(Arc::new(c)),
             Err(e @ GpuError::NoAdapter { .. }) => {
-                return augsplat_testkit::skip(test, &e.to_string())
+                augsplat_testkit::skip(test, &e.to_string());
+                None
             }
             Err(e) => panic!("{test}: {e}"),
-        };
+        }
+    }
+
+    /// Three 64×48 views of a striped target, side by side.
+    fn photos() -> RealImages {
         let views: Vec<RealView> = (0..3)
             .map(|k| {
                 let x = 0.1 * k as f64;
@@ -442,17 +588,65 @@ mod tests {
                 }
             })
             .collect();
-        let real = RealImages {
+        RealImages {
             views,
             loss: RealLoss::default(),
+        }
+    }
+
+    /// A fresh training state of `g`.
+    fn fresh(g: &Gaussians) -> TrainState {
+        TrainState {
+            adam: Adam::new(g.len(), g.coeffs()),
+            densifier: Densifier::new(g.len()),
+            g: g.clone(),
+        }
+    }
+
+    /// A GPU training half whose views' passes are sized from `estimates` (None: counted
+    /// first).
+    fn training(ctx: &Arc<GpuContext>, estimates: [Option<u32>; 3]) -> GpuTraining {
+        let mut t = GpuTraining {
+            ctx: ctx.clone(),
+            state: None,
+            ahead: false,
+            targets: HashMap::new(),
+            sh_active: 12,
+            count_bound: 0,
+            tile_pairs: HashMap::new(),
+            pairs_by_size: HashMap::new(),
+            overflows: 0,
+            pending: Vec::new(),
+            in_flight: VecDeque::new(),
+            kept_pixels: 0,
         };
+        for (k, e) in estimates.iter().enumerate() {
+            if let Some(c) = e {
+                t.tile_pairs.insert((false, k), *c);
+            }
+        }
+        t
+    }
+
+    /// Records one step of `views` with its update.
+    fn record(t: &mut GpuTraining, st: &mut TrainState, views: &[ViewTask<'_>]) {
+        let s = RenderSettings::default();
+        t.begin_step(st, 12).unwrap();
+        for v in views {
+            t.add_view(st, *v, &s).unwrap();
+        }
+        assert_eq!(t.end_views(st, views, &s).unwrap(), None);
+        t.adam_step(st, &LearningRates::default(), 1.6e-4, false)
+            .unwrap();
+    }
+
+    #[test]
+    fn views_that_outgrew_their_slots_run_again_in_order() {
+        let test = "views_that_outgrew_their_slots_run_again_in_order";
+        let Some(ctx) = context(test) else { return };
+        let real = photos();
         let g = Gaussians::random_cloud(1500, 8.0 / 64.0, 9);
         let n = g.len();
-        let fresh = || TrainState {
-            adam: Adam::new(n, g.coeffs()),
-            densifier: Densifier::new(n),
-            g: g.clone(),
-        };
         let s = RenderSettings::default();
         let tasks: Vec<ViewTask<'_>> = (0..3)
             .map(|index| ViewTask {
@@ -463,32 +657,19 @@ mod tests {
                 stats: Some(1.0),
             })
             .collect();
-        // Estimates per view (None: counted first).
         let run = |estimates: [Option<u32>; 3]| {
-            let mut t = GpuTraining {
-                ctx: ctx.clone(),
-                state: None,
-                ahead: false,
-                targets: HashMap::new(),
-                sh_active: 12,
-                count_bound: 0,
-                tile_pairs: HashMap::new(),
-                pairs_by_size: HashMap::new(),
-                overflows: 0,
-                pending: Vec::new(),
-                kept_pixels: 0,
-            };
-            for (k, e) in estimates.iter().enumerate() {
-                if let Some(c) = e {
-                    t.tile_pairs.insert((false, k), *c);
-                }
-            }
-            let mut st = fresh();
+            let mut t = training(&ctx, estimates);
+            let mut st = fresh(&g);
             t.begin_step(&mut st, 12).unwrap();
             for v in &tasks {
                 t.add_view(&mut st, *v, &s).unwrap();
             }
-            let results = t.end_views(&mut st, &tasks, &s).unwrap();
+            assert_eq!(t.end_views(&mut st, &tasks, &s).unwrap(), None);
+            let step = StepViews {
+                views: &tasks,
+                settings: &s,
+            };
+            let results = t.resolve(&mut st, &[step], 0).unwrap().remove(0);
             let state = t.state.as_ref().unwrap();
             let sums = [
                 ctx.read_words(&state.acc_grads, crate::gpu::PARAM_GRAD_STRIDE * n),
@@ -515,5 +696,86 @@ mod tests {
                 "{estimates:?}: the step's sums differ"
             );
         }
+    }
+
+    #[test]
+    fn a_step_that_outgrew_its_slots_runs_again_with_the_step_recorded_behind_it() {
+        let test = "a_step_that_outgrew_its_slots_runs_again_with_the_step_recorded_behind_it";
+        let Some(ctx) = context(test) else { return };
+        let real = photos();
+        let g = Gaussians::random_cloud(1500, 8.0 / 64.0, 9);
+        let s = RenderSettings::default();
+        let task = |index| ViewTask {
+            source: &real,
+            index,
+            synthetic: false,
+            scale: 1.0,
+            stats: Some(1.0),
+        };
+        let first = [task(0), task(1), task(2)];
+        let second = [task(2), task(0)];
+        let steps = [
+            StepViews {
+                views: &first,
+                settings: &s,
+            },
+            StepViews {
+                views: &second,
+                settings: &s,
+            },
+        ];
+        // Two steps, each resolved before the next is recorded, every pass counted first.
+        let mut t = training(&ctx, [None; 3]);
+        let mut want = fresh(&g);
+        record(&mut t, &mut want, &first);
+        let mut want_results = t.resolve(&mut want, &steps[..1], 0).unwrap();
+        record(&mut t, &mut want, &second);
+        want_results.extend(t.resolve(&mut want, &steps[1..], 0).unwrap());
+        t.sync(&mut want).unwrap();
+        assert_eq!(t.overflows, 0);
+        let before = ctx.draining_waits();
+        // The same two steps, the second recorded before the first is resolved, with view
+        // 1's pass far too small: the first step's views from view 1 on and its update, and
+        // the whole second step, ran on the flagged state and changed nothing.
+        let mut t = training(&ctx, [Some(100_000), Some(0), Some(100_000)]);
+        let mut got = fresh(&g);
+        record(&mut t, &mut got, &first);
+        record(&mut t, &mut got, &second);
+        assert_eq!(t.in_flight(), 2);
+        assert!(
+            t.sync(&mut got).is_err(),
+            "the state is not read while steps are in flight"
+        );
+        let waits = ctx.host_waits();
+        let results = t.resolve(&mut got, &steps, 1).unwrap();
+        assert!(ctx.host_waits() > waits);
+        assert_eq!(t.overflows, 1);
+        assert_eq!(t.in_flight(), 0, "the step behind ran again too");
+        assert_eq!(results, want_results);
+        t.sync(&mut got).unwrap();
+        assert!(got.g == want.g, "the Gaussians differ");
+        assert!(got.adam == want.adam, "Adam's moments differ");
+        assert_eq!(got.densifier.count, want.densifier.count);
+        assert_eq!(got.densifier.grad2d, want.densifier.grad2d);
+        assert!(ctx.draining_waits() > before);
+        // Without an overflow the first step resolves while the second is queued behind
+        // it: that wait leaves the device busy.
+        let mut t = training(&ctx, [Some(100_000); 3]);
+        let mut lagged = fresh(&g);
+        record(&mut t, &mut lagged, &first);
+        record(&mut t, &mut lagged, &second);
+        let draining = ctx.draining_waits();
+        let waits = ctx.host_waits();
+        let mut results = t.resolve(&mut lagged, &steps, 1).unwrap();
+        assert_eq!(
+            (ctx.host_waits() - waits, ctx.draining_waits() - draining),
+            (1, 0)
+        );
+        assert_eq!(t.in_flight(), 1);
+        results.extend(t.resolve(&mut lagged, &steps[1..], 0).unwrap());
+        assert_eq!(results, want_results);
+        t.sync(&mut lagged).unwrap();
+        assert!(lagged.g == want.g, "the Gaussians differ");
+        assert!(lagged.adam == want.adam, "Adam's moments differ");
     }
 }

@@ -12,7 +12,9 @@
 //!   [`TrainingDevice::begin_step`], [`TrainingDevice::add_view`] (render, loss, gradient and
 //!   densification statistic of one view, summed into the step's gradients in a fixed order)
 //!   and [`TrainingDevice::adam_step`], and densification and opacity resets where the state
-//!   lives ([`TrainingDevice::post_update`], [`TrainingDevice::reset_for_switch`]);
+//!   lives ([`TrainingDevice::post_update`], [`TrainingDevice::reset_for_switch`]); a step's
+//!   losses and pair counts may come back later ([`TrainingDevice::end_views`] gives `None`
+//!   and [`TrainingDevice::resolve`] collects them while the device runs the next step);
 //!   [`TrainingDevice::sync`] and [`TrainingDevice::release`] bring the state back to the host
 //!   where the host must see or change it (checkpoints, the end of a run, a refinement the
 //!   device cannot do).
@@ -99,6 +101,16 @@ pub struct ViewTask<'a> {
     pub stats: Option<f32>,
 }
 
+/// The views of one step in flight and the settings they were added with, for
+/// [`TrainingDevice::resolve`].
+#[derive(Clone, Copy)]
+pub struct StepViews<'a> {
+    /// The views, in the order they were added.
+    pub views: &'a [ViewTask<'a>],
+    /// The step's render settings.
+    pub settings: &'a RenderSettings,
+}
+
 /// The device's half of one training run (see the module documentation). Every method
 /// leaves the sums in the CPU trainer's order, so a step is the same maths on every device.
 pub trait TrainingDevice {
@@ -115,16 +127,34 @@ pub trait TrainingDevice {
         s: &RenderSettings,
     ) -> Result<(), GpuError>;
     /// After the step's last view: (the loss without `scale`, composited pairs) of each view
-    /// added since [`TrainingDevice::begin_step`], in order. `views` are those views as they
-    /// were added (with `s`, the step's settings): a device that must run some again (a
-    /// forward pass that outgrew its sizing) runs them from the first such one, in order, so
-    /// the sums keep their order.
+    /// added since [`TrainingDevice::begin_step`], in order, when the device has them now
+    /// (the CPU); `None` when they are still on their way (the GPU), for
+    /// [`TrainingDevice::resolve`]. `views` are those views as they were added (with `s`,
+    /// the step's settings): a device that must run some again (a forward pass that outgrew
+    /// its sizing) runs them from the first such one, in order, so the sums keep their order.
     fn end_views(
         &mut self,
         st: &mut TrainState,
         views: &[ViewTask<'_>],
         s: &RenderSettings,
-    ) -> Result<Vec<(f64, u64)>, GpuError>;
+    ) -> Result<Option<Vec<(f64, u64)>>, GpuError>;
+    /// The steps whose [`TrainingDevice::end_views`] gave `None` and are not resolved yet,
+    /// oldest first.
+    fn in_flight(&self) -> usize {
+        0
+    }
+    /// Resolves the oldest of the [`TrainingDevice::in_flight`] steps until at most `keep`
+    /// remain, and returns their views' results as `end_views` would have, oldest first
+    /// (more steps than asked when a step must run again: then every later step runs again
+    /// behind it). `steps` are the in-flight steps' views and settings, oldest first.
+    fn resolve(
+        &mut self,
+        _st: &mut TrainState,
+        _steps: &[StepViews<'_>],
+        _keep: usize,
+    ) -> Result<Vec<Vec<(f64, u64)>>, GpuError> {
+        Ok(Vec::new())
+    }
     /// One Adam step with the step's sums: over every Gaussian with `dense`, otherwise over
     /// those some view of the step saw; `means_lr` is the means' rate at this step.
     fn adam_step(

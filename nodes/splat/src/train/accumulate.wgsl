@@ -118,3 +118,17 @@ fn flag_overflow() {
         overflow[0] = 1u;
     }
 }
+
+// A step's sums zeroed at its start (`c.n` Gaussians of `c.sh_width` words each), unless the
+// overflow flag is set: a step recorded behind one whose pairs outgrew their slots must leave
+// that step's sums as they are, for the host to complete them when it runs the views again.
+@group(0) @binding(16) var<storage, read_write> zeroed: array<u32>;
+
+@compute @workgroup_size(256)
+fn clear_sums(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let idx = gid.x + gid.y * nwg.x * 256u;
+    if (idx >= c.n * c.sh_width || overflow[0] != 0u) {
+        return;
+    }
+    zeroed[idx] = 0u;
+}

@@ -1,7 +1,9 @@
 //! The training step on the GPU: the Gaussians, Adam's moments, the step's gradient sums and
 //! the densification statistics live in GPU buffers from one step to the next, so a step
 //! sends nothing to the GPU but its camera and (for a loss computed on the host) one colour
-//! gradient, and reads back only the loss and the pair counts, once per view.
+//! gradient, and reads back only the loss and the pair counts, once per view, without waiting
+//! for them ([`GpuTrainer::read_later`]): the training device collects them while the GPU
+//! runs the next step.
 //!
 //! Per view ([`GpuTrainer::add_view`]): the forward kernels, the loss and its colour
 //! gradient, the compositing backward, the projection backward, then `accumulate.wgsl` adds
@@ -9,7 +11,9 @@
 //! views one after another, so every sum has the CPU trainer's order. A view's forward pass
 //! is sized from the view's last pair count (its first pass counts first: one more wait); a
 //! pass whose pairs outgrew the slots adds nothing (the accumulation checks the count on the
-//! device) and runs again, counted first, so the bytes never depend on the sizing. Per step
+//! device) and runs again, counted first, so the bytes never depend on the sizing. The flag is
+//! sticky: the clears, sums and Adam updates of the steps recorded behind an overflowed one
+//! change nothing until the host, a step later, has run them again. Per step
 //! ([`GpuTrainer::adam_step`]): `adam/adam.wgsl` once per parameter group, with the constants
 //! the CPU's `Adam` computes. Densification, every opacity reset (`Periodic`, `KeepVisible`,
 //! and Staged's and Dual's at a switch) run on the device too (`densify/gpu.rs`, one wait per
@@ -24,7 +28,7 @@ use crate::backward::gpu::{
 };
 use crate::densify::Densifier;
 use crate::forward::gpu::{forward_pass_in, tile_grid, GpuScene, IMAGE_STRIDE};
-use crate::gpu::{f32_words, GpuBuffer, GpuContext, GpuError};
+use crate::gpu::{f32_words, GpuBuffer, GpuContext, GpuError, ReadTicket};
 use crate::loss::gpu::{record_loss, GpuLoss, TargetBuffer};
 use crate::render::{Cutoff, RenderSettings};
 use crate::Gaussians;
@@ -349,14 +353,28 @@ impl GpuTrainer {
         ctx.defer(enc)
     }
 
-    /// Clears the step's gradient sums and visibility (before the step's first view).
+    /// Clears the step's gradient sums and visibility (before the step's first view), on the
+    /// device unless the overflow flag is set: a step recorded behind one whose views are
+    /// incomplete leaves that step's sums alone (the flag stays set until
+    /// [`GpuTrainer::clear_overflow`]).
     pub fn begin_step(&self, ctx: &GpuContext) -> Result<(), GpuError> {
         ctx.scoped(|| {
             let mut enc = ctx.device.create_command_encoder(&Default::default());
-            enc.clear_buffer(&self.acc_grads, 0, None);
-            enc.clear_buffer(&self.acc_sh, 0, None);
-            enc.clear_buffer(&self.acc_visible, 0, None);
-            enc.clear_buffer(&self.overflow, 0, None);
+            let n = self.scene.n;
+            for (buf, width) in [
+                (&self.acc_grads, PARAM_GRAD_STRIDE as u32),
+                (&self.acc_sh, 3 * self.scene.coeffs),
+                (&self.acc_visible, 1),
+            ] {
+                ctx.dispatch_items(
+                    &mut enc,
+                    &self.kernels.clear_sums,
+                    (&[n, width, 0, 0, 0, 0, 0, 0], 0),
+                    &[(16, buf, u64::from(width)), (13, &self.overflow, 0)],
+                    n,
+                    width,
+                )?;
+            }
             ctx.defer(enc)
         })
     }
@@ -537,11 +555,26 @@ impl GpuTrainer {
         ctx: &GpuContext,
         views: &[PendingView],
     ) -> Result<Vec<ViewResult>, GpuError> {
+        let words = self.read_later(ctx, views)?.wait(ctx)?;
+        Ok(Self::results(views, &words))
+    }
+
+    /// Submits the copies of `views`' losses and counts without waiting: their results are
+    /// [`GpuTrainer::results`] of the ticket's words.
+    pub fn read_later(
+        &self,
+        ctx: &GpuContext,
+        views: &[PendingView],
+    ) -> Result<ReadTicket, GpuError> {
         let parts: Vec<_> = views.iter().flat_map(PendingView::parts).collect();
         let enc = ctx.device.create_command_encoder(&Default::default());
-        let words = ctx.read_after(enc, &parts)?;
+        ctx.read_later(enc, &parts)
+    }
+
+    /// The results of `views` (in order) from the words of their read-back.
+    pub fn results(views: &[PendingView], words: &[Vec<u32>]) -> Vec<ViewResult> {
         let mut at = 0;
-        Ok(views
+        views
             .iter()
             .map(|v| {
                 let k = v.parts().len();
@@ -549,7 +582,7 @@ impl GpuTrainer {
                 at += k;
                 r
             })
-            .collect())
+            .collect()
     }
 
     /// One Adam step over every group with the step's summed gradients; `dense` updates
@@ -607,6 +640,7 @@ impl GpuTrainer {
                         (3, &self.moments[k].0, w),
                         (4, &self.moments[k].1, w),
                         (5, &self.acc_visible, 1),
+                        (6, &self.overflow, 0),
                     ],
                     n,
                     width,
@@ -631,20 +665,22 @@ pub(crate) struct Kernels {
     accumulate: wgpu::ComputePipeline,
     count_pairs: wgpu::ComputePipeline,
     flag_overflow: wgpu::ComputePipeline,
+    clear_sums: wgpu::ComputePipeline,
 }
 
 impl Kernels {
     pub(crate) fn new(m: crate::gpu::ModuleSetup<'_>) -> Kernels {
-        let [accumulate, count_pairs, flag_overflow] = crate::gpu::pipelines(
+        let [accumulate, count_pairs, flag_overflow, clear_sums] = crate::gpu::pipelines(
             m,
             "accumulate.wgsl",
             include_str!("accumulate.wgsl"),
-            ["accumulate", "count_pairs", "flag_overflow"],
+            ["accumulate", "count_pairs", "flag_overflow", "clear_sums"],
         );
         Kernels {
             accumulate,
             count_pairs,
             flag_overflow,
+            clear_sums,
         }
     }
 }

@@ -29,16 +29,21 @@
 //!
 //! The step is written once over the [`crate::device`] seam: [`Trainer::on_device`] moves
 //! the training to another [`Device`] (the GPU keeps the state there between steps and brings
-//! it back for evaluations, checkpoints and the resets it cannot do). The arguments live in
+//! it back for evaluations, checkpoints and the resets it cannot do). [`Trainer::advance`]
+//! records a step and leaves it in flight: on the GPU its losses and pair counts come back
+//! while the device runs the next step (a pass that outgrew its pair slots is found then, and
+//! that step and the one behind it run again: the results never depend on the lag);
+//! [`Trainer::step`] resolves each step before it returns. The arguments live in
 //! `train/args.rs`.
 
 use crate::adam::Adam;
 use crate::densify::{self, Densifier, DensifySchedule, Extents, PruneExtent};
-use crate::device::{Device, TrainState, TrainingDevice, ViewTask};
+use crate::device::{Device, StepViews, TrainState, TrainingDevice, ViewTask};
 pub use crate::schedule::{dual_lambda, dual_raw_weight, Schedule, StepPlan};
 pub use crate::supervision::{RealImages, RealView, Supervision, SynthView, SyntheticImages};
 use crate::{Gaussians, RenderSettings};
 use augsplat_core::{Camera, Rng};
+use std::collections::VecDeque;
 
 mod args;
 pub(crate) mod gpu;
@@ -142,6 +147,53 @@ pub struct Trainer<'a> {
     real_pos: usize,
     epoch: u64,
     usable_synth: Vec<usize>,
+    /// Steps recorded whose results are still on the device, oldest first.
+    in_flight: VecDeque<InFlight<'a>>,
+    /// Steps resolved whose reports no caller has taken yet, oldest first.
+    finished: VecDeque<StepReport>,
+}
+
+/// How many recorded steps [`Trainer::advance`] leaves in flight: on a GPU, step `k`'s losses
+/// and pair counts are read while the device runs step `k + 1`.
+pub const STEPS_IN_FLIGHT: usize = 1;
+
+/// A recorded step whose views' results are still on the device.
+struct InFlight<'a> {
+    /// The report, but for the losses and pairs.
+    report: StepReport,
+    /// The step's views, in the order they were added.
+    views: Vec<ViewTask<'a>>,
+    /// The step's render settings.
+    settings: RenderSettings,
+    /// How many of `views` are real (they come first).
+    real_views: usize,
+    /// The plan's weights.
+    real_weight: f64,
+    synthetic_weight: f64,
+}
+
+impl InFlight<'_> {
+    /// The report with the views' (loss, pairs).
+    fn complete(self, results: &[(f64, u64)]) -> StepReport {
+        let mut rep = self.report;
+        let (real_results, synth_results) = results.split_at(self.real_views.min(results.len()));
+        if let Some(&(l, pairs)) = real_results.first() {
+            rep.real_loss = Some(l);
+            rep.loss += self.real_weight * l;
+            rep.pairs += pairs;
+        }
+        let batch = self.views.len() - self.real_views;
+        if batch > 0 {
+            let mut sum = 0.0;
+            for &(l, pairs) in synth_results {
+                sum += l;
+                rep.pairs += pairs;
+            }
+            rep.synthetic_loss = Some(sum / batch as f64);
+            rep.loss += self.synthetic_weight * sum / batch as f64;
+        }
+        rep
+    }
 }
 
 /// A device failure in the middle of a step: the training cannot go on, and the engine
@@ -192,6 +244,8 @@ impl<'a> Trainer<'a> {
             epoch: 0,
             usable_synth,
             args,
+            in_flight: VecDeque::new(),
+            finished: VecDeque::new(),
         }
     }
 
@@ -204,11 +258,39 @@ impl<'a> Trainer<'a> {
         self.device = device.training();
     }
 
-    /// Makes the host's state current.
+    /// Makes the host's state current (every step in flight resolved first).
     fn sync(&mut self) {
+        self.resolve(0);
         self.device
             .sync(&mut self.state)
             .unwrap_or_else(|e| device_failed(e));
+    }
+
+    /// Resolves the oldest steps in flight until at most `keep` remain; their reports wait
+    /// in `finished`.
+    fn resolve(&mut self, keep: usize) {
+        if self.in_flight.len() <= keep {
+            return;
+        }
+        let steps: Vec<StepViews<'_>> = self
+            .in_flight
+            .iter()
+            .map(|f| StepViews {
+                views: &f.views,
+                settings: &f.settings,
+            })
+            .collect();
+        let results = self
+            .device
+            .resolve(&mut self.state, &steps, keep)
+            .unwrap_or_else(|e| device_failed(e));
+        for r in results {
+            let f = self
+                .in_flight
+                .pop_front()
+                .expect("the device resolves only steps in flight");
+            self.finished.push_back(f.complete(&r));
+        }
     }
 
     /// The number of Gaussians now (without bringing them back from the device).
@@ -224,6 +306,7 @@ impl<'a> Trainer<'a> {
         settings: &RenderSettings,
         lpips: Option<&augsplat_metrics::lpips::Lpips>,
     ) -> Result<Evaluation, EvalError> {
+        self.resolve(0);
         let (device, state) = (&mut self.device, &mut self.state);
         evaluate_with(views, lpips, &mut |cam| {
             device
@@ -332,6 +415,8 @@ impl<'a> Trainer<'a> {
             densifier: Densifier { grad2d, count },
         };
         self.device.discard();
+        self.in_flight.clear();
+        self.finished.clear();
         Ok(())
     }
 
@@ -375,8 +460,37 @@ impl<'a> Trainer<'a> {
             .unwrap_or_else(|e| device_failed(e))
     }
 
-    /// One optimisation step.
+    /// One optimisation step, resolved before it returns: its report. (Reports of earlier
+    /// steps that [`Trainer::advance`] left in flight wait for the next `advance` or
+    /// [`Trainer::finish_steps`].)
     pub fn step(&mut self) -> StepReport {
+        self.record_step();
+        self.resolve(0);
+        self.finished
+            .pop_back()
+            .expect("the step just recorded is resolved")
+    }
+
+    /// Records the next step and resolves all but the newest [`STEPS_IN_FLIGHT`] steps: the
+    /// reports of the steps resolved since the last call, oldest first. On the CPU that is
+    /// this step's; on a GPU usually the one before, whose losses and pair counts come back
+    /// while the device runs this one, so the device never waits for the host to record.
+    /// Every result is the same as [`Trainer::step`]'s, bit for bit.
+    pub fn advance(&mut self) -> Vec<StepReport> {
+        self.record_step();
+        self.resolve(STEPS_IN_FLIGHT);
+        self.finished.drain(..).collect()
+    }
+
+    /// Resolves every step in flight: the reports not taken yet, oldest first.
+    pub fn finish_steps(&mut self) -> Vec<StepReport> {
+        self.resolve(0);
+        self.finished.drain(..).collect()
+    }
+
+    /// Records one optimisation step on the device; its report waits in flight or, once
+    /// resolved, in `finished`.
+    fn record_step(&mut self) {
         let step = self.step;
         let plan = self.args.schedule.plan(step);
         self.reset_at_switch(&plan);
@@ -386,10 +500,6 @@ impl<'a> Trainer<'a> {
         self.device
             .begin_step(&mut self.state, sh_active)
             .unwrap_or_else(|e| device_failed(e));
-        let mut rep = StepReport {
-            step,
-            ..Default::default()
-        };
         let densify_on = self.args.densify.enabled && step < self.dsched.stop;
         // The step's views: the real one, then the synthetic batch.
         let mut views = Vec::new();
@@ -406,12 +516,11 @@ impl<'a> Trainer<'a> {
             }
         }
         let real_views = views.len();
-        let mut batch = 0;
         if let (true, Some(src)) = (
             plan.synthetic_weight > 0.0 && plan.synthetic_batch > 0,
             self.synthetic,
         ) {
-            batch = plan.synthetic_batch.min(self.usable_synth.len());
+            let batch = plan.synthetic_batch.min(self.usable_synth.len());
             if batch > 0 {
                 let scale = plan.synthetic_weight / batch as f64;
                 // gsplat's `× n_cameras` for the batch, and the weight's inverse when the
@@ -438,21 +547,6 @@ impl<'a> Trainer<'a> {
             .device
             .end_views(&mut self.state, &views, &settings)
             .unwrap_or_else(|e| device_failed(e));
-        let (real_results, synth_results) = results.split_at(real_views.min(results.len()));
-        if let Some(&(l, pairs)) = real_results.first() {
-            rep.real_loss = Some(l);
-            rep.loss += plan.real_weight * l;
-            rep.pairs += pairs;
-        }
-        if batch > 0 {
-            let mut sum = 0.0;
-            for &(l, pairs) in synth_results {
-                sum += l;
-                rep.pairs += pairs;
-            }
-            rep.synthetic_loss = Some(sum / batch as f64);
-            rep.loss += plan.synthetic_weight * sum / batch as f64;
-        }
         let lr = self
             .args
             .learning_rates
@@ -465,10 +559,34 @@ impl<'a> Trainer<'a> {
                 self.args.adam.is_dense(),
             )
             .unwrap_or_else(|e| device_failed(e));
-        rep.refine = self.post_update(step, &settings);
+        let f = InFlight {
+            report: StepReport {
+                step,
+                ..Default::default()
+            },
+            views,
+            settings: settings.clone(),
+            real_views,
+            real_weight: plan.real_weight,
+            synthetic_weight: plan.synthetic_weight,
+        };
+        match results {
+            Some(r) => self.finished.push_back(f.complete(&r)),
+            None => self.in_flight.push_back(f),
+        }
+        let refine = self.post_update(step, &settings);
         self.step += 1;
-        rep.gaussians = self.device.gaussians(&self.state);
-        rep
+        let gaussians = self.device.gaussians(&self.state);
+        // This step is the newest: the last in flight, or the last resolved.
+        let rep = match self.in_flight.back_mut() {
+            Some(f) => &mut f.report,
+            None => self
+                .finished
+                .back_mut()
+                .expect("the step just recorded is in flight or resolved"),
+        };
+        rep.refine = refine;
+        rep.gaussians = gaussians;
     }
 
     /// Staged's opacity reset at its switch, or Dual's at its switch-off, when asked for
@@ -483,6 +601,8 @@ impl<'a> Trainer<'a> {
                 reset_at_off: true, ..
             } = self.args.schedule
             {
+                // The reset changes the state behind the steps in flight: they resolve first.
+                self.resolve(0);
                 self.device
                     .reset_for_switch(&mut self.state, 0.1)
                     .unwrap_or_else(|e| device_failed(e));
@@ -509,6 +629,8 @@ impl<'a> Trainer<'a> {
         if !densify::acts_at(step, &self.dsched, &self.args.densify) {
             return Default::default();
         }
+        // The refinement reads the statistics of every step before it.
+        self.resolve(0);
         // For a `KeepVisible` reset: each Gaussian's visibility in the real views.
         let cameras: Vec<&Camera> = (0..self.real.len()).map(|i| self.real.camera(i)).collect();
         let r = densify::gpu::Refinement {
