@@ -5,7 +5,8 @@
 //!   and mean of `steps` timed steps (default 10), chunks of `chunk rays` (default 64);
 //! - `kernels`: per-kernel timings on one chunk (best of 30);
 //! - `gpu`: the same steps on the GPU (`gpu/`: the whole step on the device, one wait per
-//!   step), forward+backward samples per second over `steps` steps after one warm-up, and
+//!   step, for the next step's sample count while the device runs this one), forward+backward
+//!   samples per second over `steps` steps after one warm-up, and
 //!   rays per second rendering the 8 views (128×96) on the GPU and on the CPU;
 //! - `mlp`: GFLOP/s of the dense-layer kernels (forward, weight gradient, input gradient) on
 //!   chunk-sized batches, best of 300, next to a register-only FMA peak probe (one thread, then
@@ -429,13 +430,15 @@ fn gpu_bench(field: &Field, views: &[ViewData], steps: usize, chunk: u32) -> Hea
             nonfinite_values: 0,
         };
         let mut trainer = GpuTrainer::new(&ctx, field, &state, &Adam::new(field.n_params)).unwrap();
-        trainer.step(views, &opts, 0).unwrap();
+        trainer.step(views, &opts, 0, Some(1)).unwrap();
         trainer.settle().unwrap();
         let waits = ctx.host_waits();
+        let draining = ctx.draining_waits();
         let t0 = Instant::now();
         let mut samples = 0u64;
         for s in 1..=steps as u32 {
-            if let Some((_, done)) = trainer.step(views, &opts, s).unwrap() {
+            // The next step's samples are counted while this one runs, as in training.
+            if let Some((_, done)) = trainer.step(views, &opts, s, Some(s + 1)).unwrap() {
                 samples += done.stats.samples;
             }
         }
@@ -446,11 +449,12 @@ fn gpu_bench(field: &Field, views: &[ViewData], steps: usize, chunk: u32) -> Hea
         let rate = samples as f64 / dt;
         rates.push(rate);
         println!(
-            "GPU, {rays} rays/step: {:.3} s/step, {:.0} samples/step, {:.0} forward+backward samples/s over {steps} steps, {:.2} host waits per step",
+            "GPU, {rays} rays/step: {:.3} s/step, {:.0} samples/step, {:.0} forward+backward samples/s over {steps} steps, {:.2} host waits per step ({:.2} draining the device)",
             dt / steps as f64,
             samples as f64 / steps as f64,
             rate,
-            (ctx.host_waits() - waits) as f64 / steps as f64
+            (ctx.host_waits() - waits) as f64 / steps as f64,
+            (ctx.draining_waits() - draining) as f64 / steps as f64
         );
     }
     let params = field.init_params(1);

@@ -79,7 +79,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "step {step}: {n} samples; headroom bits per level: {}",
             line.join(" ")
         );
-        trainer.step(&views, &opts, step)?;
+        trainer.step(&views, &opts, step, None)?;
     }
     trainer.settle()?;
     println!("worst headroom over {steps} steps: {worst:.1} bits (of 62)");

@@ -325,6 +325,11 @@ pub struct Adam {
 }
 
 impl Adam {
+    /// The updates applied so far (Adam's `t`: a rejected step does not count).
+    pub fn applied_steps(&self) -> u32 {
+        self.t
+    }
+
     /// Zero state for `n` parameters.
     pub fn new(n: usize) -> Adam {
         Adam {

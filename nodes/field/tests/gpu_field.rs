@@ -16,7 +16,8 @@ use augsplat_field::gpu::{RAY_FLOATS, RAY_OUT_FLOATS};
 use augsplat_field::hashgrid::HashGridConfig;
 use augsplat_field::occupancy::OccupancyGrid;
 use augsplat_field::train::{
-    load_views, render_camera, train, train_step, Adam, TrainOptions, TrainState, ViewData,
+    load_views, render_camera, train, train_step, Adam, StepStats, TrainOptions, TrainState,
+    ViewData,
 };
 use augsplat_render::gpu::{GpuContext, GpuError};
 use std::path::Path;
@@ -350,6 +351,94 @@ fn training_repeats_to_the_byte_and_seeds_differ() {
     let r1 = render_cameras_gpu(&ctx, &field, &a.params, &a.occupancy, &cams, [0.2; 3]).unwrap();
     let r2 = render_cameras_gpu(&ctx, &field, &a.params, &a.occupancy, &cams, [0.2; 3]).unwrap();
     assert_eq!(r1, r2);
+}
+
+#[test]
+fn counting_a_step_ahead_changes_no_bit_around_rejected_steps() {
+    let test = "counting_a_step_ahead_changes_no_bit_around_rejected_steps";
+    let Some(ctx) = context(test) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let (mut views, _) = scene(dir.path());
+    // Three pixels whose colour is not a number: a step whose rays meet one has a non-finite
+    // loss and is rejected, so Adam's count lags the step number.
+    for p in [5, 77, 150] {
+        views[0].rgb[3 * p] = f32::NAN;
+    }
+    let field = Field::new(config(12, 4, views.len() as u32)).unwrap();
+    let opts = options(3, 40);
+    let refresh = |s: u32| {
+        s >= opts.occupancy_warmup
+            && (s - opts.occupancy_warmup)
+                .is_multiple_of(augsplat_field::constants::OCCUPANCY_UPDATE_EVERY)
+    };
+    let state = TrainState {
+        params: field.init_params(opts.seed),
+        occupancy: OccupancyGrid::full(field.config.occupancy_resolution),
+        skipped_steps: 0,
+        nonfinite_values: 0,
+    };
+    // Each step counts its own samples (a wait for an idle device), or the next step's are
+    // counted while it runs (as `train_gpu` does).
+    let run = |ahead: bool| {
+        let draining = ctx.draining_waits();
+        let mut trainer =
+            GpuTrainer::new(&ctx, &field, &state, &Adam::new(field.n_params)).unwrap();
+        let mut stats = Vec::new();
+        for step in 0..opts.steps {
+            if refresh(step) {
+                trainer.update_occupancy(opts.seed, step).unwrap();
+            }
+            let next = Some(step + 1).filter(|&s| ahead && s < opts.steps && !refresh(s));
+            stats.extend(trainer.step(&views, &opts, step, next).unwrap());
+        }
+        stats.extend(trainer.settle().unwrap());
+        let (params, occupancy, adam) = trainer.download().unwrap();
+        let stats: Vec<(u32, StepStats)> = stats.into_iter().map(|(s, d)| (s, d.stats)).collect();
+        // Each step once, in order.
+        let order: Vec<u32> = stats.iter().map(|(s, _)| *s).collect();
+        assert_eq!(order, (0..opts.steps).collect::<Vec<_>>());
+        (
+            params,
+            occupancy,
+            adam.applied_steps(),
+            stats,
+            ctx.draining_waits() - draining,
+        )
+    };
+    let (p1, o1, t1, s1, drained1) = run(false);
+    let (p2, o2, t2, s2, drained2) = run(true);
+    let applied: Vec<bool> = s1.iter().map(|(_, s)| s.applied).collect();
+    eprintln!("{test}: applied {applied:?}; draining waits {drained1} / {drained2}");
+    assert_eq!(s1.len(), opts.steps as usize);
+    assert!(
+        applied.windows(2).any(|w| !w[0] && w[1]),
+        "a rejected step followed by an applied one: {applied:?}"
+    );
+    assert_eq!(t1, applied.iter().filter(|a| **a).count() as u32);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    assert_eq!(bits(&p1), bits(&p2));
+    assert_eq!(o1, o2);
+    assert_eq!(t1, t2);
+    // Losses to the bit (a rejected step's is not a number).
+    let stat_bits = |s: &[(u32, StepStats)]| -> Vec<[u64; 6]> {
+        s.iter()
+            .map(|(_, d)| {
+                [
+                    d.rgb_loss.to_bits(),
+                    d.depth_loss.to_bits(),
+                    d.distortion_loss.to_bits(),
+                    d.samples,
+                    d.color_samples,
+                    u64::from(d.applied),
+                ]
+            })
+            .collect()
+    };
+    assert_eq!(stat_bits(&s1), stat_bits(&s2));
+    // Counted ahead, only the first step, those right after a refresh (3), the last read and
+    // the download wait for an idle device; counted one by one, every step does.
+    assert!(drained1 >= u64::from(opts.steps), "{drained1}");
+    assert!(drained2 <= 6, "{drained2}");
 }
 
 #[test]

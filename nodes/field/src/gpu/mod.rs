@@ -20,7 +20,7 @@ use crate::field::{Field, RayInput};
 use crate::hashgrid::gpu::{record_encode, GpuPoints};
 use crate::mlp::gpu::{record_mlp_forward, GpuBatch, GpuMlp};
 use augsplat_render::gpu::prelude::{constant_f32, constant_u32};
-use augsplat_render::gpu::{f32_words, GpuBuffer, GpuContext, GpuError, ModuleSetup};
+use augsplat_render::gpu::{f32_words, GpuBuffer, GpuContext, GpuError, ModuleSetup, ReadTicket};
 
 /// Floats per ray record (see `field.wgsl`).
 pub const RAY_FLOATS: usize = 16;
@@ -292,6 +292,39 @@ pub(crate) fn count_samples(
     occupied: &wgpu::Buffer,
     before: &[(&wgpu::Buffer, u64, usize)],
 ) -> Result<Counted, GpuError> {
+    count_later(ctx, field, rays, occupied, before)?.wait(ctx)
+}
+
+/// A count submitted by [`count_later`], not waited for yet.
+pub(crate) struct Counting {
+    rays: GpuBuffer,
+    starts: (GpuBuffer, GpuBuffer),
+    ticket: ReadTicket,
+}
+
+impl Counting {
+    /// Waits for the count's submission alone (not for work submitted after it).
+    pub(crate) fn wait(self, ctx: &GpuContext) -> Result<Counted, GpuError> {
+        let mut read = self.ticket.wait(ctx)?;
+        let earlier = read.split_off(1);
+        Ok(Counted {
+            rays: self.rays,
+            starts: self.starts,
+            n: read[0][0],
+            earlier,
+        })
+    }
+}
+
+/// [`count_samples`] submitted without waiting: what is kept for the next submission goes
+/// with it, and work submitted after it does not delay [`Counting::wait`].
+pub(crate) fn count_later(
+    ctx: &GpuContext,
+    field: &Field,
+    rays: &[[f32; RAY_FLOATS]],
+    occupied: &wgpu::Buffer,
+    before: &[(&wgpu::Buffer, u64, usize)],
+) -> Result<Counting, GpuError> {
     let n_rays = rays.len() as u32;
     let buf = ctx.storage_init(
         "field rays",
@@ -306,13 +339,11 @@ pub(crate) fn count_samples(
     let starts = record_count(ctx, &mut enc, field, batch)?;
     let mut parts = vec![(&*starts.0, u64::from(n_rays), 1)];
     parts.extend_from_slice(before);
-    let mut read = ctx.read_after(enc, &parts)?;
-    let earlier = read.split_off(1);
-    Ok(Counted {
+    let ticket = ctx.read_later(enc, &parts)?;
+    Ok(Counting {
         rays: buf,
         starts,
-        n: read[0][0],
-        earlier,
+        ticket,
     })
 }
 

@@ -21,7 +21,13 @@ struct StepParams {
     beta2: f32,
     one_minus_beta2: f32,
     eps: f32,
+    // The same two for t − 1: Adam's count when the step before, still unresolved on the
+    // host as this one was recorded, was rejected (its status in `prev_status`).
+    step_size_skip: f32,
+    inv_bc2_skip: f32,
     pad1: u32,
+    pad2: u32,
+    pad3: u32,
 }
 
 @group(0) @binding(0) var<uniform> s: StepParams;
@@ -38,6 +44,8 @@ struct StepParams {
 @group(0) @binding(11) var<storage, read_write> ray_emb: array<f32>;
 @group(0) @binding(12) var<storage, read> rays: array<f32>;
 @group(0) @binding(13) var<storage, read_write> grad_rw: array<f32>;
+// The status of the step before (zeros: applied, or already counted on the host).
+@group(0) @binding(14) var<storage, read> prev_status: array<u32>;
 
 fn index(wid: vec3<u32>, nwg: vec3<u32>, lid: u32) -> u32 {
     return (wid.x + wid.y * nwg.x) * 256u + lid;
@@ -124,10 +132,14 @@ fn adam(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if (i >= s.n || status[1] != 0u) {
         return;
     }
+    // Adam's count t is one less when the step before was rejected.
+    let prev_rejected = prev_status[1] != 0u;
+    let step_size = select(s.step_size, s.step_size_skip, prev_rejected);
+    let inv_bc2 = select(s.inv_bc2, s.inv_bc2_skip, prev_rejected);
     let gi = grad[i];
     let m = s.beta1 * adam_m[i] + s.one_minus_beta1 * gi;
     let v = s.beta2 * adam_v[i] + s.one_minus_beta2 * gi * gi;
     adam_m[i] = m;
     adam_v[i] = v;
-    params[i] -= s.step_size * m / (sqrt(v * s.inv_bc2) + s.eps);
+    params[i] -= step_size * m / (sqrt(v * inv_bc2) + s.eps);
 }

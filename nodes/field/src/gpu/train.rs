@@ -3,7 +3,11 @@
 //!
 //! A step draws its rays on the host exactly as the CPU does (the same random streams, so the
 //! same rays), uploads them, and waits once: for its sample count (the marching pass's prefix
-//! sum), read together with the previous step's losses and verdict. Everything else — the
+//! sum), read together with the previous step's losses and verdict. That count is made a step
+//! ahead, in a submission queued before the step that precedes it, so the host reads it while
+//! the device runs that step (not across an occupancy refresh, which the count must follow);
+//! Adam's bias corrections for both verdicts of the step still unread go with each step, and
+//! the device picks the one that step's status calls for. Everything else — the
 //! samples, both networks, the losses and their gradients, the guard and Adam — stays on the
 //! device; a step whose gradient is not finite leaves the parameters alone there, as on the
 //! CPU. The loop settles the last step (one more wait) only where it needs its numbers: at an
@@ -25,6 +29,14 @@ use augsplat_core::Rng;
 
 /// Words of a step's status (see `step.wgsl`).
 const STATUS_WORDS: usize = 8;
+
+/// The read of a pending step's status, if any.
+fn status_part(pending: Option<&(u32, GpuBuffer, u32)>) -> Vec<(&wgpu::Buffer, u64, usize)> {
+    pending
+        .iter()
+        .map(|(_, status, _)| (&**status, 0, STATUS_WORDS))
+        .collect()
+}
 
 /// Cells per batch of an occupancy refresh on the GPU (16 of the CPU's chunks).
 const OCCUPANCY_BATCH_CELLS: usize = 16 * OCCUPANCY_CHUNK_CELLS;
@@ -72,6 +84,10 @@ pub struct GpuTrainer<'a> {
     occupied: GpuBuffer,
     /// The last recorded step whose status is not read yet.
     pending: Option<(u32, GpuBuffer, u32)>,
+    /// A step's rays, uploaded and counted while the step before ran ([`GpuTrainer::step`]).
+    counted: Option<(u32, Counted)>,
+    /// A status of zeros: the step before as Adam sees it when the host has counted it.
+    no_previous: GpuBuffer,
 }
 
 /// A recorded step's device buffers that its callers may read.
@@ -108,6 +124,8 @@ impl<'a> GpuTrainer<'a> {
             ema: up("occupancy ema", &state.occupancy.ema)?,
             occupied: ctx.storage_init("occupancy", &occupancy_words(&state.occupancy))?,
             pending: None,
+            counted: None,
+            no_previous: ctx.storage("no previous step status", 4 * STATUS_WORDS as u64)?,
         })
     }
 
@@ -119,15 +137,27 @@ impl<'a> GpuTrainer<'a> {
         opts: &TrainOptions,
         before: &[(&wgpu::Buffer, u64, usize)],
     ) -> Result<(StepBuffers, Vec<Vec<u32>>, wgpu::CommandEncoder), GpuError> {
+        let mut counted = count_samples(self.ctx, self.field, rays, &self.occupied, before)?;
+        let earlier = std::mem::take(&mut counted.earlier);
+        let (bufs, enc) = self.record_counted(counted, rays.len() as u32, opts)?;
+        Ok((bufs, earlier, enc))
+    }
+
+    /// [`GpuTrainer::record_gradient`] of `n_rays` rays already counted.
+    fn record_counted(
+        &self,
+        counted: Counted,
+        n_rays: u32,
+        opts: &TrainOptions,
+    ) -> Result<(StepBuffers, wgpu::CommandEncoder), GpuError> {
         let (ctx, field) = (self.ctx, self.field);
         let k = kernels(ctx)?;
-        let n_rays = rays.len() as u32;
         let Counted {
             rays: rays_buf,
             starts,
             n,
-            earlier,
-        } = count_samples(ctx, field, rays, &self.occupied, before)?;
+            ..
+        } = counted;
         let budget = sample_budget(ctx, field);
         if n > budget {
             return Err(GpuError::Invalid(format!(
@@ -261,7 +291,7 @@ impl<'a> GpuTrainer<'a> {
         )?;
         let levels =
             record_backward_fixed(ctx, &mut enc, &field.grid, &marched.points, &d_enc, &grad)?;
-        let su = self.step_uniform(n_rays, ld, 0.0);
+        let su = self.step_uniform(n_rays, ld, 0.0, false);
         if e > 0 {
             let ray_emb = ctx.storage("ray embedding gradient", 4 * u64::from(n_rays * e))?;
             ctx.dispatch(
@@ -304,16 +334,22 @@ impl<'a> GpuTrainer<'a> {
                 status,
                 levels,
             },
-            earlier,
             enc,
         ))
     }
 
-    /// `step.wgsl`'s parameter block; `lr` sets Adam's step for the next applied step.
-    fn step_uniform(&self, n_rays: u32, ld: u32, lr: f32) -> GpuBuffer {
-        let t = self.adam_t + 1;
-        let bc1 = 1.0 - ADAM_BETA1.powi(t as i32);
-        let bc2 = 1.0 - ADAM_BETA2.powi(t as i32);
+    /// `step.wgsl`'s parameter block; `lr` sets Adam's step for the next applied step, which
+    /// is one further when a step before it is `unresolved` (its status not read yet) and was
+    /// applied: Adam picks between the two on the device.
+    fn step_uniform(&self, n_rays: u32, ld: u32, lr: f32, unresolved: bool) -> GpuBuffer {
+        // lr / (1 − β1^t) and 1 / (1 − β2^t), as the CPU's `Adam::step` computes them.
+        let factors = |t: u32| {
+            let bc1 = 1.0 - ADAM_BETA1.powi(t as i32);
+            let bc2 = 1.0 - ADAM_BETA2.powi(t as i32);
+            ((lr / bc1).to_bits(), (1.0 / bc2).to_bits())
+        };
+        let (step_size, inv_bc2) = factors(self.adam_t + 1 + u32::from(unresolved));
+        let (step_size_skip, inv_bc2_skip) = factors(self.adam_t + 1);
         let field = self.field;
         self.ctx.uniform(
             "field step params",
@@ -326,44 +362,59 @@ impl<'a> GpuTrainer<'a> {
                 field.grid.levels() as u32,
                 ld,
                 0,
-                (lr / bc1).to_bits(),
-                (1.0 / bc2).to_bits(),
+                step_size,
+                inv_bc2,
                 ADAM_BETA1.to_bits(),
                 (1.0 - ADAM_BETA1).to_bits(),
                 ADAM_BETA2.to_bits(),
                 (1.0 - ADAM_BETA2).to_bits(),
                 ADAM_EPS.to_bits(),
+                step_size_skip,
+                inv_bc2_skip,
+                0,
+                0,
                 0,
             ],
         )
     }
 
-    /// Records training step `step` (Adam included) and submits it without waiting. Returns
-    /// the previous step's statistics (its step number and stats) when they were pending: they
-    /// are read in this step's one wait.
+    /// Records training step `step` (Adam included) and submits it. With `next` (the step
+    /// after it, when no occupancy refresh comes between them), that step's rays are drawn,
+    /// uploaded and counted first, in a submission ahead of this step's, and the one wait here
+    /// is for that count alone: the device runs this step while the host records the next.
+    /// Without a count made ahead for it, this step counts its own samples first (a wait for
+    /// an idle device). Returns the statistics of the step before (its number and stats) when
+    /// a wait read them.
     pub fn step(
         &mut self,
         views: &[ViewData],
         opts: &TrainOptions,
         step: u32,
+        next: Option<u32>,
     ) -> Result<Option<(u32, Settled)>, GpuError> {
         self.ctx.count_training_step();
         // Everything recorded so far is submitted: the buffers earlier steps dropped can go
         // back to the pool.
         self.ctx.reclaim();
-        let rays = step_rays(views, opts, step);
-        let pending = self.pending.take();
-        let before: Vec<(&wgpu::Buffer, u64, usize)> = pending
-            .iter()
-            .map(|(_, s, _)| (&**s, 0, STATUS_WORDS))
-            .collect();
-        let (bufs, earlier, mut enc) = self.record_gradient(&rays, opts, &before)?;
-        let previous = match (&pending, earlier.first()) {
-            (Some((s, _, n)), Some(words)) => Some((*s, self.account(words, *n))),
-            _ => None,
+        let n_rays = opts.rays_per_step.max(1);
+        let mut settled = None;
+        let counted = match self.counted.take() {
+            Some((s, c)) if s == step => c,
+            _ => {
+                let rays = step_rays(views, opts, step);
+                let pending = self.pending.take();
+                let before = status_part(pending.as_ref());
+                let mut c = count_samples(self.ctx, self.field, &rays, &self.occupied, &before)?;
+                settled = self.settled_from(pending, &c.earlier);
+                c.earlier.clear();
+                c
+            }
         };
+        let (bufs, mut enc) = self.record_counted(counted, n_rays, opts)?;
         let k = kernels(self.ctx)?;
-        let su = self.step_uniform(rays.len() as u32, 0, learning_rate(opts, step));
+        // The step before, when its status is not read yet: Adam's count depends on it.
+        let unresolved = self.pending.as_ref().map(|(_, status, _)| &**status);
+        let su = self.step_uniform(n_rays, 0, learning_rate(opts, step), unresolved.is_some());
         self.ctx.dispatch(
             &mut enc,
             &k.adam,
@@ -374,12 +425,56 @@ impl<'a> GpuTrainer<'a> {
                 (6, &self.params),
                 (7, &self.adam_m),
                 (8, &self.adam_v),
+                (14, unresolved.unwrap_or(&self.no_previous)),
             ],
             self.ctx.groups((self.field.n_params as u32).div_ceil(256)),
         );
-        self.ctx.submit_no_wait(enc)?;
+        match next {
+            Some(next) => {
+                let rays = step_rays(views, opts, next);
+                let pending = self.pending.take();
+                let counting = count_later(
+                    self.ctx,
+                    self.field,
+                    &rays,
+                    &self.occupied,
+                    &status_part(pending.as_ref()),
+                )?;
+                self.ctx.submit_no_wait(enc)?;
+                // The count and the step before ran; this step may still be running.
+                let mut c = counting.wait(self.ctx)?;
+                if let Some(got) = self.settled_from(pending, &c.earlier) {
+                    settled = Some(got);
+                }
+                c.earlier.clear();
+                self.counted = Some((next, c));
+            }
+            None => match self.pending.take() {
+                // The step before is still unread: its status goes in a submission of its
+                // own ahead of this step, and the wait is for that alone.
+                Some(pending) => {
+                    let read = self.ctx.device.create_command_encoder(&Default::default());
+                    let ticket = self.ctx.read_later(read, &status_part(Some(&pending)))?;
+                    self.ctx.submit_no_wait(enc)?;
+                    let words = ticket.wait(self.ctx)?;
+                    settled = self.settled_from(Some(pending), &words);
+                }
+                None => self.ctx.submit_no_wait(enc)?,
+            },
+        }
         self.pending = Some((step, bufs.status, bufs.n));
-        Ok(previous)
+        Ok(settled)
+    }
+
+    /// The statistics of `pending` from its status words, read as the first of `earlier`.
+    fn settled_from(
+        &mut self,
+        pending: Option<(u32, GpuBuffer, u32)>,
+        earlier: &[Vec<u32>],
+    ) -> Option<(u32, Settled)> {
+        let (s, _, n) = pending?;
+        let words = earlier.first()?;
+        Some((s, self.account(words, n)))
     }
 
     /// Reads the pending step's statistics (one wait), if a step is pending.
@@ -558,13 +653,18 @@ pub fn train_gpu(
             Ok(())
         };
         let mut result: Result<(), FieldError> = Ok(());
-        for step in lp.step..opts.steps {
-            if step >= opts.occupancy_warmup
+        let refresh_at = |step: u32| {
+            step >= opts.occupancy_warmup
                 && (step - opts.occupancy_warmup).is_multiple_of(OCCUPANCY_UPDATE_EVERY)
-            {
+        };
+        for step in lp.step..opts.steps {
+            if refresh_at(step) {
                 trainer.update_occupancy(opts.seed, step)?;
             }
-            let prev = trainer.step(views, opts, step)?;
+            // The next step's samples are counted while this one runs, unless the occupancy
+            // grid they march through is refreshed first.
+            let next = Some(step + 1).filter(|&s| s < opts.steps && !refresh_at(s));
+            let prev = trainer.step(views, opts, step, next)?;
             if let Err(e) = account(&mut lp, &mut state, prev) {
                 result = Err(e);
                 break;
