@@ -59,7 +59,6 @@ pub use crate::forward::gpu::{
 
 use pool::Contents;
 pub use pool::{GpuBuffer, PoolStats, DEFAULT_IDLE_BYTES};
-use std::sync::mpsc;
 pub use ticket::ReadTicket;
 
 /// What can go wrong on the GPU.
@@ -624,83 +623,15 @@ impl GpuContext {
     }
 
     /// Appends to `enc` a copy of each part (buffer, first word, words) into one staging
-    /// buffer, submits it after what is kept ([`GpuContext::defer`]), waits once and returns each part's words: one round trip for
-    /// several small read-backs.
+    /// buffer, submits it after what is kept ([`GpuContext::defer`]), waits once and returns
+    /// each part's words: one round trip for several small read-backs
+    /// ([`GpuContext::read_later`] and its wait).
     pub fn read_after(
         &self,
-        mut enc: wgpu::CommandEncoder,
+        enc: wgpu::CommandEncoder,
         parts: &[(&wgpu::Buffer, u64, usize)],
     ) -> Result<Vec<Vec<u32>>, GpuError> {
-        let total: u64 = parts.iter().map(|p| 4 * p.2 as u64).sum();
-        if total == 0 {
-            self.submit(enc)?;
-            return Ok(parts.iter().map(|_| Vec::new()).collect());
-        }
-        // Only the copied bytes are read.
-        let staging = self.pooled(
-            "readback",
-            total,
-            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            Contents::Overwritten,
-        );
-        let mut at = 0;
-        for &(buf, first, words) in parts {
-            let bytes = 4 * words as u64;
-            if bytes > 0 {
-                enc.copy_buffer_to_buffer(buf, 4 * first, &staging, at, bytes);
-            }
-            at += bytes;
-        }
-        self.submit_kept(Some(enc.finish()));
-        let read = self.map_words(&staging, parts.iter().map(|p| p.2));
-        match read {
-            Ok(_) => staging.unmap(),
-            // Never returned to the pool in an unknown mapping state.
-            Err(_) => staging.discard(),
-        }
-        read
-    }
-
-    /// Maps `staging` (after the submitted copies into it), waits, and splits its words into
-    /// parts of `words` words each.
-    fn map_words(
-        &self,
-        staging: &wgpu::Buffer,
-        words: impl Iterator<Item = usize>,
-    ) -> Result<Vec<Vec<u32>>, GpuError> {
-        let slice = staging.slice(..);
-        let (tx, rx) = mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.count_wait(true);
-        let started = std::time::Instant::now();
-        let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
-        self.add_wait_time(started);
-        polled.map_err(|e| self.device_error(format!("waiting for a read-back: {e}")))?;
-        self.check_lost()?;
-        // The wait ran the mapping's callback if the copy ran; never block on it (a device
-        // that was destroyed or lost may keep the callback forever).
-        rx.try_recv()
-            .map_err(|_| {
-                self.device_error("the read-back never completed (is the device lost?)".into())
-            })?
-            .map_err(|e| self.device_error(format!("read-back failed: {e}")))?;
-        let data = slice
-            .get_mapped_range()
-            .map_err(|e| self.device_error(format!("read-back mapping: {e}")))?;
-        let mut out = Vec::new();
-        let mut at = 0;
-        for words in words {
-            out.push(
-                data[at..at + 4 * words]
-                    .chunks_exact(4)
-                    .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                    .collect(),
-            );
-            at += 4 * words;
-        }
-        Ok(out)
+        self.read_later(enc, parts)?.wait(self)
     }
 
     /// Runs `f` inside an error scope: validation errors and out-of-memory become

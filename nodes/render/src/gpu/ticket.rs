@@ -77,10 +77,15 @@ impl ReadTicket {
     /// returns each part's words. It counts as one of [`GpuContext::host_waits`]; as one of
     /// [`GpuContext::draining_waits`] when nothing was submitted after it.
     pub fn wait(mut self, ctx: &GpuContext) -> Result<Vec<Vec<u32>>, GpuError> {
+        let submission = self.submission.take();
         let (Some(staging), Some(mapped)) = (self.staging.take(), self.mapped.take()) else {
+            // Nothing to read: the wait is for the submission alone.
+            if let Some(submission) = submission {
+                wait_for(ctx, submission)?;
+            }
             return Ok(self.sizes.iter().map(|_| Vec::new()).collect());
         };
-        let read = Self::read(ctx, &staging, &mapped, self.submission.take(), &self.sizes);
+        let read = Self::read(ctx, &staging, &mapped, submission, &self.sizes);
         match read {
             Ok(_) => staging.unmap(),
             // Never returned to the pool in an unknown mapping state.
@@ -96,17 +101,9 @@ impl ReadTicket {
         submission: Option<(u64, wgpu::SubmissionIndex)>,
         sizes: &[usize],
     ) -> Result<Vec<Vec<u32>>, GpuError> {
-        let (number, index) = submission
+        let submission = submission
             .ok_or_else(|| ctx.device_error("a read-back's copies were never submitted".into()))?;
-        ctx.count_wait(number == ctx.submissions());
-        let started = std::time::Instant::now();
-        let polled = ctx.device.poll(wgpu::PollType::Wait {
-            submission_index: Some(index),
-            timeout: None,
-        });
-        ctx.add_wait_time(started);
-        polled.map_err(|e| ctx.device_error(format!("waiting for a read-back: {e}")))?;
-        ctx.check_lost()?;
+        wait_for(ctx, submission)?;
         // The wait ran the mapping's callback once the copies ran; never block on it (a lost
         // device may keep it forever).
         mapped
@@ -132,6 +129,29 @@ impl ReadTicket {
         }
         Ok(out)
     }
+}
+
+/// Waits for one submission (counted in [`GpuContext::host_waits`], and in
+/// [`GpuContext::draining_waits`] when nothing was submitted after it).
+fn wait_for(
+    ctx: &GpuContext,
+    (number, index): (u64, wgpu::SubmissionIndex),
+) -> Result<(), GpuError> {
+    ctx.count_wait(number == ctx.submissions());
+    let started = std::time::Instant::now();
+    let polled = ctx.device.poll(wgpu::PollType::Wait {
+        submission_index: Some(index),
+        timeout: None,
+    });
+    ctx.add_wait_time(started);
+    if let Err(e) = polled {
+        // A lost device fails its submissions, and the wait for one says only that: the
+        // loss (its callback runs as the device is polled) is the error to report.
+        let _ = ctx.device.poll(wgpu::PollType::wait_indefinitely());
+        ctx.check_lost()?;
+        return Err(ctx.device_error(format!("waiting for a read-back: {e}")));
+    }
+    ctx.check_lost()
 }
 
 impl Drop for ReadTicket {

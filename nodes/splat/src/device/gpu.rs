@@ -30,20 +30,7 @@ impl SplatDevice for GpuDevice {
         Some(&self.0)
     }
     fn training(&self) -> Box<dyn TrainingDevice> {
-        Box::new(GpuTraining {
-            ctx: self.0.clone(),
-            state: None,
-            ahead: false,
-            targets: HashMap::new(),
-            sh_active: 0,
-            count_bound: 0,
-            tile_pairs: HashMap::new(),
-            pairs_by_size: HashMap::new(),
-            overflows: 0,
-            pending: Vec::new(),
-            in_flight: VecDeque::new(),
-            kept_pixels: 0,
-        })
+        Box::new(GpuTraining::new(self.0.clone()))
     }
 }
 
@@ -124,6 +111,24 @@ struct GpuTraining {
 }
 
 impl GpuTraining {
+    /// A training run's GPU half with nothing on the device yet.
+    fn new(ctx: Arc<GpuContext>) -> GpuTraining {
+        GpuTraining {
+            ctx,
+            state: None,
+            ahead: false,
+            targets: HashMap::new(),
+            sh_active: 0,
+            count_bound: 0,
+            tile_pairs: HashMap::new(),
+            pairs_by_size: HashMap::new(),
+            overflows: 0,
+            pending: Vec::new(),
+            in_flight: VecDeque::new(),
+            kept_pixels: 0,
+        }
+    }
+
     /// The state on the GPU, uploaded from the host's when there is none.
     fn state(&mut self, st: &TrainState) -> Result<&GpuTrainer, GpuError> {
         if self.state.is_none() {
@@ -606,20 +611,7 @@ mod tests {
     /// A GPU training half whose views' passes are sized from `estimates` (None: counted
     /// first).
     fn training(ctx: &Arc<GpuContext>, estimates: [Option<u32>; 3]) -> GpuTraining {
-        let mut t = GpuTraining {
-            ctx: ctx.clone(),
-            state: None,
-            ahead: false,
-            targets: HashMap::new(),
-            sh_active: 12,
-            count_bound: 0,
-            tile_pairs: HashMap::new(),
-            pairs_by_size: HashMap::new(),
-            overflows: 0,
-            pending: Vec::new(),
-            in_flight: VecDeque::new(),
-            kept_pixels: 0,
-        };
+        let mut t = GpuTraining::new(ctx.clone());
         for (k, e) in estimates.iter().enumerate() {
             if let Some(c) = e {
                 t.tile_pairs.insert((false, k), *c);
