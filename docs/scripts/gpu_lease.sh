@@ -16,9 +16,10 @@
 #   step    step.txt   whole splatting steps, GPU only: 200k and 1M Gaussians at 800×533,
 #                      and the host's time per step outside its waits (the GPU's idle time);
 #                      step_synthetic.txt the same with Staged's and Dual's batch of 20
-#                      synthetic views at 1/8 the size; step_resolved.txt both at 200k with
-#                      each step resolved before the next is recorded (`--resolved`: no
-#                      overlap of host and device, for the comparison)
+#                      synthetic views at 1/8 the size; step_resolved.txt and
+#                      step_synthetic_resolved.txt the same at 200k with each step resolved
+#                      before the next is recorded (`--resolved`: no overlap of host and
+#                      device, for the comparison)
 #   bonsai  bonsai/    the bonsai baseline on the GPU at 800×533 for 30,000 steps without a
 #                      Gaussian cap (log.txt: the node's evaluations and refinements with
 #                      their times and counts; summary.json when it finishes in time)
@@ -115,7 +116,7 @@ run() {
             "$bin/gpu_train_step" 200000 800x533 20 --no-cpu --synthetic 20
           timed "${LEASE_RESOLVED_SECONDS:-30}" "$out/step_resolved.txt" \
             "$bin/gpu_train_step" 200000 800x533 20 --no-cpu --resolved
-          timed "${LEASE_RESOLVED_SECONDS:-30}" "$out/step_resolved.txt" \
+          timed "${LEASE_RESOLVED_SECONDS:-30}" "$out/step_synthetic_resolved.txt" \
             "$bin/gpu_train_step" 200000 800x533 20 --no-cpu --synthetic 20 --resolved
         fi
         ;;
