@@ -68,9 +68,11 @@ impl GpuContext {
         self.submissions.load(std::sync::atomic::Ordering::Relaxed)
     }
 
-    fn count_submission(&self) {
+    /// Counts a submission: its number ([`GpuContext::submissions`] after it).
+    fn count_submission(&self) -> u64 {
         self.submissions
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+            + 1
     }
 
     /// Records a clear of `buf` (an idle pool buffer handed out again) into the encoder that
@@ -110,10 +112,7 @@ impl GpuContext {
             .chain(kept.buffers)
             .chain(last)
             .collect();
-        let number = self
-            .submissions
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
-            + 1;
+        let number = self.count_submission();
         Some((number, self.queue.submit(all)))
     }
 }

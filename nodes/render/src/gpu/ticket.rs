@@ -14,14 +14,13 @@ type Mapped = Result<(), wgpu::BufferAsyncError>;
 /// A read-back submitted by [`GpuContext::read_later`], whose words [`ReadTicket::wait`]
 /// returns.
 pub struct ReadTicket {
-    /// The staging buffer the parts were copied into (`None` when there is nothing to read).
-    staging: Option<GpuBuffer>,
+    /// The staging buffer the parts were copied into and its mapping's answer (`None` when
+    /// there is nothing to read).
+    staging: Option<(GpuBuffer, mpsc::Receiver<Mapped>)>,
     /// Each part's words.
     sizes: Vec<usize>,
     /// The submission that copies them: its number on the context and wgpu's index.
     submission: Option<(u64, wgpu::SubmissionIndex)>,
-    /// The mapping's answer.
-    mapped: Option<mpsc::Receiver<Mapped>>,
 }
 
 impl GpuContext {
@@ -54,12 +53,12 @@ impl GpuContext {
             }
         }
         let submission = self.submit_kept(Some(enc.finish()));
-        let mapped = staging.as_ref().map(|staging| {
+        let staging = staging.map(|staging| {
             let (tx, rx) = mpsc::channel();
             staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
                 let _ = tx.send(r);
             });
-            rx
+            (staging, rx)
         });
         let _ = self.device.poll(wgpu::PollType::Poll);
         self.check_lost()?;
@@ -67,7 +66,6 @@ impl GpuContext {
             staging,
             sizes,
             submission,
-            mapped,
         })
     }
 }
@@ -78,7 +76,7 @@ impl ReadTicket {
     /// [`GpuContext::draining_waits`] when nothing was submitted after it.
     pub fn wait(mut self, ctx: &GpuContext) -> Result<Vec<Vec<u32>>, GpuError> {
         let submission = self.submission.take();
-        let (Some(staging), Some(mapped)) = (self.staging.take(), self.mapped.take()) else {
+        let Some((staging, mapped)) = self.staging.take() else {
             // Nothing to read: the wait is for the submission alone.
             if let Some(submission) = submission {
                 wait_for(ctx, submission)?;
@@ -158,7 +156,7 @@ impl Drop for ReadTicket {
     /// A ticket dropped before its wait frees its staging buffer: a buffer whose mapping is
     /// pending cannot go back to the pool.
     fn drop(&mut self) {
-        if let Some(staging) = self.staging.take() {
+        if let Some((staging, _)) = self.staging.take() {
             staging.discard();
         }
     }

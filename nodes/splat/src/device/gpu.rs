@@ -148,9 +148,7 @@ impl GpuTraining {
         }
         Ok(self.state.as_ref().expect("uploaded above"))
     }
-}
 
-impl GpuTraining {
     /// Records one view on the uploaded state with `slots` pair slots (counted first when
     /// `None`).
     fn record_view(
@@ -211,9 +209,7 @@ impl GpuTraining {
         ctx.reclaim();
         out
     }
-}
 
-impl GpuTraining {
     /// An error unless every step is resolved: the state may lack a step's update until the
     /// trainer resolves it ([`TrainingDevice::resolve`]).
     fn settled(&self) -> Result<(), GpuError> {
@@ -238,17 +234,21 @@ impl GpuTraining {
                 GpuError::Invalid(format!("{} views added, {} given", k + 1, views.len()))
             })?;
             self.tile_pairs.insert((v.synthetic, v.index), r.tile_pairs);
-            let cam = v.source.camera(v.index);
-            let largest = self
-                .pairs_by_size
-                .entry((cam.width, cam.height))
-                .or_default();
-            *largest = (*largest).max(r.tile_pairs);
+            self.note_size(v.source.camera(v.index), r.tile_pairs);
             if r.overflowed && overflowed.is_none() {
                 overflowed = Some(k);
             }
         }
         Ok(overflowed)
+    }
+
+    /// Raises the most pairs seen in a pass of a view of `cam`'s size to `tile_pairs`.
+    fn note_size(&mut self, cam: &Camera, tile_pairs: u32) {
+        let largest = self
+            .pairs_by_size
+            .entry((cam.width, cam.height))
+            .or_default();
+        *largest = (*largest).max(tile_pairs);
     }
 
     /// Runs `views` in order, each pass counted first (so none outgrows its slots), and waits
@@ -334,11 +334,7 @@ impl TrainingDevice for GpuTraining {
         let pending = self.record_view(view, s, slots)?;
         if slots.is_none() {
             // Counted first: the next views of its size start from its count.
-            let largest = self
-                .pairs_by_size
-                .entry((cam.width, cam.height))
-                .or_default();
-            *largest = (*largest).max(pending.slots);
+            self.note_size(cam, pending.slots);
         }
         self.pending.push(pending);
         Ok(())
@@ -620,7 +616,8 @@ mod tests {
         t
     }
 
-    /// Records one step of `views` with its update.
+    /// Records one step of `views` with its update (which reads the step's sums and leaves
+    /// them as they are).
     fn record(t: &mut GpuTraining, st: &mut TrainState, views: &[ViewTask<'_>]) {
         let s = RenderSettings::default();
         t.begin_step(st, 12).unwrap();
@@ -652,11 +649,7 @@ mod tests {
         let run = |estimates: [Option<u32>; 3]| {
             let mut t = training(&ctx, estimates);
             let mut st = fresh(&g);
-            t.begin_step(&mut st, 12).unwrap();
-            for v in &tasks {
-                t.add_view(&mut st, *v, &s).unwrap();
-            }
-            assert_eq!(t.end_views(&mut st, &tasks, &s).unwrap(), None);
+            record(&mut t, &mut st, &tasks);
             let step = StepViews {
                 views: &tasks,
                 settings: &s,
