@@ -9,8 +9,9 @@
 #                                                 # $OUT (default out/lease-results)
 #
 # PARTS (default: field step bonsai; then `run paper` in a second call), each stopped at its
-# own time limit in seconds (`LEASE_<PART>_SECONDS`, defaults 45, 60 (twice) and 30 (twice,
-# `LEASE_RESOLVED_SECONDS`), 330 and 540: one call stays under 560 s):
+# own time limit in seconds (`LEASE_<PART>_SECONDS`, defaults 45, 60 (twice), 30 (twice,
+# `LEASE_RESOLVED_SECONDS`) and 10 (`LEASE_DISPATCH_SECONDS`), 320 and 540: one call stays
+# under 560 s):
 #   field   field.txt  the radiance field's step on the GPU (forward+backward samples/s at
 #                      1,024 and 4,096 rays) and its renders (rays/s), CPU beside it
 #   step    step.txt   whole splatting steps, GPU only: 200k and 1M Gaussians at 800×533,
@@ -19,7 +20,8 @@
 #                      synthetic views at 1/8 the size; step_resolved.txt and
 #                      step_synthetic_resolved.txt the same at 200k with each step resolved
 #                      before the next is recorded (`--resolved`: no overlap of host and
-#                      device, for the comparison)
+#                      device, for the comparison); step_dispatch.txt what one small
+#                      kernel launch costs the host to record, three ways
 #   bonsai  bonsai/    the bonsai baseline on the GPU at 800×533 for 30,000 steps without a
 #                      Gaussian cap (log.txt: the node's evaluations and refinements with
 #                      their times and counts; summary.json when it finishes in time)
@@ -40,9 +42,10 @@ pack() {
   cargo build --release -p augsplat --bin augsplat
   cargo build --release -p augsplat-field --example bench
   cargo build --release -p augsplat-splat --example gpu_train_step
+  cargo build --release -p augsplat-render --example gpu_dispatch_cost
   rm -rf "$lease"
   mkdir -p "$lease/bin" "$lease/shared/data/bonsai"
-  for b in augsplat examples/bench examples/gpu_train_step; do
+  for b in augsplat examples/bench examples/gpu_train_step examples/gpu_dispatch_cost; do
     strip -o "$lease/bin/$(basename "$b")" "$root/target/release/$b"
   done
   local data="$root/../shared/data"
@@ -109,6 +112,8 @@ run() {
             "$bin/gpu_train_step" 2000 64x48 2 --no-cpu
           timed "${LEASE_STEP_SECONDS:-60}" "$out/step_synthetic.txt" \
             "$bin/gpu_train_step" 2000 64x48 2 --no-cpu --synthetic 3
+          timed "${LEASE_DISPATCH_SECONDS:-10}" "$out/step_dispatch.txt" \
+            "$bin/gpu_dispatch_cost" 100 2
         else
           timed "${LEASE_STEP_SECONDS:-60}" "$out/step.txt" \
             "$bin/gpu_train_step" 200000,1000000 800x533 20 --no-cpu
@@ -118,6 +123,8 @@ run() {
             "$bin/gpu_train_step" 200000 800x533 20 --no-cpu --resolved
           timed "${LEASE_RESOLVED_SECONDS:-30}" "$out/step_synthetic_resolved.txt" \
             "$bin/gpu_train_step" 200000 800x533 20 --no-cpu --synthetic 20 --resolved
+          timed "${LEASE_DISPATCH_SECONDS:-10}" "$out/step_dispatch.txt" \
+            "$bin/gpu_dispatch_cost" 2000 6
         fi
         ;;
       bonsai)
@@ -131,7 +138,7 @@ run() {
           sets+=(--set scene.downscale=1 --set params.gs_steps=30000 --set params.eval_every=3000)
           local pipeline="$work/repo/pipelines/bonsai.ron"
         fi
-        timed "${LEASE_BONSAI_SECONDS:-330}" "$out/bonsai/log.txt" \
+        timed "${LEASE_BONSAI_SECONDS:-320}" "$out/bonsai/log.txt" \
           "$bin/augsplat" run "$pipeline" "${sets[@]}" --target eval_baseline --log -q \
           --cache "$work/store-bonsai" --summary-json "$out/bonsai/summary.json"
         ;;

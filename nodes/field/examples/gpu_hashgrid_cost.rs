@@ -90,16 +90,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = ctx.storage("encoding", 4 * rows as u64)?;
     let grad = ctx.storage("gradient", 4 * grid.n_params() as u64)?;
     let time = |record: &dyn Fn(
-        &mut wgpu::CommandEncoder,
+        &mut augsplat_render::gpu::Encoder,
     ) -> Result<(), augsplat_render::gpu::GpuError>|
      -> Result<Timed, Box<dyn std::error::Error>> {
         let mut times = Vec::new();
         let mut results = Vec::new();
         for rep in 0..=reps {
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             enc.clear_buffer(&grad, 0, None);
             ctx.submit(enc)?;
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             record(&mut enc)?;
             let t = Instant::now();
             ctx.submit(enc)?;

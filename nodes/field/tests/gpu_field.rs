@@ -605,7 +605,7 @@ fn both_weight_gradient_kernels_give_the_same_bits() {
             };
             let (dyb, xb) = (up(&dy), up(&x));
             let grad = up(&vec![0.0; s.params()]);
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             let batch = GpuBatch {
                 ld,
                 cols,

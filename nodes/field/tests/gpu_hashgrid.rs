@@ -228,7 +228,7 @@ fn the_float_atomic_gradient_agrees_up_to_rounding() {
         .storage_init("d", &f32_words(d_out.iter().copied()))
         .unwrap();
     let g = ctx.storage("g", 4 * grid.n_params() as u64).unwrap();
-    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let mut enc = ctx.encoder();
     record_backward_atomic(&ctx, &mut enc, grid, &points, &d, &g).unwrap();
     let words = ctx.read_after(enc, &[(&g, 0, grid.n_params())]).unwrap();
     let scale = sorted.iter().fold(0f32, |m, v| m.max(v.abs()));

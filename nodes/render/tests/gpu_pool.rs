@@ -153,10 +153,10 @@ fn kept_encoders_go_in_one_submission_in_their_order() {
     let c = ctx.storage("c", 60).unwrap();
     let before = ctx.submissions();
     // a → b, then b → c: kept, in order.
-    let mut first = ctx.device.create_command_encoder(&Default::default());
+    let mut first = ctx.encoder();
     first.copy_buffer_to_buffer(&a, 0, &b, 0, 60);
     ctx.defer(first).unwrap();
-    let mut second = ctx.device.create_command_encoder(&Default::default());
+    let mut second = ctx.encoder();
     second.copy_buffer_to_buffer(&b, 0, &c, 0, 60);
     ctx.defer(second).unwrap();
     // The idle buffer comes back zeroed: its clear runs before the work recorded with it.
@@ -164,7 +164,7 @@ fn kept_encoders_go_in_one_submission_in_their_order() {
     let zeroed = ctx.storage("zeroed", 64).unwrap();
     assert_eq!(ctx.pool_stats().reused, reused + 1, "handed out again");
     let d = ctx.storage("d", 64).unwrap();
-    let mut third = ctx.device.create_command_encoder(&Default::default());
+    let mut third = ctx.encoder();
     third.copy_buffer_to_buffer(&zeroed, 0, &d, 0, 64);
     ctx.defer(third).unwrap();
     assert!(ctx.has_deferred());
@@ -179,7 +179,7 @@ fn kept_encoders_go_in_one_submission_in_their_order() {
     );
 
     let words = {
-        let enc = ctx.device.create_command_encoder(&Default::default());
+        let enc = ctx.encoder();
         ctx.read_after(enc, &[(&c, 0, 15), (&d, 0, 16)]).unwrap()
     };
     assert_eq!(ctx.submissions(), before + 1, "one submission for all");

@@ -12,7 +12,8 @@
 //! device runs the step before meanwhile, unless a wait drained it; a software adapter such as lavapipe may
 //! run a large submission's work before `submit` returns, which then counts here too), then
 //! per case the GPU context's waits (and of them the draining ones, after which the device had
-//! nothing queued), submissions and pooled and created buffers per step. `--resolved` resolves
+//! nothing queued), submissions, pooled and created buffers, and the dispatches recorded, the
+//! compute passes they began and the queue writes made (uploads), per step. `--resolved` resolves
 //! each step before the next is recorded (`Trainer::step`), for a comparison. `--no-cpu` times the GPU alone (the CPU
 //! at 1 M Gaussians and 1080p takes seconds a step); `--synthetic B` adds B synthetic views
 //! of an eighth of the size to every step (Dual at constant weights), as Staged's and Dual's
@@ -155,12 +156,19 @@ struct DeviceCounts {
     submissions: f64,
     reused: f64,
     created: f64,
+    dispatches: f64,
+    passes: f64,
+    queue_writes: f64,
 }
 
 impl DeviceCounts {
     fn of(g: &augsplat_splat::gpu::GpuContext) -> DeviceCounts {
         let pool = g.pool_stats();
+        let rec = g.recording_stats();
         DeviceCounts {
+            dispatches: rec.dispatches as f64,
+            passes: rec.passes as f64,
+            queue_writes: rec.queue_writes as f64,
             waits: g.host_waits() as f64,
             draining: g.draining_waits() as f64,
             submissions: g.submissions() as f64,
@@ -176,6 +184,9 @@ impl DeviceCounts {
             submissions: (self.submissions - start.submissions) / steps,
             reused: (self.reused - start.reused) / steps,
             created: (self.created - start.created) / steps,
+            dispatches: (self.dispatches - start.dispatches) / steps,
+            passes: (self.passes - start.passes) / steps,
+            queue_writes: (self.queue_writes - start.queue_writes) / steps,
         }
     }
 }
@@ -237,8 +248,16 @@ fn main() {
             let c = gpu.per_step;
             counts.push(format!(
                 "{n} at {w}×{h}, per GPU step: {:.2} waits ({:.2} draining), {:.2} submissions, \
-                 {:.1} buffers from the pool, {:.1} created",
-                c.waits, c.draining, c.submissions, c.reused, c.created
+                 {:.1} buffers from the pool, {:.1} created; {:.1} dispatches in {:.1} compute \
+                 passes, {:.1} queue writes",
+                c.waits,
+                c.draining,
+                c.submissions,
+                c.reused,
+                c.created,
+                c.dispatches,
+                c.passes,
+                c.queue_writes
             ));
         }
     }

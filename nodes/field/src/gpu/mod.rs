@@ -330,7 +330,7 @@ pub(crate) fn count_later(
         "field rays",
         &f32_words(rays.iter().flat_map(|r| r.iter().copied())),
     )?;
-    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let mut enc = ctx.encoder();
     let batch = RayBatch {
         rays: &buf,
         occupied,
@@ -351,7 +351,7 @@ pub(crate) fn count_later(
 /// holds each ray's first sample and, at `n_rays`, the total.
 pub(crate) fn record_count(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     field: &Field,
     batch: RayBatch<'_>,
 ) -> Result<(GpuBuffer, GpuBuffer), GpuError> {
@@ -384,7 +384,7 @@ pub(crate) fn record_count(
 /// Records the samples' positions and records once their count `n` is known.
 pub(crate) fn record_write(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     field: &Field,
     batch: RayBatch<'_>,
     (starts, steps): (GpuBuffer, GpuBuffer),
@@ -455,7 +455,7 @@ impl DensityPass {
 /// Records the encoding and the density network over `points` (`n` live columns of `ld`).
 pub(crate) fn record_density(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     field: &Field,
     params: &wgpu::Buffer,
     points: &GpuPoints,
@@ -504,7 +504,7 @@ pub(crate) struct ColorPass {
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn record_color(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     field: &Field,
     params: &wgpu::Buffer,
     rays: &wgpu::Buffer,

@@ -101,7 +101,7 @@ fn record_densities_until_termination(
     model: &GpuFieldRef<'_>,
     marched: &Marched,
     n_rays: u32,
-    mut enc: wgpu::CommandEncoder,
+    mut enc: augsplat_render::gpu::Encoder,
 ) -> Result<(GpuBuffer, GpuBuffer), GpuError> {
     let field = model.field;
     let k = kernels(ctx)?;
@@ -131,7 +131,7 @@ fn record_densities_until_termination(
         );
         ctx.record_scan(&mut enc, &counts, n_rays + 1)?;
         let m = ctx.read_after(enc, &[(&counts, u64::from(n_rays), 1)])?[0][0];
-        enc = ctx.device.create_command_encoder(&Default::default());
+        enc = ctx.encoder();
         if m == 0 {
             break;
         }
@@ -213,7 +213,7 @@ fn render_pass(
     if n > budget && n_rays > 1 {
         return Ok(None);
     }
-    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let mut enc = ctx.encoder();
     let batch = RayBatch {
         rays: &rays_buf,
         occupied: model.occupied,
@@ -222,7 +222,7 @@ fn render_pass(
     let marched = record_write(ctx, &mut enc, field, batch, starts, n)?;
     let ld = marched.ld;
     let (dout, ray_state) = record_densities_until_termination(ctx, model, &marched, n_rays, enc)?;
-    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let mut enc = ctx.encoder();
     let wg = ctx.storage("sample weights", 8 * u64::from(ld))?;
     let flags = ctx.storage("live samples", 4 * (u64::from(n) + 1))?;
     let ray_out = ctx.storage(

@@ -136,7 +136,7 @@ impl<'a> GpuTrainer<'a> {
         rays: &[[f32; RAY_FLOATS]],
         opts: &TrainOptions,
         before: &[(&wgpu::Buffer, u64, usize)],
-    ) -> Result<(StepBuffers, Vec<Vec<u32>>, wgpu::CommandEncoder), GpuError> {
+    ) -> Result<(StepBuffers, Vec<Vec<u32>>, augsplat_render::gpu::Encoder), GpuError> {
         let mut counted = count_samples(self.ctx, self.field, rays, &self.occupied, before)?;
         let earlier = std::mem::take(&mut counted.earlier);
         let (bufs, enc) = self.record_counted(counted, rays.len() as u32, opts)?;
@@ -149,7 +149,7 @@ impl<'a> GpuTrainer<'a> {
         counted: Counted,
         n_rays: u32,
         opts: &TrainOptions,
-    ) -> Result<(StepBuffers, wgpu::CommandEncoder), GpuError> {
+    ) -> Result<(StepBuffers, augsplat_render::gpu::Encoder), GpuError> {
         let (ctx, field) = (self.ctx, self.field);
         let k = kernels(ctx)?;
         let Counted {
@@ -165,7 +165,7 @@ impl<'a> GpuTrainer<'a> {
                  per pass: lower rays_per_step"
             )));
         }
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let mut enc = ctx.encoder();
         let batch = RayBatch {
             rays: &rays_buf,
             occupied: &self.occupied,
@@ -453,7 +453,7 @@ impl<'a> GpuTrainer<'a> {
                 // The step before is still unread: its status goes in a submission of its
                 // own ahead of this step, and the wait is for that alone.
                 Some(pending) => {
-                    let read = self.ctx.device.create_command_encoder(&Default::default());
+                    let read = self.ctx.encoder();
                     let ticket = self.ctx.read_later(read, &status_part(Some(&pending)))?;
                     self.ctx.submit_no_wait(enc)?;
                     let words = ticket.wait(self.ctx)?;
@@ -514,7 +514,7 @@ impl<'a> GpuTrainer<'a> {
         let res = field.config.occupancy_resolution;
         let shape = OccupancyGrid::full(res);
         let cells = shape.len();
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let mut enc = ctx.encoder();
         let chunks = cells.div_ceil(OCCUPANCY_CHUNK_CELLS);
         let per_batch = OCCUPANCY_BATCH_CELLS / OCCUPANCY_CHUNK_CELLS;
         for b in 0..chunks.div_ceil(per_batch) {
@@ -581,7 +581,7 @@ impl<'a> GpuTrainer<'a> {
     pub fn download(&self) -> Result<(Vec<f32>, OccupancyGrid, Adam), GpuError> {
         let np = self.field.n_params;
         let cells = OccupancyGrid::full(self.field.config.occupancy_resolution).len();
-        let enc = self.ctx.device.create_command_encoder(&Default::default());
+        let enc = self.ctx.encoder();
         let words = self.ctx.read_after(
             enc,
             &[
@@ -731,10 +731,7 @@ fn evaluate_gpu(
     let e = field.config.appearance_dim as usize;
     let emb = if e > 0 {
         let n = field.config.n_images as usize * e;
-        let w = ctx.read_after(
-            ctx.device.create_command_encoder(&Default::default()),
-            &[(params, field.embedding_offset as u64, n)],
-        )?;
+        let w = ctx.read_after(ctx.encoder(), &[(params, field.embedding_offset as u64, n)])?;
         w[0].iter().map(|b| f32::from_bits(*b)).collect()
     } else {
         Vec::new()

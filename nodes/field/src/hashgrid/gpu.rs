@@ -46,7 +46,7 @@ impl AtomicKernels {
 #[cfg(feature = "determinism-cost")]
 pub fn record_backward_atomic(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     grid: &HashGrid,
     pts: &GpuPoints,
     d_out: &wgpu::Buffer,
@@ -115,7 +115,7 @@ impl FixedKernels {
 /// turn NaN).
 pub fn record_backward_fixed(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     grid: &HashGrid,
     pts: &GpuPoints,
     d_out: &wgpu::Buffer,
@@ -309,7 +309,7 @@ fn check_backward_buffers(
 /// (`L·F` rows of `ld`; columns past the points and values that are not finite are 0).
 pub fn record_encode(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     grid: &HashGrid,
     table: &wgpu::Buffer,
     pts: &GpuPoints,
@@ -342,7 +342,7 @@ pub fn record_encode(
 /// ([`HashGrid::backward_level`]) by sorting the pairs by entry (see the module notes).
 pub fn record_backward(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     grid: &HashGrid,
     pts: &GpuPoints,
     d_out: &wgpu::Buffer,
@@ -420,7 +420,7 @@ pub fn encode_gpu(
         let points = GpuPoints::upload(ctx, pts)?;
         let len = grid.output_dim() * pts.ld;
         let out = ctx.storage("encoding", 4 * len as u64)?;
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let mut enc = ctx.encoder();
         record_encode(ctx, &mut enc, grid, &table, &points, &out)?;
         let words = ctx.read_after(enc, &[(&out, 0, len)])?;
         ctx.reclaim();
@@ -466,7 +466,7 @@ fn backward_on_gpu(
         let points = GpuPoints::upload(ctx, pts)?;
         let d = ctx.storage_init("encoding gradient", &f32_words(d_out.iter().copied()))?;
         let g = ctx.storage_init("table gradient", &f32_words(grad.iter().copied()))?;
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let mut enc = ctx.encoder();
         let levels = if fixed {
             Some(record_backward_fixed(ctx, &mut enc, grid, &points, &d, &g)?)
         } else {

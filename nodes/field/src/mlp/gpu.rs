@@ -78,7 +78,7 @@ pub struct GpuBatch<'a> {
 #[allow(clippy::too_many_arguments)]
 fn record_dense(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     words: [u32; 12],
     params: &wgpu::Buffer,
     x: &wgpu::Buffer,
@@ -164,7 +164,7 @@ pub struct GpuMlp<'a> {
 /// layer, `out × ld`; hidden layers ReLU, the last linear), as [`Mlp::forward`].
 pub fn record_mlp_forward(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     net: GpuMlp<'_>,
     x: &wgpu::Buffer,
     acts: &[GpuBuffer],
@@ -212,7 +212,7 @@ pub struct InputGradOut<'a> {
 #[allow(clippy::too_many_arguments)]
 pub fn record_mlp_backward(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     net: GpuMlp<'_>,
     x: &wgpu::Buffer,
     acts: &[GpuBuffer],
@@ -297,7 +297,7 @@ impl WeightGradKernel {
 #[allow(clippy::too_many_arguments)]
 pub fn record_weight_grad(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     s: LayerShape,
     (dy, x): (&wgpu::Buffer, &wgpu::Buffer),
     grad: &wgpu::Buffer,

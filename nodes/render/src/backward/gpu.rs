@@ -100,7 +100,7 @@ fn vjp_inner(
     let k = scene.coeffs as usize;
     let grads = ctx.storage_items("parameter gradients", 4 * (PARAM_GRAD_STRIDE * n) as u64)?;
     let sh = ctx.storage_items("SH gradients", 4 * (3 * k * n) as u64)?;
-    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let mut enc = ctx.encoder();
     record_vjp(ctx, &mut enc, scene, cam, s, upstream, (&grads, &sh))?;
     ctx.submit(enc)?;
     let to_f32 = |w: Vec<u32>| w.into_iter().map(f32::from_bits).collect();
@@ -117,7 +117,7 @@ fn vjp_inner(
 /// gradients in the parameters' layout).
 pub fn record_vjp(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut crate::gpu::Encoder,
     scene: &GpuScene,
     cam: &Camera,
     s: &RenderSettings,
@@ -152,7 +152,7 @@ pub fn record_vjp(
 #[allow(clippy::too_many_arguments)]
 pub fn record_backward(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut crate::gpu::Encoder,
     st: &ForwardState,
     grid: TileGrid,
     d_rgb: &wgpu::Buffer,
@@ -405,7 +405,7 @@ fn backward_inner(
         // The forward's work done before the clock starts.
         ctx.wait()?;
         let started = std::time::Instant::now();
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let mut enc = ctx.encoder();
         if let Some(pair_grads) = &pair_grads {
             record_backward(
                 ctx, &mut enc, &st, grid, &g_rgb, &screen, n as u32, pair_grads,

@@ -312,7 +312,7 @@ pub struct Projection<'a> {
 /// `camera_w` ([`camera_words`]), in as few dispatches as the binding limit allows.
 pub fn record_projection(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut crate::gpu::Encoder,
     g: &GpuScene,
     logits: &wgpu::Buffer,
     camera_w: &[u32],
@@ -380,14 +380,14 @@ pub fn forward_pass_in(
     let splats = ctx.storage_split("splats", nn, SPLAT_STRIDE, 2)?;
     let meta = ctx.storage("tile rectangles", 16 * nn)?;
     let keys = ctx.storage("depth keys", 4 * nn)?;
-    let index: Vec<u32> = (0..n).collect();
-    let vals = ctx.storage_init("Gaussian indices", &index)?;
+    // Written by the sort's first pass (the indices need no upload).
+    let vals = ctx.storage_overwritten("Gaussian order", 4 * nn)?;
     let keys2 = ctx.storage("depth keys (scratch)", 4 * nn)?;
-    let vals2 = ctx.storage("Gaussian indices (scratch)", 4 * nn)?;
+    let vals2 = ctx.storage("Gaussian order (scratch)", 4 * nn)?;
     let counts = ctx.storage("tile counts", 4 * (nn + 1))?;
 
     // Project, sort by (depth, index), count each rank's tiles and scan them.
-    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let mut enc = ctx.encoder();
     record_projection(
         ctx,
         &mut enc,
@@ -400,7 +400,8 @@ pub fn forward_pass_in(
             keys: &keys,
         },
     )?;
-    let (_, sorted_order) = ctx.record_sort(&mut enc, &keys, &vals, (&keys2, &vals2), n, 32)?;
+    let (_, sorted_order) =
+        ctx.record_sort_indices(&mut enc, &keys, &vals, (&keys2, &vals2), n, 32)?;
     let order_in_vals = std::ptr::eq(sorted_order, &*vals);
     let order = if order_in_vals { vals } else { vals2 };
     let pixels = u64::from(cam.width) * u64::from(cam.height);
@@ -439,7 +440,7 @@ pub fn forward_pass_in(
         Some(slots) => (slots, enc),
         None => (
             ctx.read_after(enc, &[(&counts, u64::from(n), 1)])?[0][0],
-            ctx.device.create_command_encoder(&Default::default()),
+            ctx.encoder(),
         ),
     };
 

@@ -69,7 +69,7 @@ impl GpuContext {
     /// One chunk binds every buffer whole: exactly the unchunked dispatch.
     pub fn dispatch_items(
         &self,
-        enc: &mut wgpu::CommandEncoder,
+        enc: &mut crate::gpu::Encoder,
         pipeline: &wgpu::ComputePipeline,
         (uniform, count_word): (&[u32], usize),
         bindings: &[ItemBinding<'_>],
@@ -206,7 +206,7 @@ impl GpuContext {
     /// [`GpuContext::dispatch`] with whole buffers and ready resources (ranges).
     pub fn dispatch_mixed(
         &self,
-        enc: &mut wgpu::CommandEncoder,
+        enc: &mut crate::gpu::Encoder,
         pipeline: &wgpu::ComputePipeline,
         whole: &[(u32, &wgpu::Buffer)],
         ranged: Vec<(u32, wgpu::BindingResource<'_>)>,

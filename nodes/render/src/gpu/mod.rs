@@ -2,7 +2,8 @@
 //! the same splatting maths as the CPU kernels, in f32, deterministic.
 //!
 //! This module holds what every kernel family shares: the context (adapter, device, limits,
-//! error scopes, a buffer pool: `gpu/pool.rs`, encoders kept and submitted together:
+//! error scopes, a buffer pool: `gpu/pool.rs`, encoders whose dispatches share a compute
+//! pass: `gpu/encoder.rs`, encoders and small uploads kept and submitted together:
 //! `gpu/submit.rs`), the buffer layout past one binding
 //! (`gpu/chunk.rs`), the WGSL prelude
 //! generated from the Rust constants (`gpu/prelude.rs`), and the radix sort and prefix sum
@@ -40,6 +41,7 @@
 //! feature.
 
 mod chunk;
+mod encoder;
 mod pool;
 pub mod prelude;
 pub mod sort;
@@ -57,8 +59,10 @@ pub use crate::forward::gpu::{
     upload_mask, GpuFrame, GpuScene,
 };
 
+pub use encoder::{Encoder, RecordingStats};
 use pool::Contents;
 pub use pool::{GpuBuffer, PoolStats, DEFAULT_IDLE_BYTES};
+pub use submit::BATCHED_UPLOAD_BYTES;
 pub use ticket::ReadTicket;
 
 /// What can go wrong on the GPU.
@@ -161,6 +165,8 @@ pub struct GpuContext {
     pending: std::sync::Mutex<submit::Pending>,
     /// Submissions made ([`GpuContext::submissions`]).
     submissions: std::sync::atomic::AtomicU64,
+    /// Dispatches, passes and uploads recorded ([`GpuContext::recording_stats`]).
+    recording: encoder::RecordingCounters,
 }
 
 /// Compiled kernel sets by type.
@@ -312,6 +318,7 @@ impl GpuContext {
             wait_nanos: Default::default(),
             pending: Default::default(),
             submissions: Default::default(),
+            recording: Default::default(),
         })
     }
 
@@ -403,6 +410,17 @@ impl GpuContext {
         self.storage_shaped(what, bytes, limit, Contents::Zeroed)
     }
 
+    /// A storage buffer of `bytes` bytes (at least 16) whose contents are left as they are: a
+    /// buffer from the pool is not cleared. Only for a caller whose kernels write every word
+    /// they later read before reading it.
+    pub(crate) fn storage_overwritten(
+        &self,
+        what: &str,
+        bytes: u64,
+    ) -> Result<GpuBuffer, GpuError> {
+        self.storage_shaped(what, bytes, self.binding_limit, Contents::Overwritten)
+    }
+
     /// A storage buffer of `bytes` bytes rounded up as [`GpuContext::storage`] rounds,
     /// checked against `limit`.
     fn storage_shaped(
@@ -448,11 +466,11 @@ impl GpuContext {
     ) -> Result<GpuBuffer, GpuError> {
         let bytes = 4 * data.len() as u64;
         let buf = self.storage_shaped(what, bytes, limit, Contents::Overwritten)?;
-        // Written whole, zeros past `data` up to a buffer's 16-byte minimum: a queue write
-        // never lands on a buffer whose clear is still kept (`gpu/submit.rs`).
+        // Written whole, zeros past `data` up to a buffer's 16-byte minimum: an upload never
+        // lands on a buffer whose clear is still kept (`gpu/submit.rs`).
         let mut words = data.to_vec();
         words.resize(words.len().max(4), 0);
-        self.queue.write_buffer(&buf, 0, &words_to_bytes(&words));
+        self.upload(&buf, &words_to_bytes(&words));
         Ok(buf)
     }
 
@@ -463,8 +481,8 @@ impl GpuContext {
 
     /// A uniform buffer holding `words` (zeros after them up to a multiple of 16 bytes).
     pub fn uniform(&self, what: &str, words: &[u32]) -> GpuBuffer {
-        // Written through the queue rather than mapped at creation: on a lost device a
-        // mapped creation panics inside wgpu, a queue write is an error the scope reports.
+        // Uploaded before the next submission rather than mapped at creation: on a lost device
+        // a mapped creation panics inside wgpu, an upload is an error the scope reports.
         let mut bytes = words_to_bytes(words);
         bytes.resize(
             (bytes.len() as u64).max(16).next_multiple_of(16) as usize,
@@ -475,47 +493,8 @@ impl GpuContext {
             | wgpu::BufferUsages::STORAGE
             | wgpu::BufferUsages::COPY_DST;
         let buf = self.pooled(what, bytes.len() as u64, usage, Contents::Overwritten);
-        self.queue.write_buffer(&buf, 0, &bytes);
+        self.upload(&buf, &bytes);
         buf
-    }
-
-    /// Records one dispatch of `pipeline` over `groups` workgroups (spread over two
-    /// dimensions past the per-dimension limit) with `buffers` at bindings 0, 1, ….
-    pub fn dispatch(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        pipeline: &wgpu::ComputePipeline,
-        bindings: &[(u32, &wgpu::Buffer)],
-        groups: [u32; 2],
-    ) {
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = bindings
-            .iter()
-            .map(|(b, buf)| wgpu::BindGroupEntry {
-                binding: *b,
-                resource: buf.as_entire_binding(),
-            })
-            .collect();
-        self.dispatch_entries(enc, pipeline, &entries, groups);
-    }
-
-    /// [`GpuContext::dispatch`] with ready bind-group entries (whole buffers or ranges).
-    pub fn dispatch_entries(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        pipeline: &wgpu::ComputePipeline,
-        entries: &[wgpu::BindGroupEntry<'_>],
-        groups: [u32; 2],
-    ) {
-        let layout = pipeline.get_bind_group_layout(0);
-        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: None,
-            layout: &layout,
-            entries,
-        });
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-        pass.set_pipeline(pipeline);
-        pass.set_bind_group(0, &group, &[]);
-        pass.dispatch_workgroups(groups[0], groups[1], 1);
     }
 
     /// Workgroups for `blocks` blocks: (x, y) with x ≤ the per-dimension limit.
@@ -530,7 +509,7 @@ impl GpuContext {
 
     /// Submits `enc` and waits for the device; reports validation errors, out-of-memory and
     /// device loss as [`GpuError::Device`].
-    pub fn submit(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
+    pub fn submit(&self, enc: crate::gpu::Encoder) -> Result<(), GpuError> {
         self.submit_kept(Some(enc.finish()));
         self.wait()
     }
@@ -538,7 +517,7 @@ impl GpuContext {
     /// Submits what is kept ([`GpuContext::defer`]) and `enc` without waiting for them: for
     /// work whose results stay on the GPU. The queue runs submissions in order, so the next read-back ([`GpuContext::read_after`])
     /// sees its effects; errors surface there or in the enclosing [`GpuContext::scoped`].
-    pub fn submit_no_wait(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
+    pub fn submit_no_wait(&self, enc: crate::gpu::Encoder) -> Result<(), GpuError> {
         self.submit_kept(Some(enc.finish()));
         let _ = self.device.poll(wgpu::PollType::Poll);
         self.check_lost()
@@ -617,7 +596,7 @@ impl GpuContext {
         if words == 0 {
             return Ok(Vec::new());
         }
-        let enc = self.device.create_command_encoder(&Default::default());
+        let enc = self.encoder();
         let mut parts = self.read_after(enc, &[(buf, 0, words)])?;
         Ok(parts.pop().unwrap_or_default())
     }
@@ -628,7 +607,7 @@ impl GpuContext {
     /// ([`GpuContext::read_later`] and its wait).
     pub fn read_after(
         &self,
-        enc: wgpu::CommandEncoder,
+        enc: crate::gpu::Encoder,
         parts: &[(&wgpu::Buffer, u64, usize)],
     ) -> Result<Vec<Vec<u32>>, GpuError> {
         self.read_later(enc, parts)?.wait(self)

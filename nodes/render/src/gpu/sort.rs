@@ -9,7 +9,7 @@ impl GpuContext {
     /// Records an in-place exclusive prefix sum of the first `n` u32 words of `data`.
     pub fn record_scan(
         &self,
-        enc: &mut wgpu::CommandEncoder,
+        enc: &mut crate::gpu::Encoder,
         data: &wgpu::Buffer,
         n: u32,
     ) -> Result<(), GpuError> {
@@ -43,12 +43,47 @@ impl GpuContext {
     /// scratch pair, by the parity of the passes).
     pub fn record_sort<'a>(
         &self,
-        enc: &mut wgpu::CommandEncoder,
+        enc: &mut crate::gpu::Encoder,
         keys: &'a wgpu::Buffer,
         vals: &'a wgpu::Buffer,
         scratch: (&'a wgpu::Buffer, &'a wgpu::Buffer),
         n: u32,
         bits: u32,
+    ) -> Result<(&'a wgpu::Buffer, &'a wgpu::Buffer), GpuError> {
+        self.record_sort_values(enc, keys, vals, scratch, n, bits, false)
+    }
+
+    /// [`GpuContext::record_sort`] of the pairs (key `i`, `i`): the sorted values are the
+    /// keys' order, and `vals` (written by the sort, never read) needs no upload of the
+    /// indices. `bits` must be positive (no pass would leave `vals` unwritten).
+    pub fn record_sort_indices<'a>(
+        &self,
+        enc: &mut crate::gpu::Encoder,
+        keys: &'a wgpu::Buffer,
+        vals: &'a wgpu::Buffer,
+        scratch: (&'a wgpu::Buffer, &'a wgpu::Buffer),
+        n: u32,
+        bits: u32,
+    ) -> Result<(&'a wgpu::Buffer, &'a wgpu::Buffer), GpuError> {
+        if bits == 0 {
+            return Err(GpuError::Invalid(
+                "a sort of indices by 0 key bits writes no order".into(),
+            ));
+        }
+        self.record_sort_values(enc, keys, vals, scratch, n, bits, true)
+    }
+
+    /// The sort, its values read from `vals` or (`indices`) the indices in the first pass.
+    #[allow(clippy::too_many_arguments)]
+    fn record_sort_values<'a>(
+        &self,
+        enc: &mut crate::gpu::Encoder,
+        keys: &'a wgpu::Buffer,
+        vals: &'a wgpu::Buffer,
+        scratch: (&'a wgpu::Buffer, &'a wgpu::Buffer),
+        n: u32,
+        bits: u32,
+        indices: bool,
     ) -> Result<(&'a wgpu::Buffer, &'a wgpu::Buffer), GpuError> {
         let mut src = (keys, vals);
         let mut dst = scratch;
@@ -60,7 +95,8 @@ impl GpuContext {
         let hist = self.storage("sort histogram", 4 * 16 * u64::from(blocks))?;
         let k = &self.kernels.sort;
         for pass in 0..bits.div_ceil(4) {
-            let params = self.uniform("sort params", &[n, blocks, 4 * pass, 0]);
+            let index_values = u32::from(indices && pass == 0);
+            let params = self.uniform("sort params", &[n, blocks, 4 * pass, index_values]);
             self.dispatch(
                 enc,
                 &k.sort_count,

@@ -3,13 +3,15 @@
 // the equal digits before it in its block of 256 — an exclusive prefix sum over the block of
 // one-hot digit counters, sixteen 16-bit fields in eight words per element — and writes the
 // block's digit histogram (digit-major, so an exclusive scan of it gives every (digit, block)
-// its output offset); `scatter` moves each pair to offset + rank.
+// its output offset); `scatter` moves each pair to offset + rank. A sort whose values are the
+// elements' indices reads none in its first pass (`index_values`): each element's value is
+// its index.
 
 struct Params {
     n: u32,
     blocks: u32,
     shift: u32,
-    _a: u32,
+    index_values: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -80,5 +82,9 @@ fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
     let d = (k >> p.shift) & 15u;
     let dst = hist[d * p.blocks + block] + ranks[i];
     keys_out[dst] = k;
-    vals_out[dst] = vals_in[i];
+    if (p.index_values != 0u) {
+        vals_out[dst] = i;
+    } else {
+        vals_out[dst] = vals_in[i];
+    }
 }

@@ -10,35 +10,55 @@
 //!   next submission: it is idle, so no kept work uses it, and what it is recorded into comes
 //!   later (`gpu/pool.rs`).
 //!
+//! - small uploads (a kernel's parameter block, a short array: [`GpuContext::uniform`],
+//!   [`GpuContext::storage_init`] up to [`BATCHED_UPLOAD_BYTES`]) wait with them too: their
+//!   bytes are gathered on the host and go up in one queue write per submission, copied to
+//!   their buffers at its start. A queue write costs wgpu a staging buffer of its own, which
+//!   was most of the time a step took to record.
+//!
 //! Order is unchanged: the queue runs the kept encoders in the order they were recorded, so
-//! deferring changes when work starts, never what it computes. Two rules keep it so. A queue
-//! write (`queue.write_buffer`) runs before the next submission's encoders, so it may target
-//! only a buffer that no kept encoder uses and that is not cleared by the next submission: a
-//! fresh or reused buffer that its writer overwrites whole (`GpuContext::storage_init`,
-//! `GpuContext::uniform`). And the pool reclaims dropped buffers only when nothing is kept
-//! ([`GpuContext::reclaim`]): a kept encoder may still use them.
+//! deferring changes when work starts, never what it computes. Two rules keep it so. An
+//! upload (batched, or a large one's own `queue.write_buffer`) lands before the next
+//! submission's encoders, so it may target only a buffer that no kept encoder uses and that
+//! is not cleared by the next submission: a fresh or reused buffer that its writer overwrites
+//! whole (`GpuContext::storage_init`, `GpuContext::uniform`). And the pool reclaims dropped
+//! buffers only when nothing is kept ([`GpuContext::reclaim`]): a kept encoder or upload may
+//! still use them.
 
-use super::{GpuContext, GpuError};
+use super::pool::Contents;
+use super::{Encoder, GpuBuffer, GpuContext, GpuError};
 
-/// The encoders kept for the next submission.
+/// The largest upload gathered into a submission's batch (64 KiB); a larger one goes up in a
+/// queue write of its own, whose staging buffer its size amortises.
+pub const BATCHED_UPLOAD_BYTES: usize = 64 << 10;
+
+/// The smallest staging buffer a submission's uploads go up in (sizes round up to a power of
+/// two from here, so the pool hands the same few shapes out again).
+const MIN_STAGING_BYTES: u64 = 4 << 10;
+
+/// The encoders and uploads kept for the next submission.
 #[derive(Default)]
 pub(crate) struct Pending {
     /// Clears of reused pool buffers, run before everything else.
     clears: Option<wgpu::CommandEncoder>,
+    /// The bytes of the gathered uploads, each starting at a multiple of 4.
+    upload: Vec<u8>,
+    /// Each gathered upload's buffer, its offset in `upload` and its length in bytes.
+    targets: Vec<(wgpu::Buffer, u64, u64)>,
     /// Finished encoders, in recording order.
     buffers: Vec<wgpu::CommandBuffer>,
 }
 
 impl Pending {
     fn is_empty(&self) -> bool {
-        self.clears.is_none() && self.buffers.is_empty()
+        self.clears.is_none() && self.targets.is_empty() && self.buffers.is_empty()
     }
 }
 
 impl GpuContext {
     /// Finishes `enc` and keeps it for the next submission (see the module notes): for work
     /// whose results stay on the GPU and that nothing on the host waits for yet.
-    pub fn defer(&self, enc: wgpu::CommandEncoder) -> Result<(), GpuError> {
+    pub fn defer(&self, enc: Encoder) -> Result<(), GpuError> {
         let buf = enc.finish();
         match self.pending.lock() {
             Ok(mut p) => p.buffers.push(buf),
@@ -90,6 +110,54 @@ impl GpuContext {
             .clear_buffer(buf, 0, None);
     }
 
+    /// Writes `bytes` (a multiple of 4 long) to the start of `buf` before the next
+    /// submission's work: gathered into that submission's one upload when short, in a queue
+    /// write of its own when long (see the module notes for what `buf` may be).
+    pub(crate) fn upload(&self, buf: &wgpu::Buffer, bytes: &[u8]) {
+        if bytes.is_empty() {
+            return;
+        }
+        if bytes.len() <= BATCHED_UPLOAD_BYTES {
+            if let Ok(mut p) = self.pending.lock() {
+                let at = p.upload.len() as u64;
+                p.upload.extend_from_slice(bytes);
+                p.targets.push((buf.clone(), at, bytes.len() as u64));
+                self.recording.count_upload(true);
+                return;
+            }
+        }
+        self.recording.count_upload(false);
+        self.queue.write_buffer(buf, 0, bytes);
+    }
+
+    /// The encoder that runs first in a submission: the clears of reused buffers, then the
+    /// copies of the gathered uploads (written here to a staging buffer, returned to be
+    /// dropped once the submission is made). Either may be empty; `None` when both are.
+    fn head(&self, kept: &mut Pending) -> (Option<wgpu::CommandBuffer>, Option<GpuBuffer>) {
+        if kept.targets.is_empty() {
+            return (kept.clears.take().map(wgpu::CommandEncoder::finish), None);
+        }
+        let bytes = (kept.upload.len() as u64)
+            .next_power_of_two()
+            .max(MIN_STAGING_BYTES);
+        let staging = self.pooled(
+            "uploads",
+            bytes,
+            wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            Contents::Overwritten,
+        );
+        self.recording.count_upload(false);
+        self.queue.write_buffer(&staging, 0, &kept.upload);
+        let mut enc = kept
+            .clears
+            .take()
+            .unwrap_or_else(|| self.device.create_command_encoder(&Default::default()));
+        for (buf, at, len) in kept.targets.drain(..) {
+            enc.copy_buffer_to_buffer(&staging, at, &buf, 0, len);
+        }
+        (Some(enc.finish()), Some(staging))
+    }
+
     /// Submits the kept encoders and then `last`, in one submission (none when there is
     /// nothing to submit): the submission's number ([`GpuContext::submissions`] after it)
     /// and wgpu's index of it.
@@ -97,7 +165,7 @@ impl GpuContext {
         &self,
         last: Option<wgpu::CommandBuffer>,
     ) -> Option<(u64, wgpu::SubmissionIndex)> {
-        let kept = self
+        let mut kept = self
             .pending
             .lock()
             .map(|mut p| std::mem::take(&mut *p))
@@ -105,14 +173,14 @@ impl GpuContext {
         if kept.is_empty() && last.is_none() {
             return None;
         }
-        let all: Vec<wgpu::CommandBuffer> = kept
-            .clears
-            .map(wgpu::CommandEncoder::finish)
-            .into_iter()
-            .chain(kept.buffers)
-            .chain(last)
-            .collect();
+        let (head, staging) = self.head(&mut kept);
+        let all: Vec<wgpu::CommandBuffer> =
+            head.into_iter().chain(kept.buffers).chain(last).collect();
         let number = self.count_submission();
-        Some((number, self.queue.submit(all)))
+        let index = self.queue.submit(all);
+        // Into the pool's quarantine only now that its copies are submitted: reusable after
+        // the next reclaim, and the queue runs this submission before any later write to it.
+        drop(staging);
+        Some((number, index))
     }
 }

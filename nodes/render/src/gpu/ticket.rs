@@ -29,7 +29,7 @@ impl GpuContext {
     /// [`ReadTicket::wait`] returns each part's words once that submission has run.
     pub fn read_later(
         &self,
-        mut enc: wgpu::CommandEncoder,
+        mut enc: crate::gpu::Encoder,
         parts: &[(&wgpu::Buffer, u64, usize)],
     ) -> Result<ReadTicket, GpuError> {
         let sizes: Vec<usize> = parts.iter().map(|p| p.2).collect();

@@ -234,7 +234,7 @@ impl GpuTrainer {
             );
             let sc = &self.scene;
             let groups = ctx.groups(n.div_ceil(256));
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             ctx.dispatch(
                 &mut enc,
                 &kr.decide,
@@ -344,8 +344,8 @@ impl GpuTrainer {
         let base = u64::from(d.kept_old + d.kept_clone);
         let kids = d.children.len() as u64;
         ctx.scoped(|| {
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
-            let compact = |enc: &mut wgpu::CommandEncoder,
+            let mut enc = ctx.encoder();
+            let compact = |enc: &mut augsplat_render::gpu::Encoder,
                            src: &wgpu::Buffer,
                            what: &str,
                            width: u32,
@@ -371,7 +371,7 @@ impl GpuTrainer {
                 Ok(dst)
             };
             // A parameter array: the children's values after the clones.
-            let param = |enc: &mut wgpu::CommandEncoder,
+            let param = |enc: &mut augsplat_render::gpu::Encoder,
                          src: &wgpu::Buffer,
                          what: &str,
                          width: u32,
@@ -447,7 +447,7 @@ impl GpuTrainer {
     pub(crate) fn reset_for_switch(&self, ctx: &GpuContext, value: f64) -> Result<(), GpuError> {
         let kernels = ctx.kernels_of(Kernels::new)?;
         ctx.scoped(|| {
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             self.record_clamp(ctx, &kernels, &mut enc, value);
             for (m, v) in &self.moments {
                 enc.clear_buffer(m, 0, None);
@@ -506,7 +506,7 @@ impl GpuTrainer {
             let splats = ctx.storage_items("splats", 4 * SPLAT_STRIDE * nn)?;
             let rects = ctx.storage_items("tile rectangles", 16 * nn)?;
             let keys = ctx.storage_items("depth keys", 4 * nn)?;
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             for cam in views.cameras {
                 let words = camera_words(&self.scene, cam, &settings, tile_grid(cam)?);
                 let out = Projection {
@@ -543,7 +543,7 @@ impl GpuTrainer {
     /// Kept for the next submission.
     fn reset_opacities(&self, ctx: &GpuContext, kr: &Kernels, value: f64) -> Result<(), GpuError> {
         ctx.scoped(|| {
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             self.record_clamp(ctx, kr, &mut enc, value);
             let (m, v) = &self.moments[crate::train::gpu::OPACITY_GROUP];
             enc.clear_buffer(m, 0, None);
@@ -557,7 +557,7 @@ impl GpuTrainer {
         &self,
         ctx: &GpuContext,
         kr: &Kernels,
-        enc: &mut wgpu::CommandEncoder,
+        enc: &mut augsplat_render::gpu::Encoder,
         value: f64,
     ) {
         let cap = crate::init::logit(value) as f32;

@@ -192,7 +192,7 @@ impl LossSums {
     /// `(loss, pixel term, mean SSIM)` as [`crate::loss::photometric`] returns them (SSIM 1
     /// where the term is left out); for the weighted L2, `(loss, loss, 1)`.
     pub(crate) fn terms(&self, ctx: &GpuContext) -> Result<(f64, f64, f64), GpuError> {
-        let enc = ctx.device.create_command_encoder(&Default::default());
+        let enc = ctx.encoder();
         let words = ctx.read_after(enc, &self.parts())?;
         Ok(self.terms_from(&words))
     }
@@ -292,7 +292,7 @@ impl Images<'_> {
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn record_loss(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     pred: &wgpu::Buffer,
     pred_stride: u32,
     target: TargetBuffer<'_>,
@@ -348,7 +348,7 @@ pub(crate) fn record_loss(
 /// The weighted L2 (`weighted`).
 fn record_weighted(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     im: &Images<'_>,
     weights: &wgpu::Buffer,
     denominator: f64,
@@ -388,7 +388,7 @@ fn record_weighted(
 /// The photometric loss: `pixel` alone, or the four SSIM passes (see `loss.wgsl`).
 fn record_photometric(
     ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
+    enc: &mut augsplat_render::gpu::Encoder,
     im: &Images<'_>,
     kind: PixelLoss,
     ssim_lambda: f32,
@@ -528,7 +528,7 @@ pub fn loss_gpu(
             None => None,
         };
         let d_rgb = ctx.storage("colour gradients", 4 * 3 * pixels as u64)?;
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let mut enc = ctx.encoder();
         let sums = record_loss(
             ctx,
             &mut enc,

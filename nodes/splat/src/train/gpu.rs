@@ -348,7 +348,7 @@ impl GpuTrainer {
 
     /// Clears the step's overflow flag (before its views run again from an overflowed one).
     pub fn clear_overflow(&self, ctx: &GpuContext) -> Result<(), GpuError> {
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        let mut enc = ctx.encoder();
         enc.clear_buffer(&self.overflow, 0, None);
         ctx.defer(enc)
     }
@@ -359,7 +359,7 @@ impl GpuTrainer {
     /// [`GpuTrainer::clear_overflow`]).
     pub fn begin_step(&self, ctx: &GpuContext) -> Result<(), GpuError> {
         ctx.scoped(|| {
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             let n = self.scene.n;
             for (buf, width) in [
                 (&self.acc_grads, PARAM_GRAD_STRIDE as u32),
@@ -413,10 +413,10 @@ impl GpuTrainer {
             let st = forward_pass_in(ctx, sc, cam, s, grid, Cutoff::Hard, mask, slots)?;
             let (count_buf, count_at) = st.pair_count_at();
             let px = cam.width as usize * cam.height as usize;
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             let (host_value, sums, d_rgb) = match loss {
                 ViewLoss::Host { loss: f, .. } => {
-                    let read = ctx.device.create_command_encoder(&Default::default());
+                    let read = ctx.encoder();
                     let mut words = ctx.read_after(
                         read,
                         &[(&st.image, 0, IMAGE_STRIDE * px), (count_buf, count_at, 1)],
@@ -424,7 +424,7 @@ impl GpuTrainer {
                     let count = words[1][0];
                     if st.overflowed_in(count) {
                         // Nothing more of this view: the flag stops the step's later views.
-                        let mut flag = ctx.device.create_command_encoder(&Default::default());
+                        let mut flag = ctx.encoder();
                         self.record_flag(ctx, &mut flag, &st)?;
                         ctx.defer(flag)?;
                         return Ok(PendingView::overflowed(count));
@@ -535,7 +535,7 @@ impl GpuTrainer {
     fn record_flag(
         &self,
         ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        enc: &mut augsplat_render::gpu::Encoder,
         st: &crate::forward::gpu::ForwardState,
     ) -> Result<(), GpuError> {
         let (counts, count_at) = st.pair_count_at();
@@ -567,7 +567,7 @@ impl GpuTrainer {
         views: &[PendingView],
     ) -> Result<ReadTicket, GpuError> {
         let parts: Vec<_> = views.iter().flat_map(PendingView::parts).collect();
-        let enc = ctx.device.create_command_encoder(&Default::default());
+        let enc = ctx.encoder();
         ctx.read_later(enc, &parts)
     }
 
@@ -605,7 +605,7 @@ impl GpuTrainer {
                 (&self.acc_grads, PARAM_GRAD_STRIDE as u32, 10),
                 (&self.acc_sh, 3 * sc.coeffs, 0),
             ];
-            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            let mut enc = ctx.encoder();
             for (k, c) in consts.iter().enumerate() {
                 let (gbuf, stride, offset) = grads[k];
                 let width = c.width as u32;
