@@ -434,6 +434,7 @@ fn gpu_bench(field: &Field, views: &[ViewData], steps: usize, chunk: u32) -> Hea
         trainer.settle().unwrap();
         let waits = ctx.host_waits();
         let draining = ctx.draining_waits();
+        let recorded = ctx.recording_stats();
         let t0 = Instant::now();
         let mut samples = 0u64;
         for s in 1..=steps as u32 {
@@ -449,12 +450,15 @@ fn gpu_bench(field: &Field, views: &[ViewData], steps: usize, chunk: u32) -> Hea
         let rate = samples as f64 / dt;
         rates.push(rate);
         println!(
-            "GPU, {rays} rays/step: {:.3} s/step, {:.0} samples/step, {:.0} forward+backward samples/s over {steps} steps, {:.2} host waits per step ({:.2} draining the device)",
+            "GPU, {rays} rays/step: {:.3} s/step, {:.0} samples/step, {:.0} forward+backward samples/s over {steps} steps, {:.2} host waits per step ({:.2} draining the device); {:.1} dispatches in {:.1} compute passes and {:.1} queue writes per step",
             dt / steps as f64,
             samples as f64 / steps as f64,
             rate,
             (ctx.host_waits() - waits) as f64 / steps as f64,
-            (ctx.draining_waits() - draining) as f64 / steps as f64
+            (ctx.draining_waits() - draining) as f64 / steps as f64,
+            (ctx.recording_stats().dispatches - recorded.dispatches) as f64 / steps as f64,
+            (ctx.recording_stats().passes - recorded.passes) as f64 / steps as f64,
+            (ctx.recording_stats().queue_writes - recorded.queue_writes) as f64 / steps as f64
         );
     }
     let params = field.init_params(1);
