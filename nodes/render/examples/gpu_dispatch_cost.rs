@@ -34,28 +34,38 @@ enum Way {
     WriteEach,
 }
 
-/// Microseconds per dispatch to record `n` dispatches `way`.
-fn record(ctx: &GpuContext, pipeline: &wgpu::ComputePipeline, n: usize, way: Way) -> f64 {
+/// Microseconds per dispatch to record `n` dispatches `way` (`plain`: `n` parameter buffers
+/// of the device's own for the queue writes, as pooled ones would be, never cleared).
+fn record(
+    ctx: &GpuContext,
+    pipeline: &wgpu::ComputePipeline,
+    plain: &[wgpu::Buffer],
+    way: Way,
+) -> f64 {
+    let n = plain.len();
     let data = ctx.storage("data", 4096).expect("a 4 kB buffer");
     let started = Instant::now();
     let mut enc = ctx.encoder();
     let mut blocks = Vec::with_capacity(n);
-    for i in 0..n {
+    for (i, own) in plain.iter().enumerate() {
         let words = [i as u32, 1024, 0, 0];
+        let pooled;
         let block = match way {
             Way::WriteEach => {
-                let block = ctx.storage("params", 16).expect("a 16-byte buffer");
-                ctx.queue.write_buffer(&block, 0, &words_to_bytes(&words));
-                block
+                ctx.queue.write_buffer(own, 0, &words_to_bytes(&words));
+                own
             }
-            _ => ctx.uniform("params", &words),
+            _ => {
+                pooled = ctx.uniform("params", &words);
+                blocks.push(pooled);
+                &blocks[blocks.len() - 1]
+            }
         };
-        ctx.dispatch(&mut enc, pipeline, &[(0, &block), (1, &data)], [16, 1]);
+        ctx.dispatch(&mut enc, pipeline, &[(0, block), (1, &data)], [16, 1]);
         if !matches!(way, Way::Shared) {
             // Borrowing the encoder mutably ends the open pass.
             let _: &mut wgpu::CommandEncoder = &mut enc;
         }
-        blocks.push(block);
     }
     // Finished and kept (where wgpu encodes the passes), then submitted after the uploads.
     ctx.defer(enc).expect("the encoder finishes");
@@ -80,6 +90,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("adapter: {}", ctx.adapter());
     let kernels = ctx.kernels_of(|setup| pipelines(setup, "add", KERNEL, ["main"]))?;
     let [pipeline] = &*kernels;
+    let plain: Vec<wgpu::Buffer> = (0..n)
+        .map(|_| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("params"),
+                size: 16,
+                usage: wgpu::BufferUsages::UNIFORM
+                    | wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        })
+        .collect();
     let ways = [
         ("shared pass, batched upload", Way::Shared),
         ("pass per dispatch", Way::PassEach),
@@ -91,7 +113,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .iter()
             .zip(&mut times)
             .map(|(&(name, way), t)| {
-                let us = record(&ctx, pipeline, n, way);
+                let us = record(&ctx, pipeline, &plain, way);
                 if round > 0 {
                     t.push(us);
                 }

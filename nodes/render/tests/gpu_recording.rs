@@ -145,3 +145,21 @@ fn uploads_land_before_their_submission_and_their_staging_is_reused() {
         "no buffer created after the first rounds: {created:?}"
     );
 }
+
+#[test]
+fn a_gathered_upload_holds_back_the_reclaim_of_what_it_writes() {
+    let Some(ctx) = context("a_gathered_upload_holds_back_the_reclaim_of_what_it_writes") else {
+        return;
+    };
+    // Nothing but the upload is pending: the block stays in quarantine, so no later request
+    // can be handed it (and cleared or written) before the upload's copy has run.
+    let block = ctx.uniform("params", &params(1));
+    drop(block);
+    ctx.reclaim();
+    assert!(ctx.has_deferred());
+    assert_eq!(ctx.pool_stats().quarantined, 1);
+    ctx.flush().unwrap();
+    ctx.reclaim();
+    assert!(!ctx.has_deferred());
+    assert_eq!(ctx.pool_stats().quarantined, 0, "the block and the staging");
+}

@@ -167,6 +167,9 @@ pub struct GpuContext {
     submissions: std::sync::atomic::AtomicU64,
     /// Dispatches, passes and uploads recorded ([`GpuContext::recording_stats`]).
     recording: encoder::RecordingCounters,
+    /// The first error in making a submission's uploads (`gpu/submit.rs`), reported by
+    /// [`GpuContext::check_lost`] from then on.
+    upload_error: std::sync::Mutex<Option<String>>,
 }
 
 /// Compiled kernel sets by type.
@@ -319,6 +322,7 @@ impl GpuContext {
             pending: Default::default(),
             submissions: Default::default(),
             recording: Default::default(),
+            upload_error: Default::default(),
         })
     }
 
@@ -482,7 +486,8 @@ impl GpuContext {
     /// A uniform buffer holding `words` (zeros after them up to a multiple of 16 bytes).
     pub fn uniform(&self, what: &str, words: &[u32]) -> GpuBuffer {
         // Uploaded before the next submission rather than mapped at creation: on a lost device
-        // a mapped creation panics inside wgpu, an upload is an error the scope reports.
+        // a mapped creation panics inside wgpu, a failed upload is an error
+        // (`GpuContext::check_lost`).
         let mut bytes = words_to_bytes(words);
         bytes.resize(
             (bytes.len() as u64).max(16).next_multiple_of(16) as usize,
@@ -574,12 +579,24 @@ impl GpuContext {
             .fetch_add(nanos, std::sync::atomic::Ordering::Relaxed);
     }
 
-    /// A [`GpuError::Device`] if the device was lost (a driver reset, a removed GPU).
+    /// A [`GpuError::Device`] if the device was lost (a driver reset, a removed GPU), or if a
+    /// submission's gathered uploads could not be made (`gpu/submit.rs`).
     pub fn check_lost(&self) -> Result<(), GpuError> {
         let lost = self.lost.lock().ok().and_then(|l| l.clone());
-        match lost {
-            Some(why) => Err(self.device_error(format!("the GPU device was lost ({why})"))),
+        if let Some(why) = lost {
+            return Err(self.device_error(format!("the GPU device was lost ({why})")));
+        }
+        match self.upload_error.lock().ok().and_then(|e| e.clone()) {
+            Some(why) => Err(self.device_error(why)),
             None => Ok(()),
+        }
+    }
+
+    /// Keeps an error of a submission's uploads for [`GpuContext::check_lost`] (the first
+    /// one: the data behind every later one is missing too).
+    pub(crate) fn note_upload_error(&self, message: String) {
+        if let Ok(mut e) = self.upload_error.lock() {
+            e.get_or_insert(message);
         }
     }
 

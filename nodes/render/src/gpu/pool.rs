@@ -7,7 +7,8 @@
 //! recorded it may not be submitted yet, and a reuse (a clear, a queue write) would run before
 //! that work. Dropped buffers wait in quarantine until [`GpuContext::reclaim`], which a caller
 //! runs where no encoder that recorded a pooled buffer is left unsubmitted (it waits while
-//! encoders are kept for the next submission, `gpu/submit.rs`): the training device
+//! encoders, clears or uploads are kept for the next submission, `gpu/submit.rs`): the
+//! training device
 //! at the start of each step, the whole-render entry points when they return. Everything
 //! submitted before a reuse runs before it (wgpu orders one queue's work), so a reclaimed
 //! buffer is free.
@@ -267,9 +268,9 @@ impl GpuContext {
     /// Makes the buffers dropped since the last call reusable. Call it only where no command
     /// encoder that recorded a pooled buffer is still being recorded (between training steps,
     /// after a whole render): a buffer reused while such an encoder waits would be cleared or
-    /// overwritten before that encoder's work runs. While encoders are kept for the next
-    /// submission ([`GpuContext::defer`]) it does nothing: they may use the dropped buffers,
-    /// which wait for a later call.
+    /// overwritten before that encoder's work runs. While encoders or uploads are kept for
+    /// the next submission ([`GpuContext::defer`], [`GpuContext::uniform`]) it does nothing:
+    /// they may use the dropped buffers, which wait for a later call.
     pub fn reclaim(&self) {
         if !self.has_deferred() {
             self.pool.reclaim();

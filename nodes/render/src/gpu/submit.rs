@@ -32,6 +32,10 @@ use super::{Encoder, GpuBuffer, GpuContext, GpuError};
 /// queue write of its own, whose staging buffer its size amortises.
 pub const BATCHED_UPLOAD_BYTES: usize = 64 << 10;
 
+/// The most bytes gathered for one submission (16 MiB); uploads past it go up in queue
+/// writes of their own.
+const MAX_BATCH_BYTES: usize = 16 << 20;
+
 /// The smallest staging buffer a submission's uploads go up in (sizes round up to a power of
 /// two from here, so the pool hands the same few shapes out again).
 const MIN_STAGING_BYTES: u64 = 4 << 10;
@@ -77,7 +81,7 @@ impl GpuContext {
         self.check_lost()
     }
 
-    /// Whether encoders are kept for the next submission.
+    /// Whether encoders, clears or uploads are kept for the next submission.
     pub fn has_deferred(&self) -> bool {
         self.pending.lock().map(|p| !p.is_empty()).unwrap_or(false)
     }
@@ -119,6 +123,13 @@ impl GpuContext {
         }
         if bytes.len() <= BATCHED_UPLOAD_BYTES {
             if let Ok(mut p) = self.pending.lock() {
+                if p.upload.len() + bytes.len() > MAX_BATCH_BYTES {
+                    // A long run of uploads with no submission: the batch stops growing.
+                    drop(p);
+                    self.recording.count_upload(false);
+                    self.queue.write_buffer(buf, 0, bytes);
+                    return;
+                }
                 let at = p.upload.len() as u64;
                 p.upload.extend_from_slice(bytes);
                 p.targets.push((buf.clone(), at, bytes.len() as u64));
@@ -130,13 +141,19 @@ impl GpuContext {
         self.queue.write_buffer(buf, 0, bytes);
     }
 
-    /// The encoder that runs first in a submission: the clears of reused buffers, then the
-    /// copies of the gathered uploads (written here to a staging buffer, returned to be
-    /// dropped once the submission is made). Either may be empty; `None` when both are.
-    fn head(&self, kept: &mut Pending) -> (Option<wgpu::CommandBuffer>, Option<GpuBuffer>) {
+    /// What runs first in a submission: the copies of the gathered uploads (written here to
+    /// a staging buffer, returned to be dropped once the submission is made), then the
+    /// clears of reused buffers — the order a queue write and the clears had. Errors in
+    /// making them (no memory for the staging buffer) are kept for
+    /// [`GpuContext::check_lost`] to report: this runs wherever work is submitted, inside an
+    /// error scope or not.
+    fn head(&self, kept: &mut Pending) -> (Vec<wgpu::CommandBuffer>, Option<GpuBuffer>) {
+        let clears = kept.clears.take().map(wgpu::CommandEncoder::finish);
         if kept.targets.is_empty() {
-            return (kept.clears.take().map(wgpu::CommandEncoder::finish), None);
+            return (clears.into_iter().collect(), None);
         }
+        let oom_scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation_scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let bytes = (kept.upload.len() as u64)
             .next_power_of_two()
             .max(MIN_STAGING_BYTES);
@@ -148,14 +165,18 @@ impl GpuContext {
         );
         self.recording.count_upload(false);
         self.queue.write_buffer(&staging, 0, &kept.upload);
-        let mut enc = kept
-            .clears
-            .take()
-            .unwrap_or_else(|| self.device.create_command_encoder(&Default::default()));
+        let mut enc = self.device.create_command_encoder(&Default::default());
         for (buf, at, len) in kept.targets.drain(..) {
             enc.copy_buffer_to_buffer(&staging, at, &buf, 0, len);
         }
-        (Some(enc.finish()), Some(staging))
+        let copies = enc.finish();
+        let validation = pollster::block_on(validation_scope.pop());
+        let oom = pollster::block_on(oom_scope.pop());
+        if let Some(e) = oom.or(validation) {
+            self.note_upload_error(format!("uploading parameters and arrays: {e}"));
+        }
+        let first = std::iter::once(copies).chain(clears).collect();
+        (first, Some(staging))
     }
 
     /// Submits the kept encoders and then `last`, in one submission (none when there is
@@ -165,11 +186,14 @@ impl GpuContext {
         &self,
         last: Option<wgpu::CommandBuffer>,
     ) -> Option<(u64, wgpu::SubmissionIndex)> {
-        let mut kept = self
-            .pending
-            .lock()
-            .map(|mut p| std::mem::take(&mut *p))
-            .unwrap_or_default();
+        // Taken even from a lock poisoned by a panic elsewhere: the gathered uploads must go
+        // with the work that reads them.
+        let mut kept = std::mem::take(
+            &mut *self
+                .pending
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner),
+        );
         if kept.is_empty() && last.is_none() {
             return None;
         }
