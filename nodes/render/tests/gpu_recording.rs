@@ -30,6 +30,12 @@ fn context(test: &str) -> Option<GpuContext> {
     }
 }
 
+/// [`KERNEL`] compiled on `ctx`.
+fn compiled(ctx: &GpuContext) -> std::sync::Arc<[wgpu::ComputePipeline; 1]> {
+    ctx.kernels_of(|setup| pipelines(setup, "recording test", KERNEL, ["main"]))
+        .unwrap()
+}
+
 /// The kernel's parameters for dispatch `i`.
 fn params(i: u32) -> [u32; 4] {
     [i % 3 + 1, 7 * i + 1, WORDS, 0]
@@ -61,9 +67,7 @@ fn dispatches_share_a_pass_until_a_copy_and_uploads_go_up_together() {
     else {
         return;
     };
-    let kernels = ctx
-        .kernels_of(|setup| pipelines(setup, "recording test", KERNEL, ["main"]))
-        .unwrap();
+    let kernels = compiled(&ctx);
     let [kernel] = &*kernels;
     let start: Vec<u32> = (0..WORDS).map(|x| x * 31 + 5).collect();
     // Past the batch's limit: a queue write of its own.
@@ -117,9 +121,7 @@ fn uploads_land_before_their_submission_and_their_staging_is_reused() {
     else {
         return;
     };
-    let kernels = ctx
-        .kernels_of(|setup| pipelines(setup, "recording test", KERNEL, ["main"]))
-        .unwrap();
+    let kernels = compiled(&ctx);
     let [kernel] = &*kernels;
     let start: Vec<u32> = (0..WORDS).collect();
     let data = ctx.storage_init("data", &start).unwrap();
