@@ -6,10 +6,9 @@
 //! - [`GpuContext::submit`], [`GpuContext::submit_no_wait`], a read-back
 //!   ([`GpuContext::read_after`]), [`GpuContext::wait`] and [`GpuContext::flush`] submit
 //!   everything kept, then their own work, in one `queue.submit`;
-//! - a pooled buffer handed out again zeroed is cleared in an encoder that runs first in the
-//!   next submission: it is idle, so no kept work uses it, and what it is recorded into comes
-//!   later (`gpu/pool.rs`).
-//!
+//! - a pooled buffer handed out again zeroed is cleared in an encoder that runs in the next
+//!   submission before any kept work (after the gathered uploads below): it is idle, so no
+//!   kept work uses it, and what it is recorded into comes later (`gpu/pool.rs`);
 //! - small uploads (a kernel's parameter block, a short array: [`GpuContext::uniform`],
 //!   [`GpuContext::storage_init`] up to [`BATCHED_UPLOAD_BYTES`]) wait with them too: their
 //!   bytes are gathered on the host and go up in one queue write per submission, copied to
@@ -43,7 +42,8 @@ const MIN_STAGING_BYTES: u64 = 4 << 10;
 /// The encoders and uploads kept for the next submission.
 #[derive(Default)]
 pub(crate) struct Pending {
-    /// Clears of reused pool buffers, run before everything else.
+    /// Clears of reused pool buffers, run after the uploads' copies and before the kept
+    /// encoders.
     clears: Option<wgpu::CommandEncoder>,
     /// The bytes of the gathered uploads, each starting at a multiple of 4.
     upload: Vec<u8>,
