@@ -5,21 +5,13 @@
 //! run. Skips with a message when no GPU adapter is found (fails under `CI=true`).
 
 use augsplat_core::{Camera, Rng};
-use augsplat_render::gpu::{project_vjp_gpu, GpuContext, GpuError, GpuScene, PARAM_GRAD_STRIDE};
+use augsplat_render::gpu::{project_vjp_gpu, GpuScene, PARAM_GRAD_STRIDE};
 use augsplat_render::project::{project_vjp, CameraModel, ProjectedGrad};
 use augsplat_render::render::Cutoff;
 use augsplat_render::{sh, Gaussians, RenderSettings};
 
-fn context(test: &str) -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(c) => Some(c),
-        Err(e @ GpuError::NoAdapter { .. }) => {
-            augsplat_testkit::skip(test, &e.to_string());
-            None
-        }
-        Err(e) => panic!("{test}: {e}"),
-    }
-}
+mod gpu_common;
+use gpu_common::context;
 
 /// The CPU's gradients: [`PARAM_GRAD_STRIDE`] values per Gaussian and the SH gradients.
 fn cpu_vjp(

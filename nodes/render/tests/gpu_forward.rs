@@ -12,19 +12,8 @@ use augsplat_core::Camera;
 use augsplat_render::gpu::{render_gpu, GpuContext, GpuError};
 use augsplat_render::{render, Gaussians, RenderSettings};
 
-fn context(test: &str) -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(c) => {
-            eprintln!("{test}: on {}", c.adapter());
-            Some(c)
-        }
-        Err(e @ GpuError::NoAdapter { .. }) => {
-            augsplat_testkit::skip(test, &e.to_string());
-            None
-        }
-        Err(e) => panic!("{test}: {e}"),
-    }
-}
+mod gpu_common;
+use gpu_common::context;
 
 fn camera(w: u32, h: u32) -> Camera {
     augsplat_testkit::cameras::square_pixels(

@@ -4,19 +4,11 @@
 //! found (fails under `CI=true`, where `.ci/run` installs lavapipe).
 
 use augsplat_core::Camera;
-use augsplat_render::gpu::{render_gpu, words_to_bytes, GpuContext, GpuError};
+use augsplat_render::gpu::{render_gpu, words_to_bytes};
 use augsplat_render::{Gaussians, RenderSettings};
 
-fn context(test: &str) -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(c) => Some(c),
-        Err(e @ GpuError::NoAdapter { .. }) => {
-            augsplat_testkit::skip(test, &e.to_string());
-            None
-        }
-        Err(e) => panic!("{test}: {e}"),
-    }
-}
+mod gpu_common;
+use gpu_common::context;
 
 #[test]
 fn a_reused_buffer_reads_as_zeros() {

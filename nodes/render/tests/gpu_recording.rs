@@ -4,7 +4,10 @@
 //! Skips with a message when no GPU adapter is found (fails under `CI=true`, where `.ci/run`
 //! installs lavapipe).
 
-use augsplat_render::gpu::{pipelines, GpuContext, GpuError, RecordingStats, BATCHED_UPLOAD_BYTES};
+use augsplat_render::gpu::{pipelines, GpuContext, RecordingStats, BATCHED_UPLOAD_BYTES};
+
+mod gpu_common;
+use gpu_common::context;
 
 /// `x ← x·mul + add` over the first `n` words: dispatches in another order give other words.
 const KERNEL: &str = "
@@ -18,17 +21,6 @@ fn main(@builtin(global_invocation_id) g: vec3<u32>) {
 ";
 
 const WORDS: u32 = 100;
-
-fn context(test: &str) -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(c) => Some(c),
-        Err(e @ GpuError::NoAdapter { .. }) => {
-            augsplat_testkit::skip(test, &e.to_string());
-            None
-        }
-        Err(e) => panic!("{test}: {e}"),
-    }
-}
 
 /// [`KERNEL`] compiled on `ctx`.
 fn compiled(ctx: &GpuContext) -> std::sync::Arc<[wgpu::ComputePipeline; 1]> {

@@ -4,18 +4,8 @@
 //! with a message when no GPU adapter is found (fails under `CI=true`, where `.ci/run`
 //! installs lavapipe).
 
-use augsplat_render::gpu::{GpuContext, GpuError};
-
-fn context(test: &str) -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(c) => Some(c),
-        Err(e @ GpuError::NoAdapter { .. }) => {
-            augsplat_testkit::skip(test, &e.to_string());
-            None
-        }
-        Err(e) => panic!("{test}: {e}"),
-    }
-}
+mod gpu_common;
+use gpu_common::context;
 
 /// Keys with many repeats (a small generator, fixed seed), some with high bits set.
 fn keys(n: usize) -> Vec<u32> {
