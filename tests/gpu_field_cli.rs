@@ -28,37 +28,13 @@ fn pipeline(dir: &Path) -> PathBuf {
 
 /// Runs `pipe` in `cache` up to `targets`; returns (success, output, summary).
 fn run(pipe: &Path, cache: &Path, targets: &[&str], env: &[(&str, &str)]) -> (bool, String, Value) {
-    let summary = cache.with_extension("json");
     let mut cmd = common::augsplat();
-    cmd.arg("run")
-        .arg(pipe)
-        .arg("--cache")
-        .arg(cache)
-        .arg("--summary-json")
-        .arg(&summary)
-        .arg("-q");
+    cmd.arg("run").arg(pipe).arg("--cache").arg(cache).arg("-q");
     for t in targets {
         cmd.arg("--target").arg(t);
     }
     cmd.envs(env.iter().copied());
-    let out = cmd.output().unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v = std::fs::read(&summary)
-        .ok()
-        .and_then(|b| serde_json::from_slice(&b).ok())
-        .unwrap_or(Value::Null);
-    (out.status.success(), text, v)
-}
-
-/// The folder of output `output` of node `name`.
-fn output(cache: &Path, summary: &Value, name: &str, output: &str) -> PathBuf {
-    let nodes = summary["nodes"].as_array().expect("a run summary");
-    let key = common::node(nodes, name)["key"].as_str().unwrap();
-    common::output_dir(cache, key, Some(output))
+    common::run_summarised(cmd, &cache.with_extension("json"))
 }
 
 /// The status of node `name` in a run summary (`Null` when it is not there).
@@ -80,7 +56,7 @@ fn the_demo_runs_on_the_gpu_end_to_end() {
         return;
     }
     assert!(ok, "{text}");
-    let report = output(&dir.path().join("a"), &a, "report", "report");
+    let report = common::node_output(&dir.path().join("a"), &a, "report", "report");
     let html = std::fs::read_to_string(report.join("index.html")).unwrap();
     for label in ["3DGS", "Staged", "Dual"] {
         assert!(html.contains(label), "the report lacks {label}");
@@ -90,7 +66,7 @@ fn the_demo_runs_on_the_gpu_end_to_end() {
         ("render[0]", "renders"),
         ("baseline", "model"),
     ] {
-        let d = output(&dir.path().join("a"), &a, node, out);
+        let d = common::node_output(&dir.path().join("a"), &a, node, out);
         let device: Value =
             serde_json::from_slice(&std::fs::read(d.join("device.json")).unwrap()).unwrap();
         assert!(
@@ -106,8 +82,10 @@ fn the_demo_runs_on_the_gpu_end_to_end() {
         ("render[0]", "renders", "view_0000.exr"),
     ] {
         assert_eq!(
-            std::fs::read(output(&dir.path().join("a"), &a, node, out).join(file)).unwrap(),
-            std::fs::read(output(&dir.path().join("b"), &b, node, out).join(file)).unwrap(),
+            std::fs::read(common::node_output(&dir.path().join("a"), &a, node, out).join(file))
+                .unwrap(),
+            std::fs::read(common::node_output(&dir.path().join("b"), &b, node, out).join(file))
+                .unwrap(),
             "{node}/{file} differs between two GPU runs"
         );
     }
@@ -142,10 +120,13 @@ fn the_demo_runs_on_the_gpu_end_to_end() {
     assert!(ok, "{text}");
     assert_eq!(status(&again, "field[0]"), Value::from("ran"), "{again}");
     assert_eq!(
-        std::fs::read(output(&lost, &again, "field[0]", "weights").join("field.safetensors"))
-            .unwrap(),
         std::fs::read(
-            output(&dir.path().join("a"), &a, "field[0]", "weights").join("field.safetensors")
+            common::node_output(&lost, &again, "field[0]", "weights").join("field.safetensors")
+        )
+        .unwrap(),
+        std::fs::read(
+            common::node_output(&dir.path().join("a"), &a, "field[0]", "weights")
+                .join("field.safetensors")
         )
         .unwrap()
     );

@@ -6,9 +6,10 @@
 //! (`skip_below`) train on the GPU.
 //! Skips with a message when the machine has no GPU adapter (fails under `CI=true`).
 
+mod common;
+
 use serde_json::Value;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 /// Runs the tiny demo with `sets`, up to `targets`; returns (success, output, summary).
 fn run(cache: &Path, sets: &[&str], targets: &[&str]) -> (bool, String, Value) {
@@ -22,14 +23,11 @@ fn run_with_env(
     targets: &[&str],
     env: &[(&str, &str)],
 ) -> (bool, String, Value) {
-    let summary = cache.with_extension("json");
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_augsplat"));
+    let mut cmd = common::augsplat();
     cmd.arg("run")
         .arg(augsplat_testkit::tiny::pipeline())
         .arg("--cache")
         .arg(cache)
-        .arg("--summary-json")
-        .arg(&summary)
         .arg("-q");
     for s in sets {
         cmd.arg("--set").arg(s);
@@ -38,31 +36,7 @@ fn run_with_env(
         cmd.arg("--target").arg(t);
     }
     cmd.envs(env.iter().copied());
-    let out = cmd.output().unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v = std::fs::read(&summary)
-        .ok()
-        .and_then(|b| serde_json::from_slice(&b).ok())
-        .unwrap_or(Value::Null);
-    (out.status.success(), text, v)
-}
-
-/// The folder of output `output` of node `name`.
-fn output(cache: &Path, summary: &Value, name: &str, output: &str) -> PathBuf {
-    let node = summary["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["name"] == name)
-        .unwrap_or_else(|| panic!("no node {name}"));
-    let store = augsplat_graph::Store::open(cache).unwrap();
-    let key = augsplat_graph::store::unhex(node["key"].as_str().unwrap()).unwrap();
-    let action = store.action(&key).unwrap().unwrap();
-    store.output_dir(&augsplat_graph::store::unhex(&action.outputs[output]).unwrap())
+    common::run_summarised(cmd, &cache.with_extension("json"))
 }
 
 fn psnr(dir: &Path) -> f64 {
@@ -90,8 +64,8 @@ fn training_on_the_gpu_is_deterministic_and_matches_the_cpu() {
     let (ok, text, b) = run(&dir.path().join("b"), &gpu_sets, &["eval_baseline"]);
     assert!(ok, "{text}");
     let (ma, mb) = (
-        output(&dir.path().join("a"), &a, "baseline", "model"),
-        output(&dir.path().join("b"), &b, "baseline", "model"),
+        common::node_output(&dir.path().join("a"), &a, "baseline", "model"),
+        common::node_output(&dir.path().join("b"), &b, "baseline", "model"),
     );
     for f in [
         "final.ply",
@@ -113,13 +87,18 @@ fn training_on_the_gpu_is_deterministic_and_matches_the_cpu() {
         "{device}"
     );
     let (pc, pg) = (
-        psnr(&output(
+        psnr(&common::node_output(
             &dir.path().join("cpu"),
             &cpu,
             "eval_baseline",
             "eval",
         )),
-        psnr(&output(&dir.path().join("a"), &a, "eval_baseline", "eval")),
+        psnr(&common::node_output(
+            &dir.path().join("a"),
+            &a,
+            "eval_baseline",
+            "eval",
+        )),
     );
     eprintln!("50-step baseline, held-out PSNR: CPU {pc:.4} dB, GPU {pg:.4} dB");
     assert!((pc - pg).abs() <= 0.1, "CPU {pc} dB, GPU {pg} dB");
@@ -132,7 +111,7 @@ fn training_on_the_gpu_is_deterministic_and_matches_the_cpu() {
     );
     assert!(ok, "{text}");
     for n in ["staged", "dual"] {
-        assert!(output(&dir.path().join("a"), &s, n, "model")
+        assert!(common::node_output(&dir.path().join("a"), &s, n, "model")
             .join("device.json")
             .is_file());
     }
@@ -163,7 +142,8 @@ fn training_on_the_gpu_is_deterministic_and_matches_the_cpu() {
         "a failed node must leave no cache entry: {again}"
     );
     assert_eq!(
-        std::fs::read(output(&lost, &again, "baseline", "model").join("final.ply")).unwrap(),
+        std::fs::read(common::node_output(&lost, &again, "baseline", "model").join("final.ply"))
+            .unwrap(),
         std::fs::read(ma.join("final.ply")).unwrap()
     );
 

@@ -23,6 +23,29 @@ pub fn run_with_summary(mut cmd: Command, summary: &Path) -> Vec<Value> {
     v["nodes"].as_array().unwrap().clone()
 }
 
+/// `cmd` (an `augsplat run`) with `--summary-json SUMMARY`, whether or not it succeeds:
+/// (success, stdout and stderr together, the summary or `Value::Null` where none was written).
+pub fn run_summarised(mut cmd: Command, summary: &Path) -> (bool, String, Value) {
+    let out = cmd.arg("--summary-json").arg(summary).output().unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v = std::fs::read(summary)
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok())
+        .unwrap_or(Value::Null);
+    (out.status.success(), text, v)
+}
+
+/// The folder of output `output` of the node called `name` in a run summary.
+pub fn node_output(cache: &Path, summary: &Value, name: &str, output: &str) -> PathBuf {
+    let nodes = summary["nodes"].as_array().expect("a run summary");
+    let key = node(nodes, name)["key"].as_str().expect("a key");
+    output_dir(cache, key, Some(output))
+}
+
 /// The `augsplat` binary as a command.
 pub fn augsplat() -> Command {
     Command::new(env!("CARGO_BIN_EXE_augsplat"))
