@@ -128,6 +128,63 @@ fn gpu_projection_backward_matches_the_cpu() {
     }
 }
 
+/// The GPU backward of `g` from `cam` against the CPU's for the pixel gradients `d_rgb`: every
+/// group within 1e-3 relative to its largest magnitude, and the same bits on a second run.
+fn compare_backward(
+    ctx: &augsplat_render::gpu::GpuContext,
+    g: &Gaussians,
+    cam: &Camera,
+    s: &RenderSettings,
+    d_rgb: &[f32],
+    what: &str,
+) {
+    let n = g.len();
+    let out = augsplat_render::render(g, cam, s);
+    let cpu = augsplat_render::backward(g, cam, s, &out, d_rgb, None, None);
+    let scene = GpuScene::upload(ctx, g).unwrap();
+    let gpu = augsplat_render::gpu::backward_gpu(ctx, &scene, cam, s, d_rgb).unwrap();
+    let check = |name: &str, q: std::ops::Range<usize>, cpu_vals: Vec<f64>| {
+        let gv: Vec<f32> = (0..n)
+            .flat_map(|i| q.clone().map(move |k| i * PARAM_GRAD_STRIDE + k))
+            .map(|j| gpu.params[j])
+            .collect();
+        let (rel, scale) = relative(gv.into_iter(), cpu_vals.into_iter());
+        eprintln!("{what}: {name} {rel:.2e} (scale {scale:.2e})");
+        assert!(rel <= 1e-3, "{what}: {name} {rel} relative to {scale}");
+    };
+    check(
+        "means",
+        0..3,
+        cpu.means.iter().flatten().map(|v| f64::from(*v)).collect(),
+    );
+    check(
+        "log-scales",
+        3..6,
+        cpu.log_scales
+            .iter()
+            .flatten()
+            .map(|v| f64::from(*v))
+            .collect(),
+    );
+    check(
+        "quaternions",
+        6..10,
+        cpu.quats.iter().flatten().map(|v| f64::from(*v)).collect(),
+    );
+    check(
+        "opacity logits",
+        10..11,
+        cpu.opacity_logits.iter().map(|v| f64::from(*v)).collect(),
+    );
+    let (rel, scale) = relative(gpu.sh.iter().copied(), cpu.sh.iter().map(|v| f64::from(*v)));
+    eprintln!("{what}: SH {rel:.2e} (scale {scale:.2e})");
+    assert!(rel <= 1e-3, "{what}: SH {rel}");
+    let again = augsplat_render::gpu::backward_gpu(ctx, &scene, cam, s, d_rgb).unwrap();
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&gpu.params), bits(&again.params), "{what}: run to run");
+    assert_eq!(bits(&gpu.sh), bits(&again.sh), "{what}: run to run");
+}
+
 /// The whole backward pass on the GPU against the CPU's [`augsplat_render::backward`] for a
 /// loss on the colour: every group within 1e-3 of the CPU relative to its largest value.
 #[test]
@@ -153,51 +210,8 @@ fn gpu_backward_matches_the_cpu() {
         let d_rgb: Vec<f32> = (0..w as usize * h as usize * 3)
             .map(|_| rng.uniform(-1.0, 1.0) as f32)
             .collect();
-        let out = augsplat_render::render(&g, &cam, &s);
-        let cpu = augsplat_render::backward(&g, &cam, &s, &out, &d_rgb, None, None);
-        let scene = GpuScene::upload(&ctx, &g).unwrap();
-        let gpu = augsplat_render::gpu::backward_gpu(&ctx, &scene, &cam, &s, &d_rgb).unwrap();
         let what = format!("{n} Gaussians at {w}×{h}, degree {degree}, antialiased {antialiased}");
-        let check = |name: &str, q: std::ops::Range<usize>, cpu_vals: Vec<f64>| {
-            let gv: Vec<f32> = (0..n)
-                .flat_map(|i| q.clone().map(move |k| i * PARAM_GRAD_STRIDE + k))
-                .map(|j| gpu.params[j])
-                .collect();
-            let (rel, scale) = relative(gv.into_iter(), cpu_vals.into_iter());
-            eprintln!("{what}: {name} {rel:.2e} (scale {scale:.2e})");
-            assert!(rel <= 1e-3, "{what}: {name} {rel} relative to {scale}");
-        };
-        check(
-            "means",
-            0..3,
-            cpu.means.iter().flatten().map(|v| f64::from(*v)).collect(),
-        );
-        check(
-            "log-scales",
-            3..6,
-            cpu.log_scales
-                .iter()
-                .flatten()
-                .map(|v| f64::from(*v))
-                .collect(),
-        );
-        check(
-            "quaternions",
-            6..10,
-            cpu.quats.iter().flatten().map(|v| f64::from(*v)).collect(),
-        );
-        check(
-            "opacity logits",
-            10..11,
-            cpu.opacity_logits.iter().map(|v| f64::from(*v)).collect(),
-        );
-        let (rel, scale) = relative(gpu.sh.iter().copied(), cpu.sh.iter().map(|v| f64::from(*v)));
-        eprintln!("{what}: SH {rel:.2e} (scale {scale:.2e})");
-        assert!(rel <= 1e-3, "{what}: SH {rel}");
-        let again = augsplat_render::gpu::backward_gpu(&ctx, &scene, &cam, &s, &d_rgb).unwrap();
-        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        assert_eq!(bits(&gpu.params), bits(&again.params), "{what}: run to run");
-        assert_eq!(bits(&gpu.sh), bits(&again.sh), "{what}: run to run");
+        compare_backward(&ctx, &g, &cam, &s, &d_rgb, &what);
     }
 }
 
@@ -361,4 +375,46 @@ fn gpu_atomic_backward_matches_the_deterministic_one() {
             ctx.adapter()
         );
     }
+}
+
+/// The backward of a tile whose pixels composite more than 32,768 pairs (the forward's case
+/// in `gpu_forward.rs`): lavapipe ends an invocation's loops after 65,535 iterations in all,
+/// and the backward's per-pair loop runs once per pair of the tile up to its last.
+#[test]
+fn gpu_backward_matches_the_cpu_through_a_tile_of_many_faint_gaussians() {
+    let Some(ctx) = context("gpu_backward_matches_the_cpu_through_a_tile_of_many_faint_gaussians")
+    else {
+        return;
+    };
+    let cam = augsplat_testkit::cameras::facing(16, 16, 4.0);
+    let n = 40_000;
+    let mut g = Gaussians::random_cloud(n, 4.0 / cam.fx, 7);
+    let scale = (2.0 * 4.0 / cam.fx as f32).ln();
+    // Anisotropic, so that the quaternions' gradients are not rounding noise around zero.
+    for (l, s) in g.opacity_logits.iter_mut().zip(g.log_scales.iter_mut()) {
+        *l = -5.3;
+        *s = [scale + 0.3, scale, scale - 0.3];
+    }
+    let s = RenderSettings {
+        sh_degree: 0,
+        ..Default::default()
+    };
+    let mut rng = Rng::new(6);
+    let d_rgb: Vec<f32> = (0..16 * 16 * 3)
+        .map(|_| rng.uniform(-1.0, 1.0) as f32)
+        .collect();
+    let out = augsplat_render::render(&g, &cam, &s);
+    assert!(
+        out.stats.visible > 36_000 && out.alpha.iter().all(|&a| a < 0.999),
+        "the case must put more than 32,768 pairs in the tile and leave its pixels open: {:?}",
+        out.stats
+    );
+    compare_backward(
+        &ctx,
+        &g,
+        &cam,
+        &s,
+        &d_rgb,
+        "40000 faint Gaussians in one tile",
+    );
 }

@@ -1,8 +1,8 @@
-//! The GPU radix sort (wgpu; on CI Mesa's lavapipe) against the host's stable sort: pairs with
-//! many equal keys over several blocks, by all 32 key bits and by the low 12, with the values
-//! read from a buffer or taken as the indices (whatever the values buffer held before). Skips
-//! with a message when no GPU adapter is found (fails under `CI=true`, where `.ci/run`
-//! installs lavapipe).
+//! The GPU prefix sum and radix sort (wgpu; on CI Mesa's lavapipe) against the host: the scan
+//! over one, two and three levels of blocks; the sort of pairs with many equal keys over
+//! several blocks, by all 32 key bits and by the low 12, with the values read from a buffer or
+//! taken as the indices (whatever the values buffer held before). Skips with a message when
+//! no GPU adapter is found (fails under `CI=true`, where `.ci/run` installs lavapipe).
 
 mod gpu_common;
 use gpu_common::context;
@@ -92,4 +92,31 @@ fn the_sort_is_the_hosts_stable_sort_with_values_or_indices() {
     assert!(ctx
         .record_sort_indices(&mut enc, &b, &b, (&b, &b), 4, 0)
         .is_err());
+}
+
+/// The prefix sum over one, two and three levels of 256-value blocks (past 65,536 values the
+/// block sums are themselves scanned in blocks) equals the host's running sum.
+#[test]
+fn the_scan_is_the_hosts_running_sum_over_every_level() {
+    let Some(ctx) = context("the_scan_is_the_hosts_running_sum_over_every_level") else {
+        return;
+    };
+    for n in [200usize, 65_537, 300_001] {
+        let vals: Vec<u32> = (0..n as u32)
+            .map(|i| i.wrapping_mul(2_654_435_761) >> 30)
+            .collect();
+        let buf = ctx.storage_init("data", &vals).unwrap();
+        let mut enc = ctx.encoder();
+        ctx.record_scan(&mut enc, &buf, n as u32).unwrap();
+        let got = ctx.read_after(enc, &[(&buf, 0, n)]).unwrap().remove(0);
+        let want: Vec<u32> = vals
+            .iter()
+            .scan(0u32, |acc, &v| {
+                let before = *acc;
+                *acc += v;
+                Some(before)
+            })
+            .collect();
+        assert_eq!(got, want, "{n} values");
+    }
 }

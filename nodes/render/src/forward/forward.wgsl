@@ -114,7 +114,7 @@ fn tile_ranges(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
 }
 
 var<workgroup> batch: array<array<f32, 10>, 256>;
-var<workgroup> flags: array<u32, 256>;
+var<workgroup> done_lanes: atomic<u32>;
 var<workgroup> all_done: u32;
 
 @compute @workgroup_size(16, 16)
@@ -144,14 +144,19 @@ fn rasterize(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id
         if (base >= end) {
             break;
         }
-        flags[li] = select(0u, 1u, done);
+        // How many of the tile's pixels are done: an integer count (its value does not depend
+        // on the order of the adds). A serial sum by one thread would cost that thread 256
+        // loop iterations a batch, and lavapipe ends an invocation's loops after 65,535 in all.
+        if (li == 0u) {
+            atomicStore(&done_lanes, 0u);
+        }
+        workgroupBarrier();
+        if (done) {
+            atomicAdd(&done_lanes, 1u);
+        }
         workgroupBarrier();
         if (li == 0u) {
-            var k = 0u;
-            for (var j = 0u; j < 256u; j++) {
-                k += flags[j];
-            }
-            all_done = k;
+            all_done = atomicLoad(&done_lanes);
         }
         if (workgroupUniformLoad(&all_done) == 256u) {
             break;
