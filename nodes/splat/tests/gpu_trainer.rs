@@ -491,3 +491,31 @@ fn pixel_masks_train_on_the_gpu_as_on_the_cpu() {
         gpu_reps.iter().map(|r| r.pairs).sum::<u64>()
     );
 }
+
+/// Forty steps with a refinement every three and a low gradient threshold: the set grows to
+/// about 206,000 Gaussians on the 48×40 views, with tiles of more than 35,000 pairs from step
+/// 32 on. Until the compositor's done count stopped looping on one thread, lavapipe cut those
+/// tiles short (its 65,535-iteration loop cap) and the GPU run left the CPU's at step 32 (loss
+/// 0.2498 against 0.2240). About 75 s on lavapipe, so not in the default run:
+/// `cargo test --release -p augsplat-splat --test gpu_trainer -- --ignored`.
+#[test]
+#[ignore = "75 s on lavapipe"]
+fn gpu_training_follows_the_cpu_past_200k_gaussians() {
+    let test = "gpu_training_follows_the_cpu_past_200k_gaussians";
+    let Some(gpu) = context(test) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let c = case(tmp.path());
+    let mut a = args(40, true);
+    a.densify.every = 3;
+    let (cpu, cpu_g) = train(&c, &a, false, None);
+    let (gpu_reps, gpu_g) = train(&c, &a, false, Some(&gpu));
+    // A clone decided within rounding of its threshold may go the other way (a Gaussian more
+    // or less, from step 27 on here); the losses still agree to a few 1e-4.
+    same_losses(&cpu, &gpu_reps, 1e-3, test);
+    let (n_cpu, n_gpu) = (cpu_g.len() as f64, gpu_g.len() as f64);
+    assert!(n_cpu > 200_000.0, "the case must grow past 200k: {n_cpu}");
+    assert!(
+        (n_cpu - n_gpu).abs() <= 1e-4 * n_cpu,
+        "{n_cpu} against {n_gpu} Gaussians"
+    );
+}
