@@ -140,19 +140,23 @@ fn rasterize(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id
     var last = 0u;
     var pairs = 0u;
     var base = start;
+    // How many of the tile's pixels are done: each adds 1 to an integer count once, when it
+    // is done (the count does not depend on the order of the adds). Thread 0 summing 256 flags
+    // before every batch kept the other 255 waiting, and cost it 256 loop iterations a batch:
+    // lavapipe ends an invocation's loops after 65,535 in all, which cut tiles of more than
+    // about 32,700 pairs short.
+    var counted = false;
+    if (li == 0u) {
+        atomicStore(&done_lanes, 0u);
+    }
+    workgroupBarrier();
     loop {
         if (base >= end) {
             break;
         }
-        // How many of the tile's pixels are done: an integer count (its value does not depend
-        // on the order of the adds). A serial sum by one thread would cost that thread 256
-        // loop iterations a batch, and lavapipe ends an invocation's loops after 65,535 in all.
-        if (li == 0u) {
-            atomicStore(&done_lanes, 0u);
-        }
-        workgroupBarrier();
-        if (done) {
+        if (done && !counted) {
             atomicAdd(&done_lanes, 1u);
+            counted = true;
         }
         workgroupBarrier();
         if (li == 0u) {
