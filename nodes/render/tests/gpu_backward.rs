@@ -377,38 +377,20 @@ fn gpu_atomic_backward_matches_the_deterministic_one() {
     }
 }
 
-/// The backward of a tile whose pixels composite more than 32,768 pairs (the forward's case
-/// in `gpu_forward.rs`): lavapipe ends an invocation's loops after 65,535 iterations in all,
-/// and the backward's per-pair loop runs once per pair of the tile up to its last.
+/// The backward through [`gpu_common::faint_tile`] (more than 32,768 pairs a pixel): its
+/// per-pair loop runs once a pair up to the tile's last, within lavapipe's loop cap.
 #[test]
 fn gpu_backward_matches_the_cpu_through_a_tile_of_many_faint_gaussians() {
     let Some(ctx) = context("gpu_backward_matches_the_cpu_through_a_tile_of_many_faint_gaussians")
     else {
         return;
     };
-    let cam = augsplat_testkit::cameras::facing(16, 16, 4.0);
-    let n = 40_000;
-    let mut g = Gaussians::random_cloud(n, 4.0 / cam.fx, 7);
-    let scale = (2.0 * 4.0 / cam.fx as f32).ln();
-    // Anisotropic, so that the quaternions' gradients are not rounding noise around zero.
-    for (l, s) in g.opacity_logits.iter_mut().zip(g.log_scales.iter_mut()) {
-        *l = -5.3;
-        *s = [scale + 0.3, scale, scale - 0.3];
-    }
-    let s = RenderSettings {
-        sh_degree: 0,
-        ..Default::default()
-    };
+    let (cam, g) = gpu_common::faint_tile();
+    let s = gpu_common::faint_settings();
     let mut rng = Rng::new(6);
     let d_rgb: Vec<f32> = (0..16 * 16 * 3)
         .map(|_| rng.uniform(-1.0, 1.0) as f32)
         .collect();
-    let out = augsplat_render::render(&g, &cam, &s);
-    assert!(
-        out.stats.visible > 36_000 && out.alpha.iter().all(|&a| a < 0.999),
-        "the case must put more than 32,768 pairs in the tile and leave its pixels open: {:?}",
-        out.stats
-    );
     compare_backward(
         &ctx,
         &g,

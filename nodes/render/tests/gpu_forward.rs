@@ -320,42 +320,16 @@ fn masked_pixels_render_as_on_the_cpu() {
     assert_eq!(all.rgb, plain.rgb);
 }
 
-/// A tile whose pixels run through more than 32,768 (tile, Gaussian) pairs without being done.
-/// Lavapipe ends an invocation's loops after 65,535 iterations in all (Mesa's
-/// `LP_MAX_TGSI_LOOP_ITERATIONS`, shared by every loop of a shader); when one thread of the
-/// compositing workgroup also summed the tile's "done" flags, 256 iterations a batch, that
-/// thread stopped halfway through such a tile and the tile came out black. Real GPUs have no
-/// such cap; this is the case that caught it.
+/// [`gpu_common::faint_tile`]: a tile whose pixels run through more than 32,768 pairs. When
+/// one thread of the compositing workgroup also summed the tile's "done" flags, 256 loop
+/// iterations a batch, lavapipe stopped that thread halfway through and the tile came out
+/// black. Real GPUs have no such cap.
 #[test]
 fn a_tile_of_many_faint_gaussians_composites_every_pair() {
     let Some(ctx) = context("a_tile_of_many_faint_gaussians_composites_every_pair") else {
         return;
     };
-    let cam = camera(16, 16);
-    let n = 40_000;
-    let mut g = Gaussians::random_cloud(n, 4.0 / cam.fx, 7);
-    // Faint (α at most 0.005) and about two pixels wide: every one bins into the only tile,
-    // and a pixel composites a few hundred of them without reaching the transmittance cut.
-    let scale = (2.0 * 4.0 / cam.fx as f32).ln();
-    for (l, s) in g.opacity_logits.iter_mut().zip(g.log_scales.iter_mut()) {
-        *l = -5.3;
-        *s = [scale; 3];
-    }
-    let s = RenderSettings {
-        sh_degree: 0,
-        ..Default::default()
-    };
-    let cpu = render(&g, &cam, &s);
-    assert!(
-        cpu.stats.visible > 36_000 && cpu.alpha.iter().all(|&a| a < 0.999),
-        "the case must put more than 32,768 pairs in the tile and leave its pixels open: {:?}",
-        cpu.stats
-    );
-    compare(
-        &ctx,
-        &g,
-        &cam,
-        &s,
-        &format!("{n} faint Gaussians in one tile"),
-    );
+    let (cam, g) = gpu_common::faint_tile();
+    let s = gpu_common::faint_settings();
+    compare(&ctx, &g, &cam, &s, "40000 faint Gaussians in one tile");
 }
