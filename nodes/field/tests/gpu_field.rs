@@ -643,3 +643,31 @@ fn both_weight_gradient_kernels_give_the_same_bits() {
         }
     }
 }
+
+/// On an adapter that caps a shader's loop iterations (lavapipe: 65,535), a field step whose
+/// per-ray loops would pass the cap is refused with the cap and the limit in the message,
+/// before any work; a step within it trains. Adapters without a cap have nothing to refuse.
+#[test]
+fn a_step_past_the_adapters_loop_cap_is_refused() {
+    let Some(ctx) = context("a_step_past_the_adapters_loop_cap_is_refused") else {
+        return;
+    };
+    let Some(cap) = ctx.adapter().loop_cap() else {
+        eprintln!("{}: no loop cap; nothing to refuse", ctx.adapter());
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (views, _) = scene(dir.path());
+    let field = Field::new(config(12, 0, views.len() as u32)).unwrap();
+    let mut opts = options(0, 1);
+    opts.rays_per_step = cap;
+    let err = train_gpu(&ctx, &field, &views, None, &opts, None, &mut |_| {})
+        .expect_err("a step past the loop cap must be refused")
+        .to_string();
+    assert!(
+        err.contains(&cap.to_string()) && err.contains("rays_per_step") && err.contains("Cpu"),
+        "{err}"
+    );
+    opts.rays_per_step = 96;
+    train_gpu(&ctx, &field, &views, None, &opts, None, &mut |_| {}).unwrap();
+}

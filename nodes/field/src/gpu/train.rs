@@ -392,11 +392,12 @@ impl<'a> GpuTrainer<'a> {
         step: u32,
         next: Option<u32>,
     ) -> Result<Option<(u32, Settled)>, GpuError> {
+        let n_rays = opts.rays_per_step.max(1);
+        check_loop_cap(self.ctx, n_rays)?;
         self.ctx.count_training_step();
         // Everything recorded so far is submitted: the buffers earlier steps dropped can go
         // back to the pool.
         self.ctx.reclaim();
-        let n_rays = opts.rays_per_step.max(1);
         let mut settled = None;
         let counted = match self.counted.take() {
             Some((s, c)) if s == step => c,
@@ -609,6 +610,24 @@ impl<'a> GpuTrainer<'a> {
     /// The parameter and occupancy buffers, for rendering from the device state.
     pub fn model(&self) -> (&GpuBuffer, &GpuBuffer) {
         (&self.params, &self.occupied)
+    }
+}
+
+/// Refuses a step of `n_rays` rays on an adapter whose loop cap it would pass
+/// ([`augsplat_render::gpu::AdapterSummary::loop_cap`]): the step's loss sum and embedding
+/// gradients each loop over its rays in one invocation (`finish_step`, `emb_reduce`), and a
+/// capped adapter would end those loops early without a word.
+fn check_loop_cap(ctx: &GpuContext, n_rays: u32) -> Result<(), GpuError> {
+    // The loss sum's loop over the rays, plus its loop over the levels and a margin.
+    const OTHER_ITERATIONS: u32 = 64;
+    match ctx.adapter().loop_cap() {
+        Some(cap) if n_rays > cap - OTHER_ITERATIONS => Err(GpuError::Invalid(format!(
+            "{} ends a shader's loops after {cap} iterations, and a field step of {n_rays} rays \
+             would pass that: use at most {} rays_per_step there, or backend: Cpu",
+            ctx.adapter().name,
+            cap - OTHER_ITERATIONS
+        ))),
+        _ => Ok(()),
     }
 }
 

@@ -120,6 +120,17 @@ pub struct AdapterSummary {
     pub device_type: String,
 }
 
+impl AdapterSummary {
+    /// The most loop iterations one shader invocation runs on this adapter, all its loops
+    /// together, where the driver caps them: Mesa's llvmpipe (lavapipe) ends an invocation's
+    /// loops after 65,535 (`LP_MAX_TGSI_LOOP_ITERATIONS` in gallivm), silently. `None`: no
+    /// known cap (hardware GPUs). Work whose loops could pass it is refused with a clear error
+    /// or stated where it cannot be checked (a tile of more than about 62,000 pairs).
+    pub fn loop_cap(&self) -> Option<u32> {
+        self.name.contains("llvmpipe").then_some(65_535)
+    }
+}
+
 impl std::fmt::Display for AdapterSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
