@@ -333,3 +333,49 @@ fn a_tile_of_many_faint_gaussians_composites_every_pair() {
     let s = gpu_common::faint_settings();
     compare(&ctx, &g, &cam, &s, "40000 faint Gaussians in one tile");
 }
+
+/// A tile of more pairs than the adapter's loop cap lets the compositor run through
+/// (`tile_pair_cap`: 61,425 on lavapipe) is an error naming the limit, for a render and for
+/// a backward pass; the same tile on an adapter without a cap renders as on the CPU.
+#[test]
+fn a_tile_past_the_adapters_loop_cap_is_an_error_not_a_wrong_image() {
+    use augsplat_render::gpu::{backward_gpu, tile_pair_cap, GpuScene};
+    let test = "a_tile_past_the_adapters_loop_cap_is_an_error_not_a_wrong_image";
+    let Some(ctx) = context(test) else {
+        return;
+    };
+    let cap = tile_pair_cap(ctx.adapter());
+    let (cam, g) = gpu_common::faint_tile_of(70_000);
+    let s = gpu_common::faint_settings();
+    if cap == 0 {
+        eprintln!("{test}: {} has no loop cap", ctx.adapter());
+        compare(&ctx, &g, &cam, &s, "70000 faint Gaussians in one tile");
+        return;
+    }
+    assert!(
+        render(&g, &cam, &s).stats.visible > cap as usize,
+        "the case must put more than {cap} pairs in the tile"
+    );
+    let err = render_gpu(&ctx, &g, &cam, &s)
+        .expect_err("a tile past the cap must be refused")
+        .to_string();
+    assert!(
+        err.contains(&cap.to_string()) && err.contains("backend: Cpu"),
+        "{err}"
+    );
+    let scene = GpuScene::upload(&ctx, &g).unwrap();
+    let d_rgb = vec![0.5f32; 16 * 16 * 3];
+    let err = backward_gpu(&ctx, &scene, &cam, &s, &d_rgb)
+        .expect_err("a backward through a tile past the cap must be refused")
+        .to_string();
+    assert!(err.contains(&cap.to_string()), "{err}");
+    // The same view with fewer Gaussians renders (the flag belongs to its pass alone).
+    let (cam, fewer) = gpu_common::faint_tile_of(20_000);
+    compare(
+        &ctx,
+        &fewer,
+        &cam,
+        &s,
+        "20000 faint Gaussians after a refused pass",
+    );
+}

@@ -392,6 +392,9 @@ fn backward_inner(
     }
     ctx.scoped(|| {
         let st = forward_pass(ctx, scene, cam, s, grid, cutoff, None)?;
+        let (count_buf, count_at) = st.pair_count_at();
+        let count = ctx.read_after(ctx.encoder(), &[(count_buf, count_at, 1)])?[0][0];
+        st.check_count(ctx, count)?;
         let n = scene.len() as u64;
         let g_rgb = ctx.storage_init("colour gradients", &f32_words(d_rgb.iter().copied()))?;
         let screen =

@@ -15,7 +15,8 @@ struct Params {
     cutoff: u32,             // 0: hard 1/255 step; 1: the tests' C¹ smoothstep (forward/mod.rs)
     background: vec4<f32>,
     // x: the first Gaussian whose splat is in the second splat binding; y: the same for the
-    // screen-space gradients; z: 1 when `mask` holds a pixel mask; pair_splits: the first
+    // screen-space gradients; z: 1 when `mask` holds a pixel mask; w: the most pairs a tile
+    // may hold on an adapter that caps loop iterations (0: no cap); pair_splits: the first
     // pair slot of the pair slots' second, third and fourth bindings (buffers past one
     // binding, gpu/chunk.rs).
     splits: vec4<u32>,
@@ -127,6 +128,12 @@ fn rasterize(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id
     let range = ranges[tile];
     let start = range.x;
     let end = range.y;
+    // A tile past the adapter's loop cap would be cut short (lavapipe ends an invocation's
+    // loops after 65,535 iterations in all): the pair count takes a value no pass can have,
+    // which the host turns into an error.
+    if (li == 0u && p.splits.w != 0u && end - start > p.splits.w) {
+        counts[p.n] = TILES_PAST_LOOP_CAP;
+    }
     let cx = f32(px) + 0.5;
     let cy = f32(py) + 0.5;
     var masked = false;

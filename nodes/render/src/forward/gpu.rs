@@ -14,6 +14,31 @@ pub const SPLAT_STRIDE: u64 = 12;
 pub const IMAGE_STRIDE: usize = 7;
 /// Gaussians per projection workgroup.
 const GROUP: u32 = 256;
+/// The pair count (`counts[gaussians]`, [`ForwardState::pair_count_at`]) a forward pass
+/// leaves when one of its tiles holds more pairs than [`tile_pair_cap`] allows: no pass has
+/// that many pairs. [`ForwardState::check_count`] turns it into an error.
+pub const TILES_PAST_LOOP_CAP: u32 = u32::MAX;
+
+/// The most (tile, Gaussian) pairs one tile may hold on `adapter`, 0 where nothing caps it:
+/// where a driver caps an invocation's loop iterations
+/// ([`crate::gpu::AdapterSummary::loop_cap`]), the compositor and its backward run one
+/// iteration a pair of a tile and a few a batch of 256, so a tile may hold 15/16 of the cap.
+pub fn tile_pair_cap(adapter: &crate::gpu::AdapterSummary) -> u32 {
+    adapter.loop_cap().map_or(0, |cap| cap / 16 * 15)
+}
+
+/// The error of a forward pass one of whose tiles passed [`tile_pair_cap`]: its pixels would
+/// have been cut short.
+pub fn past_loop_cap_error(adapter: &crate::gpu::AdapterSummary) -> GpuError {
+    GpuError::Invalid(format!(
+        "a tile of this view holds more than {} (tile, Gaussian) pairs, more than {} lets a \
+         shader run through (it ends an invocation's loops after {} iterations): render with \
+         backend: Cpu, or on a hardware GPU",
+        tile_pair_cap(adapter),
+        adapter.name,
+        adapter.loop_cap().unwrap_or(0)
+    ))
+}
 
 /// One GPU render: the image planes of [`crate::RenderOutput`] and its counters.
 #[derive(Clone, Debug, PartialEq)]
@@ -292,6 +317,15 @@ impl ForwardState {
     pub fn overflowed_in(&self, count: u32) -> bool {
         count > self.pairs
     }
+
+    /// [`past_loop_cap_error`] when `count` (read at [`Self::pair_count_at`]) says one of the
+    /// pass's tiles passed the adapter's loop cap ([`TILES_PAST_LOOP_CAP`]).
+    pub fn check_count(&self, ctx: &GpuContext, count: u32) -> Result<(), GpuError> {
+        if count == TILES_PAST_LOOP_CAP {
+            return Err(past_loop_cap_error(ctx.adapter()));
+        }
+        Ok(())
+    }
 }
 
 /// Where [`record_projection`] writes, per Gaussian: its splat ([`SPLAT_STRIDE`] words:
@@ -422,7 +456,7 @@ pub fn forward_pass_in(
         // binding, and its pair slots to their second, third and fourth.
         w.extend(ctx.split_points(nn, SPLAT_STRIDE, 2));
         w.extend(ctx.split_points(nn, crate::backward::gpu::SCREEN_GRAD_STRIDE as u64, 2));
-        w.extend([u32::from(mask.is_some()), 0]);
+        w.extend([u32::from(mask.is_some()), tile_pair_cap(ctx.adapter())]);
         w.extend(ctx.split_points(u64::from(pairs), crate::backward::gpu::PAIR_STRIDE, 4));
         w.push(0);
         w
@@ -502,6 +536,7 @@ pub fn forward_pass_in(
         &[
             (0, &params),
             (2, &order),
+            (3, &counts),
             (5, sorted_pairs),
             (6, &ranges),
             (8, &image),
@@ -556,9 +591,20 @@ fn render_inner(
     let pixels = u64::from(cam.width) * u64::from(cam.height);
     // Read back.
     let px = pixels as usize;
-    let img = ctx.read_words(image, IMAGE_STRIDE * px)?;
-    let inf = ctx.read_words(info, 2 * px)?;
-    let status = ctx.read_words(meta, 4 * n as usize)?;
+    let (count_buf, count_at) = st.pair_count_at();
+    let mut words = ctx.read_after(
+        ctx.encoder(),
+        &[
+            (count_buf, count_at, 1),
+            (image, 0, IMAGE_STRIDE * px),
+            (info, 0, 2 * px),
+            (meta, 0, 4 * n as usize),
+        ],
+    )?;
+    st.check_count(ctx, words[0][0])?;
+    let status = words.pop().unwrap_or_default();
+    let inf = words.pop().unwrap_or_default();
+    let img = words.pop().unwrap_or_default();
     let mut frame = GpuFrame {
         width: cam.width,
         height: cam.height,

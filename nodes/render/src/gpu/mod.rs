@@ -55,8 +55,8 @@ pub use crate::backward::gpu::{
     ParamGradsGpu, PARAM_GRAD_STRIDE, SCREEN_GRAD_STRIDE,
 };
 pub use crate::forward::gpu::{
-    forward_pass_in, render_gpu, render_scene, render_scene_masked, render_scene_with_cutoff,
-    upload_mask, GpuFrame, GpuScene,
+    forward_pass_in, past_loop_cap_error, render_gpu, render_scene, render_scene_masked,
+    render_scene_with_cutoff, tile_pair_cap, upload_mask, GpuFrame, GpuScene, TILES_PAST_LOOP_CAP,
 };
 
 pub use encoder::{Encoder, RecordingStats};
@@ -124,8 +124,8 @@ impl AdapterSummary {
     /// The most loop iterations one shader invocation runs on this adapter, all its loops
     /// together, where the driver caps them: Mesa's llvmpipe (lavapipe) ends an invocation's
     /// loops after 65,535 (`LP_MAX_TGSI_LOOP_ITERATIONS` in gallivm), silently. `None`: no
-    /// known cap (hardware GPUs). Work whose loops could pass it is refused with a clear error
-    /// or stated where it cannot be checked (a tile of more than about 62,000 pairs).
+    /// known cap (hardware GPUs). Work whose loops would pass it is an error instead: a tile
+    /// of more pairs than [`tile_pair_cap`], a field step of too many rays.
     pub fn loop_cap(&self) -> Option<u32> {
         self.name.contains("llvmpipe").then_some(65_535)
     }

@@ -31,6 +31,10 @@ fn constants() -> Vec<(&'static str, Value)> {
         ("PAIR_STRIDE", U32(crate::backward::gpu::PAIR_STRIDE)),
         ("SCREEN_STRIDE", U32(super::SCREEN_GRAD_STRIDE as u64)),
         ("GRAD_STRIDE", U32(super::PARAM_GRAD_STRIDE as u64)),
+        (
+            "TILES_PAST_LOOP_CAP",
+            U32(crate::forward::gpu::TILES_PAST_LOOP_CAP as u64),
+        ),
         // The rasteriser's numbers (`constants.rs`).
         ("ALPHA_THRESHOLD", F32(c::ALPHA_THRESHOLD)),
         ("TRANSMITTANCE_THRESHOLD", F32(c::TRANSMITTANCE_THRESHOLD)),

@@ -28,13 +28,7 @@ pub fn context(test: &str) -> Option<GpuContext> {
 /// CPU's render is such a case.
 #[allow(dead_code)]
 pub fn faint_tile() -> (augsplat_core::Camera, augsplat_render::Gaussians) {
-    let cam = augsplat_testkit::cameras::facing(16, 16, 4.0);
-    let mut g = augsplat_render::Gaussians::random_cloud(40_000, 4.0 / cam.fx, 7);
-    let scale = (2.0 * 4.0 / cam.fx as f32).ln();
-    for (l, s) in g.opacity_logits.iter_mut().zip(g.log_scales.iter_mut()) {
-        *l = -5.3;
-        *s = [scale + 0.3, scale, scale - 0.3];
-    }
+    let (cam, g) = faint_tile_of(40_000);
     let out = augsplat_render::render(&g, &cam, &faint_settings());
     assert!(
         out.stats.visible > 36_000 && out.alpha.iter().all(|&a| a < 0.999),
@@ -51,4 +45,17 @@ pub fn faint_settings() -> augsplat_render::RenderSettings {
         sh_degree: 0,
         ..Default::default()
     }
+}
+
+/// [`faint_tile`]'s view with `n` of its Gaussians (nearly all of them bin into the tile).
+#[allow(dead_code)]
+pub fn faint_tile_of(n: usize) -> (augsplat_core::Camera, augsplat_render::Gaussians) {
+    let cam = augsplat_testkit::cameras::facing(16, 16, 4.0);
+    let mut g = augsplat_render::Gaussians::random_cloud(n, 4.0 / cam.fx, 7);
+    let scale = (2.0 * 4.0 / cam.fx as f32).ln();
+    for (l, s) in g.opacity_logits.iter_mut().zip(g.log_scales.iter_mut()) {
+        *l = -5.3;
+        *s = [scale + 0.3, scale, scale - 0.3];
+    }
+    (cam, g)
 }

@@ -396,7 +396,7 @@ impl TrainingDevice for GpuTraining {
             };
             let at = steps[out.len()];
             let words = step.ticket.wait(&ctx)?;
-            let results = GpuTrainer::results(&step.views, &words);
+            let results = GpuTrainer::results(ctx.adapter(), &step.views, &words)?;
             drop(step.views);
             ctx.reclaim();
             let overflowed = self.note_counts(at.views, &results)?;
@@ -762,5 +762,64 @@ mod tests {
         t.sync(&mut lagged).unwrap();
         assert!(lagged.g == want.g, "the Gaussians differ");
         assert!(lagged.adam == want.adam, "Adam's moments differ");
+    }
+
+    /// A view with a tile past the adapter's loop cap (lavapipe: 65,535 iterations an
+    /// invocation) fails the step with an error naming the limit, where its loss would
+    /// otherwise have come from a tile cut short; on an adapter without a cap it trains.
+    #[test]
+    fn a_view_with_a_tile_past_the_loop_cap_fails_its_step() {
+        let test = "a_view_with_a_tile_past_the_loop_cap_fails_its_step";
+        let Some(ctx) = context(test) else { return };
+        let cap = crate::forward::gpu::tile_pair_cap(ctx.adapter());
+        // One 16×16 view (one tile) of 70,000 faint Gaussians, nearly all binned into it.
+        let camera = augsplat_testkit::cameras::facing(16, 16, 4.0);
+        let mut g = Gaussians::random_cloud(70_000, 4.0 / camera.fx, 7);
+        let scale = (2.0 * 4.0 / camera.fx as f32).ln();
+        for (l, s) in g.opacity_logits.iter_mut().zip(g.log_scales.iter_mut()) {
+            *l = -5.3;
+            *s = [scale + 0.3, scale, scale - 0.3];
+        }
+        let real = RealImages {
+            views: vec![RealView {
+                name: "one tile".into(),
+                camera,
+                image: vec![0.5; 16 * 16 * 3],
+            }],
+            loss: RealLoss::default(),
+        };
+        let task = ViewTask {
+            source: &real,
+            index: 0,
+            synthetic: false,
+            scale: 1.0,
+            stats: Some(1.0),
+        };
+        let s = RenderSettings::default();
+        let mut t = GpuTraining::new(ctx.clone());
+        let mut st = fresh(&g);
+        let mut step = || -> Result<Vec<(f64, u64)>, GpuError> {
+            t.begin_step(&mut st, 12)?;
+            t.add_view(&mut st, task, &s)?;
+            t.end_views(&mut st, &[task], &s)?;
+            let views = [task];
+            let step = StepViews {
+                views: &views,
+                settings: &s,
+            };
+            Ok(t.resolve(&mut st, &[step], 0)?.remove(0))
+        };
+        match (cap, step()) {
+            (0, Ok(results)) => eprintln!("{test}: no loop cap; the step trained: {results:?}"),
+            (0, Err(e)) => panic!("{test}: {e}"),
+            (cap, Ok(results)) => panic!("{test}: a tile past {cap} pairs trained: {results:?}"),
+            (cap, Err(e)) => {
+                let msg = e.to_string();
+                assert!(
+                    msg.contains(&cap.to_string()) && msg.contains("backend: Cpu"),
+                    "{msg}"
+                );
+            }
+        }
     }
 }

@@ -192,29 +192,37 @@ impl PendingView {
         parts
     }
 
-    /// The result from the words of [`Self::parts`].
-    fn result(&self, words: &[Vec<u32>]) -> ViewResult {
+    /// The result from the words of [`Self::parts`]; an error when a tile of the view passed
+    /// the adapter's loop cap ([`crate::forward::gpu::TILES_PAST_LOOP_CAP`]).
+    fn result(
+        &self,
+        adapter: &augsplat_render::gpu::AdapterSummary,
+        words: &[Vec<u32>],
+    ) -> Result<ViewResult, GpuError> {
         if let Some(count) = self.known_overflow {
-            return ViewResult {
+            return Ok(ViewResult {
                 loss: 0.0,
                 pairs: 0,
                 tile_pairs: count,
                 overflowed: true,
-            };
+            });
         }
         let k = words.len();
         let count = words[k - 1][0];
+        if count == crate::forward::gpu::TILES_PAST_LOOP_CAP {
+            return Err(crate::forward::gpu::past_loop_cap_error(adapter));
+        }
         let pairs = words[k - 2].iter().map(|&w| u64::from(w)).sum();
         let loss = match &self.sums {
             Some(sums) => sums.terms_from(&words[..k - 2]).0,
             None => self.host_loss,
         };
-        ViewResult {
+        Ok(ViewResult {
             loss,
             pairs,
             tile_pairs: count,
             overflowed: count > self.slots,
-        }
+        })
     }
 }
 
@@ -422,6 +430,7 @@ impl GpuTrainer {
                         &[(&st.image, 0, IMAGE_STRIDE * px), (count_buf, count_at, 1)],
                     )?;
                     let count = words[1][0];
+                    st.check_count(ctx, count)?;
                     if st.overflowed_in(count) {
                         // Nothing more of this view: the flag stops the step's later views.
                         let mut flag = ctx.encoder();
@@ -556,7 +565,7 @@ impl GpuTrainer {
         views: &[PendingView],
     ) -> Result<Vec<ViewResult>, GpuError> {
         let words = self.read_later(ctx, views)?.wait(ctx)?;
-        Ok(Self::results(views, &words))
+        Self::results(ctx.adapter(), views, &words)
     }
 
     /// Submits the copies of `views`' losses and counts without waiting: their results are
@@ -571,14 +580,19 @@ impl GpuTrainer {
         ctx.read_later(enc, &parts)
     }
 
-    /// The results of `views` (in order) from the words of their read-back.
-    pub fn results(views: &[PendingView], words: &[Vec<u32>]) -> Vec<ViewResult> {
+    /// The results of `views` (in order) from the words of their read-back on `adapter`; an
+    /// error when a tile of one of them passed the adapter's loop cap.
+    pub fn results(
+        adapter: &augsplat_render::gpu::AdapterSummary,
+        views: &[PendingView],
+        words: &[Vec<u32>],
+    ) -> Result<Vec<ViewResult>, GpuError> {
         let mut at = 0;
         views
             .iter()
             .map(|v| {
                 let k = v.parts().len();
-                let r = v.result(&words[at..at + k]);
+                let r = v.result(adapter, &words[at..at + k]);
                 at += k;
                 r
             })
