@@ -219,27 +219,7 @@ pub fn build_report(
         (MetricKey::Lpips, "LPIPS"),
         (MetricKey::AvgError, "Average error"),
     ] {
-        let series: Vec<Series> = evals
-            .iter()
-            .zip(&labels)
-            .map(|(e, label)| Series {
-                label: label.clone(),
-                points: e
-                    .curve
-                    .as_ref()
-                    .map(|c| {
-                        c.points
-                            .iter()
-                            .filter_map(|p| {
-                                Metrics::from_curve_point(p)
-                                    .get(key)
-                                    .map(|v| (p.step as f64, v))
-                            })
-                            .collect()
-                    })
-                    .unwrap_or_default(),
-            })
-            .collect();
+        let series = curve_series(evals, &labels, key, |p| p.step as f64);
         body.push_str(&svg::line_chart(
             &Chart::new(&format!("{title} vs step"), "step", title),
             &series,
@@ -332,6 +312,33 @@ fn viewer_section(
 
 /// Whether an evaluation's note is about LPIPS being unavailable (or the average error and the
 /// best-step choice that depend on it).
+/// One series per evaluation: `key` along its training curve against `x` of each point
+/// (points without the metric left out).
+fn curve_series(
+    evals: &[EvalDir],
+    labels: &[String],
+    key: MetricKey,
+    x: impl Fn(&artifacts::CurvePoint) -> f64,
+) -> Vec<Series> {
+    evals
+        .iter()
+        .zip(labels)
+        .map(|(e, label)| Series {
+            label: label.clone(),
+            points: e
+                .curve
+                .as_ref()
+                .map(|c| {
+                    c.points
+                        .iter()
+                        .filter_map(|p| Some((x(p), Metrics::from_curve_point(p).get(key)?)))
+                        .collect()
+                })
+                .unwrap_or_default(),
+        })
+        .collect()
+}
+
 fn is_lpips_note(note: &str) -> bool {
     note.starts_with("LPIPS") || note.contains("no LPIPS weights")
 }

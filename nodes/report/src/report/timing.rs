@@ -1,9 +1,9 @@
 //! The wall-time section of the report: bars per stage, run time against error with the
 //! Pareto front, and error against training time, from the seconds the evaluations carry.
 
-use crate::evalset::{EvalDir, MetricKey, Metrics};
+use crate::evalset::{EvalDir, MetricKey};
 use crate::html::escape;
-use crate::svg::{self, Chart, LabeledPoint, Series};
+use crate::svg::{self, Chart, LabeledPoint};
 use std::fmt::Write as _;
 
 /// Whether any evaluation carries a wall time (training or evaluation).
@@ -88,23 +88,7 @@ pub(super) fn time_section(evals: &[EvalDir], labels: &[String], md: &mut String
         use_avg,
     ));
     // Along each training curve: error vs seconds.
-    let series: Vec<Series> = evals
-        .iter()
-        .zip(labels)
-        .map(|(e, l)| Series {
-            label: l.clone(),
-            points: e
-                .curve
-                .as_ref()
-                .map(|c| {
-                    c.points
-                        .iter()
-                        .filter_map(|p| Some((p.seconds, Metrics::from_curve_point(p).get(key)?)))
-                        .collect()
-                })
-                .unwrap_or_default(),
-        })
-        .collect();
+    let series = super::curve_series(evals, labels, key, |p| p.seconds);
     out.push_str(&svg::line_chart(
         &Chart::new(
             "Error vs training time (curves)",
